@@ -1,0 +1,151 @@
+"""Summarise a bag: topics, counts, block sample rates and seq gaps, pulls found."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from rosbags.typesys.store import Typestore
+
+from .errors import BagError
+from .reader import open_bag
+
+PULL_EVENT_TYPE = 'force_tester_msgs/msg/PullEvent'
+PULL_START = 0  # PullEvent.START
+
+
+def _iso(ns: int) -> str:
+    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec='milliseconds')
+
+
+def _is_block_type(store: Typestore, type_name: str) -> bool:
+    cls = store.types.get(type_name)
+    fields = getattr(cls, '__dataclass_fields__', {})
+    return 'seq' in fields and 'sample_rate_hz' in fields
+
+
+def _first_array_len(msg: Any) -> int:
+    for name in msg.__dataclass_fields__:
+        val = getattr(msg, name)
+        if hasattr(val, '__len__') and not isinstance(val, (str, bytes)) \
+                and name not in ('header', '__msgtype__'):
+            return len(val)
+    return 0
+
+
+def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, Any]:
+    """Inspect a bag. Raises BagError for anything that is not a readable, non-empty bag.
+
+    Returns {'path', 'storage_files', 'message_count', 'start_ns', 'end_ns', 'start',
+    'end' (ISO UTC), 'duration_s', 'topics': {name: {'type', 'count', and for block
+    messages (fields seq + sample_rate_hz): 'sample_rate_hz' (single rate or None),
+    'sample_rates_hz' (distinct), 'samples', 'seq_first', 'seq_last', 'seq_gaps'
+    (dropped blocks), 'seq_resets'}}, 'pulls': {'count', 'test_sets', 'per_test_set',
+    'pull_ids', 'ends'}}.
+    """
+    path = Path(path)
+    with open_bag(path, typestore) as bag:
+        store = bag.typestore
+        topics: dict[str, dict[str, Any]] = {
+            name: {'type': t.type_name, 'count': t.count} for name, t in bag.topics().items()
+        }
+        block_topics = [n for n, t in topics.items() if _is_block_type(store, t['type'])]
+        pull_topics = [n for n, t in topics.items() if t['type'] == PULL_EVENT_TYPE]
+        state: dict[str, dict[str, Any]] = {
+            n: {'rates': set(), 'samples': 0, 'first': None, 'last': None, 'gaps': 0,
+                'resets': 0} for n in block_topics}
+        pulls: dict[str, Any] = {'count': 0, 'test_sets': [], 'per_test_set': {},
+                                 'pull_ids': [], 'ends': 0}
+        wanted = block_topics + pull_topics
+        if wanted:
+            for topic, type_name, _stamp, cdr in bag.messages(wanted):
+                msg = bag.deserialize(cdr, type_name)
+                if type_name == PULL_EVENT_TYPE:
+                    if int(msg.event) == PULL_START:
+                        pulls['count'] += 1
+                        ts = int(msg.test_set)
+                        pulls['per_test_set'][ts] = pulls['per_test_set'].get(ts, 0) + 1
+                        pulls['pull_ids'].append(int(msg.pull_id))
+                    else:
+                        pulls['ends'] += 1
+                    continue
+                st = state[topic]
+                st['rates'].add(float(msg.sample_rate_hz))
+                st['samples'] += _first_array_len(msg)
+                seq = int(msg.seq)
+                if st['first'] is None:
+                    st['first'] = seq
+                elif seq > st['last']:
+                    st['gaps'] += seq - st['last'] - 1
+                else:  # repeated or going back: publisher restart, not a drop
+                    st['resets'] += 1
+                st['last'] = seq
+        for name, st in state.items():
+            rates = sorted(st['rates'])
+            topics[name].update({
+                'sample_rate_hz': rates[0] if len(rates) == 1 else None,
+                'sample_rates_hz': rates,
+                'samples': st['samples'],
+                'seq_first': st['first'],
+                'seq_last': st['last'],
+                'seq_gaps': st['gaps'],
+                'seq_resets': st['resets'],
+            })
+        pulls['test_sets'] = sorted(pulls['per_test_set'])
+        pulls['per_test_set'] = dict(sorted(pulls['per_test_set'].items()))
+        return {
+            'path': str(path),
+            'storage_files': sorted(p.name for p in path.glob('*.mcap')),
+            'message_count': bag.message_count,
+            'start_ns': bag.start_ns,
+            'end_ns': bag.end_ns,
+            'start': _iso(bag.start_ns),
+            'end': _iso(bag.end_ns),
+            'duration_s': bag.duration_ns / 1e9,
+            'topics': dict(sorted(topics.items())),
+            'pulls': pulls,
+        }
+
+
+def format_info(info: dict[str, Any]) -> str:
+    """Human-readable table of a bag_info() result."""
+    try:
+        lines = [
+            f"Bag:       {info['path']}",
+            f"Files:     {', '.join(info.get('storage_files', [])) or '-'}",
+            f"Messages:  {info['message_count']}",
+            f"Start:     {info['start']}  ({info['start_ns']} ns)",
+            f"End:       {info['end']}  ({info['end_ns']} ns)",
+            f"Duration:  {info['duration_s']:.3f} s",
+            '',
+        ]
+        rows = [('Topic', 'Type', 'Count', 'Rate Hz', 'Samples', 'Seq gaps')]
+        for name, t in info['topics'].items():
+            if 'seq_gaps' in t:
+                rate = t['sample_rate_hz']
+                rate_s = f'{rate:g}' if rate is not None else \
+                    '/'.join(f'{r:g}' for r in t['sample_rates_hz']) or '-'
+                gaps = str(t['seq_gaps']) + (f" (+{t['seq_resets']} resets)"
+                                             if t['seq_resets'] else '')
+                rows.append((name, t['type'], str(t['count']), rate_s, str(t['samples']),
+                             gaps))
+            else:
+                rows.append((name, t['type'], str(t['count']), '-', '-', '-'))
+        widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+        for i, row in enumerate(rows):
+            lines.append('  '.join(c.ljust(w) if j < 2 else c.rjust(w)
+                                   for j, (c, w) in enumerate(zip(row, widths))).rstrip())
+            if i == 0:
+                lines.append('  '.join('-' * w for w in widths))
+        pulls = info['pulls']
+        lines.append('')
+        if pulls['count']:
+            per = ', '.join(f'set {k}: {v}' for k, v in pulls['per_test_set'].items())
+            lines.append(f"Pulls:     {pulls['count']} ({per})")
+        else:
+            lines.append('Pulls:     none')
+    except (KeyError, TypeError) as exc:
+        raise BagError(f'format_info got a malformed info dict (missing/invalid {exc!s}); '
+                       'expected the result of bag_info()') from None
+    return '\n'.join(lines)

@@ -1,0 +1,71 @@
+"""Pure playback scheduling: bag stamps -> wall-clock offsets. No clock access."""
+
+from __future__ import annotations
+
+import math
+import operator
+from bisect import bisect_left, bisect_right
+from collections.abc import Sequence
+from typing import NamedTuple
+
+from .errors import BagError
+
+
+class Schedule(NamedTuple):
+    """Messages stamps[start_index:stop_index] are played, message start_index + k at
+    wall offset offsets_ns[k] after the first played one (offsets_ns[0] == 0)."""
+
+    start_index: int
+    stop_index: int
+    offsets_ns: list[int]
+
+
+def _seconds(name: str, value: float, allow_none: bool = False) -> float | None:
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value) or value < 0:
+        raise BagError(f'{name} {value!r} is invalid; expected a finite number of seconds >= 0')
+    return float(value)
+
+
+def schedule(stamps_ns: Sequence[int], rate: float = 1.0, start_offset_s: float = 0,
+             stop_offset_s: float | None = None) -> Schedule:
+    """Wall offsets for replaying messages with bag stamps stamps_ns (ints, non-decreasing).
+
+    rate > 0 scales time (2.0 = twice as fast). start_offset_s / stop_offset_s select the
+    messages with first + start <= stamp <= first + stop (relative to the first stamp
+    of the bag); stop None = to the end.
+    """
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) \
+            or not math.isfinite(rate) or rate <= 0:
+        raise BagError(f'playback rate {rate!r} is invalid; expected a finite number > 0')
+    start_s = _seconds('start offset', start_offset_s)
+    stop_s = _seconds('stop offset', stop_offset_s, allow_none=True)
+    if stop_s is not None and stop_s < start_s:
+        raise BagError(f'stop offset {stop_offset_s!r} s is before start offset '
+                       f'{start_offset_s!r} s')
+    stamps = list(stamps_ns)
+    if not stamps:
+        return Schedule(0, 0, [])
+    for i, s in enumerate(stamps):
+        if isinstance(s, bool) or not isinstance(s, int):
+            try:
+                stamps[i] = s = operator.index(s)  # numpy integers
+            except TypeError:
+                raise BagError(f'stamp #{i} {s!r} is not an integer nanosecond count') from None
+        if i and s < stamps[i - 1]:
+            raise BagError(f'stamp #{i} {s} ns is before the previous one {stamps[i - 1]} ns; '
+                           'expected stamps in time order')
+    first = stamps[0]
+    lo = bisect_left(stamps, first + round(start_s * 1e9))
+    hi = len(stamps) if stop_s is None else bisect_right(stamps, first + round(stop_s * 1e9))
+    if lo >= len(stamps):
+        raise BagError(f'start offset {start_offset_s!r} s is beyond the end of the bag '
+                       f'({(stamps[-1] - first) / 1e9:.3f} s)')
+    base = stamps[lo]
+    if rate == 1:
+        offsets = [s - base for s in stamps[lo:hi]]
+    else:
+        offsets = [round((s - base) / rate) for s in stamps[lo:hi]]
+    return Schedule(lo, hi, offsets)

@@ -1,0 +1,92 @@
+"""Typestore with the ROS 2 Jazzy types plus the force_tester_msgs types.
+
+No rclpy, no generated message modules: the .msg files are parsed with rosbags.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from .errors import BagError, one_line
+
+MSG_PACKAGE = 'force_tester_msgs'
+
+
+def _msg_files(path: Path) -> list[tuple[str, Path]]:
+    """(package, file) pairs for a msg directory or a single .msg file."""
+    if not path.exists():
+        raise BagError(f'message definition path {str(path)!r} does not exist; '
+                       f'expected a <pkg>/msg directory or a .msg file')
+    if path.is_file():
+        if path.suffix != '.msg':
+            raise BagError(f'message definition file {str(path)!r} is not a .msg file')
+        return [(path.parent.parent.name, path)]
+    files = sorted(path.glob('*.msg'))
+    if not files:
+        raise BagError(f'message directory {str(path)!r} contains no .msg files')
+    return [(path.parent.name, f) for f in files]
+
+
+def make_typestore(msg_dirs: Iterable[str | os.PathLike[str]]) -> Typestore:
+    """ROS2_JAZZY typestore + every .msg found in msg_dirs registered as 'pkg/msg/Name'.
+
+    Each entry is a '<pkg>/msg' directory (package = name of its parent directory,
+    e.g. '<prefix>/share/force_tester_msgs/msg') or a single .msg file in such a
+    directory. Earlier entries win when the same type appears twice (overlay order).
+    """
+    if isinstance(msg_dirs, (str, os.PathLike)):
+        msg_dirs = [msg_dirs]
+    dirs = [Path(d) for d in msg_dirs]
+    if not dirs:
+        raise BagError('no message definition directories given; expected at least one '
+                       f'<prefix>/share/{MSG_PACKAGE}/msg directory')
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: dict = {}
+    for directory in dirs:
+        for package, file in _msg_files(directory):
+            name = f'{package}/msg/{file.stem}'
+            if name in types:
+                continue
+            try:
+                types.update(get_types_from_msg(file.read_text(encoding='utf-8'), name))
+            except Exception as exc:  # noqa: BLE001 - parser errors are many types
+                raise BagError(f'cannot parse message definition {str(file)!r}: '
+                               f'{one_line(exc)}') from None
+    try:
+        store.register(types)
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot register message types from {[str(d) for d in dirs]!r}: '
+                       f'{one_line(exc)}') from None
+    return store
+
+
+def find_msg_dirs(env: Mapping[str, str] = os.environ) -> list[Path]:
+    """Directories holding the force_tester_msgs .msg files.
+
+    All '<prefix>/share/force_tester_msgs/msg' for the prefixes in AMENT_PREFIX_PATH
+    (in order); if none, the source tree 'src/force_tester_msgs/msg' of the repository
+    this file lives in. Raises BagError when nothing is found.
+    """
+    prefixes = [p for p in env.get('AMENT_PREFIX_PATH', '').split(':') if p]
+    found = [Path(p) / 'share' / MSG_PACKAGE / 'msg' for p in prefixes]
+    found = [d for d in found if d.is_dir()]
+    if found:
+        return found
+    here = Path(__file__).resolve()
+    for ancestor in here.parents:
+        candidate = ancestor / 'src' / MSG_PACKAGE / 'msg'
+        if candidate.is_dir():
+            return [candidate]
+    raise BagError(f'{MSG_PACKAGE} message definitions not found: no share/{MSG_PACKAGE}/msg '
+                   f'under AMENT_PREFIX_PATH={env.get("AMENT_PREFIX_PATH", "")!r} and no '
+                   f'src/{MSG_PACKAGE}/msg above {str(here.parent)!r}')
+
+
+def default_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
+    """make_typestore(find_msg_dirs(env))."""
+    return make_typestore(find_msg_dirs(env))

@@ -1,0 +1,247 @@
+"""Pair blocks of separately arriving channels by exact integer-ns stamp, never misaligned.
+
+Each channel publishes blocks in sequence order: (stamp_ns of the first sample, seq, sample
+rate, n_samples, payload). :class:`BlockAligner` emits an :class:`AlignedPair` once every
+channel holds a block with the same ``stamp_ns`` (exact int match), equal length and equal
+rate. Anything that cannot be paired is discarded and reported as an :class:`AlignerEvent`:
+
+- ``dropped``: a channel's seq jumped (blocks lost upstream); detail quotes expected/got.
+- ``out_of_order``: a block's seq or stamp is not after the channel's previous one; discarded.
+- ``unmatched``: a pending block was discarded because a later stamp was paired (it can never
+  pair: channels are in order) or it waited more than ``max_pending`` blocks.
+- ``rate_mismatch`` / ``length_mismatch``: blocks with the same stamp disagree; all discarded.
+- ``discontinuity``: an emitted pair does not follow the previous pair without a gap, i.e.
+  |stamp - (prev_stamp + prev_n * 1e9 / rate)| > half a sample, or the rate changed. The pair
+  carries ``continuous=False``; callers should reset filter state. (Not reported for the first
+  pair, which is also ``continuous=False``.)
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any, Dict, Iterable, List, Optional, Tuple
+
+from .errors import CorrectionError
+
+EVENT_KINDS = frozenset(
+    {'dropped', 'unmatched', 'rate_mismatch', 'length_mismatch', 'out_of_order',
+     'discontinuity'})
+
+_RATE_RTOL = 1e-9
+
+
+@dataclass(frozen=True)
+class AlignerEvent:
+    """Something the aligner discarded or noticed. ``kind`` is one of EVENT_KINDS."""
+
+    kind: str
+    channel: str
+    seq: int
+    stamp_ns: int
+    detail: str
+
+
+@dataclass(frozen=True)
+class AlignedPair:
+    """Blocks of all channels with the same stamp. ``pair[channel]`` gives the payload."""
+
+    stamp_ns: int
+    n_samples: int
+    sample_rate_hz: float
+    payloads: Dict[str, Any]
+    seqs: Dict[str, int]
+    continuous: bool
+
+    def __getitem__(self, channel: str) -> Any:
+        return self.payloads[channel]
+
+    @property
+    def end_stamp_ns(self) -> int:
+        """Stamp the next contiguous block would carry (rounded to the nearest ns)."""
+        return self.stamp_ns + int(round(self.n_samples * 1e9 / self.sample_rate_hz))
+
+
+@dataclass
+class _Block:
+    stamp_ns: int
+    seq: int
+    rate_hz: float
+    n: int
+    payload: Any
+
+
+@dataclass
+class _Channel:
+    last_seq: Optional[int] = None
+    last_stamp: Optional[int] = None
+    pending: "OrderedDict[int, _Block]" = field(default_factory=OrderedDict)
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def _rates_equal(a: float, b: float) -> bool:
+    return abs(a - b) <= _RATE_RTOL * max(abs(a), abs(b))
+
+
+class BlockAligner:
+    """Pairs blocks of named channels by exact stamp; see module docstring.
+
+    channels: names of the channels to pair (at least one, unique).
+    max_pending: a channel holding more than this many unpaired blocks discards its oldest.
+    """
+
+    def __init__(self, channels: Iterable[str] = ('force', 'accel'), max_pending: int = 50):
+        names = tuple(channels)
+        if len(names) < 1 or len(set(names)) != len(names):
+            raise CorrectionError(
+                f"channels {names!r} are invalid; expected one or more unique names")
+        if not _is_int(max_pending) or not 1 <= max_pending <= 1_000_000:
+            raise CorrectionError(
+                f"max_pending {max_pending!r} is out of range; expected an integer in "
+                f"[1, 1000000]")
+        self._names = names
+        self._max_pending = int(max_pending)
+        self._ch: Dict[str, _Channel] = {c: _Channel() for c in names}
+        self._last_pair: Optional[AlignedPair] = None
+        self.pairs_emitted = 0
+        self.event_counts: Dict[str, int] = {k: 0 for k in EVENT_KINDS}
+
+    @property
+    def channels(self) -> Tuple[str, ...]:
+        return self._names
+
+    def pending_count(self, channel: str) -> int:
+        return len(self._channel(channel).pending)
+
+    def reset(self) -> None:
+        """Forget all pending blocks and sequence history."""
+        self._ch = {c: _Channel() for c in self._names}
+        self._last_pair = None
+
+    def _channel(self, channel: str) -> _Channel:
+        try:
+            return self._ch[channel]
+        except KeyError:
+            raise CorrectionError(
+                f"channel {channel!r} is unknown; expected one of {list(self._names)}") from None
+
+    def _event(self, events, kind, channel, seq, stamp_ns, detail):
+        self.event_counts[kind] += 1
+        events.append(AlignerEvent(kind, channel, int(seq), int(stamp_ns), detail))
+
+    def push(self, channel: str, stamp_ns: int, seq: int, sample_rate_hz: float,
+             n_samples: int, payload: Any = None
+             ) -> Tuple[List[AlignedPair], List[AlignerEvent]]:
+        """Offer one block; returns (pairs now complete, events)."""
+        ch = self._channel(channel)
+        if not _is_int(stamp_ns):
+            raise CorrectionError(
+                f"stamp_ns {stamp_ns!r} is not an int; expected integer nanoseconds")
+        if not _is_int(seq):
+            raise CorrectionError(f"seq {seq!r} is not an int; expected an integer >= 0")
+        if not _is_int(n_samples) or n_samples < 0:
+            raise CorrectionError(
+                f"n_samples {n_samples!r} is out of range; expected an integer >= 0")
+        rate = float(sample_rate_hz)
+        if not math.isfinite(rate) or rate <= 0.0:
+            raise CorrectionError(
+                f"sample_rate_hz {sample_rate_hz!r} is out of range; expected a finite "
+                f"rate > 0 Hz")
+        stamp_ns, seq, n_samples = int(stamp_ns), int(seq), int(n_samples)
+        pairs: List[AlignedPair] = []
+        events: List[AlignerEvent] = []
+
+        # 1. order within the channel
+        if ch.last_seq is not None:
+            if seq <= ch.last_seq or stamp_ns <= ch.last_stamp:
+                self._event(events, 'out_of_order', channel, seq, stamp_ns,
+                            f"seq {seq} stamp {stamp_ns} ns after seq {ch.last_seq} stamp "
+                            f"{ch.last_stamp} ns; block discarded")
+                return pairs, events
+            if seq != ch.last_seq + 1:
+                self._event(events, 'dropped', channel, seq, stamp_ns,
+                            f"expected seq {ch.last_seq + 1}, got {seq}: "
+                            f"{seq - ch.last_seq - 1} block(s) missing")
+        ch.last_seq, ch.last_stamp = seq, stamp_ns
+        blk = _Block(stamp_ns, seq, rate, n_samples, payload)
+
+        # 2. match against the other channels
+        others = [c for c in self._names if c != channel]
+        if all(stamp_ns in self._ch[c].pending for c in others):
+            group = {channel: blk}
+            for c in others:
+                group[c] = self._ch[c].pending.pop(stamp_ns)
+            self._discard_older(stamp_ns, events)
+            bad = self._check_group(group, events)
+            if not bad:
+                pairs.append(self._make_pair(group, events))
+            return pairs, events
+
+        # 3. wait for the partners
+        ch.pending[stamp_ns] = blk
+        while len(ch.pending) > self._max_pending:
+            _, old = ch.pending.popitem(last=False)
+            self._event(events, 'unmatched', channel, old.seq, old.stamp_ns,
+                        f"no partner after {self._max_pending} blocks "
+                        f"(max_pending {self._max_pending}); block discarded")
+        return pairs, events
+
+    def _discard_older(self, stamp_ns: int, events) -> None:
+        for c in self._names:
+            pend = self._ch[c].pending
+            while pend:
+                k = next(iter(pend))
+                if k >= stamp_ns:
+                    break
+                old = pend.pop(k)
+                self._event(events, 'unmatched', c, old.seq, old.stamp_ns,
+                            f"stamp {old.stamp_ns} ns has no partner; a later stamp "
+                            f"{stamp_ns} ns was paired; block discarded")
+
+    def _check_group(self, group: Dict[str, _Block], events) -> bool:
+        ref_name = self._names[0]
+        ref = group[ref_name]
+        for c in self._names[1:]:
+            b = group[c]
+            if not _rates_equal(b.rate_hz, ref.rate_hz):
+                for name, bb in group.items():
+                    self._event(events, 'rate_mismatch', name, bb.seq, bb.stamp_ns,
+                                f"stamp {ref.stamp_ns} ns: {ref_name} rate {ref.rate_hz} Hz "
+                                f"vs {c} rate {b.rate_hz} Hz; blocks discarded")
+                return True
+            if b.n != ref.n:
+                for name, bb in group.items():
+                    self._event(events, 'length_mismatch', name, bb.seq, bb.stamp_ns,
+                                f"stamp {ref.stamp_ns} ns: {ref_name} has {ref.n} samples vs "
+                                f"{c} {b.n}; blocks discarded")
+                return True
+        return False
+
+    def _make_pair(self, group: Dict[str, _Block], events) -> AlignedPair:
+        ref = group[self._names[0]]
+        prev = self._last_pair
+        continuous = False
+        if prev is not None:
+            half = 0.5e9 / ref.rate_hz
+            expected = prev.stamp_ns + prev.n_samples * 1e9 / prev.sample_rate_hz
+            continuous = (_rates_equal(prev.sample_rate_hz, ref.rate_hz)
+                          and abs(ref.stamp_ns - expected) <= half)
+            if not continuous:
+                self._event(events, 'discontinuity', self._names[0], ref.seq, ref.stamp_ns,
+                            f"stamp {ref.stamp_ns} ns, expected {expected:.0f} ns "
+                            f"(+/- {half:.0f} ns) after stamp {prev.stamp_ns} ns with "
+                            f"{prev.n_samples} samples at {prev.sample_rate_hz} Hz; rate now "
+                            f"{ref.rate_hz} Hz")
+        pair = AlignedPair(
+            stamp_ns=ref.stamp_ns, n_samples=ref.n, sample_rate_hz=ref.rate_hz,
+            payloads={c: group[c].payload for c in self._names},
+            seqs={c: group[c].seq for c in self._names},
+            continuous=continuous)
+        self._last_pair = pair
+        self.pairs_emitted += 1
+        return pair

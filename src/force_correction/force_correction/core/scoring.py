@@ -1,0 +1,247 @@
+"""Per-pull scoring of the moving cell against the stationary cell (thesis eq 1, Tables 8, 9).
+
+Eq 1 at the peaks: %Fdiff = |Fs_peak - F_peak| / Fs_peak * 100, peaks = max over the pull.
+RMS errors are taken over the *loaded window*: the samples where the stationary force exceeds
+``loaded_fraction`` times its peak (default 10 %), so the unloaded lead-in and the free ringing
+after the break (where F_stat = -m1*a1, eq 21) do not dominate. NaNs are ignored throughout.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass, replace
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from .errors import CorrectionError
+
+
+@dataclass(frozen=True)
+class PullScoreResult:
+    """Score of one pull. Forces in N, differences in %, RMS in N."""
+
+    stationary_peak_n: float
+    raw_peak_n: float
+    corrected_peak_n: float
+    filtered_peak_n: float
+    raw_diff_pct: float
+    corrected_diff_pct: float
+    filtered_diff_pct: float
+    raw_rms_n: float
+    corrected_rms_n: float
+    filtered_rms_n: float
+    n_samples: int
+    n_loaded: int
+    loaded_fraction: float
+    dropped_blocks: int = 0
+
+
+def _arr(x, name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim != 1:
+        raise CorrectionError(f"{name} has shape {a.shape}; expected a 1-D array")
+    return a
+
+
+def _nanmax(a: np.ndarray) -> float:
+    fin = a[~np.isnan(a)]
+    return float(fin.max()) if fin.size else math.nan
+
+
+def _rms(err: np.ndarray) -> float:
+    fin = err[~np.isnan(err)]
+    return float(np.sqrt(np.mean(fin * fin))) if fin.size else math.nan
+
+
+def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = 0.1
+               ) -> PullScoreResult:
+    """Score one pull; all inputs are per-sample arrays of equal length (N).
+
+    Peak % difference per eq 1 (``|Fs_peak - F_peak| / Fs_peak * 100``, peaks = nanmax over the
+    pull) and RMS of (signal - stationary) over the loaded window, i.e. the samples where the
+    stationary force > ``loaded_fraction`` * stationary peak. Raises CorrectionError if the
+    stationary peak is <= 0 or the stationary signal is all NaN.
+    """
+    lf = loaded_fraction
+    if isinstance(lf, bool) or not isinstance(lf, numbers.Real) or not 0.0 <= float(lf) < 1.0:
+        raise CorrectionError(
+            f"loaded_fraction {lf!r} is out of range; expected a float in [0, 1)")
+    lf = float(lf)
+    s = _arr(stationary, 'stationary')
+    sigs = {'raw': _arr(raw, 'raw'), 'corrected': _arr(corrected, 'corrected'),
+            'filtered': _arr(filtered, 'filtered')}
+    for k, a in sigs.items():
+        if a.shape != s.shape:
+            raise CorrectionError(
+                f"{k} has {a.shape[0]} samples but stationary has {s.shape[0]}; "
+                f"expected equal lengths")
+    s_peak = _nanmax(s)
+    if not s_peak > 0.0:  # also catches NaN (all-NaN or empty)
+        raise CorrectionError(
+            f"stationary peak {s_peak!r} N is not usable; expected a finite peak > 0 N")
+    with np.errstate(invalid='ignore'):
+        loaded = s > lf * s_peak
+    out = {}
+    for k, a in sigs.items():
+        pk = _nanmax(a)
+        out[f'{k}_peak_n'] = pk
+        out[f'{k}_diff_pct'] = abs(s_peak - pk) / s_peak * 100.0
+        out[f'{k}_rms_n'] = _rms(a[loaded] - s[loaded])
+    return PullScoreResult(stationary_peak_n=s_peak, n_samples=int(s.shape[0]),
+                           n_loaded=int(np.count_nonzero(loaded)), loaded_fraction=lf, **out)
+
+
+_FIELDS = ('stationary', 'raw', 'corrected', 'filtered')
+
+
+class PullAccumulator:
+    """Collects the samples of one pull, block by block, and scores it at the end.
+
+    The pull covers sample times t with start_ns <= t < end_ns (integer ns; end open until
+    :meth:`finish`). A block's sample k has time ``stamp_ns + round(k * 1e9 / rate)``, so a
+    block straddling the start or end contributes exactly its samples inside the pull.
+    Blocks may arrive after ``finish`` (late); they are still assigned by their sample times.
+    """
+
+    def __init__(self, start_ns: int, end_ns: Optional[int] = None, set_id=None, pull_id=None):
+        if not _is_int(start_ns):
+            raise CorrectionError(f"start_ns {start_ns!r} is not an int; expected integer ns")
+        self.start_ns = int(start_ns)
+        self.end_ns: Optional[int] = None
+        self.set_id = set_id
+        self.pull_id = pull_id
+        self.dropped_blocks = 0
+        self._parts: Dict[str, List[np.ndarray]] = {k: [] for k in _FIELDS}
+        self._times: List[np.ndarray] = []
+        if end_ns is not None:
+            self.finish(end_ns)
+
+    @property
+    def finished(self) -> bool:
+        return self.end_ns is not None
+
+    @property
+    def n_samples(self) -> int:
+        return int(sum(t.shape[0] for t in self._times))
+
+    def finish(self, end_ns: int) -> None:
+        if not _is_int(end_ns) or int(end_ns) <= self.start_ns:
+            raise CorrectionError(
+                f"end_ns {end_ns!r} is out of range; expected an integer ns > start_ns "
+                f"{self.start_ns}")
+        self.end_ns = int(end_ns)
+        if self._times:  # trim samples already taken beyond the end
+            for i, t in enumerate(self._times):
+                keep = t < self.end_ns
+                if not keep.all():
+                    self._times[i] = t[keep]
+                    for k in _FIELDS:
+                        self._parts[k][i] = self._parts[k][i][keep]
+
+    def note_dropped(self, count: int = 1) -> None:
+        """Record blocks lost during the pull (reported in the score)."""
+        self.dropped_blocks += int(count)
+
+    def add_block(self, stamp_ns: int, sample_rate_hz: float, stationary, raw, corrected,
+                  filtered) -> int:
+        """Add one block; returns the number of its samples that fall inside the pull."""
+        if not _is_int(stamp_ns):
+            raise CorrectionError(f"stamp_ns {stamp_ns!r} is not an int; expected integer ns")
+        rate = float(sample_rate_hz)
+        if not math.isfinite(rate) or rate <= 0:
+            raise CorrectionError(
+                f"sample_rate_hz {sample_rate_hz!r} is out of range; expected a rate > 0 Hz")
+        arrs = [_arr(x, k) for k, x in zip(_FIELDS, (stationary, raw, corrected, filtered))]
+        n = arrs[0].shape[0]
+        for k, a in zip(_FIELDS, arrs):
+            if a.shape[0] != n:
+                raise CorrectionError(
+                    f"{k} has {a.shape[0]} samples but stationary has {n}; expected equal")
+        t = int(stamp_ns) + np.round(np.arange(n) * (1e9 / rate)).astype(np.int64)
+        keep = t >= self.start_ns
+        if self.end_ns is not None:
+            keep &= t < self.end_ns
+        cnt = int(np.count_nonzero(keep))
+        if cnt:
+            self._times.append(t[keep])
+            for k, a in zip(_FIELDS, arrs):
+                self._parts[k].append(a[keep].copy())
+        return cnt
+
+    def arrays(self) -> Dict[str, np.ndarray]:
+        """Samples collected so far, sorted by sample time: keys time_ns + the four signals."""
+        if not self._times:
+            e = np.empty(0)
+            return {'time_ns': np.empty(0, dtype=np.int64), **{k: e for k in _FIELDS}}
+        t = np.concatenate(self._times)
+        order = np.argsort(t, kind='stable')
+        out = {'time_ns': t[order]}
+        for k in _FIELDS:
+            out[k] = np.concatenate(self._parts[k])[order]
+        return out
+
+    def score(self, loaded_fraction: float = 0.1) -> PullScoreResult:
+        a = self.arrays()
+        res = score_pull(a['stationary'], a['raw'], a['corrected'], a['filtered'],
+                         loaded_fraction=loaded_fraction)
+        return replace(res, dropped_blocks=self.dropped_blocks)
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+@dataclass(frozen=True)
+class SetSummary:
+    """Per-set statistics like thesis Tables 8 and 9 (std is the sample std, ddof=1)."""
+
+    set_id: object
+    pulls: int
+    mean_stationary_peak_n: float
+    raw_mean_pct: float
+    raw_std_pct: float
+    corrected_mean_pct: float
+    corrected_std_pct: float
+    filtered_mean_pct: float
+    filtered_std_pct: float
+
+
+def _mean_std(vals: List[float]):
+    a = np.asarray(vals, dtype=np.float64)
+    a = a[~np.isnan(a)]
+    if a.size == 0:
+        return math.nan, math.nan
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
+
+
+class SetStatistics:
+    """Running per-set list of pull scores."""
+
+    def __init__(self):
+        self._scores: Dict[object, List[PullScoreResult]] = {}
+
+    def add(self, set_id, result: PullScoreResult) -> None:
+        if not isinstance(result, PullScoreResult):
+            raise CorrectionError(f"result {result!r} is not a PullScoreResult")
+        self._scores.setdefault(set_id, []).append(result)
+
+    def sets(self) -> list:
+        return list(self._scores)
+
+    def scores(self, set_id) -> List[PullScoreResult]:
+        return list(self._scores.get(set_id, []))
+
+    def summary(self, set_id) -> SetSummary:
+        res = self._scores.get(set_id)
+        if not res:
+            raise CorrectionError(
+                f"set {set_id!r} has no scored pulls; expected one of {self.sets()}")
+        out = {}
+        for k in ('raw', 'corrected', 'filtered'):
+            out[f'{k}_mean_pct'], out[f'{k}_std_pct'] = _mean_std(
+                [getattr(r, f'{k}_diff_pct') for r in res])
+        return SetSummary(set_id=set_id, pulls=len(res),
+                          mean_stationary_peak_n=float(np.mean(
+                              [r.stationary_peak_n for r in res])), **out)

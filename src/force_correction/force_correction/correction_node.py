@@ -1,0 +1,85 @@
+"""correction node: /force + /accel blocks -> /force_corrected (raw, m*a, corrected, filtered).
+
+Blocks of the two channels are paired by stamp (and checked by sequence number) before the
+ROS-free core corrects them; a dropped, unmatched or late block is reported on /diagnostics and
+the filter restarts after the gap, so the two channels are never silently misaligned.
+"""
+from __future__ import annotations
+
+from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, stamp_to_ns, to_array
+from force_tester_common.node_params import NodeParams, ParamSpec
+from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, main_for
+from rclpy.node import Node
+
+from .core.pairing import BlockAligner
+from .core.params import CorrectionParams
+from .core.streaming import InertialCorrector
+
+SPECS = [
+    ParamSpec('mass_kg', 1.152, 'mass between the moving cell and the accelerometer, m2 (thesis eq 24)',
+              (1e-6, 1000.0)),
+    ParamSpec('window', 140, 'moving-average length N in samples (thesis eq 25; 140 = 2.8 ms at 50 kHz)',
+              (1, 50_000)),
+    ParamSpec('max_pending', 50, 'blocks a channel may wait for its partner before it is dropped', (1, 10_000), read_only=True),
+]
+
+TOPICS = {t.topic: t for t in BLOCK_TOPICS}
+
+
+def config_from(values: dict) -> CorrectionParams:
+    return CorrectionParams(mass_kg=values['mass_kg'], window=values['window'])
+
+
+class CorrectionNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('correction', **kwargs)
+        self.diag = Diagnostics(self, 'inertial correction')
+        self.params = NodeParams(self, SPECS, config_from, on_change=self._reconfigure)
+        self.corrector = InertialCorrector(self.params.config)
+        self.aligner = BlockAligner(('force', 'accel'), max_pending=self.params.values['max_pending'])
+        self.pub = self.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
+        force, accel = TOPICS['/force'], TOPICS['/accel']
+        self.create_subscription(force.msg_type, force.topic, lambda m: self._on_block('force', m), BLOCK_QOS)
+        self.create_subscription(accel.msg_type, accel.topic, lambda m: self._on_block('accel', m), BLOCK_QOS)
+        self.seq = 0
+        self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0}
+        self.create_timer(1.0, self._heartbeat)
+
+    def _reconfigure(self, params: CorrectionParams):
+        self.corrector = InertialCorrector(params)
+        self.diag.report(OK, f'correction restarted with m2 = {params.mass_kg} kg, N = {params.window}')
+
+    def _on_block(self, channel: str, msg):
+        n = len(msg.moving_n) if channel == 'force' else len(msg.axial_m_s2)
+        pairs, events = self.aligner.push(channel, stamp_to_ns(msg.header.stamp), msg.seq,
+                                          msg.sample_rate_hz, n, msg)
+        for event in events:
+            self.counts['events'] += 1
+            self.diag.report(WARN, f'{event.kind} block on {channel}: {event.detail}',
+                             channel=event.channel, seq=event.seq, stamp_ns=event.stamp_ns)
+        for pair in pairs:
+            self._correct(pair)
+
+    def _correct(self, pair):
+        force, accel = pair['force'], pair['accel']
+        if not pair.continuous:
+            self.corrector.reset()
+        out = self.corrector.process(to_array(force.moving_n), to_array(accel.axial_m_s2))
+        if out.nan_count:
+            self.counts['nan_samples'] += out.nan_count
+            self.diag.report(WARN, f'{out.nan_count} NaN sample(s) in the block stamped {pair.stamp_ns} ns; '
+                                   'their corrected values are NaN, the filter skips them')
+        msg = fill_block(CORRECTED_TOPIC.msg_type(), pair.stamp_ns, force.sample_rate_hz, self.seq,
+                         {'raw_n': out.raw_n, 'inertial_n': out.inertial_n,
+                          'corrected_n': out.corrected_n, 'filtered_n': out.filtered_n})
+        msg.header.frame_id = force.header.frame_id
+        self.pub.publish(msg)
+        self.seq += 1
+        self.counts['pairs'] += 1
+
+    def _heartbeat(self):
+        if self.counts['pairs']:
+            self.diag.report(OK, 'correcting', log=False, **self.counts)
+
+
+main = main_for(CorrectionNode)

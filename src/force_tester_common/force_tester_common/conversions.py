@@ -1,0 +1,86 @@
+"""Messages <-> arrays for the force tester's sample-block topics.
+
+The channel names are the DAQ export's column names (SI units), so a pull is one
+``dict[str, np.ndarray]`` whether it comes from the simulator, a bag or a CSV export.
+"""
+from __future__ import annotations
+
+import array
+from dataclasses import dataclass
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from force_tester_msgs.msg import (AccelBlock, CorrectedForceBlock, EncoderBlock, ForceBlock,
+                                   MotorBlock)
+
+
+@dataclass(frozen=True)
+class BlockTopic:
+    """A sample-block topic: its default name, message type and field -> channel map."""
+    topic: str
+    msg_type: type
+    fields: dict  # message field -> channel (DAQ column) name
+
+
+BLOCK_TOPICS = (
+    BlockTopic('/motor', MotorBlock, {'current_a': 'motor_current_a', 'voltage_v': 'motor_voltage_v',
+                                      'velocity_cmd_m_s': 'motor_velocity_cmd_m_s'}),
+    BlockTopic('/encoder', EncoderBlock, {'position_m': 'encoder_position_m'}),
+    BlockTopic('/accel', AccelBlock, {'axial_m_s2': 'accel_axial_m_s2', 'lateral_m_s2': 'accel_lateral_m_s2',
+                                      'vertical_m_s2': 'accel_vertical_m_s2'}),
+    BlockTopic('/force', ForceBlock, {'moving_n': 'force_moving_n', 'stationary_n': 'force_stationary_n'}),
+)
+CORRECTED_TOPIC = BlockTopic('/force_corrected', CorrectedForceBlock,
+                             {'raw_n': 'raw_n', 'inertial_n': 'inertial_n', 'corrected_n': 'corrected_n',
+                              'filtered_n': 'filtered_n'})
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def to_array(values) -> np.ndarray:
+    """A float64[] message field (array.array('d')) as a numpy view, without copying."""
+    if isinstance(values, array.array):
+        return np.frombuffer(values, dtype=np.float64) if len(values) else np.empty(0)
+    return np.asarray(values, dtype=np.float64)
+
+
+def to_field(values: np.ndarray) -> array.array:
+    """A numpy array as a float64[] message field (array.array is the fast path of the setters)."""
+    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
+
+
+def fill_block(msg, stamp_ns: int, sample_rate_hz: float, seq: int, arrays: dict, frame_id: str = ''):
+    """Fill a block message's header, rate, seq and its array fields from ``arrays`` (field -> array)."""
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.sample_rate_hz = float(sample_rate_hz)
+    msg.seq = int(seq)
+    for field, values in arrays.items():
+        setattr(msg, field, to_field(values))
+    return msg
+
+
+def block_message(topic: BlockTopic, channels: dict, start: int, stop: int, stamp_ns: int,
+                  sample_rate_hz: float, seq: int):
+    """The message of ``topic`` carrying samples [start, stop) of the channels present in ``channels``.
+
+    Channels missing from ``channels`` (optional DAQ columns) are left empty.
+    """
+    arrays = {f: channels[c][start:stop] for f, c in topic.fields.items() if c in channels}
+    return fill_block(topic.msg_type(), stamp_ns, sample_rate_hz, seq, arrays)
+
+
+def block_arrays(msg, topic: BlockTopic) -> dict:
+    """The channels of a block message as numpy arrays keyed by channel name."""
+    return {c: to_array(getattr(msg, f)) for f, c in topic.fields.items()}
+
+
+def block_length(msg, topic: BlockTopic) -> int:
+    return max(len(getattr(msg, f)) for f in topic.fields)

@@ -1,0 +1,78 @@
+"""QoS profiles, diagnostics and the main() pattern shared by the force tester nodes."""
+from __future__ import annotations
+
+import contextlib
+import sys
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+# 2 s of 1 ms blocks: a receiver may stall that long without a block being overwritten.
+BLOCK_QOS = QoSProfile(depth=2000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+EVENT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+
+
+class Diagnostics:
+    """Publishes diagnostic_msgs/DiagnosticArray on /diagnostics and mirrors it to the node's log."""
+
+    def __init__(self, node, name: str):
+        self._node = node
+        self._name = f'{node.get_name()}: {name}'
+        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', EVENT_QOS)
+
+    def report(self, level: int, message: str, log: bool = True, **values) -> None:
+        if log:
+            logger = self._node.get_logger()
+            {OK: logger.info, WARN: logger.warning}.get(level, logger.error)(message)
+        status = DiagnosticStatus(level=level, name=self._name, message=message,
+                                  hardware_id=self._node.get_fully_qualified_name(),
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self._node.get_clock().now().to_msg()
+        self._pub.publish(arr)
+
+
+@contextlib.contextmanager
+def ros_init(args=None):
+    """``with rclpy.init(args=...)``: Kilted's init() is a context manager; Jazzy's returns None."""
+    ret = rclpy.init(args=args)
+    if ret is not None:
+        with ret:
+            yield
+        return
+    try:
+        yield
+    finally:
+        rclpy.try_shutdown()
+
+
+def spin_nodes(*node_factories, args=None) -> int:
+    """Create the nodes in one process, add them to one executor and spin until shut down."""
+    try:
+        with ros_init(args):
+            executor = SingleThreadedExecutor()
+            nodes = [factory() for factory in node_factories]
+            for node in nodes:
+                executor.add_node(node)
+            try:
+                executor.spin()
+            finally:
+                for node in nodes:
+                    close = getattr(node, 'close', None)
+                    if close is not None:
+                        close()
+                    node.destroy_node()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    return 0
+
+
+def main_for(node_factory):
+    """A console-script main() for one node class."""
+    def main(args=None):
+        sys.exit(spin_nodes(node_factory, args=args))
+    return main

@@ -1,0 +1,266 @@
+"""Integration of the force chain on the DAQ sample grid.
+
+The model is piecewise linear: between events it is one of two LTI systems (lanyard free: T = 0;
+lanyard taut with beta = 1), driven by the carriage kinematics. Those stretches are propagated
+exactly on the sample grid (matrix exponential, first-order hold on the inputs, modal
+decomposition so each mode is one complex first-order recursion run by scipy.signal.lfilter).
+Events (lanyard engages / goes slack, F_stat reaches the break force) are located with
+solve_ivp (DOP853, event functions) inside the sample interval where they occur, and the coupon's
+break (beta falling linearly to 0, time varying) is integrated with solve_ivp as well.
+``integrate_reference`` integrates the same model with solve_ivp alone (for verification).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.linalg import expm
+from scipy.signal import lfilter
+
+from .chain import ChainParams, chain_rhs, force_stat, lanyard_drive, linear_matrices
+from .errors import SimError
+
+FREE, TAUT, BREAKING, BROKEN = 'free', 'taut', 'breaking', 'broken'
+_RTOL = 1e-10
+_ATOL = np.array([1e-16, 1e-11, 1e-16, 1e-11])
+
+
+@dataclass
+class ChainTrajectory:
+    t: np.ndarray                 # sample times, s
+    x: np.ndarray                 # (N, 4) states [w, w', u1, v1]
+    beta: np.ndarray              # coupon load fraction at each sample
+    taut_s: float | None = None   # first lanyard engagement
+    break_s: float | None = None  # F_stat first reaches the break force
+    events: list = field(default_factory=list)   # (time_s, new_mode)
+
+
+class _Linear:
+    """Exact FOH discretisation of x' = A x + B u on step h, in modal form."""
+
+    def __init__(self, A, B, h, blocks):
+        n, m = B.shape
+        M = np.zeros((n + 2 * m, n + 2 * m))
+        M[:n, :n] = A
+        M[:n, n:n + m] = B
+        M[n:n + m, n + m:] = np.eye(m)
+        E = expm(M * h)
+        self.phi = E[:n, :n]
+        self.g0 = E[:n, n:n + m]
+        self.g1 = E[:n, n + m:] / h
+        lam = np.zeros(n, dtype=complex)
+        V = np.zeros((n, n), dtype=complex)
+        for idx in blocks:
+            ev, vec = np.linalg.eig(A[np.ix_(idx, idx)])
+            lam[idx] = np.exp(ev * h)
+            V[np.ix_(idx, idx)] = vec
+        Vinv = np.linalg.inv(V)
+        err = np.abs(V @ np.diag(lam) @ Vinv - self.phi).max() / max(np.abs(self.phi).max(), 1e-300)
+        if not np.isfinite(err) or err > 1e-8:
+            raise SimError(f'modal decomposition error {err:.3g}; expected < 1e-8 (defective or '
+                           f'critically damped chain?)')
+        self.lam, self.V, self.Vinv = lam, V, Vinv
+
+    def propagate(self, x0, U):
+        """States at every row of U (inputs sampled on the grid), starting with x0 at U[0]."""
+        f = U[:-1] @ self.g0.T + (U[1:] - U[:-1]) @ self.g1.T
+        q = f @ self.Vinv.T
+        z0 = self.Vinv @ x0
+        Z = np.empty((U.shape[0], len(z0)), dtype=complex)
+        Z[0] = z0
+        for i, lam in enumerate(self.lam):
+            Z[1:, i] = lfilter([1.0], [1.0, -lam], q[:, i], zi=[lam * z0[i]])[0]
+        return (Z @ self.V.T).real
+
+
+def _inputs(motion, t, beta=1.0):
+    x3, v3, a3 = motion.kinematics(t)
+    return np.array([float(x3), float(v3), float(a3), beta])
+
+
+def _make_rhs(p: ChainParams, motion, mode, t_break=None):
+    if mode == BREAKING:
+        d = p.break_duration_s
+
+        def rhs(t, x):
+            beta = min(1.0, max(0.0, 1.0 - (t - t_break) / d))
+            return chain_rhs(t, x, _inputs(motion, t, beta), p)
+    elif mode == TAUT:
+        # the linear piece: tension unclipped, so the slack event can be located
+        def rhs(t, x):
+            u = _inputs(motion, t)
+            g = p.kl * (x[0] + u[0] - p.slack_m - x[2]) + p.cl * (x[1] + u[1] - x[3])
+            fm = -(p.k2 * x[0] + p.c2 * x[1])
+            fs = p.k1 * x[2] + p.c1 * x[3]
+            return np.array([x[1], (fm - g) / p.m2 - u[2], x[3], (g - fs) / p.m1])
+    else:
+        def rhs(t, x):
+            return chain_rhs(t, x, _inputs(motion, t, 0.0), p)
+    return rhs
+
+
+def _events(p: ChainParams, motion, mode, broken):
+    def g_ev(t, x):
+        return float(lanyard_drive(x, _inputs(motion, t), p))
+
+    def brk_ev(t, x):
+        return float(force_stat(x, p)) - p.break_n
+
+    g_ev.terminal = True
+    brk_ev.terminal = True
+    brk_ev.direction = 1.0
+    if mode == FREE and not broken:
+        g_ev.direction = 1.0
+        return [g_ev], [TAUT]
+    if mode == TAUT:
+        g_ev.direction = -1.0
+        return [g_ev, brk_ev], [FREE, BREAKING]
+    return [], []
+
+
+def _ivp(rhs, t0, t1, x0, events=(), t_eval=None):
+    sol = solve_ivp(rhs, (t0, t1), x0, method='DOP853', rtol=_RTOL, atol=_ATOL, events=list(events) or None,
+                    t_eval=t_eval, max_step=max((t1 - t0) / 4.0, 1e-9))
+    if sol.status < 0:
+        raise SimError(f'solve_ivp failed between {t0} s and {t1} s ({sol.message}); expected success')
+    return sol
+
+
+def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None) -> ChainTrajectory:
+    """Integrate one pull on the sample grid ``t`` (uniform, starting at t[0] with state x0)."""
+    t = np.asarray(t, dtype=float)
+    n = len(t)
+    h = float(t[1] - t[0])
+    xs, vs, as_ = motion.kinematics(t)
+    U = np.column_stack([xs - p.slack_m, vs, as_])
+    lin = {FREE: _Linear(*linear_matrices(p, False), h, [[0, 1], [2, 3]]),
+           TAUT: _Linear(*linear_matrices(p, True), h, [[0, 1, 2, 3]])}
+    lin[BROKEN] = lin[FREE]
+    X = np.empty((n, 4))
+    x = np.zeros(4) if x0 is None else np.asarray(x0, dtype=float)
+    X[0] = x
+    tc, k_next, on_grid = t[0], 1, True
+    broken = False
+    mode = TAUT if lanyard_drive(x, _inputs(motion, tc), p) > 0 else FREE
+    traj = ChainTrajectory(t=t, x=X, beta=np.ones(n))
+    if mode == TAUT:
+        traj.taut_s = tc
+    guard = 0
+
+    def switch(new, at):
+        nonlocal mode, broken
+        traj.events.append((at, new))
+        if new == TAUT and traj.taut_s is None:
+            traj.taut_s = at
+        if new == BREAKING:
+            traj.break_s = at
+            broken = True
+        mode = new
+
+    while k_next < n:
+        guard += 1
+        if guard > 10 * n:
+            raise SimError('event loop did not advance; expected a finite number of lanyard events')
+        if mode == BREAKING:
+            t_end = traj.break_s + p.break_duration_s
+            stop = min(t_end, t[-1])
+            kk = int(np.searchsorted(t, stop, side='right'))
+            te = t[k_next:kk]
+            sol = _ivp(_make_rhs(p, motion, BREAKING, traj.break_s), tc, stop, x,
+                       t_eval=np.concatenate([te, [stop]]) if (len(te) == 0 or te[-1] < stop) else te)
+            X[k_next:kk] = sol.y[:, :len(te)].T
+            x, tc = sol.y[:, -1].copy(), stop
+            on_grid = len(te) > 0 and te[-1] == stop
+            k_next = kk
+            switch(BROKEN, t_end)
+            continue
+        evs, news = _events(p, motion, mode, broken)
+        if not on_grid:
+            sol = _ivp(_make_rhs(p, motion, mode), tc, t[k_next], x, evs)
+            if sol.status == 1:
+                i = next(j for j, te in enumerate(sol.t_events) if len(te))
+                tc, x = float(sol.t_events[i][0]), sol.y_events[i][0].copy()
+                switch(news[i], tc)
+                continue
+            x, tc = sol.y[:, -1].copy(), t[k_next]
+            X[k_next] = x
+            k_next += 1
+            on_grid = True
+            continue
+        k = k_next - 1
+        Xs = lin[mode].propagate(x, U[k:])
+        j = None
+        if mode == FREE and not broken:
+            uu = np.column_stack([xs[k:], vs[k:]])
+            g = lanyard_drive(Xs, uu, p)
+            hit = np.flatnonzero(g[1:] > 0)
+            j = k + 1 + hit[0] if len(hit) else None
+        elif mode == TAUT:
+            uu = np.column_stack([xs[k:], vs[k:]])
+            bad = lanyard_drive(Xs, uu, p)[1:] < 0
+            if not broken:
+                bad |= force_stat(Xs, p)[1:] >= p.break_n
+            hit = np.flatnonzero(bad)
+            j = k + 1 + hit[0] if len(hit) else None
+        if j is None:
+            X[k:] = Xs
+            break
+        X[k:j] = Xs[:j - k]
+        tc, x = t[j - 1], Xs[j - 1 - k].copy()
+        sol = _ivp(_make_rhs(p, motion, mode), tc, t[j], x, evs)
+        k_next = j
+        if sol.status == 1:
+            i = next(jj for jj, te in enumerate(sol.t_events) if len(te))
+            tc, x = float(sol.t_events[i][0]), sol.y_events[i][0].copy()
+            on_grid = False
+            switch(news[i], tc)
+        else:  # the crossing was a round-off matter at the sample: take the event at t[j]
+            x, tc = Xs[j - k].copy(), t[j]
+            X[j] = x
+            k_next = j + 1
+            on_grid = True
+            g_j = float(lanyard_drive(x, _inputs(motion, tc), p))
+            if mode == TAUT and not broken and float(force_stat(x, p)) >= p.break_n:
+                switch(BREAKING, tc)
+            else:
+                switch(TAUT if g_j > 0 else FREE, tc)
+    if traj.break_s is not None:
+        traj.beta = np.clip(1.0 - (t - traj.break_s) / p.break_duration_s, 0.0, 1.0)
+    return traj
+
+
+def integrate_reference(p: ChainParams, motion, t: np.ndarray, x0, t_break=None) -> ChainTrajectory:
+    """Same model, solve_ivp (DOP853) alone with event handling, on the samples ``t`` (for verification)."""
+    t = np.asarray(t, dtype=float)
+    X = np.empty((len(t), 4))
+    broken = t_break is not None and t_break <= t[0]
+    tb = t_break
+
+    def general(tt, x):
+        beta = 1.0 if tb is None else min(1.0, max(0.0, 1.0 - (tt - tb) / p.break_duration_s))
+        return chain_rhs(tt, x, _inputs(motion, tt, beta), p)
+
+    def brk(tt, x):
+        return float(force_stat(x, p)) - p.break_n
+    brk.terminal, brk.direction = True, 1.0
+    i0, tc, x = 0, float(t[0]), np.asarray(x0, dtype=float)
+    X[0] = x
+    if not broken:
+        sol = solve_ivp(general, (tc, t[-1]), x, method='DOP853', rtol=_RTOL, atol=_ATOL, t_eval=t,
+                        events=[brk], max_step=2e-6)
+        m = len(sol.t)
+        X[:m] = sol.y.T
+        if sol.status == 1:
+            tb = float(sol.t_events[0][0])
+            tc, x, i0 = tb, sol.y_events[0][0], m
+        else:
+            i0 = len(t)
+    if i0 < len(t):
+        sol = solve_ivp(general, (tc, t[-1]), x, method='DOP853', rtol=_RTOL, atol=_ATOL, t_eval=t[i0:],
+                        max_step=2e-6)
+        X[i0:] = sol.y.T
+    traj = ChainTrajectory(t=t, x=X, beta=np.ones(len(t)), break_s=tb)
+    if tb is not None:
+        traj.beta = np.clip(1.0 - (t - tb) / p.break_duration_s, 0.0, 1.0)
+    return traj

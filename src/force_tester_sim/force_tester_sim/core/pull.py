@@ -1,0 +1,212 @@
+"""One pull: specification with pull-to-pull scatter, simulation, DAQ channels."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from .chain import ChainParams, force_move, force_stat, tension
+from .errors import SimError
+from .integrate import ChainTrajectory, integrate_chain
+from .motion import PrescribedMotion, hold_time_s, nominal_slack_m
+from .params import RigParams
+from .units import NS_PER_S
+
+CHANNELS = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2',
+            'force_moving_n', 'force_stationary_n', 'motor_velocity_cmd_m_s', 'motor_current_a',
+            'motor_voltage_v')
+
+# Pull-to-pull scatter (1 sigma unless stated; normal draws are clipped at 3 sigma).
+COUPON_SCATTER_REL = 0.03            # coupon break force
+SPEED_SCATTER_REL = 0.01             # speed at the pull
+DECEL_SCATTER_REL = 0.05             # deceleration at the pull (sets 4, 5)
+SLACK_SCATTER_M = 0.002              # lanyard slack
+LANYARD_STIFFNESS_SCATTER_REL = 0.05
+BREAK_DURATION_RANGE_S = (0.2e-3, 1.0e-3)   # uniform
+
+# Sensor noise (white, Gaussian, rms).
+LOAD_CELL_NOISE_N = 0.3
+ACCEL_NOISE_M_S2 = 0.5
+
+
+@dataclass(frozen=True)
+class PullSpec:
+    test_set: int
+    coupon_break_n: float
+    velocity_m_s: float
+    decel_m_s2: float
+    slack_m: float
+    lanyard_stiffness_n_per_m: float
+    break_duration_s: float
+    seed: int
+    pull: int = 0
+    command_velocity_m_s: Optional[float] = None   # the set's commanded speed (None: = velocity_m_s)
+
+    def __post_init__(self):
+        for name in ('coupon_break_n', 'velocity_m_s', 'slack_m', 'lanyard_stiffness_n_per_m', 'break_duration_s'):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SimError(f'{name} is {v!r}; expected a finite positive number')
+        if not (math.isfinite(self.decel_m_s2) and self.decel_m_s2 <= 0):
+            raise SimError(f'decel_m_s2 is {self.decel_m_s2!r}; expected a finite number <= 0')
+        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
+            raise SimError(f'seed is {self.seed!r}; expected an integer >= 0')
+
+
+def _clipped_normal(rng, sigma):
+    return float(np.clip(rng.standard_normal(), -3.0, 3.0) * sigma)
+
+
+def make_pull_specs(rig: RigParams, test_set: int, n: int, seed: int) -> List[PullSpec]:
+    """``n`` pulls of ``test_set`` with seeded pull-to-pull scatter (same seed, same pulls)."""
+    ts = rig.test_set(test_set)
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise SimError(f'number of pulls {n!r} is invalid; expected an integer >= 1')
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise SimError(f'seed {seed!r} is invalid; expected an integer >= 0')
+    ss = np.random.SeedSequence([int(seed), int(test_set)])
+    fc = rig.force_chain
+    k_ser = 1.0 / (1.0 / fc.lanyard_stiffness_n_per_m + 2.0 / fc.load_cell_stiffness_n_per_m)
+    hold = hold_time_s(ts.coupon_n * 1.1, ts.velocity_m_s * 0.97, k_ser * 0.85, BREAK_DURATION_RANGE_S[1])
+    slack0 = nominal_slack_m(ts.velocity_m_s * 1.03, ts.decel_m_s2, hold, rig.drive.usable_track_m)
+    specs = []
+    for i, child in enumerate(ss.spawn(n)):
+        rng = np.random.default_rng(child)
+        specs.append(PullSpec(
+            test_set=ts.set,
+            coupon_break_n=ts.coupon_n * (1.0 + _clipped_normal(rng, COUPON_SCATTER_REL)),
+            velocity_m_s=ts.velocity_m_s * (1.0 + _clipped_normal(rng, SPEED_SCATTER_REL)),
+            decel_m_s2=ts.decel_m_s2 * (1.0 + _clipped_normal(rng, DECEL_SCATTER_REL)),
+            slack_m=slack0 + _clipped_normal(rng, SLACK_SCATTER_M),
+            lanyard_stiffness_n_per_m=fc.lanyard_stiffness_n_per_m
+            * (1.0 + _clipped_normal(rng, LANYARD_STIFFNESS_SCATTER_REL)),
+            break_duration_s=float(rng.uniform(*BREAK_DURATION_RANGE_S)),
+            seed=int(child.generate_state(1)[0]),
+            pull=i,
+            command_velocity_m_s=ts.velocity_m_s,
+        ))
+    return specs
+
+
+def nominal_pull_spec(rig: RigParams, test_set: int, seed: int = 0) -> PullSpec:
+    """The set's pull without scatter (coupon at its rating, commanded speed, nominal lanyard)."""
+    ts = rig.test_set(test_set)
+    fc = rig.force_chain
+    k_ser = 1.0 / (1.0 / fc.lanyard_stiffness_n_per_m + 2.0 / fc.load_cell_stiffness_n_per_m)
+    hold = hold_time_s(ts.coupon_n, ts.velocity_m_s, k_ser, 0.5e-3)
+    return PullSpec(ts.set, ts.coupon_n, ts.velocity_m_s, ts.decel_m_s2,
+                    nominal_slack_m(ts.velocity_m_s, ts.decel_m_s2, hold, rig.drive.usable_track_m),
+                    fc.lanyard_stiffness_n_per_m, 0.5e-3, seed, 0, ts.velocity_m_s)
+
+
+def chain_params(rig: RigParams, spec: PullSpec) -> ChainParams:
+    return ChainParams.from_rig(rig, slack_m=spec.slack_m, break_n=spec.coupon_break_n,
+                                break_duration_s=spec.break_duration_s,
+                                lanyard_stiffness_n_per_m=spec.lanyard_stiffness_n_per_m)
+
+
+def motion_for(rig: RigParams, spec: PullSpec) -> PrescribedMotion:
+    p = chain_params(rig, spec)
+    hold = hold_time_s(spec.coupon_break_n, spec.velocity_m_s, p.series_stiffness, spec.break_duration_s)
+    m = PrescribedMotion.build(spec.velocity_m_s, spec.slack_m, spec.decel_m_s2, hold,
+                               command_velocity_m_s=spec.command_velocity_m_s)
+    m.check_fits(rig.drive.usable_track_m, rig.daq.record_length_s)
+    return m
+
+
+def sample_times_s(rig: RigParams) -> np.ndarray:
+    return np.arange(rig.daq.n_samples) / rig.daq.sample_rate_hz
+
+
+def sample_stamps_ns(rig: RigParams, start_ns: int) -> np.ndarray:
+    """Absolute stamps (int64 ns) of a record starting at ``start_ns`` (exact for integer rates)."""
+    if not isinstance(start_ns, (int, np.integer)):
+        raise SimError(f'start_ns is {start_ns!r}; expected an integer number of nanoseconds')
+    rate = rig.daq.sample_rate_hz
+    k = np.arange(rig.daq.n_samples, dtype=np.int64)
+    if float(int(rate)) == rate:
+        return np.int64(start_ns) + (k * NS_PER_S) // int(rate)
+    return np.int64(start_ns) + np.round(k * (NS_PER_S / rate)).astype(np.int64)
+
+
+@dataclass
+class PullResult:
+    channels: Dict[str, np.ndarray]          # the DAQ export columns (CHANNELS)
+    spec: PullSpec
+    motion: PrescribedMotion
+    taut_index: Optional[int]                # first sample with lanyard tension > 0
+    break_index: Optional[int]               # first sample at/after the break start
+    break_end_index: Optional[int]           # first sample with beta == 0
+    taut_time_s: Optional[float]
+    break_time_s: Optional[float]
+    truth: Dict[str, np.ndarray] = field(default_factory=dict)   # clean internal signals (SI)
+
+    @property
+    def start_index(self) -> int:
+        return 0
+
+    @property
+    def end_index(self) -> int:
+        """Exclusive; a pull is the whole record."""
+        return len(self.channels['time_s'])
+
+
+def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
+    p = chain_params(rig, spec)
+    motion = motion_for(rig, spec)
+    t = sample_times_s(rig)
+    traj: ChainTrajectory = integrate_chain(p, motion, t)
+    x3, v3, a3 = motion.kinematics(t)
+    X = traj.x
+    U = np.column_stack([x3, v3, a3, traj.beta])
+    T = tension(X, U, p)
+    fm = force_move(X, p)
+    fs = force_stat(X, p)
+    a2 = (fm - T) / p.m2
+    a1 = (T - fs) / p.m1
+
+    d = rig.drive
+    current = (d.reflected_mass_kg * a3 + d.viscous_damping_n_s_per_m * v3 + fm) / d.force_per_amp_n_per_a
+    di = np.gradient(current, t)
+    voltage = np.clip(d.armature_resistance_ohm * current + d.armature_inductance_h * di
+                      + d.back_emf_v_per_m_s * v3, -d.voltage_limit_v, d.voltage_limit_v)
+
+    res = rig.sensors.encoder_resolution_m
+    n = len(t)
+    if noise:
+        rng = np.random.default_rng(int(spec.seed))
+        nz = {k: rng.standard_normal(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
+    else:
+        nz = {k: np.zeros(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
+    channels = {
+        'time_s': t,
+        'encoder_position_m': np.round(x3 / res) * res,
+        'accel_axial_m_s2': a2 + ACCEL_NOISE_M_S2 * nz['ax'],
+        'accel_lateral_m_s2': ACCEL_NOISE_M_S2 * nz['lat'],
+        'accel_vertical_m_s2': ACCEL_NOISE_M_S2 * nz['vert'],
+        'force_moving_n': fm + LOAD_CELL_NOISE_N * nz['fm'],
+        'force_stationary_n': fs + LOAD_CELL_NOISE_N * nz['fs'],
+        'motor_velocity_cmd_m_s': motion.command_velocity(t),
+        'motor_current_a': current,
+        'motor_voltage_v': voltage,
+    }
+    taut_idx = np.flatnonzero(T > 0)
+    taut_index = int(taut_idx[0]) if len(taut_idx) else None
+    if traj.break_s is not None:
+        break_index = int(np.searchsorted(t, traj.break_s, side='left'))
+        zero = np.flatnonzero(traj.beta <= 0.0)
+        break_end_index = int(zero[0]) if len(zero) else None
+    else:
+        break_index = break_end_index = None
+    truth = {'x3_m': x3, 'v3_m_s': v3, 'a3_m_s2': a3, 'u2_m': x3 + X[:, 0], 'v2_m_s': v3 + X[:, 1],
+             'u1_m': X[:, 2], 'v1_m_s': X[:, 3], 'a1_m_s2': a1, 'a2_m_s2': a2, 'tension_n': T,
+             'beta': traj.beta, 'force_moving_n': fm, 'force_stationary_n': fs}
+    return PullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,
+                      traj.break_s, truth)
+
+
+def simulate_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> Dict[str, np.ndarray]:
+    """The DAQ export columns of one pull (keys: CHANNELS)."""
+    return run_pull(rig, spec, noise).channels

@@ -1,0 +1,54 @@
+"""What the sim node runs: which pulls, in which blocks, on which sample clock (ROS-free)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
+
+from .errors import SimError
+from .params import RigParams, load_rig
+
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The sim node's parameters, validated. ``rate`` is the pace: 1.0 real time, 10.0 ten times faster."""
+    test_sets: tuple = (1, 2, 3, 4, 5)
+    pulls_per_set: int = 1
+    seed: int = 0
+    block_size: int = 50
+    rate: float = 1.0
+    rig_file: str = ''
+    noise: bool = True
+
+    def __post_init__(self):
+        if not self.test_sets:
+            raise SimError('test_sets is empty; expected one or more of 1, 2, 3, 4, 5')
+        if not 1 <= self.pulls_per_set <= 1000:
+            raise SimError(f'pulls_per_set {self.pulls_per_set} is out of range; expected an integer in [1, 1000]')
+        if not 1 <= self.block_size <= 100_000:
+            raise SimError(f'block_size {self.block_size} is out of range; expected an integer in [1, 100000] samples')
+        if not 0.01 <= self.rate <= 1000.0:
+            raise SimError(f'rate {self.rate} is out of range; expected a real-time factor in [0.01, 1000]')
+        if self.seed < 0:
+            raise SimError(f'seed {self.seed} is negative; expected an integer >= 0')
+        rig = self.rig()
+        for s in self.test_sets:
+            rig.test_set(int(s))
+
+    def rig(self) -> RigParams:
+        return load_rig(self.rig_file or None)
+
+
+def sample_stamp_ns(t0_ns: int, index: int, sample_rate_hz: float) -> int:
+    """Stamp of sample ``index`` on a clock starting at ``t0_ns`` (exact for integer rates)."""
+    rate = int(sample_rate_hz)
+    if rate == sample_rate_hz:
+        return t0_ns + (index * NS_PER_S) // rate
+    return t0_ns + round(index * NS_PER_S / sample_rate_hz)
+
+
+def block_bounds(n_samples: int, block_size: int) -> Iterator[tuple]:
+    """(start, stop) of each block of a record; the last block may be shorter."""
+    for start in range(0, n_samples, block_size):
+        yield start, min(start + block_size, n_samples)

@@ -1,0 +1,122 @@
+"""sim node: publishes the simulated rig's motor, encoder, accelerometer and force topics in blocks.
+
+Topics: /motor, /encoder, /accel, /force (sample blocks, header stamped at the block's first
+sample), /pull_event (start and end of each 2 s pull), /diagnostics.
+Each pull is simulated by the ROS-free core (one pull ahead, in a worker thread) and published
+block by block on a sample clock that starts when the node starts publishing; the pace is real
+time by default (parameter ``rate`` > 1 runs faster). Changed parameters apply from the next pull.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
+from force_tester_common.node_params import NodeParams, ParamSpec
+from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, Diagnostics, main_for
+from force_tester_msgs.msg import PullEvent
+from rclpy.node import Node
+
+from .core.campaign import make_pull_specs
+from .core.pull import simulate_pull
+from .core.sim_config import SimConfig, block_bounds, sample_stamp_ns
+
+SPECS = [
+    ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),
+    ParamSpec('pulls_per_set', 1, 'pulls of each test set', (1, 1000)),
+    ParamSpec('seed', 0, 'seed of the pull-to-pull scatter and the sensor noise', (0, 2**31 - 1)),
+    ParamSpec('block_size', 50, 'samples per published block (50 = 1 ms at 50 kHz)', (1, 100_000)),
+    ParamSpec('rate', 1.0, 'pace as a real-time factor (1.0 = real time)', (0.01, 1000.0)),
+    ParamSpec('rig_file', '', 'rig YAML replacing the nominal constants ("" = nominal)'),
+    ParamSpec('noise', True, 'add sensor noise'),
+    ParamSpec('wait_for_subscribers', 0, 'wait until /force has this many subscribers before publishing',
+              (0, 100)),
+    ParamSpec('exit_when_done', False, 'shut the node down after the last pull'),
+]
+CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise')
+
+
+def config_from(values: dict) -> SimConfig:
+    return SimConfig(test_sets=tuple(int(s) for s in values['test_sets']),
+                     **{k: values[k] for k in CONFIG_FIELDS})
+
+
+class SimNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('sim', **kwargs)
+        self.params = NodeParams(self, SPECS, config_from)
+        self.diag = Diagnostics(self, 'simulator')
+        self.block_pubs = [(t, self.create_publisher(t.msg_type, t.topic, BLOCK_QOS)) for t in BLOCK_TOPICS]
+        self.event_pub = self.create_publisher(PullEvent, '/pull_event', EVENT_QOS)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='sim-publisher', daemon=True)
+        self._thread.start()
+
+    # -- the publishing thread -------------------------------------------------------------
+    def _schedule(self, config: SimConfig):
+        rig = config.rig()
+        pull_id = 0
+        for test_set in config.test_sets:
+            for spec in make_pull_specs(rig, test_set, config.pulls_per_set, config.seed + 7919 * test_set):
+                yield pull_id, rig, spec
+                pull_id += 1
+
+    def _run(self):
+        try:
+            self._publish_all()
+        except Exception as exc:  # keep the node alive and say what went wrong
+            self.diag.report(ERROR, f'simulation stopped: {exc}')
+
+    def _publish_all(self):
+        want = self.params.values['wait_for_subscribers']
+        while want and self.count_subscribers('/force') < want:
+            if self._stop.wait(0.05):
+                return
+        config = self.params.config
+        pulls = list(self._schedule(config))
+        self.diag.report(OK, f'publishing {len(pulls)} pull(s) of sets {list(config.test_sets)}')
+        t0_ns = time.time_ns()
+        t0_mono = time.monotonic()
+        index = 0  # samples published so far: the sample clock
+        seqs = [0] * len(self.block_pubs)
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            def simulate(i):
+                _, rig, spec = pulls[i]
+                return pool.submit(simulate_pull, rig, spec, config.noise)
+            upcoming = simulate(0) if pulls else None
+            for i, (pull_id, rig, spec) in enumerate(pulls):
+                channels = upcoming.result()
+                upcoming = simulate(i + 1) if i + 1 < len(pulls) else None
+                rate_hz = rig.daq.sample_rate_hz
+                n = len(channels['time_s'])
+                config = self.params.config  # parameter changes apply from here
+                self._event(PullEvent.START, sample_stamp_ns(t0_ns, index, rate_hz), pull_id, rig, spec)
+                for start, stop in block_bounds(n, config.block_size):
+                    due = (index + stop) / rate_hz / config.rate  # the block's last sample has happened
+                    delay = due - (time.monotonic() - t0_mono)
+                    if delay > 0 and self._stop.wait(delay):
+                        return
+                    stamp = sample_stamp_ns(t0_ns, index + start, rate_hz)
+                    for k, (topic, pub) in enumerate(self.block_pubs):
+                        pub.publish(block_message(topic, channels, start, stop, stamp, rate_hz, seqs[k]))
+                        seqs[k] += 1
+                index += n
+                self._event(PullEvent.END, sample_stamp_ns(t0_ns, index, rate_hz), pull_id, rig, spec)
+        self.diag.report(OK, f'done: {len(pulls)} pull(s), {index} samples per channel')
+        if self.params.values['exit_when_done']:
+            self.context.try_shutdown()
+
+    def _event(self, kind, stamp_ns, pull_id, rig, spec):
+        msg = PullEvent(event=kind, pull_id=pull_id, test_set=spec.test_set,
+                        coupon_break_n=float(rig.test_set(spec.test_set).coupon_n),
+                        velocity_m_s=float(spec.velocity_m_s), decel_m_s2=float(spec.decel_m_s2))
+        msg.header.stamp = ns_to_stamp(stamp_ns)
+        self.event_pub.publish(msg)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+main = main_for(SimNode)
