@@ -4,7 +4,6 @@ import copy
 import math
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest

@@ -97,6 +97,15 @@ class ScoreCollector:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
 
+    def wait_for_graph(self, subscribers: dict, timeout: float) -> bool:
+        """Wait until each topic has the given number of subscribers (so no early block is lost)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if all(self.node.count_subscribers(t) >= n for t, n in subscribers.items()):
+                return True
+            self.executor.spin_once(timeout_sec=0.05)
+        return False
+
     def _on_score(self, msg):
         self.scores.append({k: getattr(msg, k) for k in SCORE_FIELDS})
 
@@ -149,6 +158,7 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         graph.start('force_correction', 'correction_node')
         graph.start('force_correction', 'validator_node')
         graph.start('bag_tools', 'recorder_node', {'bag_path': str(bag)})
+        collector.wait_for_graph({'/force_corrected': 2, '/pull_event': 1}, timeout=30)
         graph.start('force_tester_sim', 'sim_node', {
             'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
             'rate': float(rate), 'wait_for_subscribers': 3, 'exit_when_done': True})

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 import threading
 
 from force_tester_common.node_params import NodeParams, ParamSpec
@@ -84,7 +85,7 @@ class RecorderNode(Node):
             if self.writer is not None:
                 path = self.writer.close()
                 self.writer = None
-                self.get_logger().info(f'bag closed: {path} ({self.count} messages)')
+                print(f'recorder: bag closed: {path} ({self.count} messages)', file=sys.stderr)
 
 
 main = main_for(RecorderNode)

@@ -20,7 +20,7 @@ SPECS = [
               (1e-6, 1000.0)),
     ParamSpec('window', 140, 'moving-average length N in samples (thesis eq 25; 140 = 2.8 ms at 50 kHz)',
               (1, 50_000)),
-    ParamSpec('max_pending', 50, 'blocks a channel may wait for its partner before it is dropped', (1, 10_000), read_only=True),
+    ParamSpec('max_pending', 500, 'blocks a channel may wait for its partner before it is dropped', (1, 10_000), read_only=True),
 ]
 
 TOPICS = {t.topic: t for t in BLOCK_TOPICS}
@@ -55,8 +55,8 @@ class CorrectionNode(Node):
                                           msg.sample_rate_hz, n, msg)
         for event in events:
             self.counts['events'] += 1
-            self.diag.report(WARN, f'{event.kind} block on {channel}: {event.detail}',
-                             channel=event.channel, seq=event.seq, stamp_ns=event.stamp_ns)
+            self.diag.report(WARN, f'{event.kind} block on {event.channel}: {event.detail}',
+                             key=(event.kind, event.channel), channel=event.channel, seq=event.seq, stamp_ns=event.stamp_ns)
         for pair in pairs:
             self._correct(pair)
 
@@ -68,7 +68,7 @@ class CorrectionNode(Node):
         if out.nan_count:
             self.counts['nan_samples'] += out.nan_count
             self.diag.report(WARN, f'{out.nan_count} NaN sample(s) in the block stamped {pair.stamp_ns} ns; '
-                                   'their corrected values are NaN, the filter skips them')
+                                   'their corrected values are NaN, the filter skips them', key='nan')
         msg = fill_block(CORRECTED_TOPIC.msg_type(), pair.stamp_ns, force.sample_rate_hz, self.seq,
                          {'raw_n': out.raw_n, 'inertial_n': out.inertial_n,
                           'corrected_n': out.corrected_n, 'filtered_n': out.filtered_n})

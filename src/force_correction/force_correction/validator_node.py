@@ -26,8 +26,8 @@ FINISH_TIMEOUT_S = 2.0
 SPECS = [
     ParamSpec('loaded_fraction', 0.1, 'RMS window: samples where the stationary force exceeds this '
                                       'fraction of its peak', (0.01, 0.99)),
-    ParamSpec('max_pending', 50, 'blocks a channel may wait for its partner before it is dropped', (1, 10_000),
-              read_only=True),
+    ParamSpec('max_pending', 2000, 'blocks a channel may wait for its partner before it is dropped '
+                                   '(the corrected stream lags the force stream)', (1, 100_000), read_only=True),
 ]
 
 
@@ -77,7 +77,8 @@ class ValidatorNode(Node):
         pairs, events = self.aligner.push(channel, stamp_to_ns(msg.header.stamp), msg.seq,
                                           msg.sample_rate_hz, n, msg)
         for event in events:
-            self.diag.report(WARN, f'{event.kind} block on {event.channel}: {event.detail}')
+            self.diag.report(WARN, f'{event.kind} block on {event.channel}: {event.detail}',
+                             key=(event.kind, event.channel))
             if event.kind in ('dropped', 'unmatched'):
                 for acc in self.pulls.values():
                     acc.note_dropped()

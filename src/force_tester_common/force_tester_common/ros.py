@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -17,17 +18,38 @@ OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.E
 
 
 class Diagnostics:
-    """Publishes diagnostic_msgs/DiagnosticArray on /diagnostics and mirrors it to the node's log."""
+    """Publishes diagnostic_msgs/DiagnosticArray on /diagnostics and mirrors it to the node's log.
 
-    def __init__(self, node, name: str):
+    Reports given a ``key`` are throttled to one per ``interval_s`` per key; the next one that
+    goes out says how many were held back, so a flood of bad blocks cannot stall the node.
+    """
+
+    def __init__(self, node, name: str, interval_s: float = 1.0):
         self._node = node
         self._name = f'{node.get_name()}: {name}'
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', EVENT_QOS)
+        self._interval_ns = int(interval_s * 1e9)
+        self._last = {}  # key -> (last report ns, reports held back since)
 
-    def report(self, level: int, message: str, log: bool = True, **values) -> None:
+    def report(self, level: int, message: str, log: bool = True, key=None, **values) -> None:
+        if key is not None:
+            now = time.monotonic_ns()
+            last, held = self._last.get(key, (None, 0))
+            if last is not None and now - last < self._interval_ns:
+                self._last[key] = (last, held + 1)
+                return
+            self._last[key] = (now, 0)
+            if held:
+                message = f'{message} ({held} similar report(s) held back in the last second)'
+                values['held_back'] = held
         if log:
-            logger = self._node.get_logger()
-            {OK: logger.info, WARN: logger.warning}.get(level, logger.error)(message)
+            logger = self._node.get_logger()  # rclpy wants one severity per call site
+            if level == OK:
+                logger.info(message)
+            elif level == WARN:
+                logger.warning(message)
+            else:
+                logger.error(message)
         status = DiagnosticStatus(level=level, name=self._name, message=message,
                                   hardware_id=self._node.get_fully_qualified_name(),
                                   values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])

@@ -18,8 +18,7 @@ from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, Diagnostics
 from force_tester_msgs.msg import PullEvent
 from rclpy.node import Node
 
-from .core.campaign import make_pull_specs
-from .core.pull import simulate_pull
+from .core.pull import make_pull_specs, simulate_pull
 from .core.sim_config import SimConfig, block_bounds, sample_stamp_ns
 
 SPECS = [
@@ -73,6 +72,8 @@ class SimNode(Node):
         while want and self.count_subscribers('/force') < want:
             if self._stop.wait(0.05):
                 return
+        if want and self._stop.wait(0.5):  # let the matched readers settle before the first block
+            return
         config = self.params.config
         pulls = list(self._schedule(config))
         self.diag.report(OK, f'publishing {len(pulls)} pull(s) of sets {list(config.test_sets)}')

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.integrate import solve_ivp
-from scipy.linalg import expm
 from scipy.signal import lfilter
 
 from .chain import ChainParams, chain_rhs, force_stat, lanyard_drive, linear_matrices
@@ -37,35 +36,45 @@ class ChainTrajectory:
 
 
 class _Linear:
-    """Exact FOH discretisation of x' = A x + B u on step h, in modal form."""
+    """Exact first-order-hold discretisation of x' = A x + B u on step h, in modal form.
+
+    Each mode z' = lam z + b u with u linear over the step gives
+    z1 = e^{lam h} z0 + (e^{lam h} - 1)/lam b u0 + (e^{lam h} - 1 - lam h)/lam^2 b (u1 - u0)/h.
+    """
 
     def __init__(self, A, B, h, blocks):
-        n, m = B.shape
-        M = np.zeros((n + 2 * m, n + 2 * m))
-        M[:n, :n] = A
-        M[:n, n:n + m] = B
-        M[n:n + m, n + m:] = np.eye(m)
-        E = expm(M * h)
-        self.phi = E[:n, :n]
-        self.g0 = E[:n, n:n + m]
-        self.g1 = E[:n, n + m:] / h
-        lam = np.zeros(n, dtype=complex)
+        n = A.shape[0]
+        evs = np.zeros(n, dtype=complex)
         V = np.zeros((n, n), dtype=complex)
         for idx in blocks:
             ev, vec = np.linalg.eig(A[np.ix_(idx, idx)])
-            lam[idx] = np.exp(ev * h)
+            evs[idx] = ev
             V[np.ix_(idx, idx)] = vec
         Vinv = np.linalg.inv(V)
-        err = np.abs(V @ np.diag(lam) @ Vinv - self.phi).max() / max(np.abs(self.phi).max(), 1e-300)
-        if not np.isfinite(err) or err > 1e-8:
-            raise SimError(f'modal decomposition error {err:.3g}; expected < 1e-8 (defective or '
+        err = np.abs(V @ np.diag(evs) @ Vinv - A).max() / max(np.abs(A).max(), 1e-300)
+        if not np.isfinite(err) or err > 1e-9 or np.linalg.cond(V) > 1e8:
+            raise SimError(f'modal decomposition error {err:.3g}; expected < 1e-9 (defective or '
                            f'critically damped chain?)')
-        self.lam, self.V, self.Vinv = lam, V, Vinv
+        # a real system: propagate one mode of each conjugate pair, weight 2 (real modes weight 1)
+        keep = np.flatnonzero(evs.imag >= 0)
+        if 2 * int(np.sum(evs.imag > 0)) + int(np.sum(evs.imag == 0)) != n:
+            raise SimError(f'eigenvalues {evs} are not in conjugate pairs; expected a real system')
+        if np.any(evs == 0):
+            raise SimError('the chain has a free rigid-body mode; expected both cells to have stiffness > 0')
+        lam = evs[keep]
+        e = np.exp(lam * h)
+        g0 = (e - 1.0) / lam
+        g1 = (e - 1.0 - lam * h) / (lam ** 2 * h)
+        b = Vinv[keep] @ B
+        self.lam = e
+        self.V = V[:, keep] * np.where(lam.imag > 0, 2.0, 1.0)
+        self.Vinv = Vinv[keep]
+        self.q0 = (g0 - g1)[:, None] * b       # multiplies u0
+        self.q1 = g1[:, None] * b              # multiplies u1
 
     def propagate(self, x0, U):
         """States at every row of U (inputs sampled on the grid), starting with x0 at U[0]."""
-        f = U[:-1] @ self.g0.T + (U[1:] - U[:-1]) @ self.g1.T
-        q = f @ self.Vinv.T
+        q = U[:-1] @ self.q0.T + U[1:] @ self.q1.T
         z0 = self.Vinv @ x0
         Z = np.empty((U.shape[0], len(z0)), dtype=complex)
         Z[0] = z0
@@ -75,8 +84,8 @@ class _Linear:
 
 
 def _inputs(motion, t, beta=1.0):
-    x3, v3, a3 = motion.kinematics(t)
-    return np.array([float(x3), float(v3), float(a3), beta])
+    x3, v3, a3 = motion.kinematics_scalar(float(t))
+    return (x3, v3, a3, beta)
 
 
 def _make_rhs(p: ChainParams, motion, mode, t_break=None):
@@ -127,12 +136,29 @@ def _ivp(rhs, t0, t1, x0, events=(), t_eval=None):
     return sol
 
 
-def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None) -> ChainTrajectory:
-    """Integrate one pull on the sample grid ``t`` (uniform, starting at t[0] with state x0)."""
+def _first_violation(p, mode, broken, Xs, x3, v3):
+    """Offset (>= 1) of the first sample where the mode stops holding, or None."""
+    if mode == FREE and not broken:
+        bad = lanyard_drive(Xs[1:], np.column_stack([x3[1:], v3[1:]]), p) > 0
+    elif mode == TAUT:
+        bad = lanyard_drive(Xs[1:], np.column_stack([x3[1:], v3[1:]]), p) < 0
+        if not broken:
+            bad |= force_stat(Xs[1:], p) >= p.break_n
+    else:
+        return None
+    hit = np.flatnonzero(bad)
+    return int(hit[0]) + 1 if len(hit) else None
+
+
+def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None, kinematics=None) -> ChainTrajectory:
+    """Integrate one pull on the sample grid ``t`` (uniform, starting at t[0] with state x0).
+
+    ``kinematics``: optional precomputed ``motion.kinematics(t)``.
+    """
     t = np.asarray(t, dtype=float)
     n = len(t)
     h = float(t[1] - t[0])
-    xs, vs, as_ = motion.kinematics(t)
+    xs, vs, as_ = motion.kinematics(t) if kinematics is None else kinematics
     U = np.column_stack([xs - p.slack_m, vs, as_])
     lin = {FREE: _Linear(*linear_matrices(p, False), h, [[0, 1], [2, 3]]),
            TAUT: _Linear(*linear_matrices(p, True), h, [[0, 1, 2, 3]])}
@@ -188,26 +214,24 @@ def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None) -> ChainTraj
             k_next += 1
             on_grid = True
             continue
-        k = k_next - 1
-        Xs = lin[mode].propagate(x, U[k:])
-        j = None
-        if mode == FREE and not broken:
-            uu = np.column_stack([xs[k:], vs[k:]])
-            g = lanyard_drive(Xs, uu, p)
-            hit = np.flatnonzero(g[1:] > 0)
-            j = k + 1 + hit[0] if len(hit) else None
-        elif mode == TAUT:
-            uu = np.column_stack([xs[k:], vs[k:]])
-            bad = lanyard_drive(Xs, uu, p)[1:] < 0
-            if not broken:
-                bad |= force_stat(Xs, p)[1:] >= p.break_n
-            hit = np.flatnonzero(bad)
-            j = k + 1 + hit[0] if len(hit) else None
+        # propagate in growing chunks until the first sample that violates the mode's conditions
+        start, xcur, chunk, j = k_next - 1, x, 512, None
+        while True:
+            stop = min(n, start + chunk)
+            Xs = lin[mode].propagate(xcur, U[start:stop])
+            j = _first_violation(p, mode, broken, Xs, xs[start:stop], vs[start:stop])
+            if j is not None:
+                j += start
+                X[start:j] = Xs[:j - start]
+                xj = Xs[j - start]
+                break
+            X[start:stop] = Xs
+            if stop == n:
+                break
+            start, xcur, chunk = stop - 1, Xs[-1], chunk * 4
         if j is None:
-            X[k:] = Xs
             break
-        X[k:j] = Xs[:j - k]
-        tc, x = t[j - 1], Xs[j - 1 - k].copy()
+        tc, x = t[j - 1], X[j - 1].copy()
         sol = _ivp(_make_rhs(p, motion, mode), tc, t[j], x, evs)
         k_next = j
         if sol.status == 1:
@@ -216,7 +240,7 @@ def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None) -> ChainTraj
             on_grid = False
             switch(news[i], tc)
         else:  # the crossing was a round-off matter at the sample: take the event at t[j]
-            x, tc = Xs[j - k].copy(), t[j]
+            x, tc = xj.copy(), t[j]
             X[j] = x
             k_next = j + 1
             on_grid = True
@@ -230,7 +254,8 @@ def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None) -> ChainTraj
     return traj
 
 
-def integrate_reference(p: ChainParams, motion, t: np.ndarray, x0, t_break=None) -> ChainTrajectory:
+def integrate_reference(p: ChainParams, motion, t: np.ndarray, x0, t_break=None,
+                        max_step: float = 2e-6) -> ChainTrajectory:
     """Same model, solve_ivp (DOP853) alone with event handling, on the samples ``t`` (for verification)."""
     t = np.asarray(t, dtype=float)
     X = np.empty((len(t), 4))
@@ -248,7 +273,7 @@ def integrate_reference(p: ChainParams, motion, t: np.ndarray, x0, t_break=None)
     X[0] = x
     if not broken:
         sol = solve_ivp(general, (tc, t[-1]), x, method='DOP853', rtol=_RTOL, atol=_ATOL, t_eval=t,
-                        events=[brk], max_step=2e-6)
+                        events=[brk], max_step=max_step)
         m = len(sol.t)
         X[:m] = sol.y.T
         if sol.status == 1:
@@ -258,7 +283,7 @@ def integrate_reference(p: ChainParams, motion, t: np.ndarray, x0, t_break=None)
             i0 = len(t)
     if i0 < len(t):
         sol = solve_ivp(general, (tc, t[-1]), x, method='DOP853', rtol=_RTOL, atol=_ATOL, t_eval=t[i0:],
-                        max_step=2e-6)
+                        max_step=max_step)
         X[i0:] = sol.y.T
     traj = ChainTrajectory(t=t, x=X, beta=np.ones(len(t)), break_s=tb)
     if tb is not None:

@@ -6,6 +6,7 @@ stand-in until the motor/PID drive model produces x3(t).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol, Tuple
 
@@ -24,29 +25,10 @@ TARGET_TAUT_S = 0.7          # nominal slack puts the taut instant here if the t
 TRACK_MARGIN_M = 0.05        # nominal stop point stays this far inside the usable track
 
 
-def _s0(tau):
-    """Raised-cosine smooth step: 0 for tau<=0, 1 for tau>=1."""
-    tc = np.clip(tau, 0.0, 1.0)
-    return 0.5 * (1.0 - np.cos(np.pi * tc))
-
-
-def _s1(tau):
-    """Integral of _s0 from 0 to tau."""
-    tc = np.clip(tau, 0.0, 1.0)
-    base = tc / 2.0 - np.sin(np.pi * tc) / (2.0 * np.pi)
-    return base + np.maximum(tau - 1.0, 0.0)
-
-
-def _s2(tau):
-    """Integral of _s1 from 0 to tau."""
-    tc = np.clip(tau, 0.0, 1.0)
-    base = tc ** 2 / 4.0 + (np.cos(np.pi * tc) - 1.0) / (2.0 * np.pi ** 2)
-    over = np.maximum(tau - 1.0, 0.0)
-    return base + 0.5 * over + 0.5 * over ** 2
-
-
 class MotionSource(Protocol):
     def kinematics(self, t) -> Tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def kinematics_scalar(self, t: float) -> Tuple[float, float, float]: ...
 
     def command_velocity(self, t) -> np.ndarray: ...
 
@@ -61,7 +43,7 @@ class AccelStep:
 
 @dataclass(frozen=True)
 class PrescribedMotion:
-    """Carriage kinematics as a sum of smooth acceleration steps (exact x, v, a in closed form).
+    """Carriage kinematics as a sum of raised-cosine acceleration steps (x, v, a exact in closed form).
 
     The carriage is at rest at x3 = 0 until ``steps[0]``; after ``stop_s`` it is held exactly at rest.
     """
@@ -77,18 +59,52 @@ class PrescribedMotion:
         v = np.zeros_like(t)
         a = np.zeros_like(t)
         for st in self.steps:
-            tau = (t - st.start_s) / st.duration_s
-            a = a + st.delta_m_s2 * _s0(tau)
-            v = v + st.delta_m_s2 * st.duration_s * _s1(tau)
-            x = x + st.delta_m_s2 * st.duration_s ** 2 * _s2(tau)
+            d, T = st.delta_m_s2, st.duration_s
+            tau = (t - st.start_s) / T
+            inside = (tau > 0.0) & (tau < 1.0)
+            after = tau >= 1.0
+            over = tau[after] - 1.0
+            a[after] += d
+            v[after] += d * T * (0.5 + over)
+            x[after] += d * T * T * (0.25 - 1.0 / np.pi ** 2 + 0.5 * over + 0.5 * over * over)
+            ti = tau[inside]
+            c, s_ = np.cos(np.pi * ti), np.sin(np.pi * ti)
+            a[inside] += d * 0.5 * (1.0 - c)
+            v[inside] += d * T * (ti / 2.0 - s_ / (2.0 * np.pi))
+            x[inside] += d * T * T * (ti * ti / 4.0 + (c - 1.0) / (2.0 * np.pi ** 2))
         return x, v, a
+
+    def _raw_scalar(self, t: float):
+        x = v = a = 0.0
+        for st in self.steps:
+            tau = (t - st.start_s) / st.duration_s
+            if tau <= 0.0:
+                continue
+            d, T = st.delta_m_s2, st.duration_s
+            if tau >= 1.0:
+                over = tau - 1.0
+                a += d
+                v += d * T * (0.5 + over)
+                x += d * T * T * (0.25 - 1.0 / math.pi ** 2 + 0.5 * over + 0.5 * over * over)
+            else:
+                c, s_ = math.cos(math.pi * tau), math.sin(math.pi * tau)
+                a += d * 0.5 * (1.0 - c)
+                v += d * T * (tau / 2.0 - s_ / (2.0 * math.pi))
+                x += d * T * T * (tau * tau / 4.0 + (c - 1.0) / (2.0 * math.pi ** 2))
+        return x, v, a
+
+    def kinematics_scalar(self, t: float):
+        """Fast path of ``kinematics`` for one float time (used inside the ODE solver)."""
+        if t >= self.stop_s:
+            return self._raw_scalar(self.stop_s)[0], 0.0, 0.0
+        return self._raw_scalar(t)
 
     def kinematics(self, t):
         t = np.asarray(t, dtype=float)
         x, v, a = self._raw(t)
         after = t >= self.stop_s
         if np.any(after):
-            x_stop = float(self._raw(self.stop_s)[0])
+            x_stop = self._raw_scalar(self.stop_s)[0]
             x = np.where(after, x_stop, x)
             v = np.where(after, 0.0, v)
             a = np.where(after, 0.0, a)
@@ -99,7 +115,7 @@ class PrescribedMotion:
 
     @property
     def final_position_m(self) -> float:
-        return float(self._raw(self.stop_s)[0])
+        return float(self._raw_scalar(self.stop_s)[0])
 
     @classmethod
     def build(cls, velocity_m_s: float, slack_m: float, decel_m_s2: float = 0.0, hold_s: float = MIN_HOLD_S,

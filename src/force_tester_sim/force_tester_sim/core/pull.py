@@ -157,8 +157,8 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     p = chain_params(rig, spec)
     motion = motion_for(rig, spec)
     t = sample_times_s(rig)
-    traj: ChainTrajectory = integrate_chain(p, motion, t)
-    x3, v3, a3 = motion.kinematics(t)
+    x3, v3, a3 = kin = motion.kinematics(t)
+    traj: ChainTrajectory = integrate_chain(p, motion, t, kinematics=kin)
     X = traj.x
     U = np.column_stack([x3, v3, a3, traj.beta])
     T = tension(X, U, p)
@@ -188,7 +188,7 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
         'accel_vertical_m_s2': ACCEL_NOISE_M_S2 * nz['vert'],
         'force_moving_n': fm + LOAD_CELL_NOISE_N * nz['fm'],
         'force_stationary_n': fs + LOAD_CELL_NOISE_N * nz['fs'],
-        'motor_velocity_cmd_m_s': motion.command_velocity(t),
+        'motor_velocity_cmd_m_s': v3 * motion.command_scale,
         'motor_current_a': current,
         'motor_voltage_v': voltage,
     }

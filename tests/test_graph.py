@@ -1,0 +1,86 @@
+"""Acceptance: the live graph as separate processes over Fast DDS, and the bag it records.
+
+The main job (./ft demo) runs sim, correction, validator and recorder as four processes; the
+scores come back over DDS. The recorded bag is then played back by the player process into a
+fresh correction + validator pair, which must reproduce the live scores.
+"""
+import json
+import subprocess
+import sys
+
+import pytest
+
+import demo
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope='module')
+def live(tmp_path_factory, module_ros_domain):
+    out = tmp_path_factory.mktemp('demo')
+    scores = demo.run_live(out, sets=[1, 2, 3, 4, 5], pulls=1, seed=3, rate=1.0, timeout=180)
+    return out, scores
+
+
+def test_live_graph_scores_every_pull_without_drops(live):
+    _, scores = live
+    assert [s['test_set'] for s in scores] == [1, 2, 3, 4, 5]
+    assert all(s['dropped_blocks'] == 0 for s in scores)
+    assert all(s['stationary_peak_n'] > 0 for s in scores)
+
+
+def test_set3_correction_moves_toward_the_stationary_cell(live):
+    (s3,) = [s for s in live[1] if s['test_set'] == 3]
+    assert s3['raw_diff_pct'] > 10.0, s3            # the moving cell reads high at 15 fps
+    assert s3['filtered_diff_pct'] < s3['raw_diff_pct'], s3
+    assert s3['corrected_rms_n'] < s3['raw_rms_n'], s3
+
+
+def test_recorded_bag_is_complete(live):
+    from bag_tools.core.info import bag_info
+    out, _ = live
+    info = bag_info(out / 'bag')
+    for topic in ('/force', '/accel', '/motor', '/encoder', '/force_corrected'):
+        t = info['topics'][topic]
+        assert t['seq_gaps'] == 0, (topic, t)
+        assert t['count'] == 5 * 2000, (topic, t)   # 5 pulls x 100,000 samples / 50-sample blocks
+        assert t['sample_rate_hz'] == 50000.0
+    assert info['pulls']['count'] == 5
+
+
+def test_bag_playback_reproduces_live_scores(live, tmp_path):
+    out, live_scores = live
+    graph = demo.Graph(tmp_path / 'logs')
+    collector = demo.ScoreCollector()
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node')
+        player = graph.start('bag_tools', 'player', extra=[
+            str(out / 'bag'), '--topics', '/force', '/accel', '/pull_event', '--wait-for-subscribers', '1'])
+        ok = collector.wait(len(live_scores), 120, alive=lambda: not graph.dead())
+    finally:
+        graph.stop()
+        collector.close()
+    assert ok, graph.tail('player') + graph.tail('validator_node')
+    played = sorted(collector.scores, key=lambda s: s['pull_id'])
+    for a, b in zip(live_scores, played):
+        for k in demo.SCORE_FIELDS:
+            assert b[k] == pytest.approx(a[k], rel=1e-9, abs=1e-9), (k, a, b)
+
+
+@pytest.mark.parametrize('make_bad', ['missing', 'empty_dir', 'truncated'])
+def test_player_rejects_a_bad_bag_with_one_line(live, tmp_path, make_bad):
+    import shutil
+    bad = tmp_path / 'bad'
+    if make_bad == 'empty_dir':
+        bad.mkdir()
+    elif make_bad == 'truncated':
+        shutil.copytree(live[0] / 'bag', bad)
+        (mcap,) = bad.glob('*.mcap')
+        data = mcap.read_bytes()
+        mcap.write_bytes(data[: len(data) // 2])
+    exe = demo.executable('bag_tools', 'player')
+    res = subprocess.run([str(exe), str(bad)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'error' in lines[0] and str(bad) in lines[0], res.stderr
