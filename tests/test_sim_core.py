@@ -44,7 +44,8 @@ def _accel(v, h):
 # ---------------------------------------------------------------- parameters
 
 def test_packaged_yaml_is_the_projects_copy():
-    assert NOMINAL_YAML.resolve() == PROJECT_YAML.resolve()
+    # the installed package data (or the source tree itself) carries the project's own copy
+    assert NOMINAL_YAML.read_bytes() == PROJECT_YAML.read_bytes()
     assert 'shared' not in NOMINAL_YAML.resolve().parts
 
 

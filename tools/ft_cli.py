@@ -105,7 +105,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    passthrough = {'test': 'pytest_args', 'run': 'args', 'bag': 'bag_args', 'bench': 'bench_args'}
+    if extra and args.command not in passthrough:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:  # options meant for pytest, the node or the bag tool
+        setattr(args, passthrough[args.command], extra + getattr(args, passthrough[args.command]))
     try:
         return args.func(args)
     except KeyboardInterrupt:
