@@ -35,7 +35,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_test(args: argparse.Namespace) -> int:
-    cmd = [sys.executable, "-m", "pytest", str(ROOT / "tests"), *args.pytest_args]
+    chosen = any(Path(a.split("::")[0]).exists() for a in args.pytest_args if not a.startswith("-"))
+    cmd = [sys.executable, "-m", "pytest", *([] if chosen else [str(ROOT / "tests")]), *args.pytest_args]
     rc = subprocess.call(cmd, cwd=ROOT)
     if rc == 5:
         print("ft: error: pytest collected no tests", file=sys.stderr)
