@@ -8,17 +8,16 @@ rclpy = pytest.importorskip('rclpy')
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
+from force_tester_common.conversions import BLOCK_TOPICS, fill_block, stamp_to_ns, to_array  # noqa: E402
+
+TOPICS = {t.topic: t for t in BLOCK_TOPICS}
+
 
 @pytest.fixture
 def ros(ros_domain):
     rclpy.init()
     yield
     rclpy.try_shutdown()
-
-
-def make(node_cls):
-    node = node_cls()
-    return node
 
 
 def sim_node():
@@ -76,26 +75,41 @@ def spin_until(executor, cond, timeout=10.0):
     return cond()
 
 
+class Loop:
+    """A correction node and a probe node in one executor: the probe publishes /force and /accel
+    blocks and collects /force_corrected and /diagnostics."""
+
+    def __init__(self, node):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from force_tester_common.conversions import CORRECTED_TOPIC
+        from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
+        self.node = node
+        self.probe = rclpy.create_node('probe')
+        self.pub_f = self.probe.create_publisher(TOPICS['/force'].msg_type, '/force', BLOCK_QOS)
+        self.pub_a = self.probe.create_publisher(TOPICS['/accel'].msg_type, '/accel', BLOCK_QOS)
+        self.out, self.diags = [], []
+        self.probe.create_subscription(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, self.out.append, BLOCK_QOS)
+        self.probe.create_subscription(DiagnosticArray, '/diagnostics', self.diags.append, EVENT_QOS)
+        self.ex = SingleThreadedExecutor()
+        self.ex.add_node(node)
+        self.ex.add_node(self.probe)
+
+    def __enter__(self):
+        assert spin_until(self.ex, lambda: self.pub_f.get_subscription_count() and self.pub_a.get_subscription_count()
+                          and self.probe.count_publishers('/force_corrected'))
+        time.sleep(0.3)
+        return self.ex, self.pub_f, self.pub_a, self.out, self.diags
+
+    def __exit__(self, *exc):
+        self.ex.shutdown()
+        self.probe.destroy_node()
+        self.node.destroy_node()
+
+
 def test_nan_samples_are_reported_and_do_not_poison_the_filter(ros):
-    from diagnostic_msgs.msg import DiagnosticArray
-    from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, to_array
-    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
     node = correction_node()
     node.set_parameters([Parameter('window', value=20)])
-    probe = rclpy.create_node('probe')
-    topics = {t.topic: t for t in BLOCK_TOPICS}
-    pub_f = probe.create_publisher(topics['/force'].msg_type, '/force', BLOCK_QOS)
-    pub_a = probe.create_publisher(topics['/accel'].msg_type, '/accel', BLOCK_QOS)
-    out, diags = [], []
-    probe.create_subscription(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, out.append, BLOCK_QOS)
-    probe.create_subscription(DiagnosticArray, '/diagnostics', diags.append, EVENT_QOS)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(probe)
-    try:
-        assert spin_until(ex, lambda: pub_f.get_subscription_count() and pub_a.get_subscription_count()
-                          and probe.count_publishers('/force_corrected'))
-        time.sleep(0.3)
+    with Loop(node) as (ex, pub_f, pub_a, out, diags):
         rng = np.random.default_rng(1)
         n, nb = 50, 6
         f = 1000 + rng.normal(size=n * nb)
@@ -104,9 +118,9 @@ def test_nan_samples_are_reported_and_do_not_poison_the_filter(ros):
         for k in range(nb):
             s = slice(k * n, (k + 1) * n)
             stamp = 10**18 + k * 1_000_000
-            pub_f.publish(fill_block(topics['/force'].msg_type(), stamp, 50000.0, k,
+            pub_f.publish(fill_block(TOPICS['/force'].msg_type(), stamp, 50000.0, k,
                                      {'moving_n': f[s], 'stationary_n': f[s]}))
-            pub_a.publish(fill_block(topics['/accel'].msg_type(), stamp, 50000.0, k, {'axial_m_s2': a[s]}))
+            pub_a.publish(fill_block(TOPICS['/accel'].msg_type(), stamp, 50000.0, k, {'axial_m_s2': a[s]}))
         assert spin_until(ex, lambda: len(out) == nb and any('NaN' in st.message for d in diags for st in d.status))
         filtered = np.concatenate([to_array(m.filtered_n) for m in out])
         corrected = np.concatenate([to_array(m.corrected_n) for m in out])
@@ -117,39 +131,18 @@ def test_nan_samples_are_reported_and_do_not_poison_the_filter(ros):
         clean[60] = 1000.0
         ref = np.convolve(clean - 1.152 * a, np.ones(20) / 20)[: n * nb]
         np.testing.assert_allclose(filtered[80:], ref[80:], rtol=0, atol=1e-9)
-    finally:
-        ex.shutdown()
-        probe.destroy_node()
-        node.destroy_node()
 
 
 def test_a_dropped_block_is_reported_and_never_misaligns(ros):
-    from diagnostic_msgs.msg import DiagnosticArray
-    from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, stamp_to_ns, to_array
-    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
-    node = correction_node()
-    probe = rclpy.create_node('probe')
-    topics = {t.topic: t for t in BLOCK_TOPICS}
-    pub_f = probe.create_publisher(topics['/force'].msg_type, '/force', BLOCK_QOS)
-    pub_a = probe.create_publisher(topics['/accel'].msg_type, '/accel', BLOCK_QOS)
-    out, diags = [], []
-    probe.create_subscription(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, out.append, BLOCK_QOS)
-    probe.create_subscription(DiagnosticArray, '/diagnostics', diags.append, EVENT_QOS)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(probe)
-    try:
-        assert spin_until(ex, lambda: pub_f.get_subscription_count() and pub_a.get_subscription_count()
-                          and probe.count_publishers('/force_corrected'))
-        time.sleep(0.3)
+    with Loop(correction_node()) as (ex, pub_f, pub_a, out, diags):
         n = 50
         for k in range(6):
             stamp = 10**18 + k * 1_000_000
             value = np.full(n, float(k))
-            pub_f.publish(fill_block(topics['/force'].msg_type(), stamp, 50000.0, k,
+            pub_f.publish(fill_block(TOPICS['/force'].msg_type(), stamp, 50000.0, k,
                                      {'moving_n': value, 'stationary_n': value}))
             if k != 2:  # accel block 2 is lost
-                pub_a.publish(fill_block(topics['/accel'].msg_type(), stamp, 50000.0, k,
+                pub_a.publish(fill_block(TOPICS['/accel'].msg_type(), stamp, 50000.0, k,
                                          {'axial_m_s2': np.zeros(n)}))
         assert spin_until(ex, lambda: len(out) == 5 and any('dropped' in st.message for d in diags
                                                              for st in d.status))
@@ -157,7 +150,3 @@ def test_a_dropped_block_is_reported_and_never_misaligns(ros):
             k = (stamp_to_ns(m.header.stamp) - 10**18) // 1_000_000
             assert k != 2
             assert (to_array(m.raw_n) == k).all()
-    finally:
-        ex.shutdown()
-        probe.destroy_node()
-        node.destroy_node()

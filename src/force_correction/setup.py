@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'correction_node = force_correction.correction_node:main',
             'validator_node = force_correction.validator_node:main',
+            'correction_graph = force_correction.composed:main',
         ],
     },
 )
