@@ -9,9 +9,10 @@ import array
 from dataclasses import dataclass
 
 import numpy as np
+import force_tester_msgs.msg
 from builtin_interfaces.msg import Time
-from force_tester_msgs.msg import (AccelBlock, CorrectedForceBlock, EncoderBlock, ForceBlock,
-                                   MotorBlock)
+
+from .channels import BLOCK_TYPES, CORRECTED_TYPE
 
 
 @dataclass(frozen=True)
@@ -22,17 +23,12 @@ class BlockTopic:
     fields: dict  # message field -> channel (DAQ column) name
 
 
-BLOCK_TOPICS = (
-    BlockTopic('/motor', MotorBlock, {'current_a': 'motor_current_a', 'voltage_v': 'motor_voltage_v',
-                                      'velocity_cmd_m_s': 'motor_velocity_cmd_m_s'}),
-    BlockTopic('/encoder', EncoderBlock, {'position_m': 'encoder_position_m'}),
-    BlockTopic('/accel', AccelBlock, {'axial_m_s2': 'accel_axial_m_s2', 'lateral_m_s2': 'accel_lateral_m_s2',
-                                      'vertical_m_s2': 'accel_vertical_m_s2'}),
-    BlockTopic('/force', ForceBlock, {'moving_n': 'force_moving_n', 'stationary_n': 'force_stationary_n'}),
-)
-CORRECTED_TOPIC = BlockTopic('/force_corrected', CorrectedForceBlock,
-                             {'raw_n': 'raw_n', 'inertial_n': 'inertial_n', 'corrected_n': 'corrected_n',
-                              'filtered_n': 'filtered_n'})
+def _msg_class(type_name: str):
+    return getattr(force_tester_msgs.msg, type_name.rsplit('/', 1)[1])
+
+
+BLOCK_TOPICS = tuple(BlockTopic(topic, _msg_class(t), fields) for t, (topic, fields) in BLOCK_TYPES.items())
+CORRECTED_TOPIC = BlockTopic(CORRECTED_TYPE[1][0], _msg_class(CORRECTED_TYPE[0]), CORRECTED_TYPE[1][1])
 
 
 def stamp_to_ns(stamp: Time) -> int:
