@@ -56,6 +56,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return demo.main(args)
 
 
+def cmd_thesis(args: argparse.Namespace) -> int:
+    import thesis_cmd
+    return thesis_cmd.main(args)
+
+
 def cmd_bag(args: argparse.Namespace) -> int:
     from bag_tools.cli import main as bag_main
     return bag_main(args.bag_args)
@@ -79,6 +84,12 @@ def build_parser() -> argparse.ArgumentParser:
     import demo
     demo.add_arguments(d)
     d.set_defaults(func=cmd_demo)
+
+    th = sub.add_parser("thesis", help="the thesis's top-speed predictions and Tables 7-9 beside ours "
+                                       "(--json FILE for the figures)")
+    import thesis_cmd
+    thesis_cmd.add_arguments(th)
+    th.set_defaults(func=cmd_thesis)
 
     t = sub.add_parser("test", help="run the test suite (pytest); extra arguments go to pytest")
     t.add_argument("pytest_args", nargs=argparse.REMAINDER)

@@ -17,7 +17,8 @@ L_a di/dt = (R_a + L_a w_c)(I_max - i), so i approaches I_max from below with ti
 limit: the bus cannot exceed it, whatever the current limiter asks for).
 
 Anti-windup: conditional integration (clamping): z' = e, except that z' = 0 while the voltage
-or current limiter clips the PID output and the error would push it further into the clip.
+or current limiter clips the PID output and the error would push it further into the clip
+(faded in linearly over the first 5 V of clipping, so the right-hand side stays continuous).
 (Back-calculation was tried first: with it the integrator bleeds the PID output below the
 current-limit voltage during the fast acceleration, so the current falls off before the supply
 voltage is reached; clamping lets the amplifier use the full V_max I_max as a real drive does.)
@@ -48,6 +49,7 @@ class DriveControl:
     ki_v_per_m: float = 8000.0           # integral gain, V per m of integrated error
     kd_v_s2_per_m: float = 0.0           # derivative gain on measured acceleration, V per (m/s^2)
     current_loop_rad_s: float = 2000.0   # bandwidth of the amplifier's current limiter, rad/s
+    antiwindup_band_v: float = 5.0       # clip depth over which integration is faded out, V
 
     def __post_init__(self):
         for f in fields(self):
@@ -57,7 +59,7 @@ class DriveControl:
         for name in ('kp_v_per_m_s', 'ki_v_per_m', 'kd_v_s2_per_m'):
             if getattr(self, name) < 0:
                 raise SimError(f'DriveControl.{name} is {getattr(self, name)!r}; expected >= 0')
-        for name in ('current_loop_rad_s',):
+        for name in ('current_loop_rad_s', 'antiwindup_band_v'):
             if not getattr(self, name) > 0:
                 raise SimError(f'DriveControl.{name} is {getattr(self, name)!r}; expected > 0')
 
@@ -150,8 +152,10 @@ def drive_rhs(t, x, u, params: DriveSetup):
     di = (volt - d.armature_resistance_ohm * i - params.k_emf * v) / d.armature_inductance_h
     dz = u[0] - v
     clip = volt - v_pid
-    if abs(clip) > 1e-9 * max(1.0, abs(v_pid)) and dz * clip < 0:
-        dz = 0.0   # clamped: integrating would only push the output further into the limit
+    if dz * clip < 0:
+        # clamped: integrating would only push the output further into the limit. The clamp is
+        # faded in over antiwindup_band_v (continuous, so the solver sees no chattering switch)
+        dz *= max(0.0, 1.0 - abs(clip) / c.antiwindup_band_v)
     return np.array([v, acc, di, dz])
 
 

@@ -1,0 +1,95 @@
+"""./ft thesis: the thesis's predictions (section 4.2.6) and Tables 7-9, side by side with ours.
+
+Top speed at a 30 fps command (peak, plateau, current limit, power, distance, and the plateau's
+cause decided by rerunning without damping and with a higher voltage limit), the carriage-mass
+sweep, and the Table 7/8/9-shaped statistics of the reference "measured" campaign (the truth rig,
+5 sets x 20 pulls, generated on first use and cached under runs/cache/ in the DAQ export format).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from ft_cli import ROOT
+
+CACHE = ROOT / 'runs' / 'cache'
+
+
+def add_arguments(p):
+    p.add_argument('--json', metavar='FILE', help='also write the figures as JSON')
+    p.add_argument('--plots', metavar='DIR', default=str(ROOT / 'runs' / 'thesis'),
+                   help='folder for the PNG plots (default runs/thesis)')
+    p.add_argument('--pulls', type=int, default=20, help='pulls per set in the reference campaign (default 20)')
+    p.add_argument('--seed', type=int, default=2013, help='seed of the reference campaign (default 2013)')
+    p.add_argument('--no-campaign', action='store_true', help='skip the reference campaign (Tables 7-9)')
+
+
+def truth_rig_path() -> Path:
+    import force_tester_sim.core as core
+    return Path(core.__file__).resolve().parents[1] / 'config' / 'truth_reference.yaml'
+
+
+def cache_key(pulls: int, seed: int) -> str:
+    import force_tester_sim.core as core
+    h = hashlib.sha256(f'{pulls}:{seed}'.encode())
+    h.update(truth_rig_path().read_bytes())
+    for src in sorted(Path(core.__file__).parent.glob('*.py')):
+        h.update(src.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def reference_campaign(pulls: int, seed: int, say=print) -> Path:
+    """The reference campaign folder (DAQ export format), generated if the cache does not hold it."""
+    from bag_tools.core.daq import write_campaign
+    from force_tester_sim.core.campaign import generate_campaign
+    from force_tester_sim.core.params import load_rig
+    key = cache_key(pulls, seed)
+    folder = CACHE / f'reference_campaign_{key}'
+    if (folder / 'campaign.yaml').is_file():
+        return folder
+    say(f'generating the reference campaign ({5 * pulls} pulls of 2 s at 50 kHz, truth rig, seed {seed}) '
+        f'into {folder} ...')
+    t0 = time.monotonic()
+    pulls_data = generate_campaign(load_rig(truth_rig_path()), pulls=pulls, seed=seed, workers=2)
+    for old in CACHE.glob('reference_campaign_*'):
+        shutil.rmtree(old, ignore_errors=True)
+    CACHE.mkdir(parents=True, exist_ok=True)
+    write_campaign(folder, pulls_data)
+    say(f'  done in {time.monotonic() - t0:.1f} s')
+    return folder
+
+
+def main(args) -> int:
+    from force_tester_sim.core.params import load_rig
+    from force_tester_sim.core.thesis import format_report, mass_sweep, plot_top_speed, top_speed_study
+    say = lambda m: print(m, file=sys.stderr)  # noqa: E731
+    rig = load_rig()
+    study = top_speed_study(rig)
+    sweep = mass_sweep(rig)
+    print(format_report(study, sweep))
+    plots = Path(args.plots)
+    plots.mkdir(parents=True, exist_ok=True)
+    if plot_top_speed(study, plots / 'top_speed.png'):
+        print(f'plot: {plots / "top_speed.png"}')
+    out = {'top_speed': {k: study[k] for k in ('peak_fps', 'plateau_fps', 'current_limit_hit', 'peak_power_kw',
+                                               'distance_to_plateau_ft', 'plateau_cause')},
+           'mass_sweep': [{k: m[k] for k in ('mass_kg', 'peak_fps', 'plateau_fps')} for m in sweep]}
+    if not args.no_campaign:
+        from bag_tools.core.daq import read_campaign
+        from force_tester_sim.core.campaign import campaign_tables, format_tables
+        folder = reference_campaign(args.pulls, args.seed, say)
+        tables = campaign_tables(read_campaign(folder).pulls)
+        print()
+        print(format_tables(tables, rig))
+        print(f'campaign: {folder}')
+        out['campaign'] = {'folder': str(folder), 'sets': [
+            {k: t[k] for k in ('set', 'stationary_avg_lbf', 'a2_max_g', 'raw_diff_pct', 'ma_diff_pct',
+                               'ma_filter_diff_pct')} for t in tables]}
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+        print(f'json: {args.json}')
+    return 0
