@@ -63,9 +63,38 @@ def reference_campaign(pulls: int, seed: int, say=print) -> Path:
     return folder
 
 
+def plot_top_speed(result: dict, path) -> bool:
+    """Save velocity, current and power vs time as a PNG. ``result``: a top_speed_study dict or a
+    simulate_drive dict. Returns False (and writes nothing) when matplotlib is not importable."""
+    run = result.get('run', result)
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    t = run['time_s']
+    fig, ax = plt.subplots(3, 1, sharex=True, figsize=(7, 8))
+    ax[0].plot(t, run['velocity_m_s'] / 0.3048, label='velocity')
+    ax[0].plot(t, run['command_m_s'] / 0.3048, '--', label='command')
+    ax[0].set_ylabel('fps')
+    ax[0].legend()
+    ax[1].plot(t, run['current_a'])
+    ax[1].set_ylabel('current, A')
+    ax[2].plot(t, run['power_w'] / 1e3, label='V i')
+    ax[2].plot(t, run['mech_power_w'] / 1e3, label='F v')
+    ax[2].set_ylabel('kW')
+    ax[2].set_xlabel('time, s')
+    ax[2].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
 def main(args) -> int:
     from force_tester_sim.core.params import load_rig
-    from force_tester_sim.core.thesis import format_report, mass_sweep, plot_top_speed, top_speed_study
+    from force_tester_sim.core.thesis import format_report, mass_sweep, top_speed_study
     say = lambda m: print(m, file=sys.stderr)  # noqa: E731
     rig = load_rig()
     study = top_speed_study(rig)
@@ -80,7 +109,7 @@ def main(args) -> int:
            'mass_sweep': [{k: m[k] for k in ('mass_kg', 'peak_fps', 'plateau_fps')} for m in sweep]}
     if not args.no_campaign:
         from bag_tools.core.daq import read_campaign
-        from force_tester_sim.core.campaign import campaign_tables, format_tables
+        from force_correction.core.campaign_stats import campaign_tables, format_tables
         folder = reference_campaign(args.pulls, args.seed, say)
         tables = campaign_tables(read_campaign(folder).pulls)
         print()

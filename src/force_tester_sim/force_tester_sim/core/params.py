@@ -8,6 +8,7 @@ from typing import Any, Mapping
 
 import yaml
 
+from .departures import NO_DEPARTURES, Departures, departures_from_data
 from .errors import SimError
 from .units import FT_M, G_M_S2, LBF_N
 
@@ -157,6 +158,7 @@ class RigParams:
     force_chain: ForceChainParams = field(default_factory=ForceChainParams)
     sensors: SensorParams = field(default_factory=SensorParams)
     test_sets: tuple = NOMINAL_TEST_SETS
+    departures: Departures = NO_DEPARTURES   # empty = the nominal rig (str() gives 'none')
 
     def test_set(self, n: int) -> TestSet:
         for ts in self.test_sets:
@@ -203,10 +205,10 @@ def rig_from_dict(data: Mapping) -> RigParams:
         raise SimError(f'rig description is {type(data).__name__}; expected a mapping')
     sections = {'daq': DaqParams, 'drive': DriveParams, 'force_chain': ForceChainParams,
                 'sensors': SensorParams}
-    unknown = sorted(set(data) - set(sections) - {'test_sets'})
+    unknown = sorted(set(data) - set(sections) - {'test_sets', 'departures'})
     if unknown:
         raise SimError(f'rig description has unknown section(s) {unknown}; '
-                       f'expected only {sorted(sections) + ["test_sets"]}')
+                       f'expected only {sorted(sections) + ["departures", "test_sets"]}')
     kwargs = {name: _build(cls, data[name], name) for name, cls in sections.items() if name in data}
     if 'test_sets' in data:
         raw = data['test_sets']
@@ -217,6 +219,8 @@ def rig_from_dict(data: Mapping) -> RigParams:
         if len(set(numbers)) != len(numbers):
             raise SimError(f'test set numbers {numbers} repeat; expected unique numbers')
         kwargs['test_sets'] = sets
+    if 'departures' in data:
+        kwargs['departures'] = departures_from_data(data['departures'])
     rig = RigParams(**kwargs)
     validate_rig(rig)
     return rig

@@ -7,6 +7,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from .departures import apply_sensor_departures
 from .chain import ChainParams, force_move, force_stat, tension
 from .errors import SimError
 from .integrate import ChainTrajectory, integrate_chain
@@ -43,6 +44,10 @@ class PullSpec:
     seed: int
     pull: int = 0
     command_velocity_m_s: Optional[float] = None   # the set's commanded speed (None: = velocity_m_s)
+    # optional coupon plasticity (per pull): the coupon flows at coupon_yield_n with hardening stiffness
+    # coupon_hardening_n_per_m in series with the lanyard (None: elastic to the break, the model of record)
+    coupon_yield_n: Optional[float] = None
+    coupon_hardening_n_per_m: Optional[float] = None
 
     def __post_init__(self):
         for name in ('coupon_break_n', 'velocity_m_s', 'slack_m', 'lanyard_stiffness_n_per_m', 'break_duration_s'):
@@ -102,14 +107,23 @@ def nominal_pull_spec(rig: RigParams, test_set: int, seed: int = 0) -> PullSpec:
 
 
 def chain_params(rig: RigParams, spec: PullSpec) -> ChainParams:
+    if spec.coupon_yield_n is None:
+        return ChainParams.from_rig(rig, slack_m=spec.slack_m, break_n=spec.coupon_break_n,
+                                    break_duration_s=spec.break_duration_s,
+                                    lanyard_stiffness_n_per_m=spec.lanyard_stiffness_n_per_m)
     return ChainParams.from_rig(rig, slack_m=spec.slack_m, break_n=spec.coupon_break_n,
                                 break_duration_s=spec.break_duration_s,
-                                lanyard_stiffness_n_per_m=spec.lanyard_stiffness_n_per_m)
+                                lanyard_stiffness_n_per_m=spec.lanyard_stiffness_n_per_m,
+                                yield_n=spec.coupon_yield_n, hardening_n_per_m=spec.coupon_hardening_n_per_m)
 
 
 def motion_for(rig: RigParams, spec: PullSpec) -> PrescribedMotion:
     p = chain_params(rig, spec)
-    hold = hold_time_s(spec.coupon_break_n, spec.velocity_m_s, p.series_stiffness, spec.break_duration_s)
+    k_load = p.series_stiffness
+    if p.yields and p.yield_n < spec.coupon_break_n:   # elastic to the yield, then the (softer) flow piece
+        k_load = spec.coupon_break_n / (p.yield_n / k_load
+                                        + (spec.coupon_break_n - p.yield_n) / p.flow_params().series_stiffness)
+    hold = hold_time_s(spec.coupon_break_n, spec.velocity_m_s, k_load, spec.break_duration_s)
     m = PrescribedMotion.build(spec.velocity_m_s, spec.slack_m, spec.decel_m_s2, hold,
                                command_velocity_m_s=spec.command_velocity_m_s)
     m.check_fits(rig.drive.usable_track_m, rig.daq.record_length_s)
@@ -162,13 +176,22 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     X = traj.x
     U = np.column_stack([x3, v3, a3, traj.beta])
     T = tension(X, U, p)
+    if traj.yield_s is not None:   # flowing coupon: the flow piece's tension from the yield on
+        flowing = t >= traj.yield_s
+        T[flowing] = tension(X[flowing], U[flowing], p.flow_params())
     fm = force_move(X, p)
     fs = force_stat(X, p)
     a2 = (fm - T) / p.m2
     a1 = (T - fs) / p.m1
 
     d = rig.drive
-    current = (d.reflected_mass_kg * a3 + d.viscous_damping_n_s_per_m * v3 + fm) / d.force_per_amp_n_per_a
+    deps = rig.departures
+    cf = deps.get('coulomb_friction') if deps else None
+    if cf is None:
+        current = (d.reflected_mass_kg * a3 + d.viscous_damping_n_s_per_m * v3 + fm) / d.force_per_amp_n_per_a
+    else:   # dry friction F_c sign(v3) in the drive's force balance
+        current = (d.reflected_mass_kg * a3 + d.viscous_damping_n_s_per_m * v3 + fm
+                   + cf['force_n'] * np.sign(v3)) / d.force_per_amp_n_per_a
     di = np.gradient(current, t)
     voltage = np.clip(d.armature_resistance_ohm * current + d.armature_inductance_h * di
                       + d.back_emf_v_per_m_s * v3, -d.voltage_limit_v, d.voltage_limit_v)
@@ -180,13 +203,14 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
         nz = {k: rng.standard_normal(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
     else:
         nz = {k: np.zeros(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
+    fm_rec, a2_rec = (apply_sensor_departures(deps, t, fm, a2, spec.seed) if deps else (fm, a2))
     channels = {
         'time_s': t,
         'encoder_position_m': np.round(x3 / res) * res,
-        'accel_axial_m_s2': a2 + ACCEL_NOISE_M_S2 * nz['ax'],
+        'accel_axial_m_s2': a2_rec + ACCEL_NOISE_M_S2 * nz['ax'],
         'accel_lateral_m_s2': ACCEL_NOISE_M_S2 * nz['lat'],
         'accel_vertical_m_s2': ACCEL_NOISE_M_S2 * nz['vert'],
-        'force_moving_n': fm + LOAD_CELL_NOISE_N * nz['fm'],
+        'force_moving_n': fm_rec + LOAD_CELL_NOISE_N * nz['fm'],
         'force_stationary_n': fs + LOAD_CELL_NOISE_N * nz['fs'],
         'motor_velocity_cmd_m_s': v3 * motion.command_scale,
         'motor_current_a': current,
@@ -203,6 +227,9 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     truth = {'x3_m': x3, 'v3_m_s': v3, 'a3_m_s2': a3, 'u2_m': x3 + X[:, 0], 'v2_m_s': v3 + X[:, 1],
              'u1_m': X[:, 2], 'v1_m_s': X[:, 3], 'a1_m_s2': a1, 'a2_m_s2': a2, 'tension_n': T,
              'beta': traj.beta, 'force_moving_n': fm, 'force_stationary_n': fs}
+    if p.has_mount:
+        truth['ub_m'] = x3 + X[:, 4]
+        truth['vb_m_s'] = v3 + X[:, 5]
     return PullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,
                       traj.break_s, truth)
 

@@ -130,32 +130,3 @@ def format_report(study: dict, sweep: list) -> str:
         lines.append(f'{row["mass_kg"]:>8.0f}{row.get("reflected_mass_kg", float("nan")):>9.1f}'
                      f'{row["peak_fps"]:>10.2f}{row["plateau_fps"]:>13.2f}')
     return '\n'.join(lines)
-
-
-def plot_top_speed(result: dict, path) -> bool:
-    """Save velocity, current and power vs time as a PNG. ``result``: a top_speed_study dict or a
-    simulate_drive dict. Returns False (and writes nothing) when matplotlib is not importable."""
-    run = result.get('run', result)
-    try:
-        import matplotlib
-        matplotlib.use('Agg')
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return False
-    t = run['time_s']
-    fig, ax = plt.subplots(3, 1, sharex=True, figsize=(7, 8))
-    ax[0].plot(t, run['velocity_m_s'] / FT_M, label='velocity')
-    ax[0].plot(t, run['command_m_s'] / FT_M, '--', label='command')
-    ax[0].set_ylabel('fps')
-    ax[0].legend()
-    ax[1].plot(t, run['current_a'])
-    ax[1].set_ylabel('current, A')
-    ax[2].plot(t, run['power_w'] / 1e3, label='V i')
-    ax[2].plot(t, run['mech_power_w'] / 1e3, label='F v')
-    ax[2].set_ylabel('kW')
-    ax[2].set_xlabel('time, s')
-    ax[2].legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return True
