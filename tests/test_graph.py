@@ -18,7 +18,8 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope='module')
 def live(tmp_path_factory, module_ros_domain):
     out = tmp_path_factory.mktemp('demo')
-    scores = demo.run_live(out, sets=[1, 2, 3, 4, 5], pulls=1, seed=3, rate=1.0, timeout=180)
+    # the truth reference rig: it departs from the datasheet like the thesis's real rig did
+    scores = demo.run_live(out, sets=[1, 2, 3, 4, 5], pulls=1, seed=3, rate=1.0, timeout=180, rig='truth')
     return out, scores
 
 
@@ -68,6 +69,14 @@ def test_set3_live_scores_equal_the_core_on_the_recorded_samples(live):
         assert s3[k] == pytest.approx(getattr(ref, k), rel=1e-9, abs=1e-9), k
     # what the correction did is visible in the score: m2*a2 was subtracted during the pull
     assert s3['corrected_rms_n'] != pytest.approx(s3['raw_rms_n'], rel=1e-3)
+
+
+def test_set3_validator_puts_the_corrected_force_closer_to_the_stationary_cell(live):
+    (s3,) = [s for s in live[1] if s['test_set'] == 3]
+    assert s3['raw_diff_pct'] > 20.0, s3           # the moving cell reads high at 15 fps
+    assert s3['corrected_diff_pct'] < s3['raw_diff_pct'], s3
+    assert s3['filtered_diff_pct'] < s3['raw_diff_pct'], s3
+    assert s3['corrected_rms_n'] < s3['raw_rms_n'], s3
 
 
 def test_recorded_bag_is_complete(live):

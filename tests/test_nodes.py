@@ -42,6 +42,7 @@ def validator_node():
     (sim_node, 'test_sets', [7], ['7', '1, 2, 3, 4, 5']),
     (sim_node, 'block_size', 0, ['0', '1', '100000']),
     (sim_node, 'rate', 0.0, ['0.0', '0.01', '1000.0']),
+    (sim_node, 'coupons', 'foo', ['foo', 'rated, measured']),
     (validator_node, 'loaded_fraction', 1.5, ['1.5', '0.99']),
 ])
 def test_invalid_parameter_is_rejected_with_value_and_range_and_old_value_kept(ros, factory, name, value, quoted):

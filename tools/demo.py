@@ -31,6 +31,10 @@ def add_arguments(p):
     p.add_argument('--pulls', type=int, default=1, help='pulls per set (default 1)')
     p.add_argument('--seed', type=int, default=0, help='seed of the scatter and the noise (default 0)')
     p.add_argument('--rate', type=float, default=1.0, help='sim pace, real-time factor (default 1.0)')
+    p.add_argument('--rig', default='truth', metavar='RIG',
+                   help="'truth' (default: the reference rig, which departs from the datasheet like the thesis's "
+                        "real rig, with coupons at their measured levels), 'nominal' (the datasheet rig, coupons "
+                        "at their rating) or a rig YAML file")
     p.add_argument('--out', default=str(ROOT / 'runs' / 'demo'),
                    help='output folder: bag/, scores.json, logs/ (default runs/demo; replaced)')
     p.add_argument('--timeout', type=float, default=120.0, help='give up after this many seconds')
@@ -145,7 +149,18 @@ def format_table(scores: list) -> str:
     return '\n'.join(rows)
 
 
-def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float, say=print) -> list:
+def rig_params(rig: str) -> dict:
+    """The sim node's rig_file and coupons parameters for --rig."""
+    if rig == 'nominal':
+        return {'rig_file': '', 'coupons': 'rated'}
+    if rig == 'truth':
+        from thesis_cmd import truth_rig_path
+        return {'rig_file': str(truth_rig_path()), 'coupons': 'measured'}
+    return {'rig_file': str(Path(rig).resolve()), 'coupons': 'measured'}
+
+
+def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float, say=print,
+             rig: str = 'truth') -> list:
     """Run the graph, record out/bag, return the validator's scores (raises RuntimeError on failure)."""
     bag = out / 'bag'
     if bag.exists():
@@ -161,8 +176,8 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         collector.wait_for_graph({'/force_corrected': 2, '/pull_event': 1}, timeout=30)
         graph.start('force_tester_sim', 'sim_node', {
             'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
-            'rate': float(rate), 'wait_for_subscribers': 3, 'exit_when_done': True})
-        say(f'demo: {expected} pull(s) of 2 s at 50 kHz, sets {list(sets)}; logs in {graph.log_dir}')
+            'rate': float(rate), 'wait_for_subscribers': 3, 'exit_when_done': True, **rig_params(rig)})
+        say(f'demo: {expected} pull(s) of 2 s at 50 kHz, sets {list(sets)}, {rig} rig; logs in {graph.log_dir}')
         ok = collector.wait(expected, timeout, alive=lambda: not graph.dead(),
                             progress=lambda sc: say(f"demo: scored pull {sc['pull_id'] + 1}/{expected} "
                                                     f"(set {sc['test_set']})"))
@@ -184,7 +199,7 @@ def main(args) -> int:
     t0 = time.monotonic()
     try:
         scores = run_live(out, args.sets, args.pulls, args.seed, args.rate, args.timeout,
-                          say=lambda m: print(m, file=sys.stderr))
+                          say=lambda m: print(m, file=sys.stderr), rig=args.rig)
     except RuntimeError as exc:
         print(f'ft demo: error: {exc}', file=sys.stderr)
         return 1

@@ -18,7 +18,7 @@ from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, Diagnostics
 from force_tester_msgs.msg import PullEvent
 from rclpy.node import Node
 
-from .core.pull import make_pull_specs, simulate_pull
+from .core.pull import simulate_pull
 from .core.sim_config import SimConfig, block_bounds, sample_stamp_ns
 
 SPECS = [
@@ -29,11 +29,13 @@ SPECS = [
     ParamSpec('rate', 1.0, 'pace as a real-time factor (1.0 = real time)', (0.01, 1000.0)),
     ParamSpec('rig_file', '', 'rig YAML replacing the nominal constants ("" = nominal)'),
     ParamSpec('noise', True, 'add sensor noise'),
+    ParamSpec('coupons', 'rated', "'rated': coupons break at their rating; 'measured': at thesis Table 7's "
+                                  "measured levels, yielding first (the reference campaign's coupons)"),
     ParamSpec('wait_for_subscribers', 0, 'wait until /force has this many subscribers before publishing',
               (0, 100)),
     ParamSpec('exit_when_done', False, 'shut the node down after the last pull'),
 ]
-CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise')
+CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise', 'coupons')
 
 
 def config_from(values: dict) -> SimConfig:
@@ -57,7 +59,7 @@ class SimNode(Node):
         rig = config.rig()
         pull_id = 0
         for test_set in config.test_sets:
-            for spec in make_pull_specs(rig, test_set, config.pulls_per_set, config.seed + 7919 * test_set):
+            for spec in config.pull_specs(rig, test_set, config.seed + 7919 * test_set):
                 yield pull_id, rig, spec
                 pull_id += 1
 

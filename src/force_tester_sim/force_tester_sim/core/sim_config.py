@@ -5,7 +5,9 @@ from dataclasses import dataclass
 from typing import Iterator
 
 from .errors import SimError
+from .campaign import truth_pull_specs
 from .params import RigParams, load_rig
+from .pull import make_pull_specs
 
 NS_PER_S = 1_000_000_000
 
@@ -20,6 +22,9 @@ class SimConfig:
     rate: float = 1.0
     rig_file: str = ''
     noise: bool = True
+    coupons: str = 'rated'
+
+    COUPONS = ('rated', 'measured')
 
     def __post_init__(self):
         if not self.test_sets:
@@ -30,6 +35,8 @@ class SimConfig:
             raise SimError(f'block_size {self.block_size} is out of range; expected an integer in [1, 100000] samples')
         if not 0.01 <= self.rate <= 1000.0:
             raise SimError(f'rate {self.rate} is out of range; expected a real-time factor in [0.01, 1000]')
+        if self.coupons not in self.COUPONS:
+            raise SimError(f"coupons {self.coupons!r} is unknown; expected one of {', '.join(self.COUPONS)}")
         if self.seed < 0:
             raise SimError(f'seed {self.seed} is negative; expected an integer >= 0')
         rig = self.rig()
@@ -38,6 +45,13 @@ class SimConfig:
 
     def rig(self) -> RigParams:
         return load_rig(self.rig_file or None)
+
+    def pull_specs(self, rig: RigParams, test_set: int, seed: int):
+        """'rated': coupons break at their rating on an elastic lanyard (nominal scatter);
+        'measured': at the set's measured level (thesis Table 7), yielding first, as in the reference campaign."""
+        if self.coupons == 'measured':
+            return truth_pull_specs(rig, test_set, self.pulls_per_set, seed)
+        return make_pull_specs(rig, test_set, self.pulls_per_set, seed)
 
 
 def sample_stamp_ns(t0_ns: int, index: int, sample_rate_hz: float) -> int:
