@@ -6,6 +6,7 @@ fresh correction + validator pair, which must reproduce the live scores.
 """
 import json
 import subprocess
+import time
 import sys
 
 import pytest
@@ -102,6 +103,8 @@ def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
             graph.start('force_correction', 'validator_node')
         else:  # both nodes in one executor
             graph.start('force_correction', 'correction_graph')
+        assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=30)
+        time.sleep(0.5)  # let the matched readers settle, as the demo does
         player = graph.start('bag_tools', 'player', extra=[
             str(out / 'bag'), '--topics', '/force', '/accel', '/pull_event', '--wait-for-subscribers', '1'])
         ok = collector.wait(len(live_scores), 120, alive=lambda: not graph.dead())
@@ -113,6 +116,32 @@ def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
     for a, b in zip(live_scores, played):
         for k in demo.SCORE_FIELDS:
             assert b[k] == pytest.approx(a[k], rel=1e-9, abs=1e-9), (k, a, b)
+
+
+def test_offline_correct_reproduces_the_live_recording(live, tmp_path):
+    """`./ft bag correct` on the live bag (correction + validator output recorded) gives the live
+    corrected blocks and scores: offline and live share one core."""
+    import numpy as np
+    from bag_tools.core.offline import correct
+    from bag_tools.core.reader import open_bag
+    demo = live[0] / 'bag'
+    with open_bag(demo) as b:
+        live_scores = [b.deserialize(m.cdr, m.type_name) for m in b.messages('/pull_score')]
+        live_blocks = {}
+        for m in b.messages('/force_corrected'):
+            msg = b.deserialize(m.cdr, m.type_name)
+            live_blocks[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = msg.filtered_n
+    res = correct(demo, tmp_path / 'out')
+    by_id = {p['pull_id']: p for p in res['pulls']}
+    for s in live_scores:
+        for k in ('raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct', 'filtered_rms_n'):
+            assert abs(by_id[s.pull_id][k] - getattr(s, k)) <= 1e-9
+    with open_bag(tmp_path / 'out') as b:
+        for m in b.messages('/force_corrected'):
+            msg = b.deserialize(m.cdr, m.type_name)
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            assert stamp in live_blocks
+            np.testing.assert_allclose(msg.filtered_n, live_blocks[stamp], rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize('make_bad', ['missing', 'empty_dir', 'truncated'])

@@ -91,13 +91,13 @@ class ScoreCollector:
 
     def __init__(self):
         import rclpy
-        from force_tester_common.ros import EVENT_QOS
+        from force_tester_common.ros import SCORE_QOS
         from force_tester_msgs.msg import PullScore
         from rclpy.executors import SingleThreadedExecutor
         rclpy.init(args=['ft_demo'])
         self.node = rclpy.create_node('ft_demo')
         self.scores = []
-        self.node.create_subscription(PullScore, '/pull_score', self._on_score, EVENT_QOS)
+        self.node.create_subscription(PullScore, '/pull_score', self._on_score, SCORE_QOS)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
 
@@ -173,7 +173,7 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         graph.start('force_correction', 'correction_node')
         graph.start('force_correction', 'validator_node')
         graph.start('bag_tools', 'recorder_node', {'bag_path': str(bag)})
-        collector.wait_for_graph({'/force_corrected': 2, '/pull_event': 1}, timeout=30)
+        collector.wait_for_graph({'/force_corrected': 2, '/force': 3, '/pull_event': 2}, timeout=30)
         graph.start('force_tester_sim', 'sim_node', {
             'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
             'rate': float(rate), 'wait_for_subscribers': 3, 'exit_when_done': True, **rig_params(rig)})

@@ -1,15 +1,62 @@
-"""./ft bag COMMAND: record, play and inspect rosbag2 (MCAP) bags."""
+"""./ft bag COMMAND: record, play, inspect, convert and correct bags and DAQ campaigns.
+
+Every failure ends with one line on stderr, `./ft bag CMD: error: ...`, and a non-zero exit
+code (2 for bad input, 1 for an internal error, 130 for Ctrl-C); never a traceback.
+"""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
+import time
+from pathlib import Path
 
-from .core.errors import BagError
-from .core.info import bag_info, format_info
+from .core.errors import BagError, one_line
+
+LBF_N = 4.4482216152605
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error in one line."""
+
+    def error(self, message):  # noqa: D102
+        self.exit(2, f'{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n')
+
+
+class Progress:
+    """A single self-overwriting stderr line; silent when stderr is not a terminal."""
+
+    def __init__(self, label: str, unit: str = '') -> None:
+        self.label, self.unit = label, unit
+        self.enabled = sys.stderr.isatty()
+        self.t0 = time.monotonic()
+        self.shown = False
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.enabled or not total:
+            return
+        frac = min(1.0, done / total)
+        bar = '#' * int(frac * 30)
+        sys.stderr.write(f'\r{self.label} [{bar:<30}] {done}/{total} {self.unit} '
+                         f'{time.monotonic() - self.t0:.1f} s')
+        sys.stderr.flush()
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            sys.stderr.write('\n')
+            self.shown = False
+
+
+def _warn(cmd: str, warnings: list) -> None:
+    for w in warnings:
+        print(f'./ft bag {cmd}: warning: {one_line(w)}', file=sys.stderr)
+
+
+# --------------------------------------------------------------------------- commands
 def cmd_info(args) -> int:
+    from .core.info import bag_info, format_info
     print(format_info(bag_info(args.bag)))
     return 0
 
@@ -31,9 +78,121 @@ def cmd_record(args) -> int:
     return spin_nodes(RecorderNode, args=['recorder', *ros_args])
 
 
+def cmd_export(args) -> int:
+    from .core.convert import bag_to_campaign
+    warnings: list = []
+    prog = Progress('export')
+    try:
+        out = bag_to_campaign(args.bag, args.dir, progress=prog, warnings=warnings,
+                              workers=args.jobs)
+    finally:
+        prog.close()
+        _warn('export', warnings)
+    from .core.daq import read_campaign
+    camp = read_campaign(out)
+    print(f'exported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz to {out}')
+    return 0
+
+
+def cmd_import(args) -> int:
+    from .core.convert import campaign_to_bag
+    from .core.daq import (Campaign, DaqPull, check_channels, check_meta, parse_mapping,
+                           read_campaign, read_tdms)
+    warnings: list = []
+    src = args.src
+    if src.lower().endswith('.tdms'):
+        if not os.path.isfile(src):
+            raise BagError(f'TDMS file {src!r} does not exist')
+        raw = read_tdms(src, parse_mapping(args.map or []), args.rate)
+        tdms_warnings: list = []
+        channels, rate = check_channels(raw, src, args.rate, tdms_warnings)
+        meta = check_meta({'file': os.path.basename(src), 'set': args.set,
+                           'coupon_lbf': args.coupon_lbf, 'velocity_fps': args.velocity_fps,
+                           'decel_g': args.decel_g, 'start_ns': args.start_ns,
+                           'pull_id': args.pull_id}, src, 0)
+        camp = Campaign(Path(src).parent, rate, [DaqPull(meta, channels)], None,
+                        tdms_warnings)
+    else:
+        if args.map:
+            raise BagError('--map applies to a .tdms source; a campaign folder maps its TDMS '
+                           "files with a 'map:' entry per pull in campaign.yaml")
+        camp = read_campaign(src)
+    prog = Progress('import', 'pulls')
+    try:
+        out = campaign_to_bag(camp, args.bag, block_size=args.block_size, progress=prog,
+                              warnings=warnings)
+    finally:
+        prog.close()
+        _warn('import', warnings)
+    print(f'imported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz into {out}')
+    return 0
+
+
+def format_summary(result: dict) -> str:
+    """Per-set table: set, pulls, mean stationary peak (lbf), mean +- std % diff."""
+    def f(x, w=6, d=1):
+        return f'{x:{w}.{d}f}' if isinstance(x, float) and math.isfinite(x) else ' ' * (w - 1) + '-'
+    lines = ['set pulls  stationary   diff raw %      diff m*a %     diff m*a+MA %',
+             '             peak lbf   mean    std    mean    std    mean    std',
+             '-' * 70]
+    for s in result['sets']:
+        lines.append(f"{s['set_id']:>3} {s['pulls']:>5}  {f(s['mean_stationary_peak_n'] / LBF_N, 10)}"
+                     f" {f(s['raw_mean_pct'])} {f(s['raw_std_pct'])}"
+                     f"  {f(s['corrected_mean_pct'])} {f(s['corrected_std_pct'])}"
+                     f"  {f(s['filtered_mean_pct'])} {f(s['filtered_std_pct'])}")
+    p = result['params']
+    dropped = sum(x['dropped_blocks'] for x in result['pulls'])
+    lines.append(f"m2 = {p['mass_kg']:g} kg, window = {p['window']}; % difference is thesis "
+                 f"eq 1 at the peaks; std over pulls (ddof 1); NaN samples: "
+                 f"{result['nan_samples']}; dropped blocks: {dropped}")
+    return '\n'.join(lines)
+
+
+def cmd_correct(args) -> int:
+    from .core.offline import correct
+    warnings: list = []
+    prog = Progress('correct', 'messages')
+    try:
+        result = correct(args.src, args.dst, mass_kg=args.mass_kg, window=args.window,
+                         loaded_fraction=args.loaded_fraction, to=args.to, progress=prog,
+                         warnings=warnings)
+    finally:
+        prog.close()
+        _warn('correct', warnings)
+    print(format_summary(result))
+    print(f'written to {args.dst}')
+    return 0
+
+
+def cmd_plot(args) -> int:
+    from .core.plot import load_pull, plot_pull
+    warnings: list = []
+    pull, rate = load_pull(args.src, args.pull, warnings)
+    _warn('plot', warnings)
+    out = args.out or f'pull_{args.pull}.png'
+    plot_pull(pull, rate, out, si=args.si, mass_kg=args.mass_kg, window=args.window)
+    print(f'wrote {out}')
+    return 0
+
+
+# --------------------------------------------------------------------------- parser
+def _positive_float(name):
+    def conv(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'{name} {text!r} is not a number') from None
+        if not math.isfinite(v) or v <= 0:
+            raise argparse.ArgumentTypeError(f'{name} {text!r} must be a finite number > 0')
+        return v
+    return conv
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog='./ft bag', description='Record, play and inspect rosbag2 MCAP bags.')
-    sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
+                'rosbag2 MCAP bags and DAQ campaign folders (see src/bag_tools/README.md).')
+    sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND',
+                           parser_class=_Parser)
     i = sub.add_parser('info', help='topics, types, counts, duration, sample rate, dropped blocks, pulls')
     i.add_argument('bag')
     i.set_defaults(func=cmd_info)
@@ -45,6 +204,62 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('-o', '--output', required=True, help='bag directory to create')
     r.add_argument('topics', nargs='*', help='topics (default: every force tester topic)')
     r.set_defaults(func=cmd_record)
+
+    e = sub.add_parser('export', help='bag -> DAQ campaign folder (CSV per pull + campaign.yaml)',
+                       description='Cut the bag into pulls at its PullEvent START/END and write '
+                       'one lossless CSV per pull plus campaign.yaml (stamps kept as start_ns).')
+    e.add_argument('bag', help='rosbag2 directory')
+    e.add_argument('dir', help='campaign folder to create (must not exist)')
+    e.add_argument('-j', '--jobs', type=int, default=os.cpu_count() or 1,
+                   help='processes formatting CSV (default: CPU count)')
+    e.set_defaults(func=cmd_export)
+
+    im = sub.add_parser('import', help='DAQ campaign folder or .tdms file -> bag',
+                        description='Write the block messages and PullEvents of a campaign '
+                        '(or of one TDMS file) into a new bag.')
+    im.add_argument('src', help='campaign folder (campaign.yaml) or a .tdms file')
+    im.add_argument('bag', help='bag directory to create (must not exist)')
+    im.add_argument('--block-size', type=int, default=50, help='samples per block (default 50)')
+    tg = im.add_argument_group('TDMS source (one pull)')
+    tg.add_argument('--map', action='append', metavar='COLUMN=CHANNEL',
+                    help="DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
+    tg.add_argument('--rate', type=_positive_float('--rate'), default=None,
+                    help='sample rate, Hz, when the file has no time_s channel')
+    tg.add_argument('--set', type=int, default=0, help='test set (default 0: unknown)')
+    tg.add_argument('--coupon-lbf', type=float, default=0.0)
+    tg.add_argument('--velocity-fps', type=float, default=0.0)
+    tg.add_argument('--decel-g', type=float, default=0.0)
+    tg.add_argument('--start-ns', type=int, default=None, help='stamp of the first sample')
+    tg.add_argument('--pull-id', type=int, default=None)
+    im.set_defaults(func=cmd_import)
+
+    c = sub.add_parser('correct', help='offline m*a correction + scoring (same core as the live nodes)',
+                       description='Correct a bag or a campaign with the live correction core '
+                       'and score every pull; writes a new bag (adds /force_corrected, '
+                       '/pull_score, /set_summary) or a campaign (adds inertial_n, corrected_n, '
+                       'filtered_n columns and scores.json). Prints the per-set table.')
+    c.add_argument('src', help='bag or campaign folder')
+    c.add_argument('dst', help='output bag or campaign folder (must not exist)')
+    c.add_argument('--mass-kg', type=_positive_float('--mass-kg'), default=1.152,
+                   help='moving-side mass m2, kg (default 1.152)')
+    c.add_argument('--window', type=int, default=140, help='moving average, samples (default 140)')
+    c.add_argument('--loaded-fraction', type=float, default=0.1,
+                   help='RMS window: stationary > this x its peak (default 0.1)')
+    c.add_argument('--to', choices=('bag', 'campaign'), default=None,
+                   help='output kind (default: the kind of SRC)')
+    c.set_defaults(func=cmd_correct)
+
+    pt = sub.add_parser('plot', help='one pull -> PNG (forces, accelerometer, encoder)',
+                        description='Plot one pull like thesis Figures 10-16: stationary vs '
+                        'moving vs corrected force, accelerometer, encoder position and '
+                        'velocity. lbf, g, ft and ft/s unless --si. Needs matplotlib.')
+    pt.add_argument('src', help='bag or campaign folder')
+    pt.add_argument('--pull', type=int, required=True, help='pull number, 1-based, in time order')
+    pt.add_argument('--out', default=None, help='PNG to write (default pull_N.png)')
+    pt.add_argument('--si', action='store_true', help='SI units (N, m/s^2, m, m/s)')
+    pt.add_argument('--mass-kg', type=_positive_float('--mass-kg'), default=1.152)
+    pt.add_argument('--window', type=int, default=140)
+    pt.set_defaults(func=cmd_plot)
     return p
 
 
@@ -55,6 +270,14 @@ def main(argv=None) -> int:
     except BagError as exc:
         print(f'./ft bag {args.command}: error: {exc}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f'./ft bag {args.command}: error: interrupted; no partial output is left',
+              file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - one line, never a traceback
+        print(f'./ft bag {args.command}: error: internal error {type(exc).__name__}: '
+              f'{one_line(exc)}', file=sys.stderr)
+        return 1
 
 
 if __name__ == '__main__':

@@ -11,7 +11,7 @@ from collections import deque
 
 from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, ns_to_stamp, stamp_to_ns, to_array
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, WARN, Diagnostics, main_for
+from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, SCORE_QOS, WARN, Diagnostics, main_for
 from force_tester_msgs.msg import PullEvent, PullScore, SetSummary
 from rclpy.node import Node
 
@@ -47,8 +47,8 @@ class ValidatorNode(Node):
         self.pulls = {}  # pull_id -> PullAccumulator
         self.idle_s = {}  # pull_id -> seconds since END without the data reaching it
         self.stats = SetStatistics()
-        self.score_pub = self.create_publisher(PullScore, '/pull_score', EVENT_QOS)
-        self.summary_pub = self.create_publisher(SetSummary, '/set_summary', EVENT_QOS)
+        self.score_pub = self.create_publisher(PullScore, '/pull_score', SCORE_QOS)
+        self.summary_pub = self.create_publisher(SetSummary, '/set_summary', SCORE_QOS)
         self.create_subscription(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic,
                                  lambda m: self._on_block('corrected', m, len(m.raw_n)), BLOCK_QOS)
         self.create_subscription(FORCE.msg_type, FORCE.topic,

@@ -234,6 +234,10 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
                       traj.break_s, truth)
 
 
-def simulate_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> Dict[str, np.ndarray]:
-    """The DAQ export columns of one pull (keys: CHANNELS)."""
+def simulate_pull(rig: RigParams, spec: PullSpec, noise: bool = True, drive: bool = False) -> Dict[str, np.ndarray]:
+    """The DAQ export columns of one pull (keys: CHANNELS). ``drive=True``: the drive model coupled to the force
+    chain (core/coupled.py, run_coupled_pull) instead of the prescribed carriage motion."""
+    if drive:
+        from .coupled import run_coupled_pull   # coupled imports this module
+        return run_coupled_pull(rig, spec, noise).channels
     return run_pull(rig, spec, noise).channels

@@ -1,0 +1,57 @@
+"""Benchmark: simulator speed (python benchmarks/bench_sim.py). Prints figures, asserts nothing.
+
+- one 2 s pull at 50 kHz (nominal rig, set 3), prescribed motion (run_pull) and drive-coupled
+  (run_coupled_pull): wall time and real-time factor (record length / wall), target >= 10x;
+- the 100-pull reference campaign: generate_campaign(load_rig(truth_reference.yaml), pulls=20,
+  seed=2013, workers=2): wall time, target < 60 s.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / 'src' / 'force_tester_sim'))
+
+from force_tester_sim.core import load_rig, nominal_pull_spec, run_pull  # noqa: E402
+from force_tester_sim.core.campaign import generate_campaign  # noqa: E402
+from force_tester_sim.core.coupled import run_coupled_pull  # noqa: E402
+
+TRUTH = ROOT / 'src' / 'force_tester_sim' / 'force_tester_sim' / 'config' / 'truth_reference.yaml'
+RT_TARGET = 10.0
+CAMPAIGN_TARGET_S = 60.0
+
+
+def best_of(fn, n=3):
+    best, out = float('inf'), None
+    for _ in range(n):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def main() -> int:
+    rig = load_rig()
+    spec = nominal_pull_spec(rig, 3, seed=1)
+    rec = rig.daq.record_length_s
+    print(f'one pull: nominal rig, set 3, {rec:g} s at {rig.daq.sample_rate_hz:g} Hz (best of 3)')
+    for name, fn in (('prescribed', lambda: run_pull(rig, spec)), ('coupled', lambda: run_coupled_pull(rig, spec))):
+        wall, res = best_of(fn)
+        extra = f', {res.iterations} passes' if hasattr(res, 'iterations') else ''
+        rt = rec / wall
+        print(f'  {name:10s} wall {wall:7.3f} s   real-time factor {rt:6.1f}x   '
+              f'vs target {RT_TARGET:g}x: {rt / RT_TARGET:5.2f}{extra}')
+    truth = load_rig(TRUTH)
+    t0 = time.perf_counter()
+    out = generate_campaign(truth, pulls=20, seed=2013, workers=2)
+    wall = time.perf_counter() - t0
+    print(f'campaign: truth_reference.yaml, {len(out)} pulls, workers=2 (prescribed motion)')
+    print(f'  wall {wall:7.2f} s   {wall / len(out):.3f} s/pull   vs target {CAMPAIGN_TARGET_S:g} s: '
+          f'{wall / CAMPAIGN_TARGET_S:5.2f} of the budget')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

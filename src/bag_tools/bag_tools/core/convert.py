@@ -1,0 +1,319 @@
+"""Bag <-> DAQ campaign conversion (lossless for samples and stamps).
+
+Bag -> campaign: the block messages of every block topic are cut into pulls by the PullEvent
+START/END windows, by sample time (block stamp + k / rate), not by log time. Samples missing
+inside a pull (dropped blocks) become NaN rows, with a warning.
+
+Campaign -> bag: each pull is cut into blocks of ``block_size`` samples starting at the pull's
+first sample. Block header stamp = the block's first sample; the bag's log time of a block =
+the stamp of its LAST sample (the earliest moment the block exists, like a live recording,
+so START is logged before the pull's first block and END after its last). PullEvent log time =
+its header stamp. Messages are serialised with the rosbags typestore and written by BagWriter.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+from rosbags.typesys.store import Typestore
+
+from force_tester_common.channels import (BLOCK_TYPES, CORRECTED_TYPE, OPTIONAL_CHANNELS,
+                                          PULL_EVENT_TYPE, REQUIRED_CHANNELS)
+
+from .daq import (CORRECTED_COLUMNS, DEFAULT_EPOCH_NS, DEFAULT_GAP_NS, FT_M, G_M_S2, LBF_N,
+                  NS_PER_S, Campaign, DaqPull, end_stamp_ns, read_campaign, sample_stamps_ns,
+                  time_column, write_campaign)
+from .errors import BagError
+from .reader import open_bag
+from .typestore import default_typestore
+from .writer import BagWriter
+
+PULL_START, PULL_END = 0, 1
+CORRECTED_NAME, (CORRECTED_TOPIC, CORRECTED_FIELDS) = CORRECTED_TYPE
+#: Block types exported to campaign columns: type -> {field: column}.
+EXPORT_FIELDS = {t: fields for t, (_topic, fields) in BLOCK_TYPES.items()}
+EXPORT_FIELDS[CORRECTED_NAME] = {f: c for f, c in CORRECTED_FIELDS.items() if c != 'raw_n'}
+
+#: Types a bag normally holds that have no DAQ column: skipped without a warning.
+QUIET_TYPES = ('force_tester_msgs/msg/PullScore', 'force_tester_msgs/msg/SetSummary',
+               'diagnostic_msgs/msg/DiagnosticArray', 'rosgraph_msgs/msg/Log')
+
+Progress = Callable[[int, int], None]
+
+
+# --------------------------------------------------------------------------- messages
+def header(store: Typestore, stamp_ns: int, frame_id: str = ''):
+    T = store.types
+    return T['std_msgs/msg/Header'](
+        stamp=T['builtin_interfaces/msg/Time'](sec=int(stamp_ns) // NS_PER_S,
+                                               nanosec=int(stamp_ns) % NS_PER_S),
+        frame_id=frame_id)
+
+
+def stamp_of(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
+
+
+_EMPTY = np.empty(0, dtype=np.float64)
+
+
+def block_cdr(store: Typestore, type_name: str, stamp_ns: int, rate_hz: float, seq: int,
+              arrays: dict, frame_id: str = '') -> bytes:
+    """CDR of a block message; fields absent from arrays are empty."""
+    cls = store.types[type_name]
+    kwargs = {f: np.ascontiguousarray(arrays.get(f, _EMPTY), dtype=np.float64)
+              for f in cls.__dataclass_fields__ if f not in ('header', 'sample_rate_hz', 'seq')}
+    msg = cls(header=header(store, stamp_ns, frame_id), sample_rate_hz=float(rate_hz),
+              seq=int(seq), **kwargs)
+    return store.serialize_cdr(msg, type_name)
+
+
+def pull_event_cdr(store: Typestore, stamp_ns: int, event: int, meta: dict, pull_id: int) -> bytes:
+    msg = store.types[PULL_EVENT_TYPE](
+        header=header(store, stamp_ns), event=event, pull_id=int(pull_id),
+        test_set=int(meta['set']), coupon_break_n=float(meta['coupon_lbf']) * LBF_N,
+        velocity_m_s=float(meta['velocity_fps']) * FT_M, decel_m_s2=float(meta['decel_g']) * G_M_S2)
+    return store.serialize_cdr(msg, PULL_EVENT_TYPE)
+
+
+# --------------------------------------------------------------------------- campaign -> bag
+def place_pulls(camp: Campaign) -> list:
+    """(start_ns, pull_id) per pull: start_ns from campaign.yaml, else after the previous pull
+    with a DEFAULT_GAP_NS gap (the first at DEFAULT_EPOCH_NS). Overlapping pulls are an error."""
+    out = []
+    prev_end = None
+    rate = camp.sample_rate_hz
+    for i, p in enumerate(camp.pulls):
+        start = p.meta.get('start_ns')
+        if start is None:
+            start = DEFAULT_EPOCH_NS if prev_end is None else prev_end + DEFAULT_GAP_NS
+        elif prev_end is not None and start < prev_end:
+            raise BagError(f'pull #{i} ({p.meta["file"]!r}) start_ns {start} is before the end '
+                           f'of the previous pull ({prev_end} ns); expected pulls in time order, '
+                           'not overlapping')
+        pid = p.meta.get('pull_id')
+        out.append((int(start), i + 1 if pid is None else int(pid)))
+        prev_end = end_stamp_ns(start, len(p.channels['time_s']), rate)
+    return out
+
+
+def iter_campaign_messages(camp: Campaign, store: Typestore, block_size: int = 50
+                           ) -> Iterator[tuple]:
+    """(topic, type, log_ns, cdr) of the bag made from a campaign, in log-time order."""
+    if isinstance(block_size, bool) or not isinstance(block_size, int) \
+            or not 1 <= block_size <= 1_000_000:
+        raise BagError(f'block_size {block_size!r} is invalid; expected an integer 1..1000000')
+    rate = camp.sample_rate_hz
+    present = set().union(*(p.channels for p in camp.pulls))
+    topics = []  # (topic, type, {field: column})
+    for type_name, (topic, fields) in BLOCK_TYPES.items():
+        if any(c in present for c in fields.values()):
+            topics.append((topic, type_name, fields))
+    if all(c in p.channels for p in camp.pulls for c in CORRECTED_COLUMNS):
+        topics.append((CORRECTED_TOPIC, CORRECTED_NAME,
+                       {**EXPORT_FIELDS[CORRECTED_NAME], 'raw_n': 'force_moving_n'}))
+    seqs = {t[0]: 0 for t in topics}
+    for (start, pid), p in zip(place_pulls(camp), camp.pulls):
+        ch = p.channels
+        n = len(ch['time_s'])
+        stamps = sample_stamps_ns(start, n, rate)
+        yield '/pull_event', PULL_EVENT_TYPE, start, pull_event_cdr(store, start, PULL_START,
+                                                                     p.meta, pid)
+        for b0 in range(0, n, block_size):
+            b1 = min(b0 + block_size, n)
+            first, last = int(stamps[b0]), int(stamps[b1 - 1])
+            for topic, type_name, fields in topics:
+                arrays = {f: ch[c][b0:b1] for f, c in fields.items() if c in ch}
+                yield topic, type_name, last, block_cdr(store, type_name, first, rate,
+                                                        seqs[topic], arrays)
+                seqs[topic] += 1
+        end = end_stamp_ns(start, n, rate)
+        yield '/pull_event', PULL_EVENT_TYPE, end, pull_event_cdr(store, end, PULL_END,
+                                                                   p.meta, pid)
+
+
+def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size: int = 50,
+                    typestore: Typestore | None = None, progress: Progress | None = None,
+                    warnings: list | None = None) -> Path:
+    """Write the bag of a campaign folder (or Campaign). Returns the bag path.
+
+    Optional channels absent from every pull give empty fields (a MotorBlock topic only when
+    at least one motor column exists); a warning says so.
+    """
+    camp = src if isinstance(src, Campaign) else read_campaign(src)
+    if warnings is not None:
+        warnings.extend(camp.warnings)
+        absent = [c for c in OPTIONAL_CHANNELS if all(c not in p.channels for p in camp.pulls)]
+        if absent:
+            warnings.append(f'no {", ".join(absent)} column(s): the bag has no samples of them'
+                            + (' and no /motor topic' if all(c in absent for c in BLOCK_TYPES[
+                                'force_tester_msgs/msg/MotorBlock'][1].values()) else ''))
+    store = typestore or default_typestore()
+    total = sum(len(p.channels['time_s']) for p in camp.pulls)
+    done = 0
+    with BagWriter(bag_path, store) as writer:
+        for topic, type_name, log_ns, cdr in iter_campaign_messages(camp, store, block_size):
+            if topic not in writer.topics:
+                writer.add_topic(topic, type_name)
+            writer.write(topic, log_ns, cdr)
+            if progress and topic == '/pull_event':
+                done += 1
+                if done % 2 == 0:
+                    progress(done // 2, len(camp.pulls))
+    return Path(bag_path)
+
+
+# --------------------------------------------------------------------------- bag -> campaign
+class _Series:
+    """Blocks of one channel: block stamps, lengths and values; per-sample stamps and values
+    are assembled (vectorised) at the end."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate = rate_hz
+        self.stamps: list = []
+        self.lengths: list = []
+        self.values: list = []
+
+    def add(self, stamp_ns: int, values: np.ndarray) -> None:
+        self.stamps.append(stamp_ns)
+        self.lengths.append(values.size)
+        self.values.append(values)
+
+    def arrays(self) -> tuple:
+        if not self.stamps:
+            return np.empty(0, np.int64), _EMPTY
+        lengths = np.asarray(self.lengths, dtype=np.int64)
+        first = np.repeat(np.asarray(self.stamps, dtype=np.int64), lengths)
+        starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
+        k = np.arange(first.size, dtype=np.int64) - starts
+        if float(int(self.rate)) == self.rate:
+            t = first + (k * NS_PER_S) // int(self.rate)
+        else:
+            t = first + np.round(k * (NS_PER_S / self.rate)).astype(np.int64)
+        v = np.concatenate(self.values)
+        if t.size > 1 and not (np.diff(t) >= 0).all():
+            order = np.argsort(t, kind='stable')
+            t, v = t[order], v[order]
+        return t, v
+
+
+def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None
+                   ) -> tuple:
+    """(sample_rate_hz, [DaqPull with meta start_ns/pull_id], extra info) from a bag."""
+    with open_bag(bag_path) as bag:
+        topics = bag.topics()
+        block_topics, event_topics = {}, []
+        for name, t in sorted(topics.items()):
+            if t.type_name in EXPORT_FIELDS:
+                block_topics[name] = t.type_name
+            elif t.type_name == PULL_EVENT_TYPE:
+                event_topics.append(name)
+            elif t.type_name not in QUIET_TYPES:
+                warnings.append(f'topic {name} ({t.type_name}) skipped: not a block or pull '
+                                'event type, it has no DAQ column')
+        if not event_topics:
+            raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
+                           '/pull_event START/END messages to cut the pulls')
+        series: dict = {}
+        rates: set = set()
+        starts: dict = {}
+        windows = []  # (start_ns, end_ns, meta)
+        total = sum(topics[t].count for t in [*block_topics, *event_topics])
+        for k, (topic, type_name, _log, cdr) in enumerate(
+                bag.messages([*block_topics, *event_topics])):
+            msg = bag.deserialize(cdr, type_name)
+            if type_name == PULL_EVENT_TYPE:
+                meta = {'set': int(msg.test_set),
+                        'coupon_lbf': float(msg.coupon_break_n) / LBF_N,
+                        'velocity_fps': float(msg.velocity_m_s) / FT_M,
+                        'decel_g': float(msg.decel_m_s2) / G_M_S2,
+                        'start_ns': stamp_of(msg), 'pull_id': int(msg.pull_id)}
+                if int(msg.event) == PULL_START:
+                    starts[int(msg.pull_id)] = meta
+                else:
+                    st = starts.pop(int(msg.pull_id), None)
+                    if st is None:
+                        warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns '
+                                        'without its START: skipped')
+                    else:
+                        windows.append((st['start_ns'], stamp_of(msg), st))
+                continue
+            rate = float(msg.sample_rate_hz)
+            if not (math.isfinite(rate) and rate > 0):
+                raise BagError(f'{topic} block seq {msg.seq} has sample_rate_hz {rate!r}; '
+                               'expected a finite rate > 0 Hz')
+            stamp = stamp_of(msg)
+            for f, col in EXPORT_FIELDS[type_name].items():
+                v = np.asarray(getattr(msg, f), dtype=np.float64)
+                if v.size:
+                    rates.add(rate)
+                    ser = series.get(col)
+                    if ser is None:
+                        ser = series[col] = _Series(rate)
+                    elif ser.rate != rate:
+                        raise BagError(f'{topic} block seq {msg.seq} has sample_rate_hz {rate!r} '
+                                       f'but earlier blocks {ser.rate!r}; a campaign has one rate')
+                    ser.add(stamp, v)
+            if progress and k % 20000 == 0:
+                progress(k, total)
+        for pid, st in starts.items():
+            warnings.append(f'pull {pid} (START at {st["start_ns"]} ns) has no END: skipped')
+    if len(rates) > 1:
+        raise BagError(f'bag {str(bag_path)!r} mixes sample rates {sorted(rates)!r} Hz; a '
+                       'campaign has one rate')
+    if not rates:
+        raise BagError(f'bag {str(bag_path)!r} has no block samples; expected /force, /accel, '
+                       '/encoder blocks')
+    rate = rates.pop()
+    arrays = {c: s.arrays() for c, s in series.items()}
+    pulls = []
+    for start, end, meta in sorted(windows, key=lambda w: w[0]):
+        n = int(round((end - start) * rate / NS_PER_S))
+        if n < 2:
+            warnings.append(f'pull {meta["pull_id"]}: {n} sample(s) between START and END; '
+                            'skipped')
+            continue
+        ch = {'time_s': time_column(n, rate)}
+        for col, (t, v) in arrays.items():
+            lo, hi = np.searchsorted(t, [start, end])
+            if hi <= lo:
+                continue
+            idx = np.rint((t[lo:hi] - start) * (rate / NS_PER_S)).astype(np.int64)
+            out = np.full(n, np.nan)
+            ok = (idx >= 0) & (idx < n)
+            out[idx[ok]] = v[lo:hi][ok]
+            iok = idx[ok]
+            got = int(np.count_nonzero(np.diff(iok))) + 1 if iok.size else 0  # idx is sorted
+            if got < n:
+                warnings.append(f'pull {meta["pull_id"]}: {n - got} of {n} samples of {col} '
+                                'missing (dropped blocks); written as NaN')
+            ch[col] = out
+        missing = [c for c in REQUIRED_CHANNELS if c not in ch]
+        if missing:
+            raise BagError(f'pull {meta["pull_id"]} in bag {str(bag_path)!r} has no samples of '
+                           f'required column {missing[0]!r}; expected its block topic in the bag')
+        pulls.append(DaqPull(meta, ch))
+    if not pulls:
+        raise BagError(f'bag {str(bag_path)!r} has no complete pull (START and END); nothing '
+                       'to export')
+    return rate, pulls
+
+
+def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progress | None = None,
+                    warnings: list | None = None, workers: int = 1) -> Path:
+    """Export a bag's pulls to a campaign folder (written atomically). Returns out_dir."""
+    warnings = [] if warnings is None else warnings
+    out_dir = Path(out_dir)
+    if out_dir.exists():  # fail before the (long) read
+        raise BagError(f'output {str(out_dir)!r} exists already; expected a new directory name')
+    rate, pulls = read_bag_pulls(bag_path, warnings, progress)
+    absent = [c for c in OPTIONAL_CHANNELS if all(c not in p.channels for p in pulls)]
+    if absent:
+        warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')
+    for i, p in enumerate(pulls):
+        p.meta['file'] = f'pull_{i + 1:04d}.csv'
+    return write_campaign(out_dir, pulls, sample_rate_hz=rate, progress=progress,
+                          workers=workers)

@@ -1,0 +1,483 @@
+"""The DAQ export format: a campaign folder of per-pull CSV files (or NI TDMS) + campaign.yaml.
+
+See the bag_tools README for the format. ROS-free: numpy, yaml and the standard library
+(npTDMS is imported lazily, only to read .tdms files).
+
+Validation (every error is a BagError with one line quoting the value, the file and what was
+expected): missing required column, channels of different lengths, non-monotonic or non-finite
+time, a sample rate disagreeing with the time column, bad pull metadata.
+NaN samples (outside time_s) are kept as NaN and reported as a warning with their count: the
+correction core ignores NaN samples (the corrected sample is NaN, the moving average skips it,
+scoring uses nanmax), so keeping them changes no finite value and hides nothing.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import numbers
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+import yaml
+
+from force_tester_common.channels import CHANNELS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
+
+from .errors import BagError, one_line
+
+CAMPAIGN_FILE = 'campaign.yaml'
+FORMAT = 'force_tester_daq/1'
+NS_PER_S = 1_000_000_000
+LBF_N = 4.4482216152605      # 1 lbf in newtons
+FT_M = 0.3048                # 1 ft in metres
+G_M_S2 = 9.80665             # standard gravity, m/s^2
+#: Columns written by `correct` into a campaign (optional extras, also accepted on reading).
+CORRECTED_COLUMNS = ('inertial_n', 'corrected_n', 'filtered_n')
+KNOWN_COLUMNS = CHANNELS + CORRECTED_COLUMNS
+#: Relative tolerance between campaign.yaml's sample_rate_hz and the rate of the time column.
+RATE_RTOL = 1e-6
+#: Stamp of the first pull's first sample when campaign.yaml gives no start_ns (2000-01-01Z).
+DEFAULT_EPOCH_NS = 946_684_800 * NS_PER_S
+#: Gap between pulls placed without start_ns (a time gap: the live filter restarts there).
+DEFAULT_GAP_NS = NS_PER_S
+
+META_REQUIRED = ('file', 'set', 'coupon_lbf', 'velocity_fps', 'decel_g')
+META_OPTIONAL = ('start_ns', 'pull_id')
+
+
+class DaqPull(NamedTuple):
+    """One pull: meta (dict with META_REQUIRED keys, start_ns / pull_id or None) and channels
+    (column name -> float64 array; time_s included)."""
+
+    meta: dict
+    channels: dict
+
+
+@dataclass
+class Campaign:
+    path: Path
+    sample_rate_hz: float
+    pulls: list  # [DaqPull]
+    rig: str | None = None
+    warnings: list = field(default_factory=list)
+
+    def missing_optional(self) -> list:
+        """Optional channels absent from at least one pull."""
+        return [c for c in OPTIONAL_CHANNELS
+                if any(c not in p.channels for p in self.pulls)]
+
+
+# --------------------------------------------------------------------------- helpers
+def sample_stamps_ns(start_ns: int, n: int, rate_hz: float) -> np.ndarray:
+    """Stamp of sample k = start_ns + k / rate (exact integer arithmetic for integer rates,
+    the sim's sample clock); int64."""
+    k = np.arange(n, dtype=np.int64)
+    if float(int(rate_hz)) == rate_hz:
+        return np.int64(start_ns) + (k * NS_PER_S) // int(rate_hz)
+    return np.int64(start_ns) + np.round(k * (NS_PER_S / rate_hz)).astype(np.int64)
+
+
+def end_stamp_ns(start_ns: int, n: int, rate_hz: float) -> int:
+    """Stamp just after the last of n samples (PullEvent END)."""
+    if float(int(rate_hz)) == rate_hz:
+        return int(start_ns) + (n * NS_PER_S) // int(rate_hz)
+    return int(start_ns) + round(n * NS_PER_S / rate_hz)
+
+
+def time_column(n: int, rate_hz: float) -> np.ndarray:
+    """time_s = k / rate exactly (float64 division, as the sim does)."""
+    return np.arange(n) / rate_hz
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def _is_real(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(float(x))
+
+
+def check_meta(meta: Mapping, where: str, index: int) -> dict:
+    """Validated copy of one pull's metadata (campaign.yaml entry)."""
+    if not isinstance(meta, Mapping):
+        raise BagError(f'{where}: pull #{index} is {meta!r}; expected a mapping with keys '
+                       f'{", ".join(META_REQUIRED)}')
+    for key in META_REQUIRED:
+        if key not in meta:
+            raise BagError(f'{where}: pull #{index} lacks {key!r}; expected keys '
+                           f'{", ".join(META_REQUIRED)} (optional {", ".join(META_OPTIONAL)})')
+    out = dict(meta)
+    f = out['file']
+    if not isinstance(f, str) or not f or '/' in f or '\\' in f or f.startswith('.'):
+        raise BagError(f'{where}: pull #{index} file {f!r} is invalid; expected a plain file '
+                       'name inside the campaign folder')
+    s = out['set']
+    if not _is_int(s) or not 0 <= s <= 255:
+        raise BagError(f'{where}: pull #{index} set {s!r} is invalid; expected an integer 0..255')
+    for key in ('coupon_lbf', 'velocity_fps', 'decel_g'):
+        if not _is_real(out[key]):
+            raise BagError(f'{where}: pull #{index} {key} {out[key]!r} is invalid; expected a '
+                           'finite number')
+        out[key] = float(out[key])
+    for key in META_OPTIONAL:
+        v = out.get(key)
+        if v is None:
+            out[key] = None
+        elif not _is_int(v) or v < 0 or (key == 'pull_id' and v >= 2**32) \
+                or (key == 'start_ns' and v >= 2**63):
+            raise BagError(f'{where}: pull #{index} {key} {v!r} is invalid; expected a '
+                           'non-negative integer' + (' (ns since epoch)' if key == 'start_ns'
+                                                     else ''))
+    return out
+
+
+# --------------------------------------------------------------------------- validation
+def check_channels(channels: Mapping[str, Any], where: str, rate_hz: float | None,
+                   warnings: list | None = None) -> tuple[dict, float]:
+    """Validate one pull's channels; returns (float64 channels, sample rate).
+
+    rate_hz None: the rate is taken from the time column.
+    """
+    missing = [c for c in REQUIRED_CHANNELS if c not in channels]
+    if missing:
+        raise BagError(f'{where}: required column {missing[0]!r} is missing; expected columns '
+                       f'{", ".join(REQUIRED_CHANNELS)} (found {", ".join(channels) or "none"})')
+    out = {}
+    n = None
+    for name, values in channels.items():
+        a = np.asarray(values, dtype=np.float64)
+        if a.ndim != 1:
+            raise BagError(f'{where}: column {name!r} has shape {a.shape}; expected 1-D samples')
+        if n is None:
+            n, first = a.shape[0], name
+        elif a.shape[0] != n:
+            raise BagError(f'{where}: column {name!r} has {a.shape[0]} samples but {first!r} has '
+                           f'{n}; expected channels of equal length')
+        out[name] = a
+    t = out['time_s']
+    if n < 2:
+        raise BagError(f'{where}: {n} sample(s); expected at least 2 to know the sample rate')
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise BagError(f'{where}: time_s is {t[bad[0]]!r} at row {bad[0] + 1}; expected finite '
+                       'times in seconds')
+    d = np.diff(t)
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise BagError(f'{where}: time_s is not increasing at row {i + 2}: {t[i + 1]!r} s after '
+                       f'{t[i]!r} s; expected strictly increasing times')
+    implied = (n - 1) / (t[-1] - t[0])
+    if rate_hz is None:
+        rate_hz = float(implied)
+        # snap to an integer rate when the column says so (50 kHz DAQs)
+        if abs(round(rate_hz) - rate_hz) <= RATE_RTOL * rate_hz:
+            rate_hz = float(round(rate_hz))
+    elif abs(implied - rate_hz) > RATE_RTOL * rate_hz:
+        raise BagError(f'{where}: sample_rate_hz {rate_hz!r} disagrees with the time column '
+                       f'({implied:.9g} Hz from {n} samples over {t[-1] - t[0]!r} s); expected '
+                       f'them equal within {RATE_RTOL:g}')
+    nan = {name: int(np.count_nonzero(np.isnan(a))) for name, a in out.items() if name != 'time_s'}
+    nan = {k: v for k, v in nan.items() if v}
+    if nan and warnings is not None:
+        rows = np.zeros(n, dtype=bool)
+        for name in nan:
+            rows |= np.isnan(out[name])
+        warnings.append(f'{where}: {int(rows.sum())} row(s) with NaN samples ('
+                        + ', '.join(f'{k}: {v}' for k, v in nan.items())
+                        + '); kept as NaN (the correction skips them)')
+    unknown = [c for c in out if c not in KNOWN_COLUMNS]
+    if unknown and warnings is not None:
+        warnings.append(f'{where}: unknown column(s) {", ".join(unknown)} kept but not used')
+    return out, rate_hz
+
+
+# --------------------------------------------------------------------------- CSV
+def read_csv(path: Path) -> dict:
+    """One pull CSV -> {column: float64 array}. Header row, comma separated."""
+    try:
+        with open(path, encoding='utf-8', newline='') as fh:
+            header = fh.readline()
+            body = fh.read()
+    except OSError as exc:
+        raise BagError(f'cannot read {str(path)!r}: {one_line(exc)}') from None
+    names = [h.strip() for h in header.strip().split(',')]
+    if not header.strip() or any(not h for h in names):
+        raise BagError(f'{str(path)!r}: header row {header.strip()!r} is invalid; expected '
+                       f'comma-separated column names like {",".join(REQUIRED_CHANNELS)}')
+    dup = sorted({h for h in names if names.count(h) > 1})
+    if dup:
+        raise BagError(f'{str(path)!r}: column {dup[0]!r} appears twice in the header')
+    if not body.strip():
+        raise BagError(f'{str(path)!r} has a header but no data rows; expected one row per sample')
+    try:
+        data = np.loadtxt(io.StringIO(body), delimiter=',', dtype=np.float64, ndmin=2)
+    except ValueError:
+        data = _read_csv_slow(path, body, len(names))
+    if data.shape[1] != len(names):
+        raise BagError(f'{str(path)!r}: rows have {data.shape[1]} values but the header names '
+                       f'{len(names)} columns')
+    return {name: np.ascontiguousarray(data[:, i]) for i, name in enumerate(names)}
+
+
+def _read_csv_slow(path: Path, body: str, ncol: int) -> np.ndarray:
+    """Row by row: empty fields become NaN; anything else unparsable is an error."""
+    rows = []
+    for lineno, line in enumerate(body.splitlines(), start=2):
+        if not line.strip():
+            continue
+        parts = line.split(',')
+        if len(parts) != ncol:
+            raise BagError(f'{str(path)!r} line {lineno} has {len(parts)} values; expected '
+                           f'{ncol} (one per header column)')
+        row = []
+        for p in parts:
+            p = p.strip()
+            try:
+                row.append(float(p) if p else math.nan)
+            except ValueError:
+                raise BagError(f'{str(path)!r} line {lineno}: value {p!r} is not a number') \
+                    from None
+        rows.append(row)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, ncol)
+
+
+def _fmt_column(a: np.ndarray) -> list:
+    # repr of a Python float is the shortest string that reads back to the same double.
+    return list(map(repr, a.tolist()))
+
+
+def write_csv(path: Path, channels: Mapping[str, np.ndarray]) -> None:
+    names = list(channels)
+    cols = [_fmt_column(np.asarray(channels[c], dtype=np.float64)) for c in names]
+    with open(path, 'w', encoding='utf-8', newline='') as fh:
+        fh.write(','.join(names) + '\n')
+        fh.write('\n'.join(map(','.join, zip(*cols))))
+        fh.write('\n')
+
+
+# --------------------------------------------------------------------------- TDMS
+def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
+              sample_rate_hz: float | None = None) -> dict:
+    """NI TDMS file -> {column: array}. mapping: DAQ column -> TDMS channel name (either
+    'Channel' or 'Group/Channel'); unmapped columns are looked up by their own name. time_s
+    absent: built from sample_rate_hz or the channels' wf_increment property."""
+    try:
+        import nptdms  # noqa: PLC0415 - optional dependency
+    except ImportError:
+        raise BagError('reading TDMS needs npTDMS: pip install npTDMS (see requirements.txt)') \
+            from None
+    path = Path(path)
+    try:
+        tdms = nptdms.TdmsFile.read(str(path))
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
+    by_name: dict = {}
+    for group in tdms.groups():
+        for ch in group.channels():
+            by_name.setdefault(ch.name, ch)
+            by_name[f'{group.name}/{ch.name}'] = ch
+    if isinstance(mapping, (list, tuple)):
+        mapping = parse_mapping(mapping)
+    elif mapping is not None and not isinstance(mapping, Mapping):
+        raise BagError(f'TDMS channel map {mapping!r} for {str(path)!r} is invalid; expected '
+                       'a mapping {column: channel} or a list of COLUMN=CHANNEL')
+    mapping = {str(k): str(v) for k, v in (mapping or {}).items()}
+    bad = [k for k in mapping if k not in KNOWN_COLUMNS]
+    if bad:
+        raise BagError(f'--map column {bad[0]!r} is not a DAQ column; expected one of '
+                       f'{", ".join(KNOWN_COLUMNS)}')
+    out: dict = {}
+    increment = None
+    for col in CHANNELS:
+        src = mapping.get(col, col)
+        ch = by_name.get(src)
+        if ch is None:
+            if col in mapping:
+                raise BagError(f'TDMS file {str(path)!r} has no channel {src!r} (mapped to '
+                               f'{col!r}); channels: {", ".join(sorted(by_name))}')
+            continue
+        out[col] = np.asarray(ch[:], dtype=np.float64)
+        inc = ch.properties.get('wf_increment')
+        if inc and increment is None:
+            increment = float(inc)
+    if 'time_s' not in out:
+        rate = sample_rate_hz or (1.0 / increment if increment else None)
+        if rate is not None and abs(round(rate) - rate) <= RATE_RTOL * rate:
+            rate = float(round(rate))
+        if rate is None:
+            raise BagError(f'TDMS file {str(path)!r} has no time_s channel and no wf_increment; '
+                           'expected --map time_s=CHANNEL or --rate HZ')
+        lengths = {len(v) for v in out.values()}
+        n = max(lengths) if lengths else 0
+        out = {'time_s': time_column(n, rate), **out}
+    return out
+
+
+def parse_mapping(items: Iterable[str]) -> dict:
+    """['force_moving_n=Dev1/ai0', ...] -> {'force_moving_n': 'Dev1/ai0'}."""
+    out = {}
+    for item in items:
+        if '=' not in item:
+            raise BagError(f'--map {item!r} is invalid; expected COLUMN=TDMS_CHANNEL')
+        k, v = item.split('=', 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+# --------------------------------------------------------------------------- campaign
+def read_campaign(path: str | Path) -> Campaign:
+    """Read and validate a campaign folder. Raises BagError; warnings in Campaign.warnings."""
+    path = Path(path)
+    if not path.is_dir():
+        what = 'does not exist' if not path.exists() else 'is not a directory'
+        raise BagError(f'campaign {str(path)!r} {what}; expected a folder with {CAMPAIGN_FILE}')
+    cfile = path / CAMPAIGN_FILE
+    if not cfile.is_file():
+        raise BagError(f'campaign {str(path)!r} has no {CAMPAIGN_FILE}; expected a DAQ export '
+                       'folder (an unfinished export never has one)')
+    try:
+        doc = yaml.safe_load(cfile.read_text(encoding='utf-8'))
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'{str(cfile)!r} is not valid YAML: {one_line(exc)}') from None
+    if not isinstance(doc, dict) or not isinstance(doc.get('pulls'), list) or not doc['pulls']:
+        raise BagError(f'{str(cfile)!r} has no pulls list; expected a mapping with '
+                       "'pulls: [{file, set, coupon_lbf, velocity_fps, decel_g}, ...]'")
+    rate = doc.get('sample_rate_hz')
+    if rate is not None and (not _is_real(rate) or rate <= 0):
+        raise BagError(f'{str(cfile)!r}: sample_rate_hz {rate!r} is invalid; expected a '
+                       'finite rate > 0 Hz')
+    rate = None if rate is None else float(rate)
+    rig = doc.get('rig')
+    if rig is not None:
+        if not isinstance(rig, str) or not (path / rig).is_file():
+            raise BagError(f'{str(cfile)!r}: rig {rig!r} is not a file in the campaign folder')
+    warnings: list = []
+    pulls = []
+    seen = set()
+    for i, entry in enumerate(doc['pulls']):
+        meta = check_meta(entry, str(cfile), i)
+        if meta['file'] in seen:
+            raise BagError(f'{str(cfile)!r}: file {meta["file"]!r} is listed twice')
+        seen.add(meta['file'])
+        fpath = path / meta['file']
+        if not fpath.is_file():
+            raise BagError(f'{str(cfile)!r}: pull #{i} file {meta["file"]!r} does not exist in '
+                           f'{str(path)!r}')
+        if fpath.suffix.lower() == '.tdms':
+            raw = read_tdms(fpath, entry.get('map'), rate)
+        else:
+            raw = read_csv(fpath)
+        channels, prate = check_channels(raw, str(fpath), rate, warnings)
+        if rate is None:
+            rate = prate
+        elif prate != rate:  # only when rate was inferred from an earlier pull
+            raise BagError(f'{str(fpath)!r}: sample rate {prate!r} Hz differs from {rate!r} Hz '
+                           'of the earlier pulls; expected one rate per campaign')
+        pulls.append(DaqPull(meta, channels))
+    camp = Campaign(path, rate, pulls, rig, warnings)
+    miss = camp.missing_optional()
+    if miss:
+        warnings.append(f'campaign {str(path)!r}: optional column(s) {", ".join(miss)} missing '
+                        'in some pulls; their topics/fields stay empty and they cannot be '
+                        'plotted or exported')
+    return camp
+
+
+def _atomic_dir(path: Path) -> Path:
+    if path.exists():
+        raise BagError(f'output {str(path)!r} exists already; expected a new directory name')
+    if not path.parent.is_dir():
+        raise BagError(f'parent directory {str(path.parent)!r} of output {str(path)!r} does '
+                       'not exist')
+    return Path(tempfile.mkdtemp(prefix=f'.{path.name}.partial-', dir=path.parent))
+
+
+def write_campaign(path: str | Path, pulls: Sequence, rig: str | os.PathLike | None = None,
+                   sample_rate_hz: float | None = None, extra: Mapping | None = None,
+                   progress: Callable[[int, int], None] | None = None,
+                   workers: int = 1) -> Path:
+    """Write a campaign folder atomically (temp folder beside it, renamed when complete).
+
+    pulls: (meta, channels) pairs; meta needs META_REQUIRED except 'file' (default
+    pull_NNNN.csv); channels need the required columns. time_s is rewritten as k / rate
+    (rate = sample_rate_hz or the time column's). rig: a rig YAML file copied into the
+    folder. extra: {file name: bytes|str} written too (e.g. scores.json). workers > 1 formats
+    the CSV files in that many processes (formatting floats losslessly is the slow part).
+    """
+    path = Path(path)
+    tmp = _atomic_dir(path)
+    pool = None
+    if workers > 1 and len(pulls) > 1:
+        import multiprocessing  # noqa: PLC0415
+        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+        pool = ProcessPoolExecutor(max_workers=workers,
+                                   mp_context=multiprocessing.get_context('spawn'))
+    pending: list = []
+    try:
+        entries = []
+        rate = sample_rate_hz
+        used = set()
+        for i, (meta, channels) in enumerate(pulls):
+            meta = dict(meta)
+            meta.setdefault('file', f'pull_{i + 1:04d}.csv')
+            meta = check_meta(meta, str(path), i)
+            if meta['file'] in used:
+                raise BagError(f'{str(path)!r}: file {meta["file"]!r} used by two pulls')
+            used.add(meta['file'])
+            if not meta['file'].lower().endswith('.csv'):
+                meta['file'] += '.csv'
+            chans, prate = check_channels(channels, f'{str(path)}/{meta["file"]}', rate)
+            rate = prate if rate is None else rate
+            n = len(chans['time_s'])
+            ordered = {'time_s': time_column(n, rate)}
+            ordered.update((c, chans[c]) for c in CHANNELS[1:] if c in chans)
+            ordered.update((c, v) for c, v in chans.items() if c not in ordered)
+            if pool is None:
+                write_csv(tmp / meta['file'], ordered)
+            else:
+                pending.append(pool.submit(write_csv, tmp / meta['file'], ordered))
+                while len(pending) > 2 * workers:  # bounded memory
+                    pending.pop(0).result()
+            entry = {k: meta[k] for k in META_REQUIRED}
+            for k in META_OPTIONAL:
+                if meta.get(k) is not None:
+                    entry[k] = int(meta[k])
+            entries.append(entry)
+            if progress:
+                progress(i + 1, len(pulls))
+        for fut in pending:
+            fut.result()
+        if not entries:
+            raise BagError(f'no pulls to write to {str(path)!r}')
+        doc: dict = {'format': FORMAT, 'sample_rate_hz': float(rate)}
+        if rig is not None:
+            rig = Path(rig)
+            if not rig.is_file():
+                raise BagError(f'rig file {str(rig)!r} does not exist')
+            shutil.copyfile(rig, tmp / rig.name)
+            doc['rig'] = rig.name
+        doc['pulls'] = entries
+        for name, content in (extra or {}).items():
+            mode = 'wb' if isinstance(content, bytes) else 'w'
+            with open(tmp / name, mode) as fh:
+                fh.write(content)
+        # campaign.yaml last: a folder without it is never read as a campaign.
+        (tmp / CAMPAIGN_FILE).write_text(yaml.safe_dump(doc, sort_keys=False), encoding='utf-8')
+        os.chmod(tmp, 0o755)
+        os.rename(tmp, path)
+    except BaseException:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+            pool = None
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+    return path
