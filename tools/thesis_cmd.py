@@ -26,6 +26,8 @@ def add_arguments(p):
     p.add_argument('--pulls', type=int, default=20, help='pulls per set in the reference campaign (default 20)')
     p.add_argument('--seed', type=int, default=2013, help='seed of the reference campaign (default 2013)')
     p.add_argument('--no-campaign', action='store_true', help='skip the reference campaign (Tables 7-9)')
+    p.add_argument('--cache', metavar='DIR', default=str(CACHE),
+                   help='where the reference campaign is cached (default runs/cache)')
 
 
 def truth_rig_path() -> Path:
@@ -42,22 +44,22 @@ def cache_key(pulls: int, seed: int) -> str:
     return h.hexdigest()[:16]
 
 
-def reference_campaign(pulls: int, seed: int, say=print) -> Path:
+def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) -> Path:
     """The reference campaign folder (DAQ export format), generated if the cache does not hold it."""
     from bag_tools.core.daq import write_campaign
     from force_tester_sim.core.campaign import generate_campaign
     from force_tester_sim.core.params import load_rig
     key = cache_key(pulls, seed)
-    folder = CACHE / f'reference_campaign_{key}'
+    folder = cache / f'reference_campaign_{key}'
     if (folder / 'campaign.yaml').is_file():
         return folder
     say(f'generating the reference campaign ({5 * pulls} pulls of 2 s at 50 kHz, truth rig, seed {seed}) '
         f'into {folder} ...')
     t0 = time.monotonic()
     pulls_data = generate_campaign(load_rig(truth_rig_path()), pulls=pulls, seed=seed, workers=2)
-    for old in CACHE.glob('reference_campaign_*'):
+    for old in cache.glob('reference_campaign_*'):  # a stale campaign (older model or other size)
         shutil.rmtree(old, ignore_errors=True)
-    CACHE.mkdir(parents=True, exist_ok=True)
+    cache.mkdir(parents=True, exist_ok=True)
     write_campaign(folder, pulls_data)
     say(f'  done in {time.monotonic() - t0:.1f} s')
     return folder
@@ -110,7 +112,7 @@ def main(args) -> int:
     if not args.no_campaign:
         from bag_tools.core.daq import read_campaign
         from force_correction.core.campaign_stats import campaign_tables, format_tables
-        folder = reference_campaign(args.pulls, args.seed, say)
+        folder = reference_campaign(args.pulls, args.seed, say, Path(args.cache))
         tables = campaign_tables(read_campaign(folder).pulls)
         print()
         print(format_tables(tables, rig))

@@ -2,7 +2,7 @@
 
 Topics: /motor, /encoder, /accel, /force (sample blocks, header stamped at the block's first
 sample), /pull_event (start and end of each 2 s pull), /diagnostics.
-Each pull is simulated by the ROS-free core (one pull ahead, in a worker thread) and published
+Each pull is simulated by the ROS-free core (one pull ahead, in a worker process) and published
 block by block on a sample clock that starts when the node starts publishing; the pace is real
 time by default (parameter ``rate`` > 1 runs faster). Changed parameters apply from the next pull.
 """
@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 
 from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
 from force_tester_common.node_params import NodeParams, ParamSpec
@@ -29,13 +30,15 @@ SPECS = [
     ParamSpec('rate', 1.0, 'pace as a real-time factor (1.0 = real time)', (0.01, 1000.0)),
     ParamSpec('rig_file', '', 'rig YAML replacing the nominal constants ("" = nominal)'),
     ParamSpec('noise', True, 'add sensor noise'),
+    ParamSpec('drive', True, 'carriage from the motor/PID drive model coupled to the force chain (motor '
+                             'channels from the model); false: the prescribed motion profile'),
     ParamSpec('coupons', 'rated', "'rated': coupons break at their rating; 'measured': at thesis Table 7's "
                                   "measured levels, yielding first (the reference campaign's coupons)"),
     ParamSpec('wait_for_subscribers', 0, 'wait until /force has this many subscribers before publishing',
               (0, 100)),
     ParamSpec('exit_when_done', False, 'shut the node down after the last pull'),
 ]
-CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise', 'coupons')
+CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise', 'coupons', 'drive')
 
 
 def config_from(values: dict) -> SimConfig:
@@ -83,10 +86,11 @@ class SimNode(Node):
         t0_mono = time.monotonic()
         index = 0  # samples published so far: the sample clock
         seqs = [0] * len(self.block_pubs)
-        with ThreadPoolExecutor(max_workers=1) as pool:
+        # the next pull is simulated in a worker process, so the publishing thread keeps its pace
+        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn')) as pool:
             def simulate(i):
                 _, rig, spec = pulls[i]
-                return pool.submit(simulate_pull, rig, spec, config.noise)
+                return pool.submit(simulate_pull, rig, spec, config.noise, config.drive)
             upcoming = simulate(0) if pulls else None
             for i, (pull_id, rig, spec) in enumerate(pulls):
                 channels = upcoming.result()

@@ -23,6 +23,7 @@ class SimConfig:
     rig_file: str = ''
     noise: bool = True
     coupons: str = 'rated'
+    drive: bool = True
 
     COUPONS = ('rated', 'measured')
 
