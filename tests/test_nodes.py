@@ -151,3 +151,19 @@ def test_a_dropped_block_is_reported_and_never_misaligns(ros):
             k = (stamp_to_ns(m.header.stamp) - 10**18) // 1_000_000
             assert k != 2
             assert (to_array(m.raw_n) == k).all()
+
+
+def test_extension_file_sets_the_mass_and_a_bad_one_is_refused(ros, tmp_path):
+    good = tmp_path / 'extension.yaml'
+    good.write_text('correction:\n  mass_kg: 1.3\n  accel_delay_s: 4.0e-5\n')
+    node = correction_node()
+    try:
+        (ok,) = node.set_parameters([Parameter('extension_file', value=str(good))])
+        assert ok.successful, ok.reason
+        assert node.corrector.params.mass_kg == 1.3
+        assert node.extension.accel_delay_s == 4.0e-5
+        (bad,) = node.set_parameters([Parameter('extension_file', value=str(tmp_path / 'missing.yaml'))])
+        assert not bad.successful and 'missing.yaml' in bad.reason
+        assert node.get_parameter('extension_file').value == str(good)
+    finally:
+        node.destroy_node()

@@ -12,6 +12,7 @@ from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, main_for
 from rclpy.node import Node
 
 from .core.pairing import BlockAligner
+from .core.extension import Extension, ForcePrefilter
 from .core.params import CorrectionParams
 from .core.streaming import InertialCorrector
 
@@ -20,14 +21,18 @@ SPECS = [
               (1e-6, 1000.0)),
     ParamSpec('window', 140, 'moving-average length N in samples (thesis eq 25; 140 = 2.8 ms at 50 kHz)',
               (1, 50_000)),
+    ParamSpec('extension_file', '', 'extension.yaml of ./ft discover: its correction: section (mass, cell gain, '
+                                    'accelerometer delay, AC coupling, mains hum) is undone before m*a ("" = none)'),
     ParamSpec('max_pending', 500, 'blocks a channel may wait for its partner before it is dropped', (1, 10_000), read_only=True),
 ]
 
 TOPICS = {t.topic: t for t in BLOCK_TOPICS}
 
 
-def config_from(values: dict) -> CorrectionParams:
-    return CorrectionParams(mass_kg=values['mass_kg'], window=values['window'])
+def config_from(values: dict):
+    ext = Extension.from_yaml(values['extension_file']) if values['extension_file'] else Extension()
+    mass = ext.mass_kg if ext.mass_kg is not None else values['mass_kg']
+    return CorrectionParams(mass_kg=mass, window=values['window']), ext
 
 
 class CorrectionNode(Node):
@@ -35,7 +40,8 @@ class CorrectionNode(Node):
         super().__init__('correction', **kwargs)
         self.diag = Diagnostics(self, 'inertial correction')
         self.params = NodeParams(self, SPECS, config_from, on_change=self._reconfigure)
-        self.corrector = InertialCorrector(self.params.config)
+        self.corrector = self.extension = self.prefilters = None
+        self._reconfigure(self.params.config)
         self.aligner = BlockAligner(('force', 'accel'), max_pending=self.params.values['max_pending'])
         self.pub = self.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
         force, accel = TOPICS['/force'], TOPICS['/accel']
@@ -45,9 +51,18 @@ class CorrectionNode(Node):
         self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0}
         self.create_timer(1.0, self._heartbeat)
 
-    def _reconfigure(self, params: CorrectionParams):
+    def _reconfigure(self, config):
+        params, ext = config
         self.corrector = InertialCorrector(params)
-        self.diag.report(OK, f'correction restarted with m2 = {params.mass_kg} kg, N = {params.window}')
+        self.extension = ext
+        self.prefilters = {}  # sample rate -> ForcePrefilter
+        self.diag.report(OK, f'correction (re)started with m = {params.mass_kg} kg, N = {params.window}, '
+                             f'extension {ext}')
+
+    def _prefilter(self, rate_hz: float) -> ForcePrefilter:
+        if rate_hz not in self.prefilters:
+            self.prefilters[rate_hz] = ForcePrefilter(self.extension, rate_hz)
+        return self.prefilters[rate_hz]
 
     def _on_block(self, channel: str, msg):
         n = len(msg.moving_n) if channel == 'force' else len(msg.axial_m_s2)
@@ -62,15 +77,18 @@ class CorrectionNode(Node):
 
     def _correct(self, pair):
         force, accel = pair['force'], pair['accel']
+        prefilter = self._prefilter(pair.sample_rate_hz)
         if not pair.continuous:
             self.corrector.reset()
-        out = self.corrector.process(to_array(force.moving_n), to_array(accel.axial_m_s2))
+            prefilter.reset()
+        raw = to_array(force.moving_n)
+        out = self.corrector.process(prefilter.process(raw), to_array(accel.axial_m_s2))
         if out.nan_count:
             self.counts['nan_samples'] += out.nan_count
             self.diag.report(WARN, f'{out.nan_count} NaN sample(s) in the block stamped {pair.stamp_ns} ns; '
                                    'their corrected values are NaN, the filter skips them', key='nan')
         msg = fill_block(CORRECTED_TOPIC.msg_type(), pair.stamp_ns, force.sample_rate_hz, self.seq,
-                         {'raw_n': out.raw_n, 'inertial_n': out.inertial_n,
+                         {'raw_n': raw, 'inertial_n': out.inertial_n,
                           'corrected_n': out.corrected_n, 'filtered_n': out.filtered_n})
         msg.header.frame_id = force.header.frame_id
         self.pub.publish(msg)

@@ -1,0 +1,608 @@
+"""Discovery: find what the model of record gets wrong in a measured campaign, name the cause from the
+departure catalog, fit its parameters, and measure the gain on held-out pulls (issue 5). ROS-free.
+
+Method (every step is a regression on measured channels; no simulation loop):
+
+1. Per pull, from the measured channels only:
+   - T = F_stat + m1 a1, a1 = F_stat'' / K_LC1 (eq 21/23; the second derivative is taken in the frequency
+     domain with a raised-cosine low-pass 5-7 kHz, so the 3.9 kHz stationary mode passes).
+   - carriage motion x3, v3, a3 from the encoder (Savitzky-Golay, 2 ms window).
+   - the loaded window (F_stat > 10 % of its peak), the break (last sample with T > 5 % of the peak) and the
+     analysis window W = [loaded start - 50 ms, break + 150 ms].
+2. Channel "force": the model of record says F_move = T + m2 a2 (ideal sensors). The residual
+   r = F_move - T - m2_nom a2 is explained by the linear model
+       F_move = g T + (g m) a2(t + d) - (1/tau) C + hum,   C = integral of F_move (AC coupling, exact),
+   with d found on a grid of fractional advances (FFT shift) and hum = A sin(2 pi f t + phase_pull)
+   (f searched 45-65 Hz on the pre-pull record, phase per pull from the pre-pull record).
+3. Channel "ringing": after the break T = 0 and, in the carriage frame, a2 - a3 is a free decay. The model of
+   record's only mode there is the moving cell on m2 (sqrt(K_LC2/m2), about 3.9 kHz). A dominant lightly damped
+   pole well below it (< 0.7 x) is a mount resonance; its frequency and damping are fitted (matrix pencil) and
+   mapped back to the mount's (f, zeta) through the 2-DOF carriage-mount-base-cell-m2 model.
+4. Channel "current": i kf - m_c a3 - b v3 - F_move (force balance) has an offset F_c sign(v3) for dry friction.
+Fitting uses the even-indexed pulls, scoring the odd-indexed (held-out) ones. A cause is NAMED when on the
+held-out pulls (a) its channel's summed squared residual falls by >= MIN_REL_REDUCTION when the cause is added
+to (or kept in) the model, and (b) the per-pull reductions have a t statistic >= MIN_T (one-sided, over held-out
+pulls). Ranked by the held-out reduction of their channel's squared residual (in units of that channel's noise
+floor) -- strongest first.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .errors import CorrectionError
+
+MIN_REL_REDUCTION = 0.01      # held-out SSE must fall by at least 1 %
+MIN_T = 4.0                   # and consistently over held-out pulls
+HUM_BAND_HZ = (45.0, 65.0)
+MOUNT_MAX_FRACTION = 0.7      # a free-decay mode below 0.7 x the cell mode is not the cell
+UNEXPLAINED_SHARE = 0.3       # residual variance in W above 1/(1-0.3) x the quiet-record floor: structured
+NONLIN_SHARE = 0.25           # a T^2 term recovering > 25 % of the gain's reduction: not a linear gain
+MOUNT_BASE_MASS_FRACTION = 0.25
+CATALOG_PARAMS = {
+    'effective_mass': ('mass_kg',), 'accel_delay': ('delay_s',), 'moving_cell_gain': ('gain',),
+    'mount_resonance': ('frequency_hz', 'damping_ratio'), 'ac_coupling': ('time_constant_s',),
+    'mains_hum': ('frequency_hz', 'amplitude_n'), 'coulomb_friction': ('force_n',),
+}
+REQUIRED = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'force_moving_n', 'force_stationary_n')
+
+
+# ------------------------------------------------------------------------------------------ per-pull prep
+def _d2_lowpass(x: np.ndarray, dt: float, f_lo: float = 5000.0, f_hi: float = 7000.0) -> np.ndarray:
+    n = len(x)
+    xm = x - np.linspace(x[0], x[-1], n)            # remove the end mismatch (no wrap-around step)
+    X = np.fft.rfft(xm)
+    f = np.fft.rfftfreq(n, dt)
+    w = np.ones_like(f)
+    mid = (f > f_lo) & (f < f_hi)
+    w[mid] = 0.5 * (1 + np.cos(np.pi * (f[mid] - f_lo) / (f_hi - f_lo)))
+    w[f >= f_hi] = 0.0
+    return np.fft.irfft(-(2 * np.pi * f) ** 2 * w * X, n)
+
+
+def advance(x: np.ndarray, d_s: float, dt: float) -> np.ndarray:
+    """x(t + d): fractional advance by FFT phase shift (linear trend removed first)."""
+    if d_s == 0.0:
+        return x
+    n = len(x)
+    trend = np.linspace(x[0], x[-1], n)
+    X = np.fft.rfft(x - trend)
+    f = np.fft.rfftfreq(n, dt)
+    y = np.fft.irfft(X * np.exp(2j * np.pi * f * d_s), n)
+    return y + trend + (x[-1] - x[0]) * d_s / (dt * (n - 1))
+
+
+@dataclass
+class Pull:
+    name: str
+    t: np.ndarray
+    dt: float
+    fm: np.ndarray
+    fs: np.ndarray
+    a2: np.ndarray
+    T: np.ndarray
+    x3: np.ndarray
+    v3: np.ndarray
+    a3: np.ndarray
+    current: Optional[np.ndarray]
+    w0: int
+    w1: int
+    pre1: int
+    load0: int
+    brk: int
+    peak: float
+    hum: Optional[np.ndarray] = None   # hum estimate on the whole record (set later)
+
+
+def prepare(meta: dict, ch: dict, rig) -> Pull:
+    from scipy.signal import savgol_filter
+    for k in REQUIRED:
+        if k not in ch:
+            raise CorrectionError(f'pull {meta.get("file", "?")!r} has no {k!r} channel; expected {", ".join(REQUIRED)}')
+    t = np.asarray(ch['time_s'], float)
+    n = len(t)
+    if n < 2000:
+        raise CorrectionError(f'pull {meta.get("file", "?")!r} has {n} samples; expected a full record (>= 2000)')
+    dt = float(t[1] - t[0])
+    fc = rig.force_chain
+    fs = np.asarray(ch['force_stationary_n'], float)
+    fm = np.asarray(ch['force_moving_n'], float)
+    a2 = np.asarray(ch['accel_axial_m_s2'], float)
+    x = np.asarray(ch['encoder_position_m'], float)
+    for k, v in (('force_stationary_n', fs), ('force_moving_n', fm), ('accel_axial_m_s2', a2), ('encoder', x)):
+        if not np.all(np.isfinite(v)):
+            raise CorrectionError(f'pull {meta.get("file", "?")!r}: {k} has non-finite samples')
+    T = fs + fc.m1 / fc.load_cell_stiffness_n_per_m * _d2_lowpass(fs, dt)
+    win = max(5, int(round(2e-3 / dt)) | 1)
+    x3 = savgol_filter(x, win, 3)
+    v3 = savgol_filter(x, win, 3, deriv=1, delta=dt)
+    a3 = savgol_filter(x, win, 3, deriv=2, delta=dt)
+    cur = ch.get('motor_current_a')
+    cur = None if cur is None else np.asarray(cur, float)
+    peak = float(np.max(fs))
+    noise = float(np.std(fs[: max(10, n // 10)]))
+    if not peak > max(20.0, 20 * noise):
+        raise CorrectionError(f'pull {meta.get("file", "?")!r}: stationary peak {peak:.3g} N is not a pull; '
+                              'expected a loaded record')
+    idx = np.flatnonzero(fs > 0.1 * peak)
+    load0 = int(idx[0])
+    brk = int(np.flatnonzero(T > 0.05 * peak)[-1])
+    w0 = max(0, load0 - int(0.05 / dt))
+    w1 = min(n, brk + int(0.15 / dt))
+    pre1 = max(0, load0 - int(0.03 / dt))
+    return Pull(str(meta.get('file', '?')), t, dt, fm, fs, a2, T, x3, v3, a3, cur, w0, w1, pre1, load0, brk, peak)
+
+
+# ------------------------------------------------------------------------------------------ mains hum
+def _hum_design(t, f):
+    return np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
+
+
+def _pre_resid(p: Pull, m2: float) -> Tuple[np.ndarray, np.ndarray]:
+    s = slice(int(0.02 / p.dt), p.pre1)
+    return p.t[s], (p.fm - p.T - m2 * p.a2)[s]
+
+
+def fit_hum_frequency(pulls: Sequence[Pull], m2: float) -> Tuple[float, dict]:
+    """Frequency maximizing the summed (per-pull, free phase) line power of the pre-pull residual, 45-65 Hz."""
+    def power(f):
+        tot = 0.0
+        for p in pulls:
+            t, r = _pre_resid(p, m2)
+            A = _hum_design(t, f)
+            c, *_ = np.linalg.lstsq(A, r, rcond=None)
+            tot += float(np.sum((A[:, :2] @ c[:2]) ** 2))
+        return tot
+    grid = np.arange(HUM_BAND_HZ[0], HUM_BAND_HZ[1] + 1e-9, 0.25)
+    pw = np.array([power(f) for f in grid])
+    f0 = float(grid[int(np.argmax(pw))])
+    from scipy.optimize import minimize_scalar
+    res = minimize_scalar(lambda f: -power(f), bounds=(f0 - 0.3, f0 + 0.3), method='bounded',
+                          options={'xatol': 1e-3})
+    f = float(res.x)
+    # spectral contrast: peak power vs the median over the band
+    return f, {'peak_power': float(-res.fun), 'median_power': float(np.median(pw))}
+
+
+def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
+    """(amplitude, hum over the whole record) with the phase/amplitude fitted on the pre-pull record only."""
+    t, r = _pre_resid(p, m2)
+    c, *_ = np.linalg.lstsq(_hum_design(t, f), r, rcond=None)
+    return float(math.hypot(c[0], c[1])), c[0] * np.sin(2 * np.pi * f * p.t) + c[1] * np.cos(2 * np.pi * f * p.t)
+
+
+# ------------------------------------------------------------------------------------------ force channel
+TERMS = ('moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling')
+
+
+class ForceModel:
+    """F_move - hum = g T + M a2(t + d) - k C on W (C: running integral of F_move - hum over the whole record)."""
+
+    def __init__(self, pulls: Sequence[Pull], m2: float):
+        self.m2 = m2
+        self.pulls = pulls
+        self.y, self.T, self.a2, self.C, self.pid = [], [], [], [], []
+        for j, p in enumerate(pulls):
+            y = p.fm - (p.hum if p.hum is not None else 0.0)
+            C = np.cumsum(y) * p.dt
+            s = slice(p.w0, p.w1)
+            self.y.append(y[s]); self.T.append(p.T[s]); self.C.append(C[s])
+        self._a2cache: Dict[float, List[np.ndarray]] = {}
+
+    def a2_at(self, d: float) -> List[np.ndarray]:
+        key = round(d, 9)
+        if key not in self._a2cache:
+            self._a2cache[key] = [advance(p.a2, d, p.dt)[p.w0:p.w1] for p in self.pulls]
+        return self._a2cache[key]
+
+    def design(self, terms, d, idx):
+        """(y adjusted for fixed terms, regressor matrix, column names) stacked over pulls idx."""
+        a2 = self.a2_at(d if 'accel_delay' in terms else 0.0)
+        ys, Xs = [], []
+        for j in idx:
+            y = self.y[j].copy()
+            cols, names = [], []
+            if 'moving_cell_gain' in terms:
+                if 'effective_mass' in terms:
+                    cols += [self.T[j], a2[j]]; names += ['g', 'M']
+                else:
+                    cols += [self.T[j] + self.m2 * a2[j]]; names += ['g']
+            else:
+                y = y - self.T[j]
+                if 'effective_mass' in terms:
+                    cols += [a2[j]]; names += ['M']
+                else:
+                    y = y - self.m2 * a2[j]
+            if 'ac_coupling' in terms:
+                cols += [-self.C[j]]; names += ['k']
+            ys.append(y)
+            Xs.append(np.column_stack(cols) if cols else np.zeros((len(y), 0)))
+        return ys, Xs, names
+
+    def fit(self, terms, idx, d=0.0):
+        ys, Xs, names = self.design(terms, d, idx)
+        if not names:
+            return {}, float(sum(np.sum(y ** 2) for y in ys))
+        X = np.vstack(Xs)
+        y = np.concatenate(ys)
+        c, *_ = np.linalg.lstsq(X, y, rcond=None)
+        r = y - X @ c
+        return dict(zip(names, c)), float(r @ r)
+
+    def fit_delay(self, terms, idx, d_max=250e-6):
+        dt = self.pulls[0].dt
+        grid = np.arange(0.0, d_max + 1e-12, dt / 4)
+        sse = np.array([self.fit(terms, idx, d)[1] for d in grid])
+        k = int(np.argmin(sse))
+        d = float(grid[k])
+        if 0 < k < len(grid) - 1:   # parabolic refinement
+            y0, y1, y2 = sse[k - 1], sse[k], sse[k + 1]
+            den = y0 - 2 * y1 + y2
+            if den > 0:
+                d = float(d + 0.5 * (y0 - y2) / den * (grid[1] - grid[0]))
+        coef, s = self.fit(terms, idx, d)
+        return coef, s, d
+
+    def sse_per_pull(self, terms, coef, d, idx) -> np.ndarray:
+        ys, Xs, names = self.design(terms, d, idx)
+        c = np.array([coef[n] for n in names]) if names else np.zeros(0)
+        return np.array([float(np.sum((y - X @ c) ** 2)) for y, X in zip(ys, Xs)])
+
+    def resid(self, terms, coef, d, j) -> np.ndarray:
+        ys, Xs, names = self.design(terms, d, [j])
+        c = np.array([coef[n] for n in names]) if names else np.zeros(0)
+        return ys[0] - Xs[0] @ c
+
+
+def force_params(coef: dict, d: float, m2: float) -> dict:
+    g = coef.get('g', 1.0)
+    out = {}
+    if 'g' in coef:
+        out['moving_cell_gain'] = {'gain': float(g)}
+    if 'M' in coef:
+        out['effective_mass'] = {'mass_kg': float(coef['M'] / g)}
+    out['accel_delay'] = {'delay_s': float(d)}
+    if 'k' in coef:
+        out['ac_coupling'] = {'time_constant_s': float(1.0 / coef['k']) if coef['k'] > 0 else float('inf')}
+    return out
+
+
+# ------------------------------------------------------------------------------------------ ringing channel
+def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float, float, float]]:
+    """Damped modes of y: [(frequency Hz, damping ratio, rms amplitude share)], strongest first."""
+    n = len(y)
+    L = n // 2
+    Y = np.lib.stride_tricks.sliding_window_view(y, L + 1)
+    U, s, Vh = np.linalg.svd(Y, full_matrices=False)
+    V = Vh[:order].conj().T
+    V1, V2 = V[:-1], V[1:]
+    z = np.linalg.eigvals(np.linalg.pinv(V1) @ V2)
+    z = z[np.abs(z) > 1e-6]
+    Z = np.vander(z, n, increasing=True).T
+    amp, *_ = np.linalg.lstsq(Z, y.astype(complex), rcond=None)
+    out = []
+    for zi, ai in zip(z, amp):
+        lam = np.log(zi) / dt
+        w = abs(lam)
+        f = abs(lam.imag) / (2 * np.pi)
+        if f < 1.0:
+            continue
+        zeta = -lam.real / w
+        e = float(np.sum(np.abs(ai * zi ** np.arange(n)) ** 2))
+        out.append((float(f), float(zeta), e))
+    # merge conjugate pairs: keep positive-frequency energies summed by frequency
+    out.sort(key=lambda m: -m[2])
+    merged = []
+    for f, zt, e in out:
+        for m in merged:
+            if abs(m[0] - f) < 1e-6 * max(1.0, f):
+                m[2] += e
+                break
+        else:
+            merged.append([f, zt, e])
+    merged.sort(key=lambda m: -m[2])
+    return [tuple(m) for m in merged]
+
+
+def ring_segment(p: Pull, length_s: float = 0.03) -> Optional[np.ndarray]:
+    i0 = p.brk + int(2e-4 / p.dt)
+    i1 = min(len(p.t), i0 + int(length_s / p.dt))
+    if i1 - i0 < 200:
+        return None
+    y = (p.a2 - p.a3)[i0:i1]
+    return y - np.mean(y)
+
+
+def damped_basis(n: int, dt: float, f: float, zeta: float) -> np.ndarray:
+    t = np.arange(n) * dt
+    w = 2 * np.pi * f
+    e = np.exp(-zeta * w * t)
+    wd = w * math.sqrt(max(1e-12, 1 - zeta ** 2))
+    return np.column_stack([e * np.sin(wd * t), e * np.cos(wd * t)])
+
+
+def ring_sse(seg: np.ndarray, dt: float, modes: Sequence[Tuple[float, float]]) -> float:
+    """Squared residual of seg after a per-pull amplitude/phase fit of the given (f, zeta) modes."""
+    if not modes:
+        return float(seg @ seg)
+    X = np.hstack([damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
+    c, *_ = np.linalg.lstsq(X, seg, rcond=None)
+    r = seg - X @ c
+    return float(r @ r)
+
+
+def mount_from_observed(f_obs: float, zeta_obs: float, m2: float, k_cell: float, zeta_cell: float):
+    """Mount (frequency_hz, damping_ratio) whose carriage-mount-base-cell-m2 chain has the observed lowest pole."""
+    from scipy.optimize import fsolve
+    mb = MOUNT_BASE_MASS_FRACTION * m2
+    c2 = 2 * zeta_cell * math.sqrt(k_cell * m2)
+    M = np.diag([mb, m2])
+
+    def pole(fm, zm):
+        km = (2 * np.pi * fm) ** 2 * (mb + m2)
+        cm = 2 * zm * math.sqrt(km * (mb + m2))
+        K = np.array([[km + k_cell, -k_cell], [-k_cell, k_cell]])
+        C = np.array([[cm + c2, -c2], [-c2, c2]])
+        A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+        ev = np.linalg.eigvals(A)
+        ev = ev[ev.imag > 0]
+        lam = ev[np.argmin(np.abs(ev))]
+        return abs(lam.imag) / (2 * np.pi), -lam.real / abs(lam)
+
+    def eq(v):
+        f, z = pole(v[0], v[1])
+        return [f / f_obs - 1.0, z / max(zeta_obs, 1e-6) - 1.0]
+    sol = fsolve(eq, [f_obs / 0.95, max(zeta_obs, 1e-4)], full_output=True)
+    return float(sol[0][0]), float(sol[0][1])
+
+
+# ------------------------------------------------------------------------------------------ current channel
+def current_resid(p: Pull, rig) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    if p.current is None:
+        return None
+    d = rig.drive
+    rho = p.current * d.force_per_amp_n_per_a - d.reflected_mass_kg * p.a3 - d.viscous_damping_n_s_per_m * p.v3 - p.fm
+    moving = p.v3 > 0.05
+    still = np.abs(p.v3) < 1e-4
+    return rho, np.where(moving, 1.0, np.where(still, 0.0, np.nan))
+
+
+def friction_fit(pulls, idx, rig) -> Optional[float]:
+    mv, st = [], []
+    for j in idx:
+        cr = current_resid(pulls[j], rig)
+        if cr is None:
+            return None
+        rho, sg = cr
+        mv.append(np.median(rho[sg == 1.0])); st.append(np.median(rho[sg == 0.0]))
+    return float(np.median(mv) - np.median(st))
+
+
+def friction_sse(p: Pull, rig, fc: float) -> float:
+    rho, sg = current_resid(p, rig)
+    ok = ~np.isnan(sg)
+    r = rho[ok] - fc * sg[ok]
+    r = r - np.median(rho[sg == 0.0])
+    r = np.clip(r, -np.percentile(np.abs(r), 95) * 3 - 1e-9, np.percentile(np.abs(r), 95) * 3 + 1e-9)
+    return float(np.sum((r / rig.drive.force_per_amp_n_per_a) ** 2))   # in A^2
+
+
+# ------------------------------------------------------------------------------------------ significance
+def significance(base: np.ndarray, ext: np.ndarray) -> dict:
+    """Held-out per-pull SSE without (base) and with (ext) a cause."""
+    d = base - ext
+    rel = float(1.0 - ext.sum() / base.sum()) if base.sum() > 0 else 0.0
+    sd = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
+    tstat = float(np.mean(d) / (sd / math.sqrt(len(d)))) if sd > 0 else (math.inf if np.mean(d) > 0 else 0.0)
+    return {'statistic': 'held-out SSE reduction and t of per-pull reductions',
+            'rel_sse_reduction': rel, 't': tstat, 'threshold': f'rel >= {MIN_REL_REDUCTION:g} and t >= {MIN_T:g}',
+            'significant': bool(rel >= MIN_REL_REDUCTION and tstat >= MIN_T),
+            'rms_gain': float(math.sqrt(base.sum() / ext.sum())) if ext.sum() > 0 else math.inf}
+
+
+# ------------------------------------------------------------------------------------------ main entry
+def _split(pulls: Sequence[Pull]):
+    fit = list(range(0, len(pulls), 2))
+    held = list(range(1, len(pulls), 2))
+    return fit, held
+
+
+def analyse(campaign_pulls, rig) -> dict:
+    """All statistics (no files). campaign_pulls: [(meta, channels)]."""
+    if len(campaign_pulls) < 4:
+        raise CorrectionError(f'campaign has {len(campaign_pulls)} pulls; expected at least 4 '
+                              '(half are fitted, half held out)')
+    pulls = [prepare(m, c, rig) for m, c in campaign_pulls]
+    dts = {round(p.dt, 12) for p in pulls}
+    if len(dts) != 1:
+        raise CorrectionError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
+    fc = rig.force_chain
+    m2 = fc.m2
+    fit, held = _split(pulls)
+    res = {'fitted_pulls': [pulls[j].name for j in fit], 'held_out_pulls': [pulls[j].name for j in held],
+           'candidates': {}, 'notes': []}
+    cand = res['candidates']
+
+    # -- mains hum (pre-pull record)
+    f_hum, hstat = fit_hum_frequency([pulls[j] for j in fit], m2)
+    amps = []
+    for p in pulls:
+        a, h = hum_per_pull(p, f_hum, m2)
+        p.hum = h
+        amps.append(a)
+    base_h, ext_h = [], []
+    for j in held:   # score on W (disjoint from the pre-pull record the phase came from), amplitude from fit pulls
+        p = pulls[j]
+        r = (p.fm - p.T - m2 * p.a2)[p.w0:p.w1]
+        a_fit = float(np.mean([amps[k] for k in fit]))
+        h = p.hum[p.w0:p.w1] * (a_fit / max(amps[j], 1e-12))
+        base_h.append(float(r @ r)); ext_h.append(float((r - h) @ (r - h)))
+    sig = significance(np.array(base_h), np.array(ext_h))
+    cand['mains_hum'] = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': float(np.mean([amps[k] for k in fit]))},
+                         'evidence': sig, 'channel': 'force_moving_n - (T + m2 a2), analysis window',
+                         'where': f'whole record; line at {f_hum:.2f} Hz'}
+    if not sig['significant']:
+        for p in pulls:
+            p.hum = None
+
+    # -- force channel: full model, then drop each term
+    fm_ = ForceModel(pulls, m2)
+    full = set(TERMS)
+    coef_full, _, d_full = fm_.fit_delay(full, fit)
+    sse_full = fm_.sse_per_pull(full, coef_full, d_full, held)
+    drops = {}
+    for term in TERMS:
+        terms = full - {term}
+        if term == 'accel_delay':
+            c, _ = fm_.fit(terms, fit, 0.0)
+            d = 0.0
+        else:
+            c, _, d = fm_.fit_delay(terms, fit)
+        drops[term] = (terms, c, d, fm_.sse_per_pull(terms, c, d, held))
+    base_sse = fm_.sse_per_pull(set(), {}, 0.0, held)
+    params_full = force_params(coef_full, d_full, m2)
+    for term in TERMS:
+        sig = significance(drops[term][3], sse_full)
+        c1, _, d1 = (fm_.fit_delay({term}, fit) if term == 'accel_delay' else (*fm_.fit({term}, fit), 0.0))
+        alone = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held))
+        sig['rms_gain_alone'] = alone['rms_gain']
+        cand[term] = {'parameters': params_full[term], 'evidence': sig,
+                      'channel': 'force_moving_n - (T + m2 a2), analysis window'}
+    # non-linearity check for the gain: would T^2 explain more than a linear gain?
+    nl = _nonlinear_check(fm_, coef_full, d_full, fit, held)
+    cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = nl
+    res['force'] = {'coef': coef_full, 'delay_s': d_full, 'sse_base_held': base_sse.tolist(),
+                    'sse_full_held': sse_full.tolist()}
+
+    # -- ringing channel (mount resonance)
+    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / m2) / (2 * np.pi)
+    segs = [(j, ring_segment(pulls[j])) for j in range(len(pulls))]
+    segs = {j: s for j, s in segs if s is not None}
+    modes = []
+    for j in fit:
+        if j in segs:
+            mm = matrix_pencil(segs[j][:1500], pulls[j].dt)
+            mm = [m for m in mm if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
+            if mm:
+                modes.append(mm[0])
+    dt = pulls[0].dt
+    if modes:
+        fo = float(np.median([m[0] for m in modes]))
+        zo = float(np.median([m[1] for m in modes]))
+        ok = [j for j in held if j in segs]
+        b = np.array([ring_sse(segs[j], dt, [(f_cell, fc.load_cell_damping_ratio)]) for j in ok])
+        e = np.array([ring_sse(segs[j], dt, [(f_cell, fc.load_cell_damping_ratio), (fo, zo)]) for j in ok])
+        sig = significance(b, e) if len(ok) >= 2 else {'significant': False, 'rel_sse_reduction': 0.0, 't': 0.0,
+                                                       'rms_gain': 1.0}
+        sig['observed_frequency_hz'] = fo
+        sig['observed_damping_ratio'] = zo
+        sig['cell_mode_hz'] = f_cell
+        sig['frequency_rule'] = f'observed < {MOUNT_MAX_FRACTION} x cell mode ({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)'
+        if fo >= MOUNT_MAX_FRACTION * f_cell:
+            sig['significant'] = False
+        cand['mount_resonance'] = {'observed': (fo, zo), 'evidence': sig, 'parameters': None,
+                                   'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break'}
+        res['ring'] = {'segments': {j: segs[j] for j in ok[:3]}, 'fo': fo, 'zo': zo}
+    else:
+        res['notes'].append('no free decay after the break to analyse for a mount resonance')
+
+    # -- current channel (coulomb friction)
+    fcf = friction_fit(pulls, fit, rig)
+    if fcf is None:
+        res['notes'].append('coulomb_friction not tested: the data has no motor_current_a channel')
+    else:
+        b = np.array([friction_sse(pulls[j], rig, 0.0) for j in held])
+        e = np.array([friction_sse(pulls[j], rig, fcf) for j in held])
+        sig = significance(b, e)
+        cand['coulomb_friction'] = {'parameters': {'force_n': fcf}, 'evidence': sig,
+                                    'channel': 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)'}
+    res['pulls'] = pulls
+    res['fit'], res['held'] = fit, held
+    return res
+
+
+def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:
+    """Relative held-out SSE reduction when T^2 is added to the full model."""
+    ys, Xs, names = fm_.design(set(TERMS), d, fit)
+    X = np.vstack([np.column_stack([Xk, fm_.T[j] ** 2]) for Xk, j in zip(Xs, fit)])
+    c, *_ = np.linalg.lstsq(X, np.concatenate(ys), rcond=None)
+    ys2, Xs2, _ = fm_.design(set(TERMS), d, held)
+    c0 = np.array([coef[n] for n in names])
+    s0 = sum(float(np.sum((y - Xk @ c0) ** 2)) for y, Xk in zip(ys2, Xs2))
+    s1 = sum(float(np.sum((y - np.column_stack([Xk, fm_.T[j] ** 2]) @ c) ** 2)) for y, Xk, j in zip(ys2, Xs2, held))
+    return float(1 - s1 / s0) if s0 > 0 else 0.0
+
+
+def decide(res: dict, rig) -> dict:
+    """Named causes (strongest first) with parameters, plus the leftover-structure check."""
+    cand = res['candidates']
+    fc = rig.force_chain
+    named = []
+    for name in ('mains_hum', 'moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling',
+                 'mount_resonance', 'coulomb_friction'):
+        c = cand.get(name)
+        if c is None or not c['evidence'].get('significant'):
+            continue
+        if name == 'moving_cell_gain':
+            ev = c['evidence']
+            if ev['t_squared_rel_reduction'] > NONLIN_SHARE * ev['rel_sse_reduction']:
+                ev['rejected'] = 'a T^2 term explains a large part of what the linear gain does: not a gain'
+                res['notes'].append('the moving cell departs from T non-linearly (T^2 term significant)')
+                continue
+        if name == 'ac_coupling' and not (c['parameters']['time_constant_s'] > 0
+                                          and math.isfinite(c['parameters']['time_constant_s'])):
+            continue
+        named.append(name)
+    m_eff = cand['effective_mass']['parameters']['mass_kg'] if 'effective_mass' in named else fc.m2
+    if 'mount_resonance' in named:
+        fo, zo = cand['mount_resonance']['observed']
+        f, z = mount_from_observed(fo, zo, m_eff, fc.load_cell_stiffness_n_per_m, fc.load_cell_damping_ratio)
+        cand['mount_resonance']['parameters'] = {'frequency_hz': f, 'damping_ratio': z}
+    strength = {n: cand[n]['evidence']['rel_sse_reduction'] for n in named}
+    named.sort(key=lambda n: -strength[n])
+    return named
+
+
+def _leftover(res, named, rig) -> Optional[dict]:
+    """Structure left in the held-out force residual after the extension (W vs the quiet pre-pull record)."""
+    pulls, held = res['pulls'], res['held']
+    fm_ = ForceModel(pulls, rig.force_chain.m2)
+    terms = set(n for n in named if n in TERMS)
+    coef, _, d = (fm_.fit_delay(terms, res['fit']) if 'accel_delay' in terms else (*fm_.fit(terms, res['fit']), 0.0))
+    vw, vq, spec, corr = [], [], None, {}
+    for j in held:
+        p = pulls[j]
+        r = fm_.resid(terms, coef, d, j)
+        pre = (p.fm - (p.hum if p.hum is not None else 0) - p.T - rig.force_chain.m2 * p.a2)[int(0.02 / p.dt):p.pre1]
+        vw.append(float(np.var(r))); vq.append(float(np.var(pre - np.mean(pre))))
+        P = np.abs(np.fft.rfft((r - r.mean()) * np.hanning(len(r)), 2 ** 16)) ** 2
+        spec = P if spec is None else spec + P
+        for nm, x in (('tension T', p.T[p.w0:p.w1]), ('T^2', p.T[p.w0:p.w1] ** 2),
+                      ('accel_axial', p.a2[p.w0:p.w1]), ('encoder a3', p.a3[p.w0:p.w1])):
+            cc = np.corrcoef(r, x)[0, 1] if np.std(x) > 0 else 0.0
+            corr.setdefault(nm, []).append(abs(cc))
+    share = 1.0 - float(np.mean(vq)) / float(np.mean(vw)) if np.mean(vw) > 0 else 0.0
+    f = np.fft.rfftfreq(2 ** 16, pulls[0].dt)
+    ok = f > 5.0
+    fdom = float(f[ok][np.argmax(spec[ok])])
+    best = max(corr, key=lambda k: np.mean(corr[k]))
+    return {'share_of_residual_variance': share, 'dominant_frequency_hz': fdom, 'correlated_channel': best,
+            'correlation': float(np.mean(corr[best])), 'structured': bool(share > UNEXPLAINED_SHARE),
+            'rule': f'residual variance in the analysis window exceeds the quiet pre-pull floor by a share > '
+                    f'{UNEXPLAINED_SHARE}'}
+
+
+def discover(campaign_pulls, rig, out_dir) -> dict:
+    """Analyse, decide, write DIR/report.json, report.md, extension.yaml (+ plots). Returns the report dict."""
+    from . import discovery_report
+    res = analyse(campaign_pulls, rig)
+    named = decide(res, rig)
+    left = _leftover(res, named, rig)
+    report = discovery_report.build_report(res, named, left, rig)
+    discovery_report.write_outputs(report, res, named, rig, Path(out_dir))
+    return report

@@ -1,0 +1,248 @@
+"""Report, extension YAML and plots of the discovery (see discovery.py). ROS-free."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from . import discovery as D
+
+FORCE_CHANNEL = ('mains_hum',) + D.TERMS
+
+
+def _clean(x):
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def force_errors(res, named, rig):
+    """Held-out force-channel residual per pull: baseline (model of record) and extended (named causes)."""
+    pulls, fit, held = res['pulls'], res['fit'], res['held']
+    m2 = rig.force_chain.m2
+    hum = {j: pulls[j].hum for j in range(len(pulls))}
+    for p in pulls:
+        p.hum = None
+    fm0 = D.ForceModel(pulls, m2)
+    base = [fm0.resid(set(), {}, 0.0, j) for j in held]
+    for j, h in hum.items():
+        pulls[j].hum = h if 'mains_hum' in named else None
+    fm1 = D.ForceModel(pulls, m2)
+    terms = set(n for n in named if n in D.TERMS)
+    if 'accel_delay' in terms:
+        coef, _, d = fm1.fit_delay(terms, fit)
+    else:
+        coef, _ = fm1.fit(terms, fit, 0.0)
+        d = 0.0
+    ext = [fm1.resid(terms, coef, d, j) for j in held]
+    for j, h in hum.items():
+        pulls[j].hum = h
+    return base, ext
+
+
+def _rms(rs):
+    return float(math.sqrt(sum(float(r @ r) for r in rs) / sum(len(r) for r in rs)))
+
+
+def build_report(res, named, left, rig) -> dict:
+    cand = res['candidates']
+    causes = []
+    for n in named:
+        c = cand[n]
+        ev = dict(c['evidence'])
+        gain = ev.get('rms_gain_alone', ev.get('rms_gain'))
+        causes.append({'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
+                       'evidence': ev, 'gain': gain, 'channel': c['channel']})
+    base, ext = force_errors(res, named, rig)
+    primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
+    if primary == 'unexplained':
+        causes.append({'name': 'unexplained', 'parameters': {
+            'dominant_frequency_hz': left['dominant_frequency_hz'], 'correlated_channel': left['correlated_channel'],
+            'share_of_residual_variance': left['share_of_residual_variance']},
+            'evidence': {'statistic': 'residual variance share above the quiet-record floor',
+                         'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE,
+                         'rule': left['rule']}, 'gain': 1.0})
+    elif named and left and left['structured']:
+        causes.append({'name': 'unexplained', 'parameters': {
+            'dominant_frequency_hz': left['dominant_frequency_hz'], 'correlated_channel': left['correlated_channel'],
+            'share_of_residual_variance': left['share_of_residual_variance']},
+            'evidence': {'statistic': 'residual variance share above the quiet-record floor after the extension',
+                         'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE},
+            'gain': 1.0})
+    if primary in ('mount_resonance', 'coulomb_friction'):
+        ev = cand[primary]['evidence']
+        # RMS on the cause's own channel (held-out); no other channel changes
+        b = e = None
+        gain = ev['rms_gain']
+        metric = ('RMS on held-out pulls of ' + cand[primary]['channel'] + ' (per-pull amplitude/phase of the '
+                  'modes fitted)' if primary == 'mount_resonance' else 'RMS on held-out pulls of the motor-current '
+                  'residual (force balance), A')
+        if primary == 'mount_resonance':
+            b_, e_ = _ring_rms(res, rig)
+        else:
+            b_, e_ = _current_rms(res, rig, cand[primary]['parameters']['force_n'])
+        baseline_error, extended_error = b_, e_
+    else:
+        baseline_error, extended_error = _rms(base), _rms(ext)
+        metric = ('RMS (N) on the held-out pulls of the moving-cell prediction residual F_move - F_pred over the '
+                  'analysis window (50 ms before the load to 150 ms after the break); baseline F_pred = T + m2 a2 '
+                  '(eq 21, T = F_stat + m1 a1, nominal m2, ideal sensors), extended: all named force-channel causes')
+    report = {
+        'cause': primary,
+        'causes': causes,
+        'baseline_error': baseline_error,
+        'extended_error': extended_error,
+        'gain': baseline_error / extended_error if extended_error > 0 else None,
+        'metric': metric,
+        'force_channel': {'baseline_rms_n': _rms(base), 'extended_rms_n': _rms(ext)},
+        'fitted_pulls': res['fitted_pulls'],
+        'held_out_pulls': res['held_out_pulls'],
+        'significance_rule': (f'a candidate is named when, on the held-out pulls, removing it from the extended '
+                              f'model raises the summed squared residual of its channel by >= '
+                              f'{100 * D.MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {D.MIN_T:g}; '
+                              f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; a gain must '
+                              f'not be better explained by T^2 (T^2 recovering > {D.NONLIN_SHARE} of its reduction)'),
+        'candidates': {n: {'parameters': c.get('parameters'), 'evidence': c['evidence'], 'channel': c['channel']}
+                       for n, c in cand.items()},
+        'leftover': left,
+        'notes': res['notes'],
+    }
+    return _clean(report)
+
+
+def _ring_rms(res, rig):
+    ring = res.get('ring')
+    pulls, held = res['pulls'], res['held']
+    fc = rig.force_chain
+    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
+    b = e = n = 0.0
+    for j in held:
+        s = D.ring_segment(pulls[j])
+        if s is None:
+            continue
+        b += D.ring_sse(s, pulls[j].dt, [(f_cell, fc.load_cell_damping_ratio)])
+        e += D.ring_sse(s, pulls[j].dt, [(f_cell, fc.load_cell_damping_ratio), (ring['fo'], ring['zo'])])
+        n += len(s)
+    return math.sqrt(b / n), math.sqrt(e / n)
+
+
+def _current_rms(res, rig, fcf):
+    pulls, held = res['pulls'], res['held']
+    b = sum(D.friction_sse(pulls[j], rig, 0.0) for j in held)
+    e = sum(D.friction_sse(pulls[j], rig, fcf) for j in held)
+    n = sum(len(pulls[j].t) for j in held)
+    return math.sqrt(b / n), math.sqrt(e / n)
+
+
+def extension(report, rig) -> dict:
+    deps = {c['name']: c['parameters'] for c in report['causes'] if c['name'] in D.CATALOG_PARAMS}
+    corr = {'mass_kg': float(deps.get('effective_mass', {}).get('mass_kg', rig.force_chain.m2)),
+            'accel_delay_s': float(deps.get('accel_delay', {}).get('delay_s', 0.0)),
+            'moving_cell_gain': float(deps.get('moving_cell_gain', {}).get('gain', 1.0))}
+    if 'ac_coupling' in deps:
+        corr['ac_time_constant_s'] = deps['ac_coupling']['time_constant_s']
+    if 'mains_hum' in deps:
+        corr['hum_frequency_hz'] = deps['mains_hum']['frequency_hz']
+    return {'departures': deps, 'correction': corr}
+
+
+def write_outputs(report, res, named, rig, out: Path) -> None:
+    import yaml
+    out.mkdir(parents=True, exist_ok=True)
+    ext = extension(report, rig)
+    head = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig YAML,\n'
+            '# reproduces the behaviour with load_rig; the correction section is what the correction node can undo\n'
+            '# (corrected = (F_move / moving_cell_gain) - mass_kg * a2(t + accel_delay_s)).\n')
+    (out / 'extension.yaml').write_text(head + yaml.safe_dump(_clean(ext), sort_keys=False))
+    plots = _plots(res, named, rig, out)
+    report['plots'] = plots
+    (out / 'report.json').write_text(json.dumps(report, indent=1))
+    (out / 'report.md').write_text(markdown(report, plots))
+
+
+def _fmt_params(p):
+    return ', '.join(f'{k} = {v:.4g}' if isinstance(v, (int, float)) else f'{k} = {v}' for k, v in p.items())
+
+
+def markdown(r, plots) -> str:
+    L = ['# Discovery report', '',
+         f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, extended {r["extended_error"]:.4g}, '
+         f'gain {r["gain"]:.3g}x' if r['gain'] else f'**Primary cause: `{r["cause"]}`.**', '',
+         f'Metric: {r["metric"]}.', '',
+         f'Fitted on {len(r["fitted_pulls"])} pulls (even-numbered), scored on {len(r["held_out_pulls"])} held-out pulls.',
+         f'Moving-cell prediction residual (held-out, analysis window): {r["force_channel"]["baseline_rms_n"]:.3g} N '
+         f'with the model of record, {r["force_channel"]["extended_rms_n"]:.3g} N with the extension.', '',
+         '## What disagreed and the causes named (strongest first)', '']
+    if not r['causes']:
+        L.append('Nothing significant: the model of record explains the data to the noise floor.')
+    for c in r['causes']:
+        ev = c['evidence']
+        L.append(f'- **{c["name"]}**: {_fmt_params(c["parameters"])}; channel: {c.get("channel", "force_moving_n")}; '
+                 + (f'held-out SSE reduction {100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f} '
+                    f'({ev["threshold"]}); gain {c["gain"]:.3g}x' if 'rel_sse_reduction' in ev
+                    else f'{ev["statistic"]}: {ev["value"]:.2f} (threshold {ev["threshold"]})'))
+    L += ['', '## Candidates ruled out', '']
+    names = {c['name'] for c in r['causes']}
+    for n, c in r['candidates'].items():
+        if n in names:
+            continue
+        ev = c['evidence']
+        why = ev.get('rejected') or (f'held-out SSE reduction {100 * ev.get("rel_sse_reduction", 0):.3f} %, '
+                                     f't = {ev.get("t", 0):.1f}: below {ev.get("threshold", "the rule")}')
+        if n == 'mount_resonance' and 'observed_frequency_hz' in ev:
+            why += (f'; dominant free-decay mode {ev["observed_frequency_hz"]:.0f} Hz (cell mode '
+                    f'{ev["cell_mode_hz"]:.0f} Hz; {ev["frequency_rule"]})')
+        L.append(f'- {n}: {why}')
+    for note in r['notes']:
+        L.append(f'- note: {note}')
+    L += ['', '## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
+    if r.get('leftover'):
+        lo = r['leftover']
+        L += ['## Residual left after the extension', '',
+              f'share of residual variance above the quiet floor {lo["share_of_residual_variance"]:.2f}, dominant '
+              f'frequency {lo["dominant_frequency_hz"]:.1f} Hz, most correlated with {lo["correlated_channel"]} '
+              f'(|r| = {lo["correlation"]:.2f}).', '']
+    if plots:
+        L += ['## Plots', ''] + [f'![{Path(p).stem}]({Path(p).name})' for p in plots]
+    else:
+        L += ['(matplotlib not importable: no plots)']
+    return '\n'.join(L) + '\n'
+
+
+def _plots(res, named, rig, out: Path):
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    base, ext = force_errors(res, named, rig)
+    pulls, held = res['pulls'], res['held']
+    p = pulls[held[0]]
+    t = p.t[p.w0:p.w1]
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6))
+    ax[0].plot(t, base[0], lw=0.6, label='model of record')
+    ax[0].plot(t, ext[0], lw=0.6, label='extended')
+    ax[0].set_xlabel('time, s'); ax[0].set_ylabel('F_move residual, N'); ax[0].legend()
+    ax[0].set_title(f'held-out pull {p.name}')
+    for lab, rs in (('model of record', base), ('extended', ext)):
+        P = sum(np.abs(np.fft.rfft(r - r.mean(), 2 ** 15)) ** 2 for r in rs) / len(rs)
+        f = np.fft.rfftfreq(2 ** 15, p.dt)
+        ax[1].semilogy(f[1:], P[1:], lw=0.6, label=lab)
+    ax[1].set_xlabel('frequency, Hz'); ax[1].set_ylabel('residual power'); ax[1].legend()
+    fig.tight_layout()
+    path = out / 'residuals.png'
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return [str(path)]

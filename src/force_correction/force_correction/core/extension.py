@@ -1,0 +1,139 @@
+"""The correctable part of a discovered model extension, as streaming filters on the moving-cell channel.
+
+`./ft discover` writes extension.yaml; its ``correction:`` section says how the measured moving-cell
+force departs from the force the m*a correction assumes, and this module undoes it, block by block:
+
+- ``mass_kg``: the mass that belongs in m*a (replaces m2);
+- ``moving_cell_gain``: measured = gain x true, so the force is divided by it;
+- ``accel_delay_s``: the accelerometer lags the force channel, so the force is delayed by the same
+  amount (a fractional-delay FIR) and the two line up again: corrected(t) = F(t - d) - m a2_meas(t);
+- ``ac_coupling_time_constant_s``: the channel is first-order high-passed (piezo discharge); the
+  exact inverse of that discrete high-pass restores the slow part;
+- ``mains_hum_hz``: a notch (scipy.signal.iirnotch) removes the interference line.
+
+Every stage is an IIR/FIR filter with explicit state like scipy's ``zi``, so a signal cut into any
+blocks gives the one-pass result. A NaN sample enters the filters as the last finite value (so it
+cannot poison their state) and leaves as NaN at its own index.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Optional, Tuple
+
+import numpy as np
+import yaml
+from scipy.signal import iirnotch, lfilter
+
+from .errors import CorrectionError
+
+
+@dataclass(frozen=True)
+class Extension:
+    mass_kg: Optional[float] = None
+    moving_cell_gain: float = 1.0
+    accel_delay_s: float = 0.0
+    ac_coupling_time_constant_s: Optional[float] = None
+    mains_hum_hz: Optional[float] = None
+    notch_q: float = 30.0
+
+    def __post_init__(self):
+        def bad(name, value, expected):
+            raise CorrectionError(f'extension {name} {value!r} is invalid; expected {expected}')
+        if self.mass_kg is not None and not (math.isfinite(self.mass_kg) and 0 < self.mass_kg <= 1e4):
+            bad('mass_kg', self.mass_kg, 'a mass in (0, 1e4] kg')
+        if not (math.isfinite(self.moving_cell_gain) and 0.1 <= self.moving_cell_gain <= 10):
+            bad('moving_cell_gain', self.moving_cell_gain, 'a gain in [0.1, 10]')
+        if not (math.isfinite(self.accel_delay_s) and 0 <= self.accel_delay_s <= 0.01):
+            bad('accel_delay_s', self.accel_delay_s, 'a delay in [0, 0.01] s')
+        tau = self.ac_coupling_time_constant_s
+        if tau is not None and not (math.isfinite(tau) and 1e-4 <= tau <= 1e4):
+            bad('ac_coupling_time_constant_s', tau, 'a time constant in [1e-4, 1e4] s')
+        if self.mains_hum_hz is not None and not (math.isfinite(self.mains_hum_hz) and 1 <= self.mains_hum_hz <= 1e4):
+            bad('mains_hum_hz', self.mains_hum_hz, 'a frequency in [1, 1e4] Hz')
+
+    @classmethod
+    def from_dict(cls, data: dict) -> 'Extension':
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise CorrectionError(f'extension key {unknown[0]!r} is unknown; expected some of {sorted(known)}')
+        try:
+            return cls(**{k: (None if v is None else float(v)) for k, v in data.items()})
+        except (TypeError, ValueError) as exc:
+            raise CorrectionError(f'extension {data!r} is invalid: {exc}') from None
+
+    @classmethod
+    def from_yaml(cls, path) -> 'Extension':
+        """The ``correction:`` section of an extension.yaml written by `./ft discover`."""
+        try:
+            doc = yaml.safe_load(Path(path).read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise CorrectionError(f'extension file {str(path)!r} cannot be read: {exc}') from None
+        if not isinstance(doc, dict) or not isinstance(doc.get('correction', {}), dict):
+            raise CorrectionError(f'extension file {str(path)!r} has no correction: mapping; '
+                                  'expected the extension.yaml of ./ft discover')
+        return cls.from_dict(doc.get('correction') or {})
+
+    def stages(self, sample_rate_hz: float) -> Tuple[Tuple[np.ndarray, np.ndarray], ...]:
+        """(b, a) of each filter stage on the moving-cell force, in order."""
+        out = []
+        if self.moving_cell_gain != 1.0:
+            out.append((np.array([1.0 / self.moving_cell_gain]), np.array([1.0])))
+        if self.ac_coupling_time_constant_s is not None:
+            # forward model y[n] = p (y[n-1] + x[n] - x[n-1]), p = tau / (tau + T): inverse below
+            p = self.ac_coupling_time_constant_s / (self.ac_coupling_time_constant_s + 1.0 / sample_rate_hz)
+            out.append((np.array([1.0 / p, -1.0]), np.array([1.0, -1.0])))
+        if self.mains_hum_hz is not None:
+            b, a = iirnotch(self.mains_hum_hz, self.notch_q, fs=sample_rate_hz)
+            out.append((b, a))
+        if self.accel_delay_s > 0:
+            d = self.accel_delay_s * sample_rate_hz
+            k, f = int(math.floor(d)), d - math.floor(d)
+            h = np.zeros(k + 2)
+            h[k], h[k + 1] = 1.0 - f, f
+            out.append((h, np.array([1.0])))
+        return tuple(out)
+
+
+class ForcePrefilter:
+    """The extension's stages on the moving-cell force, streaming, with explicit copyable state."""
+
+    def __init__(self, extension: Extension, sample_rate_hz: float):
+        self.extension = extension
+        self.stages = extension.stages(sample_rate_hz)
+        self.state = self.initial_state()
+
+    def initial_state(self):
+        """(zi of each stage, last finite input)."""
+        return tuple(np.zeros(max(len(a), len(b)) - 1) for b, a in self.stages), 0.0
+
+    def reset(self):
+        self.state = self.initial_state()
+
+    def process(self, force: np.ndarray) -> np.ndarray:
+        x = np.asarray(force, dtype=float)
+        if not self.stages or not len(x):
+            return x
+        zis, last = self.state
+        bad = ~np.isfinite(x)
+        if bad.any():  # hold the last finite value through bad samples
+            x = x.copy()
+            idx = np.where(bad, 0, np.arange(len(x)))
+            np.maximum.accumulate(idx, out=idx)
+            held = x[idx]
+            held[bad & (np.cumsum(~bad) == 0)] = last
+            x = held
+        y, new = x, []
+        for (b, a), zi in zip(self.stages, zis):
+            if len(zi):
+                y, zf = lfilter(b, a, y, zi=zi)
+            else:
+                y, zf = lfilter(b, a, y), zi
+            new.append(zf)
+        self.state = (tuple(new), float(x[-1]))
+        if bad.any():
+            y = y.copy()
+            y[bad] = np.nan
+        return y

@@ -1,0 +1,71 @@
+"""The correctable part of an extension: streaming inverse filters on the moving-cell force."""
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.signal import lfilter
+
+from force_correction.core.errors import CorrectionError
+from force_correction.core.extension import Extension, ForcePrefilter
+
+FS = 50_000.0
+
+
+def signal(n=20_000, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / FS
+    return 2000 * np.exp(-((t - 0.2) / 0.02) ** 2) + 30 * np.sin(2 * np.pi * 900 * t) + rng.normal(0, 0.3, n)
+
+
+def test_gain_and_ac_coupling_are_undone_exactly():
+    x = signal()
+    tau, gain = 0.5, 1.04
+    p = tau / (tau + 1 / FS)
+    measured = lfilter([p, -p], [1, -p], gain * x)        # the sim's first-order high-pass of the gained force
+    ext = Extension(moving_cell_gain=gain, ac_coupling_time_constant_s=tau)
+    np.testing.assert_allclose(ForcePrefilter(ext, FS).process(measured), x, rtol=0, atol=1e-6)
+
+
+def test_delay_lines_the_force_up_with_a_lagging_accelerometer():
+    x = signal()
+    ext = Extension(accel_delay_s=3 / FS)                  # whole samples: exact
+    y = ForcePrefilter(ext, FS).process(x)
+    np.testing.assert_allclose(y[3:], x[:-3], rtol=0, atol=1e-12)
+    half = ForcePrefilter(Extension(accel_delay_s=2.5 / FS), FS).process(x)
+    np.testing.assert_allclose(half[3:], 0.5 * (x[1:-2] + x[:-3]), rtol=0, atol=1e-9)
+
+
+def test_notch_removes_the_hum_line():
+    n = 50_000
+    t = np.arange(n) / FS
+    hum = 5 * np.sin(2 * np.pi * 60 * t + 0.3)
+    y = ForcePrefilter(Extension(mains_hum_hz=60.0), FS).process(hum)
+    assert np.std(y[n // 2:]) < 0.05 * np.std(hum)
+
+
+@settings(max_examples=40, deadline=None)
+@given(cuts=st.lists(st.integers(0, 4000), max_size=8), delay=st.floats(0, 2e-4), gain=st.floats(0.9, 1.1),
+       tau=st.one_of(st.none(), st.floats(0.01, 5)), hum=st.one_of(st.none(), st.sampled_from([50.0, 60.0])))
+def test_any_block_split_equals_one_pass(cuts, delay, gain, tau, hum):
+    x = signal(4000, seed=1)
+    x[123] = np.nan
+    ext = Extension(moving_cell_gain=gain, accel_delay_s=delay, ac_coupling_time_constant_s=tau, mains_hum_hz=hum)
+    whole = ForcePrefilter(ext, FS).process(x)
+    pf = ForcePrefilter(ext, FS)
+    bounds = [0, *sorted(cuts), len(x)]
+    parts = np.concatenate([pf.process(x[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
+    np.testing.assert_allclose(parts, whole, rtol=0, atol=1e-9, equal_nan=True)
+    assert np.isnan(whole[123]) and np.isfinite(np.delete(whole, 123)).all()
+
+
+def test_bad_extensions_are_refused_with_the_value(tmp_path):
+    with pytest.raises(CorrectionError, match='-1.0'):
+        Extension(accel_delay_s=-1.0)
+    with pytest.raises(CorrectionError, match="'speed'"):
+        Extension.from_dict({'speed': 3})
+    f = tmp_path / 'ext.yaml'
+    f.write_text('departures: []\n')
+    assert Extension.from_yaml(f) == Extension()
+    f.write_text('correction: [1, 2]\n')
+    with pytest.raises(CorrectionError, match='correction'):
+        Extension.from_yaml(f)
