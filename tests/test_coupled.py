@@ -160,3 +160,49 @@ def test_errors(rig, spec):
         DriveMotion([0.0, 1.0, 3.0], np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
     with pytest.raises(SimError, match='non-finite'):
         drive_on_grid(rig, np.arange(10) * 2e-5, np.full(10, np.nan))
+
+
+# --- the exact (modal lfilter) drive integrator against the LSODA reference (DRIVE.md "Coupled drive") ---
+
+def _agree(a, b, x_tol_m=1e-7, rel=1e-4):
+    assert np.max(np.abs(a['position_m'] - b['position_m'])) < x_tol_m
+    for key in ('velocity_m_s', 'current_a', 'voltage_v', 'acceleration_m_s2'):
+        scale = np.max(np.abs(a[key]))
+        assert np.max(np.abs(a[key] - b[key])) < rel * scale, key
+    assert np.max(np.abs(a['current_a'])) == pytest.approx(np.max(np.abs(b['current_a'])), rel=rel)
+
+
+def test_exact_drive_matches_lsoda_with_the_lanyard_load(rig, coupled):
+    r, _ = coupled
+    t, cmd, load = r.drive['time_s'], r.drive['command_m_s'], r.drive['load_n']
+    a = drive_on_grid(rig, t, cmd, load, method='exact')
+    b = drive_on_grid(rig, t, cmd, load, method='lsoda')
+    _agree(a, b)
+    assert np.array_equal(a['position_m'], r.drive['position_m'])   # the default is the exact path
+
+
+def test_exact_drive_matches_lsoda_through_limiter_clip_and_friction(rig):
+    # 30 fps step: current limiter, then the supply limit; a braking command back to rest with 150 N dry
+    # friction (the friction band and both signs); the exact path hands these stretches to LSODA
+    t = sample_times_s(rig)[:30001]          # 0.6 s
+    cmd = np.where(t > 0, 9.144, 0.0) * (t < 0.25) + np.maximum(0.0, 3.0 - 40.0 * (t - 0.25)) * (t >= 0.25)
+    for fc in (0.0, 150.0):
+        a = drive_on_grid(rig, t, cmd, friction_n=fc, method='exact')
+        b = drive_on_grid(rig, t, cmd, friction_n=fc, method='lsoda')
+        assert np.max(np.abs(a['current_a'])) == pytest.approx(rig.drive.current_limit_a, rel=1e-3)
+        assert np.max(np.abs(a['voltage_v'])) == pytest.approx(rig.drive.voltage_limit_v, rel=1e-9)
+        _agree(a, b, x_tol_m=1e-6)
+
+
+def test_coupled_pull_exact_matches_lsoda(rig, spec, coupled):
+    r, _ = coupled
+    ref = run_coupled_pull(rig, spec, noise=False, method='lsoda')
+    assert ref.iterations == r.iterations
+    for key in ('force_stationary_n', 'force_moving_n'):
+        assert r.truth[key].max() == pytest.approx(ref.truth[key].max(), rel=1e-4), key
+    assert np.max(np.abs(r.truth['x3_m'] - ref.truth['x3_m'])) < 1e-7
+    assert np.max(np.abs(r.channels['motor_current_a'])) == pytest.approx(
+        np.max(np.abs(ref.channels['motor_current_a'])), rel=1e-4)
+    assert r.break_time_s == pytest.approx(ref.break_time_s, abs=1e-6)
+    with pytest.raises(SimError, match='method'):
+        drive_on_grid(rig, r.drive['time_s'][:10], np.zeros(10), method='rk4')

@@ -12,6 +12,11 @@ with that motion and gives the next F_move(t). Repeat until the carriage traject
 than ``tol_m`` (1 um) between passes. Dry friction (departure ``coulomb_friction``) acts inside the
 drive integration on the current v3 (not lagged), smoothed over |v3| < V_EPS so the right-hand side
 stays continuous.
+
+The drive is integrated exactly on the grid wherever it is LTI (PID output unclipped, friction on one piece:
+modal first-order-hold recursion with lfilter, as core/integrate.py does for the chain) and by LSODA only across
+piece switches and through clipped stretches (``drive_on_grid(..., method='exact')``, the default);
+``method='lsoda'`` integrates the whole record with LSODA (the reference it is tested against).
 """
 from __future__ import annotations
 
@@ -22,6 +27,7 @@ from typing import Dict, List, Optional
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.interpolate import PPoly
+from scipy.signal import lfilter
 
 from .chain import force_move, force_stat, tension
 from .departures import apply_sensor_departures
@@ -76,7 +82,8 @@ class DriveMotion:
         self._pp = PPoly(c, t, extrapolate=False)
         self._dpp = self._pp.derivative(1)
         self._ddpp = self._pp.derivative(2)
-        self._c = [row.tolist() for row in c]   # scalar path (Horner in plain floats)
+        self._c = c
+        self._seg = {}                           # scalar path: segment k's coefficients as plain floats
 
     @property
     def t_end(self) -> float:
@@ -92,7 +99,10 @@ class DriveMotion:
         if k > self.n - 2:
             k = self.n - 2
         tau = min(max(float(t) - (self.t0 + k * self.h), 0.0), self.h)
-        c5, c4, c3, c2, c1, c0 = (row[k] for row in self._c)
+        seg = self._seg.get(k)
+        if seg is None:
+            seg = self._seg[k] = self._c[:, k].tolist()
+        c5, c4, c3, c2, c1, c0 = seg
         x = ((((c5 * tau + c4) * tau + c3) * tau + c2) * tau + c1) * tau + c0
         v = (((5.0 * c5 * tau + 4.0 * c4) * tau + 3.0 * c3) * tau + 2.0 * c2) * tau + c1
         a = ((20.0 * c5 * tau + 12.0 * c4) * tau + 6.0 * c3) * tau + 2.0 * c2
@@ -107,16 +117,184 @@ def _friction_n(rig: RigParams) -> float:
     return 0.0 if cf is None else float(cf['force_n'])
 
 
+DRIVE_METHODS = ('exact', 'lsoda')
+_LIN_WINDOW = 4096          # samples per exact (modal lfilter) chunk at first; doubled while no event occurs
+_NL_WINDOW = 250            # samples per LSODA chunk in a clipped stretch at first (5 ms at 50 kHz); doubled
+_HANDOVER = 10              # back to the exact path once this many consecutive LSODA samples are unclipped
+
+
+class _DriveLinear:
+    """Exact first-order-hold discretisation of the unclipped drive on step h, in modal form.
+
+    While the PID output is inside the current limiter's and the supply's bounds (V = V_pid, z' = e) and the
+    dry friction is on one piece of F_c sat(v3 / V_EPS) (the band |v3| <= V_EPS: a damping F_c / V_EPS; or
+    +/-F_c), the drive is LTI: x' = A x + B [v_cmd, F_load, 1]. Each mode y' = lam y + b u with u linear over
+    the step gives y1 = e^{lam h} y0 + g0 b u0 + g1 b (u1 - u0) / h, g0 = (e^{lam h} - 1) / lam,
+    g1 = (e^{lam h} - 1 - lam h) / lam^2 (x3 is a pure integrator: lam = 0, g0 = h, g1 = h^2 / 2).
+    """
+
+    def __init__(self, setup: DriveSetup, damping: float, friction_n: float, h: float):
+        d, c = setup.drive, setup.control
+        m, L = setup.mass_kg, d.armature_inductance_h
+        A = np.zeros((4, 4))
+        B = np.zeros((4, 3))
+        A[0, 1] = 1.0
+        A[1, 1], A[1, 2] = -damping / m, setup.k_force / m
+        B[1, 1], B[1, 2] = -1.0 / m, -friction_n / m
+        v_row = np.array([0.0, -c.kp_v_per_m_s, 0.0, c.ki_v_per_m]) - c.kd_v_s2_per_m * A[1]
+        v_in = np.array([c.kp_v_per_m_s, 0.0, 0.0]) - c.kd_v_s2_per_m * B[1]
+        A[2] = (v_row - np.array([0.0, setup.k_emf, d.armature_resistance_ohm, 0.0])) / L
+        B[2] = v_in / L
+        A[3, 1], B[3, 0] = -1.0, 1.0
+        self.acc_row, self.acc_in = A[1].copy(), B[1].copy()     # acceleration = acc_row x + acc_in u
+        self.v_row, self.v_in = v_row, v_in                      # V_pid = v_row x + v_in u
+        evs, V = np.linalg.eig(A)
+        Vinv = np.linalg.inv(V)
+        err = np.abs((V * evs) @ Vinv - A).max() / np.abs(A).max()
+        if not np.isfinite(err) or err > 1e-9 or np.linalg.cond(V) > 1e8:
+            raise SimError(f'drive modal decomposition error {err:.3g}; expected < 1e-9 (defective drive matrix)')
+        keep = np.flatnonzero(evs.imag >= 0)
+        if 2 * int(np.sum(evs.imag > 0)) + int(np.sum(evs.imag == 0)) != 4:
+            raise SimError(f'drive eigenvalues {evs} are not in conjugate pairs; expected a real system')
+        lam = evs[keep].astype(complex)
+        lh = lam * h
+        e = np.exp(lh)
+        small = np.abs(lh) < 1e-6
+        safe = np.where(small, 1.0, lam)
+        g0 = np.where(small, h * (1.0 + lh / 2.0 + lh * lh / 6.0), (e - 1.0) / safe)
+        g1 = np.where(small, h * (0.5 + lh / 6.0 + lh * lh / 24.0), (e - 1.0 - lh) / (safe * safe * h))
+        b = Vinv[keep] @ B
+        self.lam = e
+        self.V = V[:, keep] * np.where(evs[keep].imag > 0, 2.0, 1.0)
+        self.Vinv = Vinv[keep]
+        self.q0 = (g0 - g1)[:, None] * b
+        self.q1 = g1[:, None] * b
+
+    def propagate(self, x0, U):
+        """States at every row of U ([v_cmd, F_load, 1] on the grid), starting with x0 at U[0].
+
+        Column-by-column arithmetic, no matrix products: (n x 3) @ (3 x 4) products go to a threaded BLAS,
+        which on a loaded 2-core machine is many times slower than these few vector operations."""
+        y0 = self.Vinv @ x0
+        X = np.zeros((U.shape[0], 4))
+        for j, lam in enumerate(self.lam):
+            q = _cols(U[:-1], self.q0[j]) + _cols(U[1:], self.q1[j])
+            y = np.empty(U.shape[0], dtype=complex)
+            y[0] = y0[j]
+            y[1:] = lfilter([1.0], [1.0, -lam], q, zi=[lam * y0[j]])[0]
+            yr, yi = y.real, y.imag
+            for r in range(4):
+                w = self.V[r, j]
+                if w.real:
+                    X[:, r] += w.real * yr
+                if w.imag:
+                    X[:, r] -= w.imag * yi
+        return X
+
+
+def _cols(M, w):
+    """M @ w as a sum of columns (M tall and narrow, w small): no BLAS call."""
+    out = 0.0
+    for c, wc in enumerate(w):
+        if wc:
+            out = out + M[:, c] * wc
+    return out if np.ndim(out) else np.full(M.shape[0], out)
+
+
+def _limits(setup: DriveSetup, v3, i):
+    """(lower, upper) bound of the applied voltage: current limiter, then the supply."""
+    d, c = setup.drive, setup.control
+    e_b = setup.k_emf * v3
+    r, lw, imax, vmax = (d.armature_resistance_ohm, d.armature_inductance_h * c.current_loop_rad_s,
+                         d.current_limit_a, d.voltage_limit_v)
+    hi = np.minimum(r * imax + e_b + lw * (imax - i), vmax)
+    lo = np.maximum(-r * imax + e_b + lw * (-imax - i), -vmax)
+    return lo, hi
+
+
+def _drive_exact(setup: DriveSetup, fc: float, t, cmd, load, fun) -> np.ndarray:
+    """States (n, 4) on the grid: exact LTI propagation while unclipped, LSODA (``fun``) elsewhere."""
+    n = len(t)
+    h = float(t[1] - t[0])
+    b = setup.damping
+    if fc:
+        pieces = {0: _DriveLinear(setup, b + fc / V_EPS_M_S, 0.0, h), 1: _DriveLinear(setup, b, fc, h),
+                  -1: _DriveLinear(setup, b, -fc, h)}
+    else:
+        pieces = {0: _DriveLinear(setup, b, 0.0, h)}
+    U = np.column_stack([cmd, load, np.ones(n)])
+    X = np.zeros((n, 4))
+
+    def piece_of(v):
+        if not fc:
+            return np.zeros(np.shape(v), dtype=int)
+        return np.where(v > V_EPS_M_S, 1, np.where(v < -V_EPS_M_S, -1, 0))
+
+    def unclipped(Xs, Us, piece):
+        """Samples at which the PID output is inside the limits (per the friction piece of each sample)."""
+        if np.ndim(piece) == 0:
+            lin = pieces[int(piece)]
+            vp = _cols(Xs, lin.v_row) + _cols(Us, lin.v_in)
+        else:
+            vp = np.empty(len(Xs))
+            for key, lin in pieces.items():
+                sel = piece == key
+                vp[sel] = _cols(Xs[sel], lin.v_row) + _cols(Us[sel], lin.v_in)
+        lo, hi = _limits(setup, Xs[:, 1], Xs[:, 2])
+        return (vp >= lo) & (vp <= hi)
+
+    def lsoda(k0, k1):
+        sol = solve_ivp(fun, (float(t[k0]), float(t[k1])), X[k0], method='LSODA', t_eval=t[k0:k1 + 1],
+                        max_step=DRIVE_MAX_STEP_S, rtol=DRIVE_RTOL, atol=DRIVE_ATOL)
+        if not sol.success:
+            raise SimError(f'drive integration failed ({sol.message}); expected solve_ivp to succeed')
+        X[k0 + 1:k1 + 1] = sol.y.T[1:]
+
+    k, win, nwin = 0, _LIN_WINDOW, _NL_WINDOW
+    while k < n - 1:
+        piece = int(piece_of(X[k, 1]))
+        if unclipped(X[k:k + 1], U[k:k + 1], piece)[0]:
+            end = min(n - 1, k + win)
+            Xs = X[k:end + 1] = pieces[piece].propagate(X[k], U[k:end + 1])
+            ok = unclipped(Xs, U[k:end + 1], piece)
+            if fc:
+                ok &= piece_of(Xs[:, 1]) == piece
+            bad = np.flatnonzero(~ok[1:])
+            if not len(bad):
+                k, win = end, 2 * win
+                continue
+            j = k + 1 + int(bad[0])       # first sample off this piece: LSODA across the switching interval
+            lsoda(j - 1, j)
+            k, win = j, _LIN_WINDOW
+        else:
+            end = min(n - 1, k + nwin)
+            lsoda(k, end)
+            ok = unclipped(X[k:end + 1], U[k:end + 1], piece_of(X[k:end + 1, 1]))
+            run = np.convolve(ok.astype(int), np.ones(_HANDOVER, dtype=int), 'valid') == _HANDOVER
+            start = np.flatnonzero(run[1:])
+            if len(start):
+                k, nwin = k + 1 + int(start[0]), _NL_WINDOW
+            else:
+                k, nwin = end, 2 * nwin
+    return X
+
+
 def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveControl = DriveControl(),
-                  overrides=None, friction_n: Optional[float] = None) -> Dict[str, np.ndarray]:
+                  overrides=None, friction_n: Optional[float] = None, method: str = 'exact') -> Dict[str, np.ndarray]:
     """The drive from rest on the uniform grid ``t`` (from 0): command and load (N, tension) given as samples
     on the grid (linear between samples); dry friction ``friction_n`` (None: from the rig's departures) acts
     on the current v3. Returns samples: time_s, position_m, velocity_m_s, acceleration_m_s2, current_a, voltage_v, command_m_s, load_n (F_move), friction_n, integrator, and power_w (= V i),
-    input_power_w (= K_t/K_e V i), mech_power_w (= F_drive v3) as in ``simulate_drive``."""
+    input_power_w (= K_t/K_e V i), mech_power_w (= F_drive v3) as in ``simulate_drive``.
+
+    ``method``: 'exact' (default): exact FOH propagation (modal lfilter) wherever the PID output is unclipped,
+    LSODA only across friction-piece switches and through clipped stretches (current limiter / supply limit);
+    'lsoda': LSODA over the whole record (the reference; DRIVE.md "Coupled drive" gives the agreement)."""
     if not isinstance(rig, RigParams):
         raise SimError(f'rig is {type(rig).__name__}; expected RigParams')
     if not isinstance(control, DriveControl):
         raise SimError(f'control is {type(control).__name__}; expected DriveControl')
+    if method not in DRIVE_METHODS:
+        raise SimError(f'method is {method!r}; expected one of {DRIVE_METHODS}')
     t = np.asarray(t, dtype=float)
     n = len(t)
     if n < 2 or t[0] != 0.0:
@@ -132,9 +310,13 @@ def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveCon
     fc = _friction_n(rig) if friction_n is None else float(friction_n)
     if not (math.isfinite(fc) and fc >= 0):
         raise SimError(f'friction_n is {friction_n!r}; expected a finite force >= 0 N')
-    cl, ll, inv_h, last = cmd.tolist(), load.tolist(), 1.0 / h, n - 2
+    inv_h, last = 1.0 / h, n - 2
+    lists = []          # command and load as plain floats, made on the first LSODA call only
 
     def fun(tt, x):
+        if not lists:
+            lists.extend((cmd.tolist(), load.tolist()))
+        cl, ll = lists
         s = tt * inv_h
         k = int(s)
         if k > last:
@@ -145,11 +327,22 @@ def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveCon
             f += fc * min(1.0, max(-1.0, x[1] / V_EPS_M_S))
         return drive_rhs(tt, x, (cl[k] + w * (cl[k + 1] - cl[k]), f), setup)
 
-    sol = solve_ivp(fun, (0.0, float(t[-1])), np.zeros(4), method='LSODA', t_eval=t, max_step=DRIVE_MAX_STEP_S,
-                    rtol=DRIVE_RTOL, atol=DRIVE_ATOL)
-    if not sol.success:
-        raise SimError(f'drive integration failed ({sol.message}); expected solve_ivp to succeed')
-    x3, v3, i, z = sol.y
+    X = None
+    if method == 'exact':
+        uniform = np.allclose(np.diff(t), h, rtol=1e-9, atol=1e-15)
+        try:
+            X = _drive_exact(setup, fc, t, cmd, load, fun) if uniform else None
+        except SimError as exc:
+            if 'modal decomposition' not in str(exc) and 'conjugate pairs' not in str(exc):
+                raise
+            X = None                   # a defective drive matrix (not the case for positive gains): LSODA
+    if X is None:
+        sol = solve_ivp(fun, (0.0, float(t[-1])), np.zeros(4), method='LSODA', t_eval=t, max_step=DRIVE_MAX_STEP_S,
+                        rtol=DRIVE_RTOL, atol=DRIVE_ATOL)
+        if not sol.success:
+            raise SimError(f'drive integration failed ({sol.message}); expected solve_ivp to succeed')
+        X = sol.y.T
+    x3, v3, i, z = X.T.copy()
     fric = fc * np.clip(v3 / V_EPS_M_S, -1.0, 1.0)
     acc = (setup.k_force * i - setup.damping * v3 - load - fric) / setup.mass_kg
     volt = drive_voltage_array(v3, i, z, cmd, acc, setup)
@@ -208,9 +401,11 @@ class CoupledPullResult(PullResult):
 
 
 def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control: DriveControl = DriveControl(),
-                     iterations: int = 8, tol_m: float = 1.0e-6, overrides=None) -> CoupledPullResult:
+                     iterations: int = 8, tol_m: float = 1.0e-6, overrides=None,
+                     method: str = 'exact') -> CoupledPullResult:
     """One pull with the drive coupled to the force chain (waveform relaxation, see module doc).
 
+    ``method``: the drive integrator of ``drive_on_grid`` ('exact' or the reference 'lsoda').
     ``iterations``: most chain solves allowed (SimError if x3 still changes by >= ``tol_m`` after them).
     Channels as ``run_pull``, except motor_* from the drive simulation and the encoder from the coupled x3.
     Forces and the truth signals come from the last chain solve (driven by the previous pass's motion, which
@@ -224,7 +419,7 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
     prescribed = motion_for(rig, spec)          # raises if the prescribed pull does not fit
     t = sample_times_s(rig)
     cmd = prescribed.kinematics(t)[1]
-    dr = drive_on_grid(rig, t, cmd, None, control, overrides)
+    dr = drive_on_grid(rig, t, cmd, None, control, overrides, method=method)
     check_fits(rig, dr['position_m'], dr['velocity_m_s'])
     first = dr
     changes: List[float] = []
@@ -234,7 +429,7 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
         kin = (dr['position_m'], dr['velocity_m_s'], dr['acceleration_m_s2'])
         traj = integrate_chain(p, motion, t, kinematics=kin)
         fm = force_move(traj.x, p)
-        new = drive_on_grid(rig, t, cmd, fm, control, overrides)
+        new = drive_on_grid(rig, t, cmd, fm, control, overrides, method=method)
         check_fits(rig, new['position_m'], new['velocity_m_s'])
         changes.append(float(np.max(np.abs(new['position_m'] - dr['position_m']))))
         dr = new
@@ -296,5 +491,5 @@ def simulate_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, **
     return run_coupled_pull(rig, spec, noise, **kw).channels
 
 
-__all__ = ['DriveMotion', 'drive_on_grid', 'drive_voltage_array', 'drive_motion', 'check_fits',
+__all__ = ['DriveMotion', 'drive_on_grid', 'DRIVE_METHODS', 'drive_voltage_array', 'drive_motion', 'check_fits',
            'CoupledPullResult', 'run_coupled_pull', 'simulate_coupled_pull', 'V_EPS_M_S']

@@ -80,14 +80,21 @@ class _Linear:
         self.q1 = g1[:, None] * b              # multiplies u1
 
     def propagate(self, x0, U):
-        """States at every row of U (inputs sampled on the grid), starting with x0 at U[0]."""
-        q = U[:-1] @ self.q0.T + U[1:] @ self.q1.T
+        """States at every row of U (inputs sampled on the grid), starting with x0 at U[0].
+
+        The (N x few) products are written column by column: as matrix products they go to a
+        multi-threaded BLAS, which on tall, thin arrays is many times slower than this.
+        """
         z0 = self.Vinv @ x0
         Z = np.empty((U.shape[0], len(z0)), dtype=complex)
         Z[0] = z0
         for i, lam in enumerate(self.lam):
-            Z[1:, i] = lfilter([1.0], [1.0, -lam], q[:, i], zi=[lam * z0[i]])[0]
-        return (Z @ self.V.T).real
+            q = sum(U[:-1, j] * self.q0[i, j] + U[1:, j] * self.q1[i, j] for j in range(U.shape[1]))
+            Z[1:, i] = lfilter([1.0], [1.0, -lam], q, zi=[lam * z0[i]])[0]
+        X = np.empty((U.shape[0], self.V.shape[0]))
+        for k in range(self.V.shape[0]):
+            X[:, k] = sum((Z[:, i] * self.V[k, i]).real for i in range(Z.shape[1]))
+        return X
 
 
 def _inputs(motion, t, beta=1.0):
