@@ -4,10 +4,8 @@ The main job (./ft demo) runs sim, correction, validator and recorder as four pr
 scores come back over DDS. The recorded bag is then played back by the player process into a
 fresh correction + validator pair, which must reproduce the live scores.
 """
-import json
 import subprocess
 import time
-import sys
 
 import pytest
 
@@ -105,7 +103,7 @@ def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
             graph.start('force_correction', 'correction_graph')
         assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=30)
         time.sleep(0.5)  # let the matched readers settle, as the demo does
-        player = graph.start('bag_tools', 'player', extra=[
+        graph.start('bag_tools', 'player', extra=[
             str(out / 'bag'), '--topics', '/force', '/accel', '/pull_event', '--wait-for-subscribers', '1'])
         ok = collector.wait(len(live_scores), 120, alive=lambda: not graph.dead())
     finally:

@@ -152,7 +152,6 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
                             + (' and no /motor topic' if all(c in absent for c in BLOCK_TYPES[
                                 'force_tester_msgs/msg/MotorBlock'][1].values()) else ''))
     store = typestore or default_typestore()
-    total = sum(len(p.channels['time_s']) for p in camp.pulls)
     done = 0
     with BagWriter(bag_path, store) as writer:
         for topic, type_name, log_ns, cdr in iter_campaign_messages(camp, store, block_size):

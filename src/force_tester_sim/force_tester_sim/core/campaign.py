@@ -24,7 +24,7 @@ from .motion import hold_time_s, nominal_slack_m
 from .params import RigParams
 from .pull import (COUPON_SCATTER_REL, DECEL_SCATTER_REL, LANYARD_STIFFNESS_SCATTER_REL,
                    SLACK_SCATTER_M, SPEED_SCATTER_REL, PullSpec, _clipped_normal, make_pull_specs, simulate_pull)
-from .units import G_M_S2, LBF_N
+
 
 
 # The stationary side (m1 on its cell, about 3.9 kHz) has a period of 0.255 ms: an elastic rise lasting a whole

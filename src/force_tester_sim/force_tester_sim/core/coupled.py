@@ -30,12 +30,11 @@ from scipy.interpolate import PPoly
 from scipy.signal import lfilter
 
 from .chain import force_move, force_stat, tension
-from .departures import apply_sensor_departures
 from .drive import DriveControl, DriveSetup, _validate_drive, apply_overrides, drive_rhs
 from .errors import SimError
 from .integrate import integrate_chain
 from .params import RigParams
-from .pull import (ACCEL_NOISE_M_S2, LOAD_CELL_NOISE_N, PullResult, PullSpec, chain_params, motion_for,
+from .pull import (PullResult, PullSpec, chain_params, motion_for, record_channels,
                    sample_times_s)
 
 V_EPS_M_S = 1.0e-3          # dry friction F_c sat(v3 / V_EPS): full F_c above 1 mm/s
@@ -446,27 +445,8 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
     a2 = (fm - T) / p.m2
     a1 = (T - fs) / p.m1
 
-    deps = rig.departures
-    res = rig.sensors.encoder_resolution_m
-    n = len(t)
-    if noise:
-        rng = np.random.default_rng(int(spec.seed))
-        nz = {k: rng.standard_normal(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
-    else:
-        nz = {k: np.zeros(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
-    fm_rec, a2_rec = (apply_sensor_departures(deps, t, fm, a2, spec.seed) if deps else (fm, a2))
-    channels = {
-        'time_s': t,
-        'encoder_position_m': np.round(dr['position_m'] / res) * res,
-        'accel_axial_m_s2': a2_rec + ACCEL_NOISE_M_S2 * nz['ax'],
-        'accel_lateral_m_s2': ACCEL_NOISE_M_S2 * nz['lat'],
-        'accel_vertical_m_s2': ACCEL_NOISE_M_S2 * nz['vert'],
-        'force_moving_n': fm_rec + LOAD_CELL_NOISE_N * nz['fm'],
-        'force_stationary_n': fs + LOAD_CELL_NOISE_N * nz['fs'],
-        'motor_velocity_cmd_m_s': dr['command_m_s'],
-        'motor_current_a': dr['current_a'],
-        'motor_voltage_v': dr['voltage_v'],
-    }
+    channels = record_channels(rig, spec, t, dr['position_m'], fm, fs, a2, noise,
+                               motor=(dr['command_m_s'], dr['current_a'], dr['voltage_v']))
     taut_idx = np.flatnonzero(T > 0)
     taut_index = int(taut_idx[0]) if len(taut_idx) else None
     if traj.break_s is not None:

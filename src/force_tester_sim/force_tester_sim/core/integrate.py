@@ -306,7 +306,6 @@ def integrate_reference(p: ChainParams, motion, t: np.ndarray, x0, t_break=None,
     ``flowing``: the coupon is already flowing at t[0] (only when ``p.yields``)."""
     t = np.asarray(t, dtype=float)
     X = np.empty((len(t), p.n_states))
-    broken = t_break is not None and t_break <= t[0]
     tb = t_break
     pf = p.flow_params() if p.yields else p
     state = {'flow': bool(flowing and p.yields), 'yield_s': None}

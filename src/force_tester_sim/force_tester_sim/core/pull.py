@@ -167,6 +167,34 @@ class PullResult:
         return len(self.channels['time_s'])
 
 
+def record_channels(rig: RigParams, spec: PullSpec, t, x3, fm, fs, a2, noise: bool, motor) -> Dict[str, np.ndarray]:
+    """What the DAQ records of a simulated pull: the encoder quantised, the sensor departures of the rig
+    applied to the moving cell and the accelerometer, seeded sensor noise. ``motor`` is
+    (commanded velocity, current, voltage)."""
+    deps = rig.departures
+    res = rig.sensors.encoder_resolution_m
+    n = len(t)
+    if noise:
+        rng = np.random.default_rng(int(spec.seed))
+        nz = {k: rng.standard_normal(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
+    else:
+        nz = {k: np.zeros(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
+    fm_rec, a2_rec = (apply_sensor_departures(deps, t, fm, a2, spec.seed) if deps else (fm, a2))
+    v_cmd, current, voltage = motor
+    return {
+        'time_s': t,
+        'encoder_position_m': np.round(x3 / res) * res,
+        'accel_axial_m_s2': a2_rec + ACCEL_NOISE_M_S2 * nz['ax'],
+        'accel_lateral_m_s2': ACCEL_NOISE_M_S2 * nz['lat'],
+        'accel_vertical_m_s2': ACCEL_NOISE_M_S2 * nz['vert'],
+        'force_moving_n': fm_rec + LOAD_CELL_NOISE_N * nz['fm'],
+        'force_stationary_n': fs + LOAD_CELL_NOISE_N * nz['fs'],
+        'motor_velocity_cmd_m_s': v_cmd,
+        'motor_current_a': current,
+        'motor_voltage_v': voltage,
+    }
+
+
 def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     p = chain_params(rig, spec)
     motion = motion_for(rig, spec)
@@ -196,26 +224,8 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     voltage = np.clip(d.armature_resistance_ohm * current + d.armature_inductance_h * di
                       + d.back_emf_v_per_m_s * v3, -d.voltage_limit_v, d.voltage_limit_v)
 
-    res = rig.sensors.encoder_resolution_m
-    n = len(t)
-    if noise:
-        rng = np.random.default_rng(int(spec.seed))
-        nz = {k: rng.standard_normal(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
-    else:
-        nz = {k: np.zeros(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
-    fm_rec, a2_rec = (apply_sensor_departures(deps, t, fm, a2, spec.seed) if deps else (fm, a2))
-    channels = {
-        'time_s': t,
-        'encoder_position_m': np.round(x3 / res) * res,
-        'accel_axial_m_s2': a2_rec + ACCEL_NOISE_M_S2 * nz['ax'],
-        'accel_lateral_m_s2': ACCEL_NOISE_M_S2 * nz['lat'],
-        'accel_vertical_m_s2': ACCEL_NOISE_M_S2 * nz['vert'],
-        'force_moving_n': fm_rec + LOAD_CELL_NOISE_N * nz['fm'],
-        'force_stationary_n': fs + LOAD_CELL_NOISE_N * nz['fs'],
-        'motor_velocity_cmd_m_s': v3 * motion.command_scale,
-        'motor_current_a': current,
-        'motor_voltage_v': voltage,
-    }
+    channels = record_channels(rig, spec, t, x3, fm, fs, a2, noise,
+                               motor=(v3 * motion.command_scale, current, voltage))
     taut_idx = np.flatnonzero(T > 0)
     taut_index = int(taut_idx[0]) if len(taut_idx) else None
     if traj.break_s is not None:
