@@ -21,13 +21,14 @@ from .core.scoring import PullAccumulator, SetStatistics
 
 FORCE = next(t for t in BLOCK_TOPICS if t.topic == '/force')
 RECENT_PAIRS = 4000  # pairs kept to replay into a pull whose START event arrives late (4 s of 1 ms blocks)
-FINISH_TIMEOUT_S = 2.0
+FINISH_TIMEOUT_S = 5.0  # after END, score what arrived once no new data has come for this long
 
 SPECS = [
     ParamSpec('loaded_fraction', 0.1, 'RMS window: samples where the stationary force exceeds this '
                                       'fraction of its peak', (0.01, 0.99)),
-    ParamSpec('max_pending', 2000, 'blocks a channel may wait for its partner before it is dropped '
-                                   '(the corrected stream lags the force stream)', (1, 100_000), read_only=True),
+    ParamSpec('max_pending', 20_000, 'blocks a channel may wait for its partner before it is dropped '
+                                     '(the corrected stream lags the force stream; 20 s of 1 ms blocks)',
+              (1, 1_000_000), read_only=True),
 ]
 
 
@@ -86,6 +87,8 @@ class ValidatorNode(Node):
             self.recent.append(pair)
             for pull_id, acc in list(self.pulls.items()):
                 self._add(acc, pair)
+                if pull_id in self.idle_s:
+                    self.idle_s[pull_id] = 0.0  # data is still coming
                 if acc.finished and pair.end_stamp_ns >= acc.end_ns:
                     self._score(pull_id)
 

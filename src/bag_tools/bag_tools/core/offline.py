@@ -33,6 +33,7 @@ from .convert import (CORRECTED_NAME, CORRECTED_TOPIC, block_cdr, header, place_
 from .daq import (CAMPAIGN_FILE, NS_PER_S, Campaign, DaqPull, end_stamp_ns, read_campaign,
                   sample_stamps_ns, write_campaign)
 from .errors import BagError
+from .fastcdr import FastPathError, decode_blocks, encode_blocks, read_topics_raw
 from .reader import open_bag
 from .typestore import default_typestore
 from .writer import BagWriter
@@ -126,7 +127,128 @@ def _summaries(stats: SetStatistics) -> list:
 
 
 # --------------------------------------------------------------------------- bag
+FORCE_FIELDS = ('moving_n', 'stationary_n')
+ACCEL_FIELDS = ('axial_m_s2', 'lateral_m_s2', 'vertical_m_s2')
+CORRECTED_FIELDS = ('raw_n', 'inertial_n', 'corrected_n', 'filtered_n')
+_MAX_PENDING = 50  # BlockAligner's default, as correction_node uses
+
+
+def _block_fields(store, type_name: str) -> tuple:
+    cls = store.types[type_name]
+    names = tuple(f for f in cls.__dataclass_fields__ if not f.startswith('_'))
+    if names[:3] != ('header', 'sample_rate_hz', 'seq'):
+        raise FastPathError(f'{type_name} is not a block type')
+    return names[3:]
+
+
+def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Concatenated sample_stamps_ns(stamps[i], n[i], rate[i]) (same arithmetic)."""
+    total = int(n.sum())
+    first = np.repeat(stamps, n)
+    k = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+    r = np.repeat(rate, n)
+    out = np.empty(total, dtype=np.int64)
+    isint = r == np.floor(r)
+    if isint.any():
+        ri = r[isint].astype(np.int64)
+        out[isint] = first[isint] + (k[isint] * NS_PER_S) // ri
+    if not isint.all():
+        nr = ~isint
+        out[nr] = first[nr] + np.round(k[nr] * (NS_PER_S / r[nr])).astype(np.int64)
+    return out
+
+
+def _read_bag_fast(src: Path, runs: _Runs, warnings: list) -> dict:
+    """_read_bag for the common case, with whole-topic numpy decoding. The aligner's result
+    is computed in closed form; raises FastPathError (before touching runs) whenever the
+    aligner would report anything but discontinuities, so the generic path handles it."""
+    with open_bag(src) as bag:
+        topics = bag.topics()
+        force_t = [n for n, t in topics.items() if t.type_name == FORCE_TYPE]
+        accel_t = [n for n, t in topics.items() if t.type_name == ACCEL_TYPE]
+        event_t = [n for n, t in topics.items() if t.type_name == PULL_EVENT_TYPE]
+        if not force_t or not accel_t or not event_t:
+            raise FastPathError('missing topics')
+        force_topic = '/force' if '/force' in force_t else sorted(force_t)[0]
+        accel_topic = '/accel' if '/accel' in accel_t else sorted(accel_t)[0]
+        mcap = bag.single_mcap_path()
+        if mcap is None:
+            raise FastPathError('not a single MCAP file')
+        store = bag.typestore
+        if _block_fields(store, FORCE_TYPE) != FORCE_FIELDS \
+                or _block_fields(store, ACCEL_TYPE) != ACCEL_FIELDS:
+            raise FastPathError('block definitions differ')
+        raw, _ = read_topics_raw(mcap, [force_topic, accel_topic, *event_t])
+        for i, t in enumerate([force_topic, accel_topic, *event_t]):
+            if int(np.count_nonzero(raw.channel == i)) != topics[t].count:
+                raise FastPathError('message counts differ from the metadata')
+        fsel = np.flatnonzero(raw.channel == 0)
+        asel = np.flatnonzero(raw.channel == 1)
+        fb = decode_blocks(raw.buf, raw.starts[fsel], raw.lengths[fsel], FORCE_FIELDS)
+        ab = decode_blocks(raw.buf, raw.starts[asel], raw.lengths[asel], ACCEL_FIELDS)
+        m = len(fb)
+        if m == 0 or len(ab) != m:
+            raise FastPathError('unpaired blocks')
+        n = fb.counts['moving_n']
+        if not (np.array_equal(fb.stamp_ns, ab.stamp_ns) and np.array_equal(n, ab.counts[
+                'axial_m_s2']) and np.array_equal(n, fb.counts['stationary_n'])):
+            raise FastPathError('blocks do not pair one to one')
+        for b in (fb, ab):
+            if (b.seq >= 2**63).any() or (np.diff(b.seq.astype(np.int64)) != 1).any() \
+                    or (np.diff(b.stamp_ns) <= 0).any():
+                raise FastPathError('dropped or out-of-order blocks')
+        fr, ar = fb.rate_hz, ab.rate_hz
+        if not (np.isfinite(fr).all() and (fr > 0).all() and np.isfinite(ar).all()
+                and (ar > 0).all()):
+            raise FastPathError('bad rates')
+        if (np.abs(ar - fr) > 1e-9 * np.maximum(np.abs(ar), np.abs(fr))).any():
+            raise FastPathError('rate mismatch')
+        # how many blocks wait in a channel for their partner (aligner max_pending)
+        idx = np.arange(m)
+        for mine, other in ((fsel, asel), (asel, fsel)):
+            before = np.searchsorted(other, mine)
+            if (idx - before + 1).max() > _MAX_PENDING:
+                raise FastPathError('blocks wait longer than max_pending')
+        # events (few): generic deserialisation
+        starts: dict = {}
+        windows: list = []
+        for i in np.flatnonzero(raw.channel >= 2).tolist():
+            msg = bag.deserialize(raw.data(i), PULL_EVENT_TYPE)
+            if int(msg.event) == 0:
+                starts[int(msg.pull_id)] = (stamp_of(msg), int(msg.test_set))
+            else:
+                st = starts.pop(int(msg.pull_id), None)
+                if st is None:
+                    warnings.append(f'END of pull {msg.pull_id} without its START; '
+                                    'not scored')
+                else:
+                    windows.append((st[0], stamp_of(msg), st[1], int(msg.pull_id)))
+        stamps = fb.stamp_ns
+        cont = np.zeros(m, dtype=bool)
+        if m > 1:
+            expected = stamps[:-1] + n[:-1] * 1e9 / fr[:-1]
+            cont[1:] = ((np.abs(fr[:-1] - fr[1:]) <= 1e-9 * np.maximum(np.abs(fr[:-1]),
+                                                                         np.abs(fr[1:])))
+                        & (np.abs(stamps[1:] - expected) <= 0.5e9 / fr[1:]))
+        bounds = [*np.flatnonzero(~cont).tolist(), m]
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            sel = np.arange(lo, hi)
+            runs.add_run(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
+                         fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
+                         fb.values('stationary_n', sel))
+        frame = fb.frame_id(m - 1)
+        for pid, st in starts.items():
+            warnings.append(f'pull {pid} has no END; not scored')
+    pairs = list(zip(stamps.tolist(), n.tolist(), fr.tolist()))
+    return {'pairs': pairs, 'windows': sorted(windows), 'drops': [], 'frame': frame,
+            'pair_arrays': (stamps, n, fr)}
+
+
 def _read_bag(src: Path, runs: _Runs, warnings: list, progress: Progress | None) -> dict:
+    try:
+        return _read_bag_fast(src, runs, warnings)
+    except FastPathError:
+        pass
     with open_bag(src) as bag:
         topics = bag.topics()
         force_t = [n for n, t in topics.items() if t.type_name == FORCE_TYPE]
@@ -214,7 +336,22 @@ def _write_bag(src: Path, dst: Path, runs: _Runs, data: dict, pulls: list,
     arr = runs.arrays()
     generated = []
     pos = 0
-    for seq, (stamp, n, rate) in enumerate(data['pairs']):
+    if 'pair_arrays' in data:
+        try:
+            stamps, ns, rates = data['pair_arrays']
+            ends = np.cumsum(ns)
+            last = np.where(ns > 0, arr['t'][np.maximum(ends - 1, 0)], stamps)
+            cbuf, cst, cln = encode_blocks(
+                stamps, rates, np.arange(stamps.size), CORRECTED_FIELDS,
+                {f: ns for f in CORRECTED_FIELDS},
+                {'raw_n': arr['raw'], 'inertial_n': arr['inertial'],
+                 'corrected_n': arr['corrected'], 'filtered_n': arr['filtered']},
+                data['frame'])
+            data['corrected_batch'] = (last, cbuf, cst, cln)
+        except FastPathError:
+            data.pop('pair_arrays')
+    for seq, (stamp, n, rate) in enumerate(data['pairs'] if 'pair_arrays' not in data
+                                           else ()):
         sl = slice(pos, pos + n)
         pos += n
         last = int(arr['t'][pos - 1]) if n else stamp  # log time: the block's last sample
@@ -241,6 +378,16 @@ def _write_bag(src: Path, dst: Path, runs: _Runs, data: dict, pulls: list,
         generated.append((p['end_ns'], 2, '/set_summary', SUMMARY_TYPE,
                           store.serialize_cdr(msg, SUMMARY_TYPE)))
     generated.sort(key=lambda g: (g[0], g[1]))
+    if 'pair_arrays' in data:
+        try:
+            _write_bag_fast(src, dst, store, arr, data, generated, warnings)
+            return
+        except FastPathError:
+            pass
+        last, cbuf, cst, cln = data['corrected_batch']
+        generated.extend((int(lg), 0, CORRECTED_TOPIC, CORRECTED_NAME, cbuf[a:a + k])
+                         for lg, a, k in zip(last.tolist(), cst.tolist(), cln.tolist()))
+        generated.sort(key=lambda g: (g[0], g[1]))
     with open_bag(src) as bag, BagWriter(dst, store) as writer:
         topics = bag.topics()
         keep = [t for t in topics if t not in OUTPUT_TOPICS]
@@ -266,6 +413,71 @@ def _write_bag(src: Path, dst: Path, runs: _Runs, data: dict, pulls: list,
         for log, _o, topic, _type, cdr in merge(src_iter, iter(generated),
                                                  key=lambda g: (g[0], g[1])):
             writer.write(topic, log, cdr)
+
+
+def _write_bag_fast(src: Path, dst: Path, store, arr: dict, data: dict, generated: list,
+                    warnings: list) -> None:
+    """_write_bag with batch reading of the copied messages and batch writing; raises
+    FastPathError before creating dst when the bag does not suit it."""
+    last, cbuf, cst, cln = data['corrected_batch']
+    with open_bag(src) as bag:
+        mcap = bag.single_mcap_path()
+        if mcap is None:
+            raise FastPathError('not a single MCAP file')
+        topics = bag.topics()
+        keep = [t for t in topics if t not in OUTPUT_TOPICS]
+        raw, _ = read_topics_raw(mcap, keep)
+        for i, t in enumerate(keep):
+            if int(np.count_nonzero(raw.channel == i)) != topics[t].count:
+                raise FastPathError('message counts differ from the metadata')
+        replaced = [t for t in topics if t in OUTPUT_TOPICS]
+        if replaced:
+            warnings.append(f'input topics {", ".join(replaced)} replaced by the offline '
+                            'results')
+        with BagWriter(dst, store) as writer:
+            for t in keep:
+                type_name = topics[t].type_name
+                if type_name not in store.types:
+                    try:
+                        store.register({type_name: bag.typestore.fielddefs[type_name]})
+                    except Exception:  # noqa: BLE001
+                        warnings.append(f'topic {t} ({type_name}) not copied: its type is '
+                                        'unknown')
+                        continue
+                writer.add_topic(t, type_name)
+            for t, type_name in ((CORRECTED_TOPIC, CORRECTED_NAME),
+                                 ('/pull_score', SCORE_TYPE), ('/set_summary', SUMMARY_TYPE)):
+                writer.add_topic(t, type_name)
+            names = [*keep, CORRECTED_TOPIC, '/pull_score', '/set_summary']
+            copied = np.array([t in writer.topics for t in keep] + [True] * 3)
+            msel = copied[raw.channel] if raw.channel.size else np.zeros(0, bool)
+            ns_src = int(np.count_nonzero(msel))
+            small = b''.join(g[4] for g in generated)
+            slen = np.array([len(g[4]) for g in generated], dtype=np.int64)
+            gl = [(int(v), 0, i) for i, v in enumerate(last.tolist())]
+            # generated: corrected blocks (order 0) and scores/summaries (orders 1, 2)
+            g_log = np.concatenate([last.astype(np.int64),
+                                    np.array([g[0] for g in generated], dtype=np.int64)])
+            g_ord = np.concatenate([np.zeros(last.size, np.int64),
+                                    np.array([g[1] for g in generated], dtype=np.int64)])
+            del gl
+            g_idx = np.lexsort((np.arange(g_log.size), g_ord, g_log))
+            g_topic = np.concatenate([np.full(last.size, len(keep), np.int64),
+                                      np.array([len(keep) + g[1] for g in generated],
+                                               dtype=np.int64)])
+            g_src = np.concatenate([np.ones(last.size, np.int64),
+                                    np.full(len(generated), 2, np.int64)])
+            g_start = np.concatenate([cst, np.cumsum(slen) - slen])
+            g_len = np.concatenate([cln, slen])
+            log = np.concatenate([raw.log_ns[msel], g_log[g_idx]])
+            order = np.concatenate([np.full(ns_src, -1, np.int64), g_ord[g_idx]])
+            topic = np.concatenate([raw.channel[msel], g_topic[g_idx]])
+            srci = np.concatenate([np.zeros(ns_src, np.int64), g_src[g_idx]])
+            start = np.concatenate([raw.starts[msel], g_start[g_idx]])
+            length = np.concatenate([raw.lengths[msel], g_len[g_idx]])
+            o = np.lexsort((np.arange(log.size), order, log))
+            writer.write_batch(names, topic[o], log[o], [raw.buf, cbuf, small], srci[o],
+                               start[o], length[o])
 
 
 # --------------------------------------------------------------------------- campaign

@@ -143,6 +143,16 @@ class BagReaderHandle:
             raise BagError(f'bag {str(self.path)!r} is corrupt while reading messages: '
                            f'{one_line(exc) or type(exc).__name__}') from None
 
+    def single_mcap_path(self) -> Path | None:
+        """The storage file when the bag is one MCAP file (for the batch readers), else None."""
+        inner = getattr(self._reader, 'storage', None)  # rosbags >= 0.10: DirectoryReader
+        storages = getattr(inner, 'storages', None) or getattr(self._reader, 'storages', None) \
+            or []
+        if len(storages) != 1 or type(storages[0]).__name__ != 'McapReader':
+            return None
+        path = getattr(storages[0], 'path', None)
+        return Path(path) if path is not None else None
+
     def deserialize(self, cdr: bytes, type_name: str) -> Any:
         """CDR bytes -> message object of the typestore."""
         store = self.typestore

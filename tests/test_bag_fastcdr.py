@@ -1,0 +1,692 @@
+"""The numpy fast path (bag_tools.core.fastcdr) against the generic rosbags path.
+
+decode_blocks / encode_blocks vs typestore deserialize_cdr / serialize_cdr (bit exact),
+read_topics_raw vs open_bag().messages(), BagWriter.write_batch vs write() per message, and
+offline.correct with the fast path vs with it disabled.
+"""
+
+from __future__ import annotations
+
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+for _d in reversed([REPO / 'src' / p for p in ('bag_tools', 'force_tester_common',
+                                               'force_correction', 'force_tester_sim')]):
+    if str(_d) not in sys.path:
+        sys.path.insert(0, str(_d))
+
+from bag_tools.core import BagWriter, make_typestore, open_bag  # noqa: E402
+from bag_tools.core import offline  # noqa: E402
+from bag_tools.core.convert import campaign_to_bag  # noqa: E402
+from bag_tools.core.daq import write_campaign  # noqa: E402
+from bag_tools.core.fastcdr import (FastPathError, decode_blocks, encode_blocks,  # noqa: E402
+                                    read_topics_raw)
+from bag_tools.core.offline import correct  # noqa: E402
+
+MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
+BLOCK_TYPES = sorted(f'force_tester_msgs/msg/{p.stem}' for p in MSG_DIR.glob('*Block.msg'))
+FORCE = 'force_tester_msgs/msg/ForceBlock'
+ACCEL = 'force_tester_msgs/msg/AccelBlock'
+PULL = 'force_tester_msgs/msg/PullEvent'
+NS = 1_000_000_000
+T0 = 1_700_000_000_000_000_000
+
+
+@pytest.fixture(scope='module')
+def store():
+    return make_typestore([MSG_DIR])
+
+
+def fields_of(store, type_name):
+    names = [f for f in store.types[type_name].__dataclass_fields__ if not f.startswith('_')]
+    assert names[:3] == ['header', 'sample_rate_hz', 'seq'], names
+    return names[3:]
+
+
+def bits(a):
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float64)).view(np.uint64)
+
+
+SPECIAL = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 5e-324, -5e-324, 1.7976931348623157e308,
+                    np.frombuffer(b'\x01\x00\x00\x00\x00\x00\xf8\x7f', '<f8')[0]])  # nan payload
+
+
+def rand_values(rng, n):
+    v = rng.normal(0, 1e3, n)
+    if n:
+        k = rng.integers(0, n + 1)
+        v[rng.integers(0, n, k)] = rng.choice(SPECIAL, k)
+    return v
+
+
+FRAME_CHARS = 'abcXYZ_/0123456789é€'
+
+
+def rand_frame(rng, length):
+    # length in characters; some multi-byte so the byte length is not the char count
+    return ''.join(rng.choice(list(FRAME_CHARS), length).tolist())
+
+
+def rand_block(store, rng, type_name, frame_id=None, stamp_ns=None, counts=None):
+    T = store.types
+    flds = fields_of(store, type_name)
+    if frame_id is None:
+        frame_id = rand_frame(rng, int(rng.integers(0, 20)))
+    if stamp_ns is None:
+        sec = int(rng.integers(-2**31, 2**31))
+        nsec = int(rng.integers(0, NS))
+    else:
+        sec, nsec = stamp_ns // NS, stamp_ns % NS
+    if counts is None:
+        counts = [int(rng.choice([0, 0, 1, 2, 3, 7, int(rng.integers(0, 40))]))
+                  for _ in flds]
+    rates = [50000.0, 1000.0, 0.0, -0.0, np.nan, np.inf, 1e-300, float(rng.uniform(0, 1e6))]
+    rate = rates[int(rng.integers(0, len(rates)))]
+    seqs = [0, 1, 2**63 - 1, 2**63, 2**64 - 1, int(rng.integers(0, 2**62))]
+    seq = seqs[int(rng.integers(0, len(seqs)))]
+    arrays = {f: rand_values(rng, c) for f, c in zip(flds, counts)}
+    hdr = T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=sec,
+                                                                           nanosec=nsec),
+                                   frame_id=frame_id)
+    return T[type_name](header=hdr, sample_rate_hz=rate, seq=seq, **arrays)
+
+
+def pack(rng, cdrs, with_gaps=True):
+    """One buffer holding the messages at random (unaligned) offsets."""
+    parts, starts, pos = [], [], 0
+    for c in cdrs:
+        gap = int(rng.integers(0, 9)) if with_gaps else 0
+        parts.append(bytes(rng.integers(0, 256, gap, dtype=np.uint8)))
+        pos += gap
+        starts.append(pos)
+        parts.append(c)
+        pos += len(c)
+    parts.append(bytes(rng.integers(0, 256, 5, dtype=np.uint8)))
+    return b''.join(parts), np.array(starts), np.array([len(c) for c in cdrs])
+
+
+def check_decoded(store, blocks, msgs, flds, sel_check=True, rng=None):
+    assert len(blocks) == len(msgs)
+    for i, msg in enumerate(msgs):
+        st = msg.header.stamp
+        assert int(blocks.stamp_ns[i]) == st.sec * NS + st.nanosec, i
+        assert bits([blocks.rate_hz[i]])[0] == bits([msg.sample_rate_hz])[0], i
+        assert int(blocks.seq[i]) == msg.seq, i
+        assert blocks.frame_id(i) == msg.header.frame_id, i
+        for f in flds:
+            assert int(blocks.counts[f][i]) == len(getattr(msg, f)), (i, f)
+    for f in flds:
+        whole = blocks.values(f)
+        ref = np.concatenate([np.asarray(getattr(m, f), dtype=np.float64) for m in msgs])
+        assert whole.dtype == np.float64 and whole.shape == ref.shape
+        np.testing.assert_array_equal(bits(whole), bits(ref))
+        if sel_check and rng is not None and len(msgs):
+            sel = np.sort(rng.choice(len(msgs), size=max(1, len(msgs) // 3), replace=False))
+            part = blocks.values(f, sel)
+            refp = np.concatenate([np.asarray(getattr(msgs[k], f), dtype=np.float64)
+                                   for k in sel.tolist()])
+            np.testing.assert_array_equal(bits(part), bits(refp))
+
+
+# --------------------------------------------------------------------------- 1. decode
+@pytest.mark.parametrize('type_name', BLOCK_TYPES)
+def test_decode_blocks_equals_rosbags(store, type_name):
+    rng = np.random.default_rng(zlib.crc32(type_name.encode()))
+    flds = fields_of(store, type_name)
+    msgs = []
+    for k in range(400):
+        frame = rand_frame(rng, k % 17) if k < 34 else None  # every frame length 0..16 early
+        msgs.append(rand_block(store, rng, type_name, frame_id=frame))
+    # all fields empty, and unequal lengths across fields
+    msgs.append(rand_block(store, rng, type_name, frame_id='', counts=[0] * len(flds)))
+    msgs.append(rand_block(store, rng, type_name, frame_id='x',
+                           counts=[3 + 5 * i for i in range(len(flds))]))
+    msgs.append(rand_block(store, rng, type_name, frame_id='abcdefg',
+                           counts=[0 if i % 2 else 9 for i in range(len(flds))]))
+    cdrs = [store.serialize_cdr(m, type_name) for m in msgs]
+    back = [store.deserialize_cdr(c, type_name) for c in cdrs]  # rosbags' own view
+    # frame id byte lengths hit every alignment residue mod 8
+    assert {len(m.header.frame_id.encode()) % 8 for m in msgs} == set(range(8))
+    buf, starts, lengths = pack(rng, cdrs)
+    assert set((starts % 8).tolist()) == set(range(8))
+    for src in (buf, np.frombuffer(buf, np.uint8), bytearray(buf)):
+        blocks = decode_blocks(src, starts, lengths, flds)
+        check_decoded(store, blocks, back, flds, rng=rng)
+    # also: back-to-back without gaps, and in a shuffled order
+    buf2, st2, ln2 = pack(rng, cdrs, with_gaps=False)
+    perm = rng.permutation(len(cdrs))
+    blocks = decode_blocks(buf2, st2[perm], ln2[perm], flds)
+    check_decoded(store, blocks, [back[i] for i in perm.tolist()], flds, rng=rng)
+    # one message at a time (single-message batches)
+    for i in range(0, len(cdrs), 37):
+        b = decode_blocks(cdrs[i], [0], [len(cdrs[i])], flds)
+        check_decoded(store, b, [back[i]], flds, sel_check=False)
+
+
+def test_decode_blocks_empty_and_rejects(store):
+    flds = fields_of(store, FORCE)
+    b = decode_blocks(b'', np.zeros(0, np.int64), np.zeros(0, np.int64), flds)
+    assert len(b) == 0 and b.values('moving_n').size == 0
+    rng = np.random.default_rng(5)
+    msg = rand_block(store, rng, FORCE, frame_id='abc', counts=[4, 2])
+    cdr = bytes(store.serialize_cdr(msg, FORCE))
+    with pytest.raises(FastPathError):  # wrong field list: length does not match
+        decode_blocks(cdr, [0], [len(cdr)], ['moving_n'])
+    with pytest.raises(FastPathError):  # truncated
+        decode_blocks(cdr, [0], [len(cdr) - 8], flds)
+    with pytest.raises(FastPathError):  # trailing bytes
+        decode_blocks(cdr + b'\0' * 8, [0], [len(cdr) + 8], flds)
+    be = store.serialize_cdr(msg, FORCE, little_endian=False) \
+        if 'little_endian' in store.serialize_cdr.__code__.co_varnames else None
+    if be is not None:
+        with pytest.raises(FastPathError):
+            decode_blocks(be, [0], [len(be)], flds)
+    with pytest.raises(FastPathError):  # a count pointing past the end
+        bad = bytearray(cdr)
+        ok = decode_blocks(cdr, [0], [len(cdr)], flds)
+        off = int(ok._starts['moving_n'][0]) + 4 * 8  # stationary_n count after 4 moving_n
+        assert int.from_bytes(cdr[off:off + 4], 'little') == 2
+        bad[off:off + 4] = (10**6).to_bytes(4, 'little')
+        decode_blocks(bytes(bad), [0], [len(bad)], flds)
+
+
+# --------------------------------------------------------------------------- 2. encode
+@pytest.mark.parametrize('type_name', BLOCK_TYPES)
+def test_encode_blocks_equals_serialize_cdr(store, type_name):
+    rng = np.random.default_rng(1 + zlib.crc32(type_name.encode()))
+    flds = fields_of(store, type_name)
+    for flen in range(0, 18):
+        frame = rand_frame(rng, flen) if flen % 3 else 'f' * flen
+        m = int(rng.integers(1, 30))
+        stamps = rng.integers(-2**31 * NS, 2**31 * NS - 1, m)
+        stamps[0] = 0
+        if m > 1:
+            stamps[1] = -1  # sec -1, nanosec 999999999
+        rates = rng.choice([50000.0, -0.0, np.nan, np.inf, 1e-300, 3.5], m)
+        seqs = rng.integers(0, 2**63 - 1, m)
+        counts = {f: rng.choice([0, 0, 1, 2, 5, 50], m) for f in flds}
+        values = {f: rand_values(rng, int(counts[f].sum())) for f in flds}
+        for scalar_rate in (False, True):
+            rate_arg = float(rates[0]) if scalar_rate else rates
+            buf, starts, lengths = encode_blocks(stamps, rate_arg, seqs, flds, counts, values,
+                                                 frame)
+            assert isinstance(buf, bytes) and len(buf) == int(lengths.sum())
+            np.testing.assert_array_equal(starts, np.cumsum(lengths) - lengths)
+            pos = {f: 0 for f in flds}
+            for i in range(m):
+                arrays = {}
+                for f in flds:
+                    c = int(counts[f][i])
+                    arrays[f] = values[f][pos[f]:pos[f] + c]
+                    pos[f] += c
+                T = store.types
+                s = int(stamps[i])
+                hdr = T['std_msgs/msg/Header'](
+                    stamp=T['builtin_interfaces/msg/Time'](sec=s // NS, nanosec=s % NS),
+                    frame_id=frame)
+                msg = T[type_name](header=hdr,
+                                   sample_rate_hz=float(rate_arg if scalar_rate else rates[i]),
+                                   seq=int(seqs[i]), **arrays)
+                ref = store.serialize_cdr(msg, type_name)
+                got = buf[int(starts[i]):int(starts[i] + lengths[i])]
+                assert got == bytes(ref), (type_name, flen, i, scalar_rate)
+            # and the round trip through decode_blocks
+            blocks = decode_blocks(buf, starts, lengths, flds)
+            np.testing.assert_array_equal(blocks.stamp_ns, stamps)
+            for f in flds:
+                np.testing.assert_array_equal(bits(blocks.values(f)), bits(values[f]))
+
+
+def test_encode_blocks_absent_fields_and_errors(store):
+    flds = fields_of(store, ACCEL)
+    buf, st, ln = encode_blocks([T0, T0 + 1], 1000.0, [4, 5], flds,
+                                {'axial_m_s2': np.array([2, 0])},
+                                {'axial_m_s2': np.array([1.5, 2.5])}, 'acc')
+    for i, (n, vals) in enumerate(((2, [1.5, 2.5]), (0, []))):
+        msg = store.deserialize_cdr(buf[st[i]:st[i] + ln[i]], ACCEL)
+        assert list(msg.axial_m_s2) == vals and len(msg.lateral_m_s2) == 0
+        assert msg.seq == 4 + i and msg.header.frame_id == 'acc'
+    with pytest.raises(FastPathError):  # value count disagrees with counts
+        encode_blocks([T0], 1000.0, [0], flds, {'axial_m_s2': [3]},
+                      {'axial_m_s2': np.ones(2)})
+    with pytest.raises(FastPathError):
+        encode_blocks([T0], 1000.0, [-1], flds, {}, {})
+    with pytest.raises(FastPathError):
+        encode_blocks([2**31 * NS], 1000.0, [0], flds, {}, {})
+    empty = encode_blocks(np.zeros(0, np.int64), 1000.0, np.zeros(0, np.int64), flds, {}, {})
+    assert empty[0] == b'' and empty[1].size == 0
+
+
+def _encode_seq_ok_or_fastpath(store, seqs):
+    flds = fields_of(store, FORCE)
+    try:
+        buf, _st, _ln = encode_blocks([T0], 1.0, seqs, flds, {}, {})
+    except FastPathError:
+        return
+    assert store.deserialize_cdr(buf, FORCE).seq == int(seqs[0])
+
+
+def test_encode_blocks_large_seq_uint64_array(store):
+    """seq is uint64 in the message: seq >= 2**63 must encode right or raise FastPathError."""
+    _encode_seq_ok_or_fastpath(store, np.array([2**63 + 5], dtype=np.uint64))
+
+
+def test_encode_blocks_large_seq_python_int(store):
+    _encode_seq_ok_or_fastpath(store, [2**63])
+
+
+# --------------------------------------------------------------------------- bags
+def block_bytes(store, rng, type_name, stamp, seq, n):
+    flds = fields_of(store, type_name)
+    msg = rand_block(store, rng, type_name, frame_id=rand_frame(rng, int(rng.integers(0, 9))),
+                     stamp_ns=stamp, counts=[n] * len(flds))
+    msg.seq = seq
+    return store.serialize_cdr(msg, type_name)
+
+
+def mixed_messages(store, rng, big=True):
+    """(topic, type, log_ns, cdr): several topics, ties in log time, log time going back,
+    some large messages so the bag has several chunks."""
+    topics = [('/force', FORCE), ('/accel', ACCEL), ('/enc', 'force_tester_msgs/msg/EncoderBlock'),
+              ('/motor', 'force_tester_msgs/msg/MotorBlock')]
+    out = []
+    log = T0
+    for k in range(600):
+        topic, typ = topics[int(rng.integers(0, len(topics)))]
+        r = rng.random()
+        if r < 0.3:
+            pass  # same log time as the previous message (tie)
+        elif r < 0.4:
+            log -= int(rng.integers(1, 5_000_000))  # written out of log order
+        else:
+            log += int(rng.integers(1, 5_000_000))
+        n = int(rng.integers(0, 60))
+        if big and k % 40 == 7:
+            n = 40_000  # ~ 0.3-1 MB per message
+        out.append((topic, typ, log, block_bytes(store, rng, typ, log, k, n)))
+    return out
+
+
+def write_plain(path, store, msgs, topics_order=None):
+    with BagWriter(path, store) as w:
+        for topic, typ, _, _ in (topics_order or msgs):
+            w.add_topic(topic, typ)
+        for topic, _, log, cdr in msgs:
+            w.write(topic, log, cdr)
+    return path
+
+
+def generic(path, topics=None):
+    with open_bag(path) as b:
+        return [(m.topic, m.type_name, m.stamp_ns, m.cdr) for m in b.messages(topics)]
+
+
+def single_mcap(path):
+    with open_bag(path) as b:
+        p = b.single_mcap_path()
+    assert p is not None and p.suffix == '.mcap'
+    return p
+
+
+# --------------------------------------------------------------------------- 3. read_topics_raw
+def test_read_topics_raw_equals_generic_reader(store, tmp_path):
+    rng = np.random.default_rng(3)
+    msgs = mixed_messages(store, rng)
+    bag = write_plain(tmp_path / 'bag', store, msgs)
+    mcap = single_mcap(bag)
+    with open_bag(bag) as b:
+        from rosbags.rosbag2 import Reader  # noqa: F401
+        n_chunks = len(b._reader.storage.storages[0].chunks) \
+            if hasattr(getattr(b._reader, 'storage', None), 'storages') else None
+    if n_chunks is not None:
+        assert n_chunks > 2
+    for wanted in (['/force'], ['/accel', '/force'], ['/motor', '/enc', '/force', '/accel'],
+                   ['/nope', '/enc']):
+        raw, names = read_topics_raw(mcap, wanted)
+        assert names == wanted
+        got = [(wanted[int(raw.channel[i])], int(raw.log_ns[i]), raw.data(i))
+               for i in range(raw.log_ns.size)]
+        present = [t for t in wanted if t != '/nope']
+        ref = [(t, s, c) for t, _ty, s, c in generic(bag, present)]
+        assert got == ref, wanted
+        # per topic as well
+        for j, t in enumerate(present):
+            sel = np.flatnonzero(raw.channel == wanted.index(t))
+            assert [(int(raw.log_ns[i]), raw.data(i)) for i in sel.tolist()] == \
+                [(s, c) for _t, _ty, s, c in generic(bag, [t])]
+    raw, _ = read_topics_raw(mcap, ['/nope'])
+    assert raw.log_ns.size == 0
+
+
+def test_read_topics_raw_small_bag_and_decode(store, tmp_path):
+    rng = np.random.default_rng(4)
+    msgs = [('/force', FORCE, T0 + k // 2, block_bytes(store, rng, FORCE, T0 + k, k, k % 5))
+            for k in range(50)]
+    bag = write_plain(tmp_path / 'bag', store, msgs)
+    raw, _ = read_topics_raw(single_mcap(bag), ['/force'])
+    blocks = decode_blocks(raw.buf, raw.starts, raw.lengths, fields_of(store, FORCE))
+    ref = [store.deserialize_cdr(c, FORCE) for _t, _ty, _s, c in generic(bag, ['/force'])]
+    check_decoded(store, blocks, ref, fields_of(store, FORCE), rng=rng)
+
+
+# --------------------------------------------------------------------------- 4. write_batch
+def _batch_args(msgs, topics, rng):
+    """Spread the messages over three sources of different kinds, with junk between."""
+    kinds = [bytes, bytearray, lambda b: np.frombuffer(b, np.uint8)]
+    parts = [[], [], []]
+    pos = [0, 0, 0]
+    ti, st, ln, si = [], [], [], []
+    for topic, _ty, _log, cdr in msgs:
+        k = int(rng.integers(0, 3))
+        junk = bytes(rng.integers(0, 256, int(rng.integers(0, 7)), dtype=np.uint8))
+        parts[k].append(junk)
+        pos[k] += len(junk)
+        st.append(pos[k])
+        parts[k].append(cdr)
+        pos[k] += len(cdr)
+        ln.append(len(cdr))
+        si.append(k)
+        ti.append(topics.index(topic))
+    sources = [kinds[k](b''.join(parts[k]) + b'\x00\x00') for k in range(3)]
+    return (np.array(ti, np.int64), np.array([m[2] for m in msgs], np.int64), sources,
+            np.array(si, np.int64), np.array(st, np.int64), np.array(ln, np.int64))
+
+
+def _meta_counts(path):
+    with open_bag(path) as b:
+        return b.topics(), b.start_ns, b.end_ns, b.message_count
+
+
+@pytest.mark.parametrize('split', ['all', 'mixed'])
+def test_write_batch_equals_write(store, tmp_path, split):
+    rng = np.random.default_rng(6)
+    msgs = mixed_messages(store, rng)
+    typ = {t: ty for t, ty, _, _ in msgs}
+    topics = sorted(typ)
+    ref = write_plain(tmp_path / 'ref', store, msgs, [(t, typ[t], 0, 0) for t in topics])
+    out = tmp_path / 'batch'
+    with BagWriter(out, store) as w:
+        for t in topics:
+            w.add_topic(t, typ[t])
+        if split == 'all':
+            w.write_batch(topics, *_batch_args(msgs, topics, rng))
+        else:  # write(), batch, write(), batch spanning chunk boundaries, empty batch, write()
+            cuts = [0, 13, 250, 260, 260, 590, len(msgs)]
+            for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+                if k % 2 == 0:
+                    for topic, _ty, log, cdr in msgs[a:b]:
+                        w.write(topic, log, cdr)
+                else:
+                    w.write_batch(topics, *_batch_args(msgs[a:b], topics, rng))
+        assert w.message_count == len(msgs)
+    assert generic(out) == generic(ref)
+    for t in topics:
+        assert generic(out, [t]) == generic(ref, [t])
+    assert _meta_counts(out) == _meta_counts(ref)
+    # the fast-path reader agrees on the batch-written file too
+    raw, _ = read_topics_raw(single_mcap(out), topics)
+    assert [(topics[int(raw.channel[i])], int(raw.log_ns[i]), raw.data(i))
+            for i in range(raw.log_ns.size)] == [(t, s, c) for t, _y, s, c in generic(ref)]
+
+
+def _same_bytes_case(store, tmp_path, msgs, rng):
+    typ = {t: ty for t, ty, _, _ in msgs}
+    topics = sorted(typ)
+    # same bag directory name: metadata holds the file name
+    (tmp_path / 'r').mkdir()
+    (tmp_path / 'b').mkdir()
+    ref = write_plain(tmp_path / 'r' / 'bag', store, msgs, [(t, typ[t], 0, 0) for t in topics])
+    with BagWriter(tmp_path / 'b' / 'bag', store) as w:
+        for t in topics:
+            w.add_topic(t, typ[t])
+        w.write_batch(topics, *_batch_args(msgs, topics, rng))
+    return single_mcap(ref).read_bytes(), single_mcap(tmp_path / 'b' / 'bag').read_bytes()
+
+
+def test_write_batch_same_file_bytes_channels_in_id_order(store, tmp_path):
+    """Every chunk sees its channels first in channel-id order: bytes must be identical."""
+    rng = np.random.default_rng(9)
+    msgs = mixed_messages(store, rng)
+    order = {'/accel': 0, '/enc': 1, '/force': 2, '/motor': 3}  # = add_topic order (sorted)
+    msgs = sorted(msgs, key=lambda m: order[m[0]])  # log times still out of order
+    a, b = _same_bytes_case(store, tmp_path, msgs, rng)
+    assert len(a) == len(b) and a == b
+
+
+def test_write_batch_fallback_is_same(store, tmp_path):
+    """A non-CDR-looking source makes write_batch fall back to write() per message."""
+    rng = np.random.default_rng(8)
+    msgs = mixed_messages(store, rng, big=False)[:80]
+    typ = {t: ty for t, ty, _, _ in msgs}
+    topics = sorted(typ)
+    ref = write_plain(tmp_path / 'ref', store, msgs, [(t, typ[t], 0, 0) for t in topics])
+
+    class Spy(BagWriter):
+        calls = 0
+
+        def write(self, topic, stamp_ns, cdr_bytes):
+            Spy.calls += 1
+            super().write(topic, stamp_ns, cdr_bytes)
+
+    with Spy(tmp_path / 'spy', store) as w:
+        for t in topics:
+            w.add_topic(t, typ[t])
+        w.write_batch(topics, *_batch_args(msgs, topics, rng))
+    assert Spy.calls == len(msgs)
+    assert generic(tmp_path / 'spy') == generic(ref)
+
+
+# --------------------------------------------------------------------------- 5. offline correct
+RATE = 50000.0
+N = 600
+BLOCK = 10  # 60 blocks per pull, 120 contiguous (pulls 0 and 1): more than max_pending
+
+
+def synth(seed, peak):
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) / RATE
+    tc = t[N // 2]
+    pulse = peak * np.exp(-((t - tc) / 2e-3) ** 2) * (t < tc + 1e-3)
+    accel = 50 * np.sin(2 * np.pi * 900 * t) * np.exp(-t / 0.01) + rng.normal(0, 0.5, N)
+    return {'time_s': t, 'encoder_position_m': 1.2 * t,
+            'accel_axial_m_s2': accel,
+            'force_moving_n': pulse + 1.152 * accel + rng.normal(0, 0.3, N),
+            'force_stationary_n': pulse + rng.normal(0, 0.3, N),
+            'accel_lateral_m_s2': rng.normal(0, 1, N), 'accel_vertical_m_s2': rng.normal(0, 1, N)}
+
+
+@pytest.fixture(scope='module')
+def base_bag(tmp_path_factory):
+    d = tmp_path_factory.mktemp('campaign')
+    pulls = []
+    for i in range(4):
+        m = {'set': 1 + i % 2, 'coupon_lbf': 200.0, 'velocity_fps': 3.0, 'decel_g': 0.0,
+             'pull_id': 100 + i, 'start_ns': T0 + i * (N * 20_000 + 5_000_000)}
+        pulls.append((m, synth(i, 1000.0 * (i + 1))))
+    pulls[1][0]['start_ns'] = T0 + N * 20_000  # pulls 0 and 1 contiguous
+    camp = write_campaign(d / 'camp', pulls)
+    return campaign_to_bag(camp, d / 'bag', block_size=BLOCK)
+
+
+def rewrite(src, dst, edit):
+    """Copy a bag through edit([(topic, type, log, cdr)]) -> new list."""
+    with open_bag(src) as b:
+        topics = b.topics()
+        msgs = [(m.topic, m.type_name, m.stamp_ns, m.cdr) for m in b.messages()]
+    msgs = edit(msgs)
+    with BagWriter(dst, make_typestore([MSG_DIR])) as w:
+        for t, info in topics.items():
+            w.add_topic(t, info.type_name)
+        for topic, _ty, log, cdr in msgs:
+            w.write(topic, log, cdr)
+    return dst
+
+
+def idx_of(msgs, topic, k):
+    return [i for i, m in enumerate(msgs) if m[0] == topic][k]
+
+
+def drop(topic, k):
+    def edit(msgs):
+        i = idx_of(msgs, topic, k)
+        return msgs[:i] + msgs[i + 1:]
+    return edit
+
+
+def swap_log(topic, k):
+    """Blocks k and k+1 of topic exchange log times: k+1 is read first (out of order)."""
+    def edit(msgs):
+        i, j = idx_of(msgs, topic, k), idx_of(msgs, topic, k + 1)
+        msgs = list(msgs)
+        a, b = msgs[i], msgs[j]
+        msgs[i] = (a[0], a[1], b[2] + 1, a[3])
+        msgs[j] = (b[0], b[1], a[2], b[3])
+        return msgs
+    return edit
+
+
+def delay(topic, blocks, dt_ns=BLOCK * 20_000):
+    """Log every block of topic `blocks` block periods later (partners wait in the aligner)."""
+    def edit(msgs):
+        return [(t, ty, log + blocks * dt_ns if t == topic else log, c)
+                for t, ty, log, c in msgs]
+    return edit
+
+
+def renumber_after_drop_both(k):
+    """Remove /force and /accel block k and renumber later seqs: a stamp gap without a seq gap
+    (a discontinuity the fast path handles itself)."""
+    store = make_typestore([MSG_DIR])
+
+    def edit(msgs):
+        out = []
+        seen = {'/force': 0, '/accel': 0}
+        for t, ty, log, c in msgs:
+            if t in seen:
+                j = seen[t]
+                seen[t] += 1
+                if j == k:
+                    continue
+                if j > k:
+                    m = store.deserialize_cdr(c, ty)
+                    m.seq = m.seq - 1
+                    c = bytes(store.serialize_cdr(m, ty))
+            out.append((t, ty, log, c))
+        return out
+    return edit
+
+
+def bag_dump(path):
+    out = {}
+    with open_bag(path) as b:
+        store = b.typestore
+        for m in b.messages():
+            out.setdefault(m.topic, []).append((m.stamp_ns, store.deserialize_cdr(m.cdr,
+                                                                                  m.type_name)))
+    return out
+
+
+def _msg_close(a, b, tol):
+    fa = [f for f in a.__dataclass_fields__ if not f.startswith('_')]
+    for f in fa:
+        x, y = getattr(a, f), getattr(b, f)
+        if hasattr(x, '__dataclass_fields__'):
+            _msg_close(x, y, tol)
+        elif isinstance(x, np.ndarray) or isinstance(x, float):
+            np.testing.assert_allclose(np.asarray(x, float), np.asarray(y, float), rtol=0,
+                                       atol=tol, equal_nan=True, err_msg=f)
+        else:
+            assert x == y, f
+
+
+def _run(src, dst, mode, monkeypatch):
+    calls = {'read_fast_ok': 0}
+    real = offline._read_bag_fast
+
+    def spy(*a, **kw):
+        r = real(*a, **kw)
+        calls['read_fast_ok'] += 1
+        return r
+
+    def refuse(*a, **kw):
+        raise FastPathError('disabled by the test')
+
+    with monkeypatch.context() as mp:
+        if mode == 'generic':
+            mp.setattr(offline, '_read_bag_fast', refuse)
+        else:
+            mp.setattr(offline, '_read_bag_fast', spy)
+        if mode == 'no_write_fast':
+            mp.setattr(offline, '_write_bag_fast', refuse)
+        warnings = []
+        res = correct(src, dst, warnings=warnings)
+    return res, calls['read_fast_ok']
+
+
+CASES = {
+    'clean': (None, True),
+    'drop_force': (drop('/force', 15), False),
+    'drop_accel': (drop('/accel', 20), False),   # the /force block 20 is unmatched
+    'drop_force_first': (drop('/force', 0), False),
+    'drop_last_accel': (drop('/accel', -1), False),
+    'out_of_order_force': (swap_log('/force', 30), False),
+    'out_of_order_accel': (swap_log('/accel', 3), False),
+    'accel_late_40': (delay('/accel', 40), True),   # < max_pending: still paired
+    'accel_late_50': (delay('/accel', 50), True),   # = max_pending: still paired
+    'accel_late_51': (delay('/accel', 51), False),  # > max_pending: unmatched
+    'force_late_55': (delay('/force', 55), False),
+    'gap_without_seq_gap': (renumber_after_drop_both(17), True),
+}
+
+
+@pytest.mark.parametrize('case', sorted(CASES))
+def test_correct_fast_equals_generic(base_bag, tmp_path, monkeypatch, case):
+    edit, fast_expected = CASES[case]
+    src = base_bag if edit is None else rewrite(base_bag, tmp_path / 'src', edit)
+    fast, used = _run(src, tmp_path / 'fast', 'fast', monkeypatch)
+    gen, gused = _run(src, tmp_path / 'gen', 'generic', monkeypatch)
+    assert gused == 0
+    assert fast['runs'] == gen['runs'] and fast['nan_samples'] == gen['nan_samples']
+    assert len(fast['pulls']) == len(gen['pulls']) > 0
+    for p, q in zip(fast['pulls'], gen['pulls']):
+        assert p.keys() == q.keys()
+        for k in p:
+            if isinstance(p[k], float):
+                assert abs(p[k] - q[k]) <= 1e-9 or (np.isnan(p[k]) and np.isnan(q[k])), (k, p, q)
+            else:
+                assert p[k] == q[k], (k, p, q)
+    assert len(fast['sets']) == len(gen['sets'])
+    for s, t in zip(fast['sets'], gen['sets']):
+        for k in s:
+            if isinstance(s[k], float):
+                assert abs(s[k] - t[k]) <= 1e-9 or (np.isnan(s[k]) and np.isnan(t[k])), k
+            else:
+                assert s[k] == t[k], k
+    assert fast['warnings'] == gen['warnings']
+    # the output bags: same topics, log times and messages
+    a, b = bag_dump(tmp_path / 'fast'), bag_dump(tmp_path / 'gen')
+    assert sorted(a) == sorted(b)
+    for t in a:
+        assert [s for s, _ in a[t]] == [s for s, _ in b[t]], t
+        for (_, x), (_, y) in zip(a[t], b[t]):
+            _msg_close(x, y, 1e-9)
+    # last, so a wrong result is reported before a wrong choice of path
+    assert used == int(fast_expected), f'fast path taken: {used}'
+
+
+@pytest.mark.parametrize('case', ['clean', 'gap_without_seq_gap'])
+def test_correct_write_fast_equals_encode_path(base_bag, tmp_path, monkeypatch, case):
+    """_write_bag_fast vs _write_bag with the encode_blocks batch (both after the fast read):
+    identical output messages and log times."""
+    edit, _ = CASES[case]
+    src = base_bag if edit is None else rewrite(base_bag, tmp_path / 'src', edit)
+    r1, u1 = _run(src, tmp_path / 'a', 'fast', monkeypatch)
+    r2, u2 = _run(src, tmp_path / 'b', 'no_write_fast', monkeypatch)
+    assert u1 == u2 == 1
+    assert r1 == r2
+    assert generic(tmp_path / 'a') == generic(tmp_path / 'b')
