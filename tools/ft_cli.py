@@ -61,6 +61,11 @@ def cmd_thesis(args: argparse.Namespace) -> int:
     return thesis_cmd.main(args)
 
 
+def cmd_discover(args: argparse.Namespace) -> int:
+    import discover_cmd
+    return discover_cmd.main(args)
+
+
 def cmd_bag(args: argparse.Namespace) -> int:
     from bag_tools.cli import main as bag_main
     return bag_main(args.bag_args)
@@ -90,6 +95,12 @@ def build_parser() -> argparse.ArgumentParser:
     import thesis_cmd
     thesis_cmd.add_arguments(th)
     th.set_defaults(func=cmd_thesis)
+
+    di = sub.add_parser("discover", help="find what the simulation gets wrong in measured data: name the "
+                                         "cause, extend the model, measure the gain")
+    import discover_cmd
+    discover_cmd.add_arguments(di)
+    di.set_defaults(func=cmd_discover)
 
     t = sub.add_parser("test", help="run the test suite (pytest); extra arguments go to pytest")
     t.add_argument("pytest_args", nargs=argparse.REMAINDER)

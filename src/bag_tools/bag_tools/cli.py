@@ -155,7 +155,7 @@ def cmd_correct(args) -> int:
     try:
         result = correct(args.src, args.dst, mass_kg=args.mass_kg, window=args.window,
                          loaded_fraction=args.loaded_fraction, to=args.to, progress=prog,
-                         warnings=warnings)
+                         warnings=warnings, extension=args.extension)
     finally:
         prog.close()
         _warn('correct', warnings)
@@ -243,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument('--mass-kg', type=_positive_float('--mass-kg'), default=1.152,
                    help='moving-side mass m2, kg (default 1.152)')
     c.add_argument('--window', type=int, default=140, help='moving average, samples (default 140)')
+    c.add_argument('--extension', metavar='YAML', default=None,
+                   help="extension.yaml of ./ft discover: undo its correction: section before m*a "
+                        "(its mass_kg replaces --mass-kg)")
     c.add_argument('--loaded-fraction', type=float, default=0.1,
                    help='RMS window: stationary > this x its peak (default 0.1)')
     c.add_argument('--to', choices=('bag', 'campaign'), default=None,

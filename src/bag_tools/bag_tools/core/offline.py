@@ -24,6 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from force_correction.core.extension import Extension, ForcePrefilter
 from force_correction.core import (BlockAligner, CorrectionError, CorrectionParams,
                                    SetStatistics, correct_block, initial_state, score_pull)
 from force_tester_common.channels import PULL_EVENT_TYPE
@@ -72,8 +73,9 @@ def _params(mass_kg, window) -> CorrectionParams:
 class _Runs:
     """Concatenated corrected samples of the whole recording, in time order."""
 
-    def __init__(self, params: CorrectionParams) -> None:
+    def __init__(self, params: CorrectionParams, extension: Extension | None = None) -> None:
         self.params = params
+        self.extension = extension
         self.parts: dict = {k: [] for k in ('t', 'stationary', 'raw', 'inertial', 'corrected',
                                             'filtered')}
         self.nan_count = 0
@@ -81,10 +83,13 @@ class _Runs:
 
     def add_run(self, stamps: np.ndarray, force: np.ndarray, accel: np.ndarray,
                 stationary: np.ndarray) -> Any:
+        measured = force
+        if self.extension is not None and len(stamps) > 1:  # as the live node: fresh filters per run
+            force = ForcePrefilter(self.extension, 1e9 / float(stamps[1] - stamps[0])).process(force)
         out, _ = correct_block(force, accel, self.params, initial_state(self.params))
         self.nan_count += out.nan_count
         self.runs += 1
-        for k, v in (('t', stamps), ('stationary', stationary), ('raw', out.raw_n),
+        for k, v in (('t', stamps), ('stationary', stationary), ('raw', measured),
                      ('inertial', out.inertial_n), ('corrected', out.corrected_n),
                      ('filtered', out.filtered_n)):
             self.parts[k].append(v)
@@ -514,15 +519,25 @@ def _campaign_runs(camp: Campaign, runs: _Runs) -> tuple:
 
 def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: int = 140,
             loaded_fraction: float = 0.1, to: str | None = None,
-            progress: Progress | None = None, warnings: list | None = None) -> dict:
+            progress: Progress | None = None, warnings: list | None = None,
+            extension: str | Path | None = None) -> dict:
     """Correct and score a bag or a campaign; write the result to dst (a new bag or campaign).
 
     to: 'bag' or 'campaign' (default: the kind of src; a campaign can only be written as a
     campaign here, use `import` afterwards for a bag). Returns {'params', 'pulls' (per-pull
     scores), 'sets' (per-set SetSummary dicts, thesis Tables 8-9), 'nan_samples', 'runs',
-    'warnings'}.
+    'warnings'}. extension: an extension.yaml of `./ft discover`; its correction: section is undone
+    before m*a exactly as the live correction node does (its mass_kg replaces mass_kg).
     """
     warnings = [] if warnings is None else warnings
+    ext = None
+    if extension is not None:
+        try:
+            ext = Extension.from_yaml(extension)
+        except CorrectionError as exc:
+            raise BagError(str(exc)) from None
+        if ext.mass_kg is not None:
+            mass_kg = ext.mass_kg
     params = _params(mass_kg, window)
     src, dst = Path(src), Path(dst)
     kind = source_kind(src)
@@ -541,10 +556,10 @@ def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: in
         try:
             campaign_to_bag(src, tmp / 'bag', warnings=warnings)
             return correct(tmp / 'bag', dst, mass_kg, window, loaded_fraction, 'bag',
-                           progress, warnings)
+                           progress, warnings, extension)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
-    runs = _Runs(params)
+    runs = _Runs(params, ext)
     if kind == 'bag':
         data = _read_bag(src, runs, warnings, progress)
         arrays = runs.arrays()

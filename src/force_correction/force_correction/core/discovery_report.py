@@ -51,6 +51,27 @@ def force_errors(res, named, rig):
     return base, ext
 
 
+def _where(n, c, res):
+    p = c['parameters']
+    if n == 'mains_hum':
+        return f'a spectral line at {p["frequency_hz"]:.2f} Hz on the moving cell, on the whole record (also with no load)'
+    if n == 'mount_resonance':
+        ev = c['evidence']
+        return (f'accelerometer ringing at {ev["observed_frequency_hz"]:.0f} Hz (zeta {ev["observed_damping_ratio"]:.3f}) '
+                f'after the taut instant and the break; the model of record only has the {ev["cell_mode_hz"]:.0f} Hz cell mode')
+    if n == 'coulomb_friction':
+        return 'motor current offset while the carriage moves (sign of v3)'
+    if n == 'ac_coupling':
+        return 'moving cell undershoots after the load and decays with the time constant (correlates with the running integral of F_move)'
+    if n == 'moving_cell_gain':
+        return 'moving cell off by a fixed fraction of the tension during the quasi-static load (coupon flow)'
+    if n == 'effective_mass':
+        return 'residual proportional to a2 (the ringing at the elastic rise and the break)'
+    if n == 'accel_delay':
+        return 'residual proportional to da2/dt: a2 lags the forces (visible on the ringing at the rise and break)'
+    return ''
+
+
 def _rms(rs):
     return float(math.sqrt(sum(float(r @ r) for r in rs) / sum(len(r) for r in rs)))
 
@@ -61,10 +82,10 @@ def build_report(res, named, left, rig) -> dict:
     for n in named:
         c = cand[n]
         ev = dict(c['evidence'])
-        gain = ev.get('rms_gain_alone', ev.get('rms_gain'))
+        gain = ev.get('rms_gain')
         causes.append({'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
-                       'evidence': ev, 'gain': gain, 'channel': c['channel']})
-    base, ext = force_errors(res, named, rig)
+                       'evidence': ev, 'gain': gain, 'channel': c['channel'], 'where': _where(n, c, res)})
+    base, ext = res['force_errors'] = force_errors(res, named, rig)
     primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
     if primary == 'unexplained':
         causes.append({'name': 'unexplained', 'parameters': {
@@ -73,14 +94,14 @@ def build_report(res, named, left, rig) -> dict:
             'evidence': {'statistic': 'residual variance share above the quiet-record floor',
                          'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE,
                          'rule': left['rule']}, 'gain': 1.0})
-    elif named and left and left['structured']:
+    elif False:   # leftover structure next to named causes is reported under 'leftover' only
         causes.append({'name': 'unexplained', 'parameters': {
             'dominant_frequency_hz': left['dominant_frequency_hz'], 'correlated_channel': left['correlated_channel'],
             'share_of_residual_variance': left['share_of_residual_variance']},
             'evidence': {'statistic': 'residual variance share above the quiet-record floor after the extension',
                          'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE},
             'gain': 1.0})
-    if primary in ('mount_resonance', 'coulomb_friction'):
+    if primary in ('mount_resonance', 'coulomb_friction') and not any(n in FORCE_CHANNEL for n in named):
         ev = cand[primary]['evidence']
         # RMS on the cause's own channel (held-out); no other channel changes
         b = e = None
@@ -111,8 +132,8 @@ def build_report(res, named, left, rig) -> dict:
         'significance_rule': (f'a candidate is named when, on the held-out pulls, removing it from the extended '
                               f'model raises the summed squared residual of its channel by >= '
                               f'{100 * D.MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {D.MIN_T:g}; '
-                              f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; a gain must '
-                              f'not be better explained by T^2 (T^2 recovering > {D.NONLIN_SHARE} of its reduction)'),
+                              f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; force-channel causes are '
+                              f'withheld when a T^2 term removes > {100 * D.NONLIN_SHARE:g} % of the held-out force residual left by them'),
         'candidates': {n: {'parameters': c.get('parameters'), 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
@@ -151,9 +172,9 @@ def extension(report, rig) -> dict:
             'accel_delay_s': float(deps.get('accel_delay', {}).get('delay_s', 0.0)),
             'moving_cell_gain': float(deps.get('moving_cell_gain', {}).get('gain', 1.0))}
     if 'ac_coupling' in deps:
-        corr['ac_time_constant_s'] = deps['ac_coupling']['time_constant_s']
+        corr['ac_coupling_time_constant_s'] = deps['ac_coupling']['time_constant_s']
     if 'mains_hum' in deps:
-        corr['hum_frequency_hz'] = deps['mains_hum']['frequency_hz']
+        corr['mains_hum_hz'] = deps['mains_hum']['frequency_hz']
     return {'departures': deps, 'correction': corr}
 
 
@@ -163,7 +184,8 @@ def write_outputs(report, res, named, rig, out: Path) -> None:
     ext = extension(report, rig)
     head = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig YAML,\n'
             '# reproduces the behaviour with load_rig; the correction section is what the correction node can undo\n'
-            '# (corrected = (F_move / moving_cell_gain) - mass_kg * a2(t + accel_delay_s)).\n')
+            '# (the correction node and `./ft bag correct --extension` divide F_move by moving_cell_gain, undo the AC\n'
+            '# coupling, notch the hum, delay F_move by accel_delay_s to line it up with a2, then subtract mass_kg * a2).\n')
     (out / 'extension.yaml').write_text(head + yaml.safe_dump(_clean(ext), sort_keys=False))
     plots = _plots(res, named, rig, out)
     report['plots'] = plots
@@ -180,7 +202,7 @@ def markdown(r, plots) -> str:
          f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, extended {r["extended_error"]:.4g}, '
          f'gain {r["gain"]:.3g}x' if r['gain'] else f'**Primary cause: `{r["cause"]}`.**', '',
          f'Metric: {r["metric"]}.', '',
-         f'Fitted on {len(r["fitted_pulls"])} pulls (even-numbered), scored on {len(r["held_out_pulls"])} held-out pulls.',
+         f'Fitted on {len(r["fitted_pulls"])} pulls (every other pull: list positions 0, 2, 4, ...), scored on {len(r["held_out_pulls"])} held-out pulls.',
          f'Moving-cell prediction residual (held-out, analysis window): {r["force_channel"]["baseline_rms_n"]:.3g} N '
          f'with the model of record, {r["force_channel"]["extended_rms_n"]:.3g} N with the extension.', '',
          '## What disagreed and the causes named (strongest first)', '']
@@ -190,9 +212,11 @@ def markdown(r, plots) -> str:
         ev = c['evidence']
         L.append(f'- **{c["name"]}**: {_fmt_params(c["parameters"])}; channel: {c.get("channel", "force_moving_n")}; '
                  + (f'held-out SSE reduction {100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f} '
-                    f'({ev["threshold"]}); gain {c["gain"]:.3g}x' if 'rel_sse_reduction' in ev
+                    f'({ev["threshold"]}); gain {c["gain"]:.3g}x (held-out RMS without / with it). '
+                    f'Where: {c.get("where", "")}' if 'rel_sse_reduction' in ev
                     else f'{ev["statistic"]}: {ev["value"]:.2f} (threshold {ev["threshold"]})'))
     L += ['', '## Candidates ruled out', '']
+    n_out = len(L)
     names = {c['name'] for c in r['causes']}
     for n, c in r['candidates'].items():
         if n in names:
@@ -204,6 +228,8 @@ def markdown(r, plots) -> str:
             why += (f'; dominant free-decay mode {ev["observed_frequency_hz"]:.0f} Hz (cell mode '
                     f'{ev["cell_mode_hz"]:.0f} Hz; {ev["frequency_rule"]})')
         L.append(f'- {n}: {why}')
+    if len(L) == n_out:
+        L.append('(none: every candidate passed)')
     for note in r['notes']:
         L.append(f'- note: {note}')
     L += ['', '## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
@@ -227,7 +253,7 @@ def _plots(res, named, rig, out: Path):
         import matplotlib.pyplot as plt
     except ImportError:
         return []
-    base, ext = force_errors(res, named, rig)
+    base, ext = res['force_errors']
     pulls, held = res['pulls'], res['held']
     p = pulls[held[0]]
     t = p.t[p.w0:p.w1]
@@ -241,8 +267,32 @@ def _plots(res, named, rig, out: Path):
         f = np.fft.rfftfreq(2 ** 15, p.dt)
         ax[1].semilogy(f[1:], P[1:], lw=0.6, label=lab)
     ax[1].set_xlabel('frequency, Hz'); ax[1].set_ylabel('residual power'); ax[1].legend()
+    ax[1].set_xlim(0, 10000)
     fig.tight_layout()
     path = out / 'residuals.png'
     fig.savefig(path, dpi=90)
     plt.close(fig)
-    return [str(path)]
+    paths = [str(path)]
+    ring = res.get('ring')
+    if ring and 'mount_resonance' in named:
+        fc = rig.force_chain
+        f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
+        j = next(iter(ring['segments']))
+        seg = ring['segments'][j]
+        dt = pulls[j].dt
+        tt = np.arange(len(seg)) * dt * 1e3
+        fig, ax = plt.subplots(figsize=(8, 3.5))
+        ax.plot(tt, seg, lw=0.6, label='measured a2 - a3 after the break')
+        for lab, modes in (('model of record (cell mode)', [(f_cell, fc.load_cell_damping_ratio)]),
+                           ('extended (mount mode)', [(f_cell, fc.load_cell_damping_ratio), (ring['fo'], ring['zo'])])):
+            X = np.hstack([D.damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
+            c, *_ = np.linalg.lstsq(X, seg, rcond=None)
+            ax.plot(tt, seg - X @ c, lw=0.6, label=f'residual, {lab}')
+        ax.set_xlabel('ms after the break'); ax.set_ylabel('m/s^2'); ax.legend(fontsize=7)
+        ax.set_title(f'held-out pull {pulls[j].name}: free decay')
+        fig.tight_layout()
+        p2 = out / 'ringing.png'
+        fig.savefig(p2, dpi=90)
+        plt.close(fig)
+        paths.append(str(p2))
+    return paths

@@ -9,7 +9,10 @@ force departs from the force the m*a correction assumes, and this module undoes 
   amount (a fractional-delay FIR) and the two line up again: corrected(t) = F(t - d) - m a2_meas(t);
 - ``ac_coupling_time_constant_s``: the channel is first-order high-passed (piezo discharge); the
   exact inverse of that discrete high-pass restores the slow part;
-- ``mains_hum_hz``: a notch (scipy.signal.iirnotch) removes the interference line.
+- ``mains_hum_hz``: the interference line is estimated on the unloaded signal (recursive least
+  squares of a sine and cosine at that frequency, exponentially forgotten over ``hum_memory_s``,
+  updated only while |F| < ``hum_unloaded_n``) and subtracted everywhere; during a pull the
+  estimate is held. (A notch would also remove the pull's own content near that frequency.)
 
 Every stage is an IIR/FIR filter with explicit state like scipy's ``zi``, so a signal cut into any
 blocks gives the one-pass result. A NaN sample enters the filters as the last finite value (so it
@@ -24,7 +27,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 import yaml
-from scipy.signal import iirnotch, lfilter
+from scipy.signal import lfilter
 
 from .errors import CorrectionError
 
@@ -36,7 +39,8 @@ class Extension:
     accel_delay_s: float = 0.0
     ac_coupling_time_constant_s: Optional[float] = None
     mains_hum_hz: Optional[float] = None
-    notch_q: float = 30.0
+    hum_memory_s: float = 0.5
+    hum_unloaded_n: float = 50.0
 
     def __post_init__(self):
         def bad(name, value, expected):
@@ -77,7 +81,8 @@ class Extension:
         return cls.from_dict(doc.get('correction') or {})
 
     def stages(self, sample_rate_hz: float) -> Tuple[Tuple[np.ndarray, np.ndarray], ...]:
-        """(b, a) of each filter stage on the moving-cell force, in order."""
+        """(b, a) of each linear filter stage on the moving-cell force, in order (the hum canceller
+        comes first, separately)."""
         out = []
         if self.moving_cell_gain != 1.0:
             out.append((np.array([1.0 / self.moving_cell_gain]), np.array([1.0])))
@@ -85,9 +90,6 @@ class Extension:
             # forward model y[n] = p (y[n-1] + x[n] - x[n-1]), p = tau / (tau + T): inverse below
             p = self.ac_coupling_time_constant_s / (self.ac_coupling_time_constant_s + 1.0 / sample_rate_hz)
             out.append((np.array([1.0 / p, -1.0]), np.array([1.0, -1.0])))
-        if self.mains_hum_hz is not None:
-            b, a = iirnotch(self.mains_hum_hz, self.notch_q, fs=sample_rate_hz)
-            out.append((b, a))
         if self.accel_delay_s > 0:
             d = self.accel_delay_s * sample_rate_hz
             k, f = int(math.floor(d)), d - math.floor(d)
@@ -103,20 +105,22 @@ class ForcePrefilter:
     def __init__(self, extension: Extension, sample_rate_hz: float):
         self.extension = extension
         self.stages = extension.stages(sample_rate_hz)
+        self.hum = HumCanceller(extension, sample_rate_hz) if extension.mains_hum_hz is not None else None
         self.state = self.initial_state()
 
     def initial_state(self):
-        """(zi of each stage, last finite input)."""
-        return tuple(np.zeros(max(len(a), len(b)) - 1) for b, a in self.stages), 0.0
+        """(zi of each stage, last finite input, hum canceller state)."""
+        zis = tuple(np.zeros(max(len(a), len(b)) - 1) for b, a in self.stages)
+        return zis, 0.0, (self.hum.initial_state() if self.hum else None)
 
     def reset(self):
         self.state = self.initial_state()
 
     def process(self, force: np.ndarray) -> np.ndarray:
         x = np.asarray(force, dtype=float)
-        if not self.stages or not len(x):
+        if (not self.stages and self.hum is None) or not len(x):
             return x
-        zis, last = self.state
+        zis, last, hum_state = self.state
         bad = ~np.isfinite(x)
         if bad.any():  # hold the last finite value through bad samples
             x = x.copy()
@@ -126,14 +130,52 @@ class ForcePrefilter:
             held[bad & (np.cumsum(~bad) == 0)] = last
             x = held
         y, new = x, []
+        if self.hum is not None:
+            y, hum_state = self.hum.process(y, hum_state)
         for (b, a), zi in zip(self.stages, zis):
             if len(zi):
                 y, zf = lfilter(b, a, y, zi=zi)
             else:
                 y, zf = lfilter(b, a, y), zi
             new.append(zf)
-        self.state = (tuple(new), float(x[-1]))
+        self.state = (tuple(new), float(x[-1]), hum_state)
         if bad.any():
             y = y.copy()
             y[bad] = np.nan
         return y
+
+
+class HumCanceller:
+    """Causal estimate of a known-frequency line, learnt on unloaded samples, subtracted from all.
+
+    For each sample n the estimate uses samples before n only: exponentially weighted sums of
+    the sine/cosine products and of the signal times them, over the unloaded samples, give a
+    2x2 least-squares fit. The sums are first-order recursions run by lfilter with explicit
+    state, so any block split gives the one-pass result.
+    """
+
+    def __init__(self, extension: Extension, sample_rate_hz: float):
+        self.w = 2 * math.pi * extension.mains_hum_hz / sample_rate_hz
+        self.lam = math.exp(-1.0 / (extension.hum_memory_s * sample_rate_hz))
+        self.unloaded = extension.hum_unloaded_n
+
+    @staticmethod
+    def initial_state():
+        return 0, np.zeros((5, 1))  # samples seen, recursion states of the 5 sums
+
+    def process(self, x: np.ndarray, state) -> tuple:
+        n0, zi = state
+        n = np.arange(n0, n0 + len(x))
+        c, s = np.cos(self.w * n), np.sin(self.w * n)
+        m = (np.abs(x) < self.unloaded).astype(float)
+        terms = np.stack([m * c * c, m * c * s, m * s * s, m * x * c, m * x * s])
+        sums, zf = lfilter([1.0], [1.0, -self.lam], terms, axis=1, zi=self.lam * zi)
+        # the sums before each sample: shift by one (the first uses the carried state)
+        prev = np.concatenate([zi, sums[:, :-1]], axis=1)
+        cc, cs, ss, xc, xs = prev
+        det = cc * ss - cs * cs
+        ok = det > 1e-6 * np.maximum(cc + ss, 1e-300) ** 2
+        safe = np.where(ok, det, 1.0)
+        a = np.where(ok, (xc * ss - xs * cs) / safe, 0.0)
+        b = np.where(ok, (xs * cc - xc * cs) / safe, 0.0)
+        return x - (a * c + b * s), (n0 + len(x), sums[:, -1:])
