@@ -352,3 +352,22 @@ def test_sample_stamps_ns(rig):
     assert s[-1] - s[0] == 99_999 * 20_000
     with pytest.raises(SimError, match='1.5'):
         sample_stamps_ns(rig, 1.5)
+
+
+@pytest.mark.parametrize('test_set', [3, 5])
+def test_halving_the_step_changes_peak_forces_by_less_than_0p1_percent(test_set):
+    """The chain is propagated on the sample grid: rerun on a grid twice as fine (100 kHz) and compare
+    the peak forces on the common sample times (so sampling of the peak is not mistaken for error)."""
+    from force_tester_sim.core.params import rig_from_dict
+    from force_tester_sim.core.pull import make_pull_specs, simulate_pull
+    coarse_rig = rig_from_dict({})
+    fine_rig = rig_from_dict({'daq': {'sample_rate_hz': 100_000.0}})
+    truth = yaml.safe_load((Path(pull_mod.__file__).parents[1] / 'config' / 'truth_reference.yaml').read_text())
+    for rigs in ((coarse_rig, fine_rig),
+                 (rig_from_dict(truth), rig_from_dict({**truth, 'daq': {**truth['daq'], 'sample_rate_hz': 100_000.0}}))):
+        spec = make_pull_specs(rigs[0], test_set, 1, seed=4)[0]
+        coarse = simulate_pull(rigs[0], spec, noise=False)
+        fine = simulate_pull(rigs[1], spec, noise=False)
+        for key in ('force_moving_n', 'force_stationary_n'):
+            a, b = coarse[key].max(), fine[key][::2].max()
+            assert abs(a - b) < 1e-3 * abs(a), (key, a, b)
