@@ -34,7 +34,7 @@ from .drive import DriveControl, DriveSetup, _validate_drive, apply_overrides, d
 from .errors import SimError
 from .integrate import integrate_chain
 from .params import RigParams
-from .pull import (PullResult, PullSpec, chain_params, motion_for, record_channels,
+from .pull import (PullResult, PullSpec, chain_params, events_and_truth, motion_for, record_channels,
                    sample_times_s)
 
 V_EPS_M_S = 1.0e-3          # dry friction F_c sat(v3 / V_EPS): full F_c above 1 mm/s
@@ -443,25 +443,11 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
     T = chain_tension(p, traj, kin)
     fs = force_stat(X, p)
     a2 = (fm - T) / p.m2
-    a1 = (T - fs) / p.m1
 
     channels = record_channels(rig, spec, t, dr['position_m'], fm, fs, a2, noise,
                                motor=(dr['command_m_s'], dr['current_a'], dr['voltage_v']))
-    taut_idx = np.flatnonzero(T > 0)
-    taut_index = int(taut_idx[0]) if len(taut_idx) else None
-    if traj.break_s is not None:
-        break_index = int(np.searchsorted(t, traj.break_s, side='left'))
-        zero = np.flatnonzero(traj.beta <= 0.0)
-        break_end_index = int(zero[0]) if len(zero) else None
-    else:
-        break_index = break_end_index = None
-    truth = {'x3_m': x3, 'v3_m_s': v3, 'a3_m_s2': a3, 'u2_m': x3 + X[:, 0], 'v2_m_s': v3 + X[:, 1],
-             'u1_m': X[:, 2], 'v1_m_s': X[:, 3], 'a1_m_s2': a1, 'a2_m_s2': a2, 'tension_n': T,
-             'beta': traj.beta, 'force_moving_n': fm, 'force_stationary_n': fs,
-             'v3_no_load_m_s': first['velocity_m_s']}
-    if p.has_mount:
-        truth['ub_m'] = x3 + X[:, 4]
-        truth['vb_m_s'] = v3 + X[:, 5]
+    taut_index, break_index, break_end_index, truth = events_and_truth(t, traj, p, kin, T, fm, fs)
+    truth['v3_no_load_m_s'] = first['velocity_m_s']
     return CoupledPullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,
                              traj.break_s, truth, iterations=len(changes), x3_changes_m=changes, drive=dr,
                              drive_no_load=first)

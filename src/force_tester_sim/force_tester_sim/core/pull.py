@@ -195,6 +195,27 @@ def record_channels(rig: RigParams, spec: PullSpec, t, x3, fm, fs, a2, noise: bo
     }
 
 
+def events_and_truth(t, traj, p, kin, T, fm, fs):
+    """(taut index, break index, break end index, truth dict) of an integrated pull."""
+    x3, v3, a3 = kin
+    X = traj.x
+    taut_idx = np.flatnonzero(T > 0)
+    taut_index = int(taut_idx[0]) if len(taut_idx) else None
+    if traj.break_s is not None:
+        break_index = int(np.searchsorted(t, traj.break_s, side='left'))
+        zero = np.flatnonzero(traj.beta <= 0.0)
+        break_end_index = int(zero[0]) if len(zero) else None
+    else:
+        break_index = break_end_index = None
+    truth = {'x3_m': x3, 'v3_m_s': v3, 'a3_m_s2': a3, 'u2_m': x3 + X[:, 0], 'v2_m_s': v3 + X[:, 1],
+             'u1_m': X[:, 2], 'v1_m_s': X[:, 3], 'a1_m_s2': (T - fs) / p.m1, 'a2_m_s2': (fm - T) / p.m2,
+             'tension_n': T, 'beta': traj.beta, 'force_moving_n': fm, 'force_stationary_n': fs}
+    if p.has_mount:
+        truth['ub_m'] = x3 + X[:, 4]
+        truth['vb_m_s'] = v3 + X[:, 5]
+    return taut_index, break_index, break_end_index, truth
+
+
 def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     p = chain_params(rig, spec)
     motion = motion_for(rig, spec)
@@ -210,7 +231,6 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     fm = force_move(X, p)
     fs = force_stat(X, p)
     a2 = (fm - T) / p.m2
-    a1 = (T - fs) / p.m1
 
     d = rig.drive
     deps = rig.departures
@@ -226,20 +246,7 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
 
     channels = record_channels(rig, spec, t, x3, fm, fs, a2, noise,
                                motor=(v3 * motion.command_scale, current, voltage))
-    taut_idx = np.flatnonzero(T > 0)
-    taut_index = int(taut_idx[0]) if len(taut_idx) else None
-    if traj.break_s is not None:
-        break_index = int(np.searchsorted(t, traj.break_s, side='left'))
-        zero = np.flatnonzero(traj.beta <= 0.0)
-        break_end_index = int(zero[0]) if len(zero) else None
-    else:
-        break_index = break_end_index = None
-    truth = {'x3_m': x3, 'v3_m_s': v3, 'a3_m_s2': a3, 'u2_m': x3 + X[:, 0], 'v2_m_s': v3 + X[:, 1],
-             'u1_m': X[:, 2], 'v1_m_s': X[:, 3], 'a1_m_s2': a1, 'a2_m_s2': a2, 'tension_n': T,
-             'beta': traj.beta, 'force_moving_n': fm, 'force_stationary_n': fs}
-    if p.has_mount:
-        truth['ub_m'] = x3 + X[:, 4]
-        truth['vb_m_s'] = v3 + X[:, 5]
+    taut_index, break_index, break_end_index, truth = events_and_truth(t, traj, p, (x3, v3, a3), T, fm, fs)
     return PullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,
                       traj.break_s, truth)
 
