@@ -73,8 +73,17 @@ def cmd_record(args) -> int:
     if os.path.exists(args.output):
         raise BagError(f'output {args.output!r} exists already; expected a new directory name')
     topics = args.topics or DEFAULT_TOPICS
-    ros_args = ['--ros-args', '-p', f'bag_path:={args.output}', '-p', f'topics:={list(topics)!r}']
-    print(f'recording {", ".join(topics)} to {args.output}; Ctrl-C stops', file=sys.stderr)
+    for flag, val in (('--max-size', args.max_size), ('--max-duration', args.max_duration)):
+        if not 0 <= val <= 1e6:
+            raise BagError(f'{flag} {val!r} out of range; expected 0 (no split) to 1e6')
+    ros_args = ['--ros-args', '-p', f'bag_path:={args.output}', '-p', f'topics:={list(topics)!r}',
+                '-p', f'max_bag_size_mb:={float(args.max_size)!r}',
+                '-p', f'max_bag_duration_s:={float(args.max_duration)!r}']
+    split = [f'{args.max_size:g} MB'] if args.max_size else []
+    split += [f'{args.max_duration:g} s'] if args.max_duration else []
+    split_text = f' (new .mcap file every {" or ".join(split)})' if split else ''
+    print(f'recording {", ".join(topics)} to {args.output}{split_text}; Ctrl-C stops',
+          file=sys.stderr)
     return spin_nodes(RecorderNode, args=['recorder', *ros_args])
 
 
@@ -170,7 +179,7 @@ def cmd_plot(args) -> int:
     pull, rate = load_pull(args.src, args.pull, warnings)
     _warn('plot', warnings)
     out = args.out or f'pull_{args.pull}.png'
-    plot_pull(pull, rate, out, si=args.si, mass_kg=args.mass_kg, window=args.window)
+    plot_pull(pull, rate, out, si=args.si, mass_kg=args.mass_kg, window=args.window, full=args.full)
     print(f'wrote {out}')
     return 0
 
@@ -202,6 +211,12 @@ def build_parser() -> argparse.ArgumentParser:
     pl.set_defaults(func=cmd_play)
     r = sub.add_parser('record', help='record topics to a new MCAP bag until Ctrl-C')
     r.add_argument('-o', '--output', required=True, help='bag directory to create')
+    r.add_argument('--max-size', type=float, default=0.0, metavar='MB',
+                   help='split: start a new .mcap file in the bag once the current one holds '
+                   'MB megabytes (1e6 bytes); 0 = no split (default)')
+    r.add_argument('--max-duration', type=float, default=0.0, metavar='S',
+                   help='split: start a new .mcap file once the current one spans S seconds; '
+                   '0 = no split (default)')
     r.add_argument('topics', nargs='*', help='topics (default: every force tester topic)')
     r.set_defaults(func=cmd_record)
 
@@ -262,6 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument('--si', action='store_true', help='SI units (N, m/s^2, m, m/s)')
     pt.add_argument('--mass-kg', type=_positive_float('--mass-kg'), default=1.152)
     pt.add_argument('--window', type=int, default=140)
+    pt.add_argument('--full', action='store_true', help='show the whole record, not just the pull')
     pt.set_defaults(func=cmd_plot)
     return p
 

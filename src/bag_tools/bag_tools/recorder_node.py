@@ -17,7 +17,7 @@ from rclpy.node import Node
 
 from .core.errors import BagError
 from .core.typestore import default_typestore
-from .core.writer import BagWriter
+from .core.split_writer import open_bag_writer
 
 DEFAULT_TOPICS = ['/motor', '/encoder', '/accel', '/force', '/pull_event', '/force_corrected',
                   '/pull_score', '/set_summary']
@@ -25,6 +25,12 @@ DEFAULT_TOPICS = ['/motor', '/encoder', '/accel', '/force', '/pull_event', '/for
 SPECS = [
     ParamSpec('bag_path', 'bag', 'directory of the bag to write (must not exist yet)', read_only=True),
     ParamSpec('topics', DEFAULT_TOPICS, 'topics to record', read_only=True),
+    ParamSpec('max_bag_size_mb', 0.0, 'start a new .mcap file in the bag once the current one '
+              'holds this many MB (1e6 bytes); 0 = no size split', range=(0.0, 1.0e6),
+              read_only=True),
+    ParamSpec('max_bag_duration_s', 0.0, 'start a new .mcap file in the bag once the current '
+              'one spans this many seconds; 0 = no duration split', range=(0.0, 1.0e6),
+              read_only=True),
 ]
 
 
@@ -41,7 +47,20 @@ def check(values: dict) -> dict:
         raise BagError(f"bag_path {values['bag_path']!r} exists already; expected a new directory name")
     if not values['topics']:
         raise BagError('topics [] is empty; expected one or more topic names')
+    for name in ('max_bag_size_mb', 'max_bag_duration_s'):
+        if not 0 <= values[name] <= 1.0e6:
+            raise BagError(f'{name} {values[name]!r} out of range; expected 0 (no split) '
+                           'to 1e6')
+    if 0 < values['max_bag_size_mb'] * 1e6 < 1:
+        raise BagError(f"max_bag_size_mb {values['max_bag_size_mb']!r} is below 1 byte; "
+                       'expected 0 (no split) or a positive size')
     return values
+
+
+def split_limits(values: dict) -> dict:
+    """max_bag_size_mb / max_bag_duration_s -> open_bag_writer's max_bytes / max_duration_ns."""
+    return {'max_bytes': int(round(values['max_bag_size_mb'] * 1e6)),
+            'max_duration_ns': int(round(values['max_bag_duration_s'] * 1e9))}
 
 
 class RecorderNode(Node):
@@ -50,13 +69,21 @@ class RecorderNode(Node):
         self.diag = Diagnostics(self, 'bag recorder')
         self.params = NodeParams(self, SPECS, check)
         self.lock = threading.Lock()
-        self.writer = BagWriter(self.params.values['bag_path'], default_typestore()).open()
+        self.writer = open_bag_writer(self.params.values['bag_path'], default_typestore(),
+                                      **split_limits(self.params.values)).open()
         self.wanted = list(self.params.values['topics'])
         self.subscribed = {}
         self.count = 0
         self._discover()
         self.create_timer(0.1, self._discover)
-        self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}")
+        limits = split_limits(self.params.values)
+        split = ''
+        if limits['max_bytes'] or limits['max_duration_ns']:
+            parts = [f"{self.params.values['max_bag_size_mb']:g} MB"] if limits['max_bytes'] else []
+            if limits['max_duration_ns']:
+                parts.append(f"{self.params.values['max_bag_duration_s']:g} s")
+            split = f" (new file every {' or '.join(parts)})"
+        self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")
 
     def _discover(self):
         graph = dict(self.get_topic_names_and_types())
@@ -77,7 +104,11 @@ class RecorderNode(Node):
     def _write(self, topic: str, data: bytes):
         with self.lock:
             if self.writer is not None:
-                self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+                try:
+                    self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+                except BagError as exc:
+                    self.diag.report(ERROR, f'cannot record a {topic} message: {exc}')
+                    return
                 self.count += 1
 
     def close(self):

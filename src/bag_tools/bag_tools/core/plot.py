@@ -45,9 +45,12 @@ def load_pull(src: str | Path, pull: int, warnings: list | None = None) -> tuple
 
 
 def plot_pull(pull: DaqPull, rate_hz: float, out: str | Path, si: bool = False,
-              mass_kg: float = 1.152, window: int = 140, title: str | None = None) -> Path:
+              mass_kg: float = 1.152, window: int = 140, title: str | None = None,
+              full: bool = False) -> Path:
     """Write the figure of one pull to `out` (PNG). Corrected force: the campaign's
-    corrected/filtered columns when present, else computed with the correction core."""
+    corrected/filtered columns when present, else computed with the correction core. The time
+    axis shows the pull (stationary cell above 5 % of its peak, from 20 ms before to 60 ms after)
+    unless `full`."""
     plt = _pyplot()
     ch = pull.channels
     t = ch['time_s'] * 1e3
@@ -88,6 +91,9 @@ def plot_pull(pull: DaqPull, rate_hz: float, out: str | Path, si: bool = False,
     ax2.plot(t, vel * x_k, label='velocity (gradient)', color='C1', lw=0.8)
     ax2.set_ylabel(f'velocity, {v_unit}')
     ax.set_xlabel('time, ms')
+    loaded = np.flatnonzero(np.nan_to_num(ch['force_stationary_n']) > 0.05 * np.nanmax(ch['force_stationary_n']))
+    if not full and len(loaded):
+        axes[0].set_xlim(t[loaded[0]] - 20.0, t[loaded[-1]] + 60.0)
     m = pull.meta
     fig.suptitle(title or f"pull {m.get('pull_id') or ''} set {m['set']}: coupon "
                  f"{m['coupon_lbf']:g} lbf, {m['velocity_fps']:g} ft/s, {m['decel_g']:g} g")
