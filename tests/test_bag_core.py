@@ -17,7 +17,7 @@ from bag_tools.core import (  # noqa: E402
     BagError, BagWriter, bag_info, find_msg_dirs, format_info, make_typestore, open_bag,
     schedule)
 
-MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
+from bag_msgs import MSG_DIR, bag_typestore, force, header  # noqa: E402
 T0 = 1_700_000_000_000_000_000
 FORCE = 'force_tester_msgs/msg/ForceBlock'
 ACCEL = 'force_tester_msgs/msg/AccelBlock'
@@ -26,21 +26,9 @@ PULL = 'force_tester_msgs/msg/PullEvent'
 
 @pytest.fixture(scope='module')
 def store():
-    return make_typestore([MSG_DIR])
+    return bag_typestore()
 
 
-def header(store, ns):
-    T = store.types
-    return T['std_msgs/msg/Header'](
-        stamp=T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9),
-        frame_id='tester')
-
-
-def force(store, ns, seq, n=5):
-    msg = store.types[FORCE](header=header(store, ns), sample_rate_hz=1000.0, seq=seq,
-                             moving_n=np.arange(n, dtype=np.float64) + seq,
-                             stationary_n=np.full(n, 2.5))
-    return store.serialize_cdr(msg, FORCE)
 
 
 def accel(store, ns, seq, n=5):

@@ -12,11 +12,12 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / 'src' / 'bag_tools'))
 
-from bag_tools.core import BagError, BagWriter, bag_info, make_typestore, open_bag  # noqa: E402
+from bag_tools.core import BagError, BagWriter, bag_info, open_bag  # noqa: E402
 from bag_tools.core.split_writer import (  # noqa: E402
     MESSAGE_OVERHEAD_BYTES, SplitBagWriter, open_bag_writer)
 
-MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
+import bag_msgs  # noqa: E402
+from bag_msgs import bag_typestore, header  # noqa: E402
 T0 = 1_700_000_000_000_000_000
 FORCE = 'force_tester_msgs/msg/ForceBlock'
 PULL = 'force_tester_msgs/msg/PullEvent'
@@ -25,21 +26,11 @@ MS = 1_000_000
 
 @pytest.fixture(scope='module')
 def store():
-    return make_typestore([MSG_DIR])
-
-
-def header(store, ns):
-    T = store.types
-    return T['std_msgs/msg/Header'](
-        stamp=T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9),
-        frame_id='tester')
+    return bag_typestore()
 
 
 def force(store, ns, seq, n=50):
-    msg = store.types[FORCE](header=header(store, ns), sample_rate_hz=1000.0, seq=seq,
-                             moving_n=np.arange(n, dtype=np.float64) + seq,
-                             stationary_n=np.full(n, 2.5))
-    return store.serialize_cdr(msg, FORCE)
+    return bag_msgs.force(store, ns, seq, n)
 
 
 def pull(store, ns, event, pull_id):

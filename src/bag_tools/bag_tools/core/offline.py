@@ -70,6 +70,18 @@ def _params(mass_kg, window) -> CorrectionParams:
         raise BagError(str(exc)) from None
 
 
+def _pull_event(msg, starts: dict, windows: list, warnings: list) -> None:
+    """A PullEvent: a START opens a pull; its END closes it into (start, end, set, pull_id)."""
+    if int(msg.event) == 0:
+        starts[int(msg.pull_id)] = (stamp_of(msg), int(msg.test_set))
+        return
+    st = starts.pop(int(msg.pull_id), None)
+    if st is None:
+        warnings.append(f'END of pull {msg.pull_id} without its START; not scored')
+    else:
+        windows.append((st[0], stamp_of(msg), st[1], int(msg.pull_id)))
+
+
 class _Runs:
     """Concatenated corrected samples of the whole recording, in time order."""
 
@@ -218,16 +230,7 @@ def _read_bag_fast(src: Path, runs: _Runs, warnings: list) -> dict:
         starts: dict = {}
         windows: list = []
         for i in np.flatnonzero(raw.channel >= 2).tolist():
-            msg = bag.deserialize(raw.data(i), PULL_EVENT_TYPE)
-            if int(msg.event) == 0:
-                starts[int(msg.pull_id)] = (stamp_of(msg), int(msg.test_set))
-            else:
-                st = starts.pop(int(msg.pull_id), None)
-                if st is None:
-                    warnings.append(f'END of pull {msg.pull_id} without its START; '
-                                    'not scored')
-                else:
-                    windows.append((st[0], stamp_of(msg), st[1], int(msg.pull_id)))
+            _pull_event(bag.deserialize(raw.data(i), PULL_EVENT_TYPE), starts, windows, warnings)
         stamps = fb.stamp_ns
         cont = np.zeros(m, dtype=bool)
         if m > 1:
@@ -293,15 +296,7 @@ def _read_bag(src: Path, runs: _Runs, warnings: list, progress: Progress | None)
         for k, (topic, type_name, _log, cdr) in enumerate(bag.messages(wanted)):
             msg = bag.deserialize(cdr, type_name)
             if type_name == PULL_EVENT_TYPE:
-                if int(msg.event) == 0:
-                    starts[int(msg.pull_id)] = (stamp_of(msg), int(msg.test_set))
-                else:
-                    st = starts.pop(int(msg.pull_id), None)
-                    if st is None:
-                        warnings.append(f'END of pull {msg.pull_id} without its START; '
-                                        'not scored')
-                    else:
-                        windows.append((st[0], stamp_of(msg), st[1], int(msg.pull_id)))
+                _pull_event(msg, starts, windows, warnings)
                 continue
             channel = 'force' if topic == force_topic else 'accel'
             n = len(msg.moving_n) if channel == 'force' else len(msg.axial_m_s2)

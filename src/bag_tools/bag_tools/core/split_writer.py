@@ -29,7 +29,7 @@ from rosbags.typesys.store import Typestore
 from ruamel.yaml import YAML
 
 from .errors import BagError, one_line
-from .writer import METADATA_VERSION, STORAGE_ID, BagWriter
+from .writer import METADATA_VERSION, STORAGE_ID, BagWriter, check_new_bag_path
 
 #: Approximate MCAP bytes per message besides its payload (message record + chunk index).
 MESSAGE_OVERHEAD_BYTES = 31 + 16
@@ -56,12 +56,7 @@ class SplitBagWriter:
                                '(0 = no limit)')
         self.max_bytes = max_bytes
         self.max_duration_ns = max_duration_ns
-        if self.path.exists():
-            raise BagError(f'bag output path {str(self.path)!r} exists already; '
-                           'expected a new directory name')
-        if not self.path.parent.is_dir():
-            raise BagError(f'parent directory {str(self.path.parent)!r} of bag output '
-                           'does not exist')
+        check_new_bag_path(self.path)
         self._tmp: Path | None = None
         self._split: BagWriter | None = None
         self._split_start: int | None = None

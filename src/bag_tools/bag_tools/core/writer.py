@@ -22,6 +22,14 @@ _MAX_STAMP = 2**63 - 1
 _CDR_HEADERS = (b'\x00\x00', b'\x00\x01')
 
 
+def check_new_bag_path(path: Path) -> None:
+    """A bag is written into a new directory whose parent exists."""
+    if path.exists():
+        raise BagError(f'bag output path {str(path)!r} exists already; expected a new directory name')
+    if not path.parent.is_dir():
+        raise BagError(f'parent directory {str(path.parent)!r} of bag output does not exist')
+
+
 class BagWriter:
     """Write a rosbag2 bag (directory + metadata.yaml + one .mcap).
 
@@ -33,12 +41,7 @@ class BagWriter:
     def __init__(self, path: str | Path, typestore: Typestore) -> None:
         self.path = Path(path)
         self.typestore = typestore
-        if self.path.exists():
-            raise BagError(f'bag output path {str(self.path)!r} exists already; '
-                           'expected a new directory name')
-        if not self.path.parent.is_dir():
-            raise BagError(f'parent directory {str(self.path.parent)!r} of bag output '
-                           'does not exist')
+        check_new_bag_path(self.path)
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
         self._closed = False
@@ -48,9 +51,7 @@ class BagWriter:
     def open(self) -> BagWriter:
         if self._writer is not None or self._closed:
             raise BagError(f'bag writer for {str(self.path)!r} was already opened')
-        if self.path.exists():
-            raise BagError(f'bag output path {str(self.path)!r} exists already; '
-                           'expected a new directory name')
+        check_new_bag_path(self.path)  # again: it may have appeared since __init__
         try:
             writer = Writer(self.path, version=METADATA_VERSION,
                             storage_plugin=StoragePlugin.MCAP)
