@@ -1,7 +1,7 @@
 """The numpy fast path (bag_tools.core.fastcdr) against the generic rosbags path.
 
 decode_blocks / encode_blocks vs typestore deserialize_cdr / serialize_cdr (bit exact),
-read_topics_raw vs open_bag().messages(), BagWriter.write_batch vs write() per message, and
+read_topics_raw vs open_bag().messages(), ExtendedBag vs rosbags and the mcap library, and
 offline.correct with the fast path vs with it disabled.
 """
 
@@ -24,8 +24,10 @@ from bag_tools.core import BagWriter, make_typestore, open_bag  # noqa: E402
 from bag_tools.core import offline  # noqa: E402
 from bag_tools.core.convert import campaign_to_bag  # noqa: E402
 from bag_tools.core.daq import write_campaign  # noqa: E402
-from bag_tools.core.fastcdr import (FastPathError, decode_blocks, encode_blocks,  # noqa: E402
-                                    read_topics_raw)
+from bag_tools.core.fastcdr import FastPathError, decode_blocks, encode_blocks  # noqa: E402
+from bag_tools.core.errors import BagError  # noqa: E402
+from bag_tools.core.mcapfile import (RECORD_HEADER, ExtendedBag, McapBag,  # noqa: E402
+                                     read_topics_raw)
 from bag_tools.core.offline import correct  # noqa: E402
 
 MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
@@ -374,27 +376,15 @@ def test_read_topics_raw_small_bag_and_decode(store, tmp_path):
     check_decoded(store, blocks, ref, fields_of(store, FORCE), rng=rng)
 
 
-# --------------------------------------------------------------------------- 4. write_batch
-def _batch_args(msgs, topics, rng):
-    """Spread the messages over three sources of different kinds, with junk between."""
-    kinds = [bytes, bytearray, lambda b: np.frombuffer(b, np.uint8)]
-    parts = [[], [], []]
-    pos = [0, 0, 0]
-    ti, st, ln, si = [], [], [], []
-    for topic, _ty, _log, cdr in msgs:
-        k = int(rng.integers(0, 3))
-        junk = bytes(rng.integers(0, 256, int(rng.integers(0, 7)), dtype=np.uint8))
-        parts[k].append(junk)
-        pos[k] += len(junk)
-        st.append(pos[k])
-        parts[k].append(cdr)
-        pos[k] += len(cdr)
-        ln.append(len(cdr))
-        si.append(k)
-        ti.append(topics.index(topic))
-    sources = [kinds[k](b''.join(parts[k]) + b'\x00\x00') for k in range(3)]
-    return (np.array(ti, np.int64), np.array([m[2] for m in msgs], np.int64), sources,
-            np.array(si, np.int64), np.array(st, np.int64), np.array(ln, np.int64))
+# --------------------------------------------------------------------------- 4. ExtendedBag
+def _records(msgs):
+    """A buffer holding msgs [(cid, log, cdr)] each after a 31-byte gap, back to back."""
+    lens = np.array([len(c) for _i, _l, c in msgs], dtype=np.int64)
+    buf = np.frombuffer(bytearray(b''.join(bytes(RECORD_HEADER) + bytes(c)
+                                           for _i, _l, c in msgs)), np.uint8)
+    starts = np.cumsum(lens + RECORD_HEADER) - lens - RECORD_HEADER
+    return (buf, starts, lens, np.array([i for i, _l, _c in msgs]),
+            np.array([lg for _i, lg, _c in msgs], dtype=np.int64))
 
 
 def _meta_counts(path):
@@ -402,83 +392,100 @@ def _meta_counts(path):
         return b.topics(), b.start_ns, b.end_ns, b.message_count
 
 
-@pytest.mark.parametrize('split', ['all', 'mixed'])
-def test_write_batch_equals_write(store, tmp_path, split):
-    rng = np.random.default_rng(6)
+def _mcap_lib_messages(path):
+    """(topic, log, data) in log-time order by Foxglove's reader (an independent MCAP
+    implementation), and its summary."""
+    from mcap.reader import make_reader
+    with open(path, 'rb') as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        msgs = [(ch.topic, m.log_time, bytes(m.data))
+                for _s, ch, m in reader.iter_messages(log_time_order=True)]
+    return msgs, summary
+
+
+def test_extended_bag_is_input_plus_new_topics(store, tmp_path):
+    """ExtendedBag(src) + new messages (some out of log order, spanning many chunks) reads
+    back, with rosbags and with the mcap library, as the input's messages merged in log order
+    with the new ones; metadata.yaml and the MCAP statistics agree."""
+    rng = np.random.default_rng(11)
     msgs = mixed_messages(store, rng)
-    typ = {t: ty for t, ty, _, _ in msgs}
-    topics = sorted(typ)
-    ref = write_plain(tmp_path / 'ref', store, msgs, [(t, typ[t], 0, 0) for t in topics])
-    out = tmp_path / 'batch'
-    with BagWriter(out, store) as w:
-        for t in topics:
-            w.add_topic(t, typ[t])
-        if split == 'all':
-            w.write_batch(topics, *_batch_args(msgs, topics, rng))
-        else:  # write(), batch, write(), batch spanning chunk boundaries, empty batch, write()
-            cuts = [0, 13, 250, 260, 260, 590, len(msgs)]
-            for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
-                if k % 2 == 0:
-                    for topic, _ty, log, cdr in msgs[a:b]:
-                        w.write(topic, log, cdr)
-                else:
-                    w.write_batch(topics, *_batch_args(msgs[a:b], topics, rng))
-        assert w.message_count == len(msgs)
-    assert generic(out) == generic(ref)
-    for t in topics:
-        assert generic(out, [t]) == generic(ref, [t])
-    assert _meta_counts(out) == _meta_counts(ref)
-    # the fast-path reader agrees on the batch-written file too
-    raw, _ = read_topics_raw(single_mcap(out), topics)
-    assert [(topics[int(raw.channel[i])], int(raw.log_ns[i]), raw.data(i))
-            for i in range(raw.log_ns.size)] == [(t, s, c) for t, _y, s, c in generic(ref)]
+    src = write_plain(tmp_path / 'src', store, msgs)
+    src_bytes = single_mcap(src).read_bytes()
+    new = []
+    for k in range(400):
+        lg = T0 + int(rng.integers(-10_000_000, 600 * 5_000_000))
+        n = 20_000 if k % 50 == 3 else int(rng.integers(0, 40))
+        new.append(('/corr' if k % 3 else '/score', FORCE if k % 3 else ACCEL, lg,
+                    block_bytes(store, rng, FORCE if k % 3 else ACCEL, lg, k, n)))
+    target = ExtendedBag(McapBag(src), tmp_path / 'out')
+    with target as out:
+        cids = {t: out.add_topic(t, ty, store.generate_msgdef(ty, ros_version=2)[0],
+                                 store.hash_rihs01(ty)) for t, ty in (('/corr', FORCE),
+                                                                      ('/score', ACCEL))}
+        half = len(new) // 2
+        for part in (sorted(new[:half], key=lambda m: m[2]), new[half:]):  # 2nd: unsorted
+            out.write_records(*_records([(cids[t], lg, c) for t, _ty, lg, c in part]))
+    mcap_out = single_mcap(tmp_path / 'out')
+    assert mcap_out.read_bytes()[:target.copy_end] == src_bytes[:target.copy_end]
+    got = generic(tmp_path / 'out')
+    want = generic(src) + [(t, ty, lg, c) for t, ty, lg, c in new]
+    assert sorted(got, key=lambda m: (m[0], m[2], m[3])) == \
+        sorted(want, key=lambda m: (m[0], m[2], m[3]))
+    assert [m[2] for m in got] == sorted(m[2] for m in got)  # merged in log order
+    lib, summary = _mcap_lib_messages(mcap_out)
+    assert [(t, lg, c) for t, _ty, lg, c in got] == lib or \
+        sorted(lib) == sorted((t, lg, c) for t, _ty, lg, c in got)
+    assert [m[1] for m in lib] == sorted(m[1] for m in lib)
+    assert summary.statistics.message_count == len(want)
+    assert len(summary.chunk_indexes) > len(McapBag(src).summary.chunks) + 2
+    topics, start, end, count = _meta_counts(tmp_path / 'out')
+    assert count == len(want) and start == min(m[2] for m in want) \
+        and end == max(m[2] for m in want)
+    for t in ('/corr', '/score', '/force', '/motor'):
+        assert topics[t].count == sum(m[0] == t for m in want)
+    again = McapBag(tmp_path / 'out')  # the output suits the fast paths itself
+    assert again.hashes['/corr'] == store.hash_rihs01(FORCE)
 
 
-def _same_bytes_case(store, tmp_path, msgs, rng):
-    typ = {t: ty for t, ty, _, _ in msgs}
-    topics = sorted(typ)
-    # same bag directory name: metadata holds the file name
-    (tmp_path / 'r').mkdir()
-    (tmp_path / 'b').mkdir()
-    ref = write_plain(tmp_path / 'r' / 'bag', store, msgs, [(t, typ[t], 0, 0) for t in topics])
-    with BagWriter(tmp_path / 'b' / 'bag', store) as w:
-        for t in topics:
-            w.add_topic(t, typ[t])
-        w.write_batch(topics, *_batch_args(msgs, topics, rng))
-    return single_mcap(ref).read_bytes(), single_mcap(tmp_path / 'b' / 'bag').read_bytes()
+def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
+    rng = np.random.default_rng(12)
+    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
+    with pytest.raises(RuntimeError):
+        with ExtendedBag(McapBag(src), tmp_path / 'out') as out:
+            out.add_topic('/x', FORCE, store.generate_msgdef(FORCE, ros_version=2)[0], 'h')
+            raise RuntimeError('stop')
+    assert not (tmp_path / 'out').exists()
+    with pytest.raises(BagError, match='back to back'):
+        with ExtendedBag(McapBag(src), tmp_path / 'out') as out:
+            cid = out.add_topic('/x', FORCE, store.generate_msgdef(FORCE, ros_version=2)[0],
+                                'h')
+            buf, st, ln, ci, lg = _records([(cid, T0, b'\0\1\0\0'), (cid, T0, b'\0\1\0\0')])
+            out.write_records(buf, st + np.array([0, 1]), ln, ci, lg)
+    assert not (tmp_path / 'out').exists()
+    with pytest.raises(BagError, match='exists already'):
+        ExtendedBag(McapBag(src), src)
 
 
-def test_write_batch_same_file_bytes_channels_in_id_order(store, tmp_path):
-    """Every chunk sees its channels first in channel-id order: bytes must be identical."""
-    rng = np.random.default_rng(9)
-    msgs = mixed_messages(store, rng)
-    order = {'/accel': 0, '/enc': 1, '/force': 2, '/motor': 3}  # = add_topic order (sorted)
-    msgs = sorted(msgs, key=lambda m: order[m[0]])  # log times still out of order
-    a, b = _same_bytes_case(store, tmp_path, msgs, rng)
-    assert len(a) == len(b) and a == b
-
-
-def test_write_batch_fallback_is_same(store, tmp_path):
-    """A non-CDR-looking source makes write_batch fall back to write() per message."""
-    rng = np.random.default_rng(8)
-    msgs = mixed_messages(store, rng, big=False)[:80]
-    typ = {t: ty for t, ty, _, _ in msgs}
-    topics = sorted(typ)
-    ref = write_plain(tmp_path / 'ref', store, msgs, [(t, typ[t], 0, 0) for t in topics])
-
-    class Spy(BagWriter):
-        calls = 0
-
-        def write(self, topic, stamp_ns, cdr_bytes):
-            Spy.calls += 1
-            super().write(topic, stamp_ns, cdr_bytes)
-
-    with Spy(tmp_path / 'spy', store) as w:
-        for t in topics:
-            w.add_topic(t, typ[t])
-        w.write_batch(topics, *_batch_args(msgs, topics, rng))
-    assert Spy.calls == len(msgs)
-    assert generic(tmp_path / 'spy') == generic(ref)
+@pytest.mark.parametrize('damage', ['no_metadata', 'version_8', 'two_files', 'no_summary'])
+def test_mcap_bag_refuses_what_it_cannot_copy(store, tmp_path, damage):
+    rng = np.random.default_rng(13)
+    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
+    meta = src / 'metadata.yaml'
+    if damage == 'no_metadata':
+        meta.unlink()
+    elif damage in ('version_8', 'two_files'):
+        text = meta.read_text()
+        text = text.replace('version: 9', 'version: 8') if damage == 'version_8' else \
+            text.replace('relative_file_paths:\n', 'relative_file_paths:\n  - other.mcap\n')
+        meta.write_text(text)
+    else:  # footer without a summary offset, as an unindexed recording
+        mcap = single_mcap(src)
+        data = bytearray(mcap.read_bytes())
+        data[-37 + 9:-37 + 17] = bytes(8)
+        mcap.write_bytes(bytes(data))
+    with pytest.raises(FastPathError):
+        McapBag(src)
 
 
 # --------------------------------------------------------------------------- 5. offline correct
@@ -622,7 +629,7 @@ def _run(src, dst, mode, monkeypatch):
         else:
             mp.setattr(offline, '_read_bag_fast', spy)
         if mode == 'no_write_fast':
-            mp.setattr(offline, '_write_bag_fast', refuse)
+            mp.setattr(offline, '_extension_target', lambda *a: None)
         warnings = []
         res = correct(src, dst, warnings=warnings)
     return res, calls['read_fast_ok']
@@ -681,7 +688,7 @@ def test_correct_fast_equals_generic(base_bag, tmp_path, monkeypatch, case):
 
 @pytest.mark.parametrize('case', ['clean', 'gap_without_seq_gap'])
 def test_correct_write_fast_equals_encode_path(base_bag, tmp_path, monkeypatch, case):
-    """_write_bag_fast vs _write_bag with the encode_blocks batch (both after the fast read):
+    """The extended copy (ExtendedBag) vs the generic writer (both after the fast read):
     identical output messages and log times."""
     edit, _ = CASES[case]
     src = base_bag if edit is None else rewrite(base_bag, tmp_path / 'src', edit)

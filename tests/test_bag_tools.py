@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -534,6 +535,14 @@ def test_interrupted_outputs_leave_nothing(tmp_path, camp, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         bag_to_campaign(bag, tmp_path / 'c')
     monkeypatch.setattr(daq, 'write_csv', real_csv)
+    # the usual bag is copied with the results appended (ExtendedBag)
+    monkeypatch.setattr(os, 'pwrite', lambda *a: (_ for _ in ()).throw(
+        OSError(28, 'No space left on device (simulated)')))
+    with pytest.raises(BagError, match='No space left'):
+        correct(bag, tmp_path / 'k')
+    monkeypatch.undo()
+    # a bag that has result topics already is rewritten message by message (BagWriter)
+    done = correct(bag, tmp_path / 'done') and tmp_path / 'done'
     real_write, n = writer.BagWriter.write, []
 
     def write_then_fail(self, *a, **kw):
@@ -543,10 +552,11 @@ def test_interrupted_outputs_leave_nothing(tmp_path, camp, monkeypatch):
         return real_write(self, *a, **kw)
     monkeypatch.setattr(writer.BagWriter, 'write', write_then_fail)
     with pytest.raises(BagError, match='disk full'):
-        correct(bag, tmp_path / 'k')
+        correct(done, tmp_path / 'k')
     n.clear()
     with pytest.raises(BagError, match='disk full'):
         campaign_to_bag(camp, tmp_path / 'b2')
+    shutil.rmtree(done)
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bag', 'camp']
 
 

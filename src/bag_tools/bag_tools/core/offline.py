@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
+from contextlib import nullcontext
 from dataclasses import asdict, replace
 from heapq import merge
 from pathlib import Path
@@ -29,14 +30,14 @@ from force_correction.core import (BlockAligner, CorrectionError, CorrectionPara
                                    SetStatistics, correct_block, initial_state, score_pull)
 from force_tester_common.channels import PULL_EVENT_TYPE
 
-from .convert import (CORRECTED_NAME, CORRECTED_TOPIC, block_cdr, header, place_pulls,
-                      stamp_of)
+from .convert import CORRECTED_NAME, CORRECTED_TOPIC, header, place_pulls, stamp_of
 from .daq import (CAMPAIGN_FILE, NS_PER_S, Campaign, DaqPull, end_stamp_ns, read_campaign,
                   sample_stamps_ns, write_campaign)
 from .errors import BagError
-from .fastcdr import FastPathError, decode_blocks, encode_blocks, read_topics_raw
+from .fastcdr import FastPathError, decode_blocks, encode_blocks
+from .mcapfile import RECORD_HEADER, ExtendedBag, McapBag, read_topics_raw
 from .reader import open_bag
-from .typestore import default_typestore
+from .typestore import default_typestore, shared_typestore
 from .writer import BagWriter
 
 FORCE_TYPE = 'force_tester_msgs/msg/ForceBlock'
@@ -108,7 +109,8 @@ class _Runs:
         return out
 
     def arrays(self) -> dict:
-        return {k: (np.concatenate(v) if v else np.empty(0)) for k, v in self.parts.items()}
+        return {k: (v[0] if len(v) == 1 else np.concatenate(v) if v else np.empty(0))
+                for k, v in self.parts.items()}
 
 
 def _score(arrays: dict, windows: list, events: list, loaded_fraction: float,
@@ -143,6 +145,17 @@ def _summaries(stats: SetStatistics) -> list:
     return [asdict(stats.summary(s)) for s in sorted(stats.sets())]
 
 
+def _running_summaries(pulls: list, stats: SetStatistics) -> list:
+    """The per-set summary after each pull (what /set_summary carries live)."""
+    running, out, seen = SetStatistics(), [], {}
+    for p in pulls:
+        k = seen.get(p['set'], 0)
+        seen[p['set']] = k + 1
+        running.add(p['set'], stats.scores(p['set'])[k])
+        out.append(asdict(running.summary(p['set'])))
+    return out
+
+
 # --------------------------------------------------------------------------- bag
 FORCE_FIELDS = ('moving_n', 'stationary_n')
 ACCEL_FIELDS = ('axial_m_s2', 'lateral_m_s2', 'vertical_m_s2')
@@ -150,17 +163,22 @@ CORRECTED_FIELDS = ('raw_n', 'inertial_n', 'corrected_n', 'filtered_n')
 _MAX_PENDING = 50  # BlockAligner's default, as correction_node uses
 
 
-def _block_fields(store, type_name: str) -> tuple:
-    cls = store.types[type_name]
-    names = tuple(f for f in cls.__dataclass_fields__ if not f.startswith('_'))
-    if names[:3] != ('header', 'sample_rate_hz', 'seq'):
-        raise FastPathError(f'{type_name} is not a block type')
-    return names[3:]
+def _fast_bag(src: Path) -> McapBag | None:
+    try:
+        return McapBag(src)
+    except FastPathError:
+        return None
 
 
 def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) -> np.ndarray:
     """Concatenated sample_stamps_ns(stamps[i], n[i], rate[i]) (same arithmetic)."""
     total = int(n.sum())
+    if n.size and (n == n[0]).all() and (rate == rate[0]).all():  # the usual case: 2-D
+        k = np.arange(int(n[0]), dtype=np.int64)
+        r = float(rate[0])
+        off = (k * NS_PER_S) // int(r) if r == np.floor(r) else \
+            np.round(k * (NS_PER_S / r)).astype(np.int64)
+        return (stamps[:, None] + off[None, :]).reshape(-1)
     first = np.repeat(stamps, n)
     k = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
     r = np.repeat(rate, n)
@@ -175,88 +193,85 @@ def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) ->
     return out
 
 
-def _read_bag_fast(src: Path, runs: _Runs, warnings: list) -> dict:
+def _read_bag_fast(bag: McapBag, runs: _Runs, warnings: list) -> dict:
     """_read_bag for the common case, with whole-topic numpy decoding. The aligner's result
     is computed in closed form; raises FastPathError (before touching runs) whenever the
     aligner would report anything but discontinuities, so the generic path handles it."""
-    with open_bag(src) as bag:
-        topics = bag.topics()
-        force_t = [n for n, t in topics.items() if t.type_name == FORCE_TYPE]
-        accel_t = [n for n, t in topics.items() if t.type_name == ACCEL_TYPE]
-        event_t = [n for n, t in topics.items() if t.type_name == PULL_EVENT_TYPE]
-        if not force_t or not accel_t or not event_t:
-            raise FastPathError('missing topics')
-        force_topic = '/force' if '/force' in force_t else sorted(force_t)[0]
-        accel_topic = '/accel' if '/accel' in accel_t else sorted(accel_t)[0]
-        mcap = bag.single_mcap_path()
-        if mcap is None:
-            raise FastPathError('not a single MCAP file')
-        store = bag.typestore
-        if _block_fields(store, FORCE_TYPE) != FORCE_FIELDS \
-                or _block_fields(store, ACCEL_TYPE) != ACCEL_FIELDS:
-            raise FastPathError('block definitions differ')
-        raw, _ = read_topics_raw(mcap, [force_topic, accel_topic, *event_t])
-        for i, t in enumerate([force_topic, accel_topic, *event_t]):
-            if int(np.count_nonzero(raw.channel == i)) != topics[t].count:
-                raise FastPathError('message counts differ from the metadata')
-        fsel = np.flatnonzero(raw.channel == 0)
-        asel = np.flatnonzero(raw.channel == 1)
-        fb = decode_blocks(raw.buf, raw.starts[fsel], raw.lengths[fsel], FORCE_FIELDS)
-        ab = decode_blocks(raw.buf, raw.starts[asel], raw.lengths[asel], ACCEL_FIELDS)
-        m = len(fb)
-        if m == 0 or len(ab) != m:
-            raise FastPathError('unpaired blocks')
-        n = fb.counts['moving_n']
-        if not (np.array_equal(fb.stamp_ns, ab.stamp_ns) and np.array_equal(n, ab.counts[
-                'axial_m_s2']) and np.array_equal(n, fb.counts['stationary_n'])):
-            raise FastPathError('blocks do not pair one to one')
-        for b in (fb, ab):
-            if (b.seq >= 2**63).any() or (np.diff(b.seq.astype(np.int64)) != 1).any() \
-                    or (np.diff(b.stamp_ns) <= 0).any():
-                raise FastPathError('dropped or out-of-order blocks')
-        fr, ar = fb.rate_hz, ab.rate_hz
-        if not (np.isfinite(fr).all() and (fr > 0).all() and np.isfinite(ar).all()
-                and (ar > 0).all()):
-            raise FastPathError('bad rates')
-        if (np.abs(ar - fr) > 1e-9 * np.maximum(np.abs(ar), np.abs(fr))).any():
-            raise FastPathError('rate mismatch')
-        # how many blocks wait in a channel for their partner (aligner max_pending)
-        idx = np.arange(m)
-        for mine, other in ((fsel, asel), (asel, fsel)):
-            before = np.searchsorted(other, mine)
-            if (idx - before + 1).max() > _MAX_PENDING:
-                raise FastPathError('blocks wait longer than max_pending')
-        # events (few): generic deserialisation
-        starts: dict = {}
-        windows: list = []
-        for i in np.flatnonzero(raw.channel >= 2).tolist():
-            _pull_event(bag.deserialize(raw.data(i), PULL_EVENT_TYPE), starts, windows, warnings)
-        stamps = fb.stamp_ns
-        cont = np.zeros(m, dtype=bool)
-        if m > 1:
-            expected = stamps[:-1] + n[:-1] * 1e9 / fr[:-1]
-            cont[1:] = ((np.abs(fr[:-1] - fr[1:]) <= 1e-9 * np.maximum(np.abs(fr[:-1]),
-                                                                         np.abs(fr[1:])))
-                        & (np.abs(stamps[1:] - expected) <= 0.5e9 / fr[1:]))
-        bounds = [*np.flatnonzero(~cont).tolist(), m]
-        for lo, hi in zip(bounds[:-1], bounds[1:]):
-            sel = np.arange(lo, hi)
-            runs.add_run(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
-                         fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
-                         fb.values('stationary_n', sel))
-        frame = fb.frame_id(m - 1)
-        for pid, st in starts.items():
-            warnings.append(f'pull {pid} has no END; not scored')
-    pairs = list(zip(stamps.tolist(), n.tolist(), fr.tolist()))
-    return {'pairs': pairs, 'windows': sorted(windows), 'drops': [], 'frame': frame,
-            'pair_arrays': (stamps, n, fr)}
+    topics = bag.topics()
+    force_t = [n for n, t in topics.items() if t[0] == FORCE_TYPE]
+    accel_t = [n for n, t in topics.items() if t[0] == ACCEL_TYPE]
+    event_t = [n for n, t in topics.items() if t[0] == PULL_EVENT_TYPE]
+    if not force_t or not accel_t or not event_t:
+        raise FastPathError('missing topics')
+    force_topic = '/force' if '/force' in force_t else sorted(force_t)[0]
+    accel_topic = '/accel' if '/accel' in accel_t else sorted(accel_t)[0]
+    wanted = [force_topic, accel_topic, *event_t]
+    store = shared_typestore()
+    if any(bag.hashes.get(t) != store.hash_rihs01(topics[t][0]) for t in wanted):
+        raise FastPathError('message definitions differ from force_tester_msgs')
+    raw, _ = read_topics_raw(bag.mcap, wanted, bag.summary, bag.mm)
+    for i, t in enumerate(wanted):
+        if int(np.count_nonzero(raw.channel == i)) != topics[t][1]:
+            raise FastPathError('message counts differ from the metadata')
+    fsel = np.flatnonzero(raw.channel == 0)
+    asel = np.flatnonzero(raw.channel == 1)
+    fb = decode_blocks(raw.buf, raw.starts[fsel], raw.lengths[fsel], FORCE_FIELDS)
+    ab = decode_blocks(raw.buf, raw.starts[asel], raw.lengths[asel], ACCEL_FIELDS)
+    m = len(fb)
+    if m == 0 or len(ab) != m:
+        raise FastPathError('unpaired blocks')
+    n = fb.counts['moving_n']
+    if not (np.array_equal(fb.stamp_ns, ab.stamp_ns) and np.array_equal(n, ab.counts[
+            'axial_m_s2']) and np.array_equal(n, fb.counts['stationary_n'])):
+        raise FastPathError('blocks do not pair one to one')
+    for b in (fb, ab):
+        if (b.seq >= 2**63).any() or (np.diff(b.seq.astype(np.int64)) != 1).any() \
+                or (np.diff(b.stamp_ns) <= 0).any():
+            raise FastPathError('dropped or out-of-order blocks')
+    fr, ar = fb.rate_hz, ab.rate_hz
+    if not (np.isfinite(fr).all() and (fr > 0).all() and np.isfinite(ar).all()
+            and (ar > 0).all()):
+        raise FastPathError('bad rates')
+    if (np.abs(ar - fr) > 1e-9 * np.maximum(np.abs(ar), np.abs(fr))).any():
+        raise FastPathError('rate mismatch')
+    # how many blocks wait in a channel for their partner (aligner max_pending)
+    idx = np.arange(m)
+    for mine, other in ((fsel, asel), (asel, fsel)):
+        before = np.searchsorted(other, mine)
+        if (idx - before + 1).max() > _MAX_PENDING:
+            raise FastPathError('blocks wait longer than max_pending')
+    # events (few): generic deserialisation
+    starts: dict = {}
+    windows: list = []
+    for i in np.flatnonzero(raw.channel >= 2).tolist():
+        _pull_event(store.deserialize_cdr(raw.data(i), PULL_EVENT_TYPE), starts, windows,
+                    warnings)
+    stamps = fb.stamp_ns
+    cont = np.zeros(m, dtype=bool)
+    if m > 1:
+        expected = stamps[:-1] + n[:-1] * 1e9 / fr[:-1]
+        cont[1:] = ((np.abs(fr[:-1] - fr[1:]) <= 1e-9 * np.maximum(np.abs(fr[:-1]),
+                                                                     np.abs(fr[1:])))
+                    & (np.abs(stamps[1:] - expected) <= 0.5e9 / fr[1:]))
+    bounds = [*np.flatnonzero(~cont).tolist(), m]
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        sel = np.arange(lo, hi)
+        runs.add_run(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
+                     fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
+                     fb.values('stationary_n', sel))
+    for pid in starts:
+        warnings.append(f'pull {pid} has no END; not scored')
+    return {'pairs': (stamps, n, fr), 'windows': sorted(windows), 'drops': [],
+            'frame': fb.frame_id(m - 1)}
 
 
-def _read_bag(src: Path, runs: _Runs, warnings: list, progress: Progress | None) -> dict:
-    try:
-        return _read_bag_fast(src, runs, warnings)
-    except FastPathError:
-        pass
+def _read_bag(src: Path, fast: McapBag | None, runs: _Runs, warnings: list,
+              progress: Progress | None) -> dict:
+    if fast is not None:
+        try:
+            return _read_bag_fast(fast, runs, warnings)
+        except FastPathError:
+            pass
     with open_bag(src) as bag:
         topics = bag.topics()
         force_t = [n for n, t in topics.items() if t.type_name == FORCE_TYPE]
@@ -322,51 +337,44 @@ def _read_bag(src: Path, runs: _Runs, warnings: list, progress: Progress | None)
             if progress and k % 20000 == 0:
                 progress(k, total)
         flush()
-        for pid, st in starts.items():
+        for pid in starts:
             warnings.append(f'pull {pid} has no END; not scored')
     if not pairs:
         raise BagError(f'bag {str(src)!r}: no /force block pairs with an /accel block of the '
                        'same stamp; nothing to correct')
-    return {'pairs': pairs, 'windows': sorted(windows), 'drops': drop_events, 'frame': frame}
+    stamps, ns, rates = (np.array(c, dtype=d) for c, d in zip(zip(*pairs),
+                                                               (np.int64, np.int64, float)))
+    return {'pairs': (stamps, ns, rates), 'windows': sorted(windows), 'drops': drop_events,
+            'frame': frame}
 
 
-def _write_bag(src: Path, dst: Path, runs: _Runs, data: dict, pulls: list,
-               stats_by_pull: list, warnings: list) -> None:
-    store = default_typestore()
-    arr = runs.arrays()
-    generated = []
-    pos = 0
-    if 'pair_arrays' in data:
-        try:
-            stamps, ns, rates = data['pair_arrays']
-            ends = np.cumsum(ns)
-            last = np.where(ns > 0, arr['t'][np.maximum(ends - 1, 0)], stamps)
-            cbuf, cst, cln = encode_blocks(
-                stamps, rates, np.arange(stamps.size), CORRECTED_FIELDS,
-                {f: ns for f in CORRECTED_FIELDS},
-                {'raw_n': arr['raw'], 'inertial_n': arr['inertial'],
-                 'corrected_n': arr['corrected'], 'filtered_n': arr['filtered']},
-                data['frame'])
-            data['corrected_batch'] = (last, cbuf, cst, cln)
-        except FastPathError:
-            data.pop('pair_arrays')
-    for seq, (stamp, n, rate) in enumerate(data['pairs'] if 'pair_arrays' not in data
-                                           else ()):
-        sl = slice(pos, pos + n)
-        pos += n
-        last = int(arr['t'][pos - 1]) if n else stamp  # log time: the block's last sample
-        cdr = block_cdr(store, CORRECTED_NAME, stamp, rate, seq,
-                        {'raw_n': arr['raw'][sl], 'inertial_n': arr['inertial'][sl],
-                         'corrected_n': arr['corrected'][sl],
-                         'filtered_n': arr['filtered'][sl]}, data['frame'])
-        generated.append((last, 0, CORRECTED_TOPIC, CORRECTED_NAME, cdr))
+def _corrected_blocks(arr: dict, data: dict, gap: int) -> tuple:
+    """The /corrected_force blocks (one per input pair, seq from 0) as encode_blocks gives
+    them, and their log times (each block's last sample, as the live node publishes)."""
+    stamps, ns, rates = data['pairs']
+    ends = np.cumsum(ns)
+    last = np.where(ns > 0, arr['t'][np.maximum(ends - 1, 0)], stamps)
+    try:
+        buf, starts, lengths = encode_blocks(
+            stamps, rates, np.arange(stamps.size), CORRECTED_FIELDS,
+            {f: ns for f in CORRECTED_FIELDS},
+            {'raw_n': arr['raw'], 'inertial_n': arr['inertial'], 'corrected_n': arr['corrected'],
+             'filtered_n': arr['filtered']}, data['frame'], gap=gap)
+    except FastPathError as exc:
+        raise BagError(f'cannot write the corrected blocks: {exc}') from None
+    return buf, starts, lengths, last
+
+
+def _result_messages(store, pulls: list, by_pull: list) -> list:
+    """(log time, order, topic, type, CDR) of the /pull_score and /set_summary messages."""
     T = store.types
-    for k, (p, summ) in enumerate(zip(pulls, stats_by_pull)):
+    out = []
+    for p, summ in zip(pulls, by_pull):
         msg = T[SCORE_TYPE](header=header(store, p['start_ns']), pull_id=p['pull_id'],
                             test_set=p['set'], dropped_blocks=p['dropped_blocks'],
                             **{f: p[f] for f in SCORE_FIELDS})
-        generated.append((p['end_ns'], 1, '/pull_score', SCORE_TYPE,
-                          store.serialize_cdr(msg, SCORE_TYPE)))
+        out.append((p['end_ns'], 1, '/pull_score', SCORE_TYPE,
+                    bytes(store.serialize_cdr(msg, SCORE_TYPE))))
         msg = T[SUMMARY_TYPE](
             header=header(store, p['start_ns']), test_set=p['set'], pulls=summ['pulls'],
             stationary_peak_mean_n=summ['mean_stationary_peak_n'],
@@ -375,19 +383,49 @@ def _write_bag(src: Path, dst: Path, runs: _Runs, data: dict, pulls: list,
             corrected_diff_std_pct=summ['corrected_std_pct'],
             filtered_diff_mean_pct=summ['filtered_mean_pct'],
             filtered_diff_std_pct=summ['filtered_std_pct'])
-        generated.append((p['end_ns'], 2, '/set_summary', SUMMARY_TYPE,
-                          store.serialize_cdr(msg, SUMMARY_TYPE)))
+        out.append((p['end_ns'], 2, '/set_summary', SUMMARY_TYPE,
+                    bytes(store.serialize_cdr(msg, SUMMARY_TYPE))))
+    out.sort(key=lambda g: (g[0], g[1]))
+    return out
+
+
+def _extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
+    """Where the fast path writes: the input copied byte for byte plus the results, when the
+    input is one suitable MCAP file without result topics of its own."""
+    if fast is None or set(OUTPUT_TOPICS) & set(fast.topics()):
+        return None
+    return ExtendedBag(fast, dst)
+
+
+def _write_extension(target: ExtendedBag, arr: dict, data: dict, pulls: list,
+                     by_pull: list) -> None:
+    store = shared_typestore()
+    cids = {t: target.add_topic(t, ty, store.generate_msgdef(ty, ros_version=2)[0],
+                                store.hash_rihs01(ty))
+            for t, ty in ((CORRECTED_TOPIC, CORRECTED_NAME), ('/pull_score', SCORE_TYPE),
+                          ('/set_summary', SUMMARY_TYPE))}
+    buf, starts, lengths, last = _corrected_blocks(arr, data, RECORD_HEADER)
+    target.write_records(buf, starts - RECORD_HEADER, lengths,
+                         np.full(starts.size, cids[CORRECTED_TOPIC]), last)
+    small = _result_messages(store, pulls, by_pull)
+    if small:
+        lens = np.array([len(g[4]) for g in small], dtype=np.int64)
+        sbuf = np.frombuffer(bytearray(b''.join(bytes(RECORD_HEADER) + g[4] for g in small)),
+                             dtype=np.uint8)
+        target.write_records(sbuf, np.cumsum(lens + RECORD_HEADER) - lens - RECORD_HEADER,
+                             lens, np.array([cids[g[2]] for g in small]),
+                             np.array([g[0] for g in small], dtype=np.int64))
+
+
+def _write_bag(src: Path, dst: Path, arr: dict, data: dict, pulls: list, by_pull: list,
+               warnings: list) -> None:
+    """The generic writer: every input message through rosbags, merged with the results."""
+    store = default_typestore()
+    buf, starts, lengths, last = _corrected_blocks(arr, data, 0)
+    generated = [(int(lg), 0, CORRECTED_TOPIC, CORRECTED_NAME, buf[a:a + k])
+                 for lg, a, k in zip(last.tolist(), starts.tolist(), lengths.tolist())]
+    generated += _result_messages(store, pulls, by_pull)
     generated.sort(key=lambda g: (g[0], g[1]))
-    if 'pair_arrays' in data:
-        try:
-            _write_bag_fast(src, dst, store, arr, data, generated, warnings)
-            return
-        except FastPathError:
-            pass
-        last, cbuf, cst, cln = data['corrected_batch']
-        generated.extend((int(lg), 0, CORRECTED_TOPIC, CORRECTED_NAME, cbuf[a:a + k])
-                         for lg, a, k in zip(last.tolist(), cst.tolist(), cln.tolist()))
-        generated.sort(key=lambda g: (g[0], g[1]))
     with open_bag(src) as bag, BagWriter(dst, store) as writer:
         topics = bag.topics()
         keep = [t for t in topics if t not in OUTPUT_TOPICS]
@@ -413,71 +451,6 @@ def _write_bag(src: Path, dst: Path, runs: _Runs, data: dict, pulls: list,
         for log, _o, topic, _type, cdr in merge(src_iter, iter(generated),
                                                  key=lambda g: (g[0], g[1])):
             writer.write(topic, log, cdr)
-
-
-def _write_bag_fast(src: Path, dst: Path, store, arr: dict, data: dict, generated: list,
-                    warnings: list) -> None:
-    """_write_bag with batch reading of the copied messages and batch writing; raises
-    FastPathError before creating dst when the bag does not suit it."""
-    last, cbuf, cst, cln = data['corrected_batch']
-    with open_bag(src) as bag:
-        mcap = bag.single_mcap_path()
-        if mcap is None:
-            raise FastPathError('not a single MCAP file')
-        topics = bag.topics()
-        keep = [t for t in topics if t not in OUTPUT_TOPICS]
-        raw, _ = read_topics_raw(mcap, keep)
-        for i, t in enumerate(keep):
-            if int(np.count_nonzero(raw.channel == i)) != topics[t].count:
-                raise FastPathError('message counts differ from the metadata')
-        replaced = [t for t in topics if t in OUTPUT_TOPICS]
-        if replaced:
-            warnings.append(f'input topics {", ".join(replaced)} replaced by the offline '
-                            'results')
-        with BagWriter(dst, store) as writer:
-            for t in keep:
-                type_name = topics[t].type_name
-                if type_name not in store.types:
-                    try:
-                        store.register({type_name: bag.typestore.fielddefs[type_name]})
-                    except Exception:  # noqa: BLE001
-                        warnings.append(f'topic {t} ({type_name}) not copied: its type is '
-                                        'unknown')
-                        continue
-                writer.add_topic(t, type_name)
-            for t, type_name in ((CORRECTED_TOPIC, CORRECTED_NAME),
-                                 ('/pull_score', SCORE_TYPE), ('/set_summary', SUMMARY_TYPE)):
-                writer.add_topic(t, type_name)
-            names = [*keep, CORRECTED_TOPIC, '/pull_score', '/set_summary']
-            copied = np.array([t in writer.topics for t in keep] + [True] * 3)
-            msel = copied[raw.channel] if raw.channel.size else np.zeros(0, bool)
-            ns_src = int(np.count_nonzero(msel))
-            small = b''.join(g[4] for g in generated)
-            slen = np.array([len(g[4]) for g in generated], dtype=np.int64)
-            gl = [(int(v), 0, i) for i, v in enumerate(last.tolist())]
-            # generated: corrected blocks (order 0) and scores/summaries (orders 1, 2)
-            g_log = np.concatenate([last.astype(np.int64),
-                                    np.array([g[0] for g in generated], dtype=np.int64)])
-            g_ord = np.concatenate([np.zeros(last.size, np.int64),
-                                    np.array([g[1] for g in generated], dtype=np.int64)])
-            del gl
-            g_idx = np.lexsort((np.arange(g_log.size), g_ord, g_log))
-            g_topic = np.concatenate([np.full(last.size, len(keep), np.int64),
-                                      np.array([len(keep) + g[1] for g in generated],
-                                               dtype=np.int64)])
-            g_src = np.concatenate([np.ones(last.size, np.int64),
-                                    np.full(len(generated), 2, np.int64)])
-            g_start = np.concatenate([cst, np.cumsum(slen) - slen])
-            g_len = np.concatenate([cln, slen])
-            log = np.concatenate([raw.log_ns[msel], g_log[g_idx]])
-            order = np.concatenate([np.full(ns_src, -1, np.int64), g_ord[g_idx]])
-            topic = np.concatenate([raw.channel[msel], g_topic[g_idx]])
-            srci = np.concatenate([np.zeros(ns_src, np.int64), g_src[g_idx]])
-            start = np.concatenate([raw.starts[msel], g_start[g_idx]])
-            length = np.concatenate([raw.lengths[msel], g_len[g_idx]])
-            o = np.lexsort((np.arange(log.size), order, log))
-            writer.write_batch(names, topic[o], log[o], [raw.buf, cbuf, small], srci[o],
-                               start[o], length[o])
 
 
 # --------------------------------------------------------------------------- campaign
@@ -555,29 +528,31 @@ def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: in
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     runs = _Runs(params, ext)
+    target = None
     if kind == 'bag':
-        data = _read_bag(src, runs, warnings, progress)
-        arrays = runs.arrays()
-        windows = [(s, e, ts, pid) for s, e, ts, pid in data['windows']]
-        pulls, stats = _score(arrays, windows, data['drops'], loaded_fraction, warnings)
+        fast = _fast_bag(src)
+        target = _extension_target(fast, dst) if to == 'bag' else None
+        with target if target is not None else nullcontext():
+            data = _read_bag(src, fast, runs, warnings, progress)
+            arrays = runs.arrays()
+            pulls, stats = _score(arrays, data['windows'], data['drops'], loaded_fraction,
+                                  warnings)
+            by_pull = _running_summaries(pulls, stats)
+            if target is not None:
+                _write_extension(target, arrays, data, pulls, by_pull)
     else:
         camp = read_campaign(src)
         warnings.extend(camp.warnings)
         windows, outs = _campaign_runs(camp, runs)
         pulls, stats = _score(runs.arrays(), windows, [], loaded_fraction, warnings)
-    # running per-set summary after each pull (what /set_summary carries live)
-    running, by_pull, seen = SetStatistics(), [], {}
-    for p in pulls:
-        k = seen.get(p['set'], 0)
-        seen[p['set']] = k + 1
-        running.add(p['set'], stats.scores(p['set'])[k])
-        by_pull.append(asdict(running.summary(p['set'])))
+        by_pull = _running_summaries(pulls, stats)
     result = {'params': {'mass_kg': params.mass_kg, 'window': params.window,
                          'loaded_fraction': loaded_fraction},
               'pulls': pulls, 'sets': _summaries(stats), 'nan_samples': runs.nan_count,
               'runs': runs.runs, 'warnings': warnings}
     if to == 'bag':
-        _write_bag(src, dst, runs, data, pulls, by_pull, warnings)
+        if target is None:
+            _write_bag(src, dst, runs.arrays(), data, pulls, by_pull, warnings)
     else:
         if kind == 'bag':
             from .convert import read_bag_pulls

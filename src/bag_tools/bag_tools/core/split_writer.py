@@ -43,7 +43,7 @@ class SplitBagWriter:
         (payload + ~47 bytes each; checked after each write). 0 = no size limit.
     max_duration_ns: start a new file before a message whose stamp is >= first stamp of the
         current file + max_duration_ns. 0 = no duration limit.
-    Same interface as BagWriter (open, add_topic, write, write_batch, close, abort, `with`).
+    Same interface as BagWriter (open, add_topic, write, close, abort, `with`).
     """
 
     def __init__(self, path: str | Path, typestore: Typestore, *, max_bytes: int = 0,
@@ -168,20 +168,6 @@ class SplitBagWriter:
         except Exception as exc:  # noqa: BLE001
             raise BagError(f'cannot finish split {len(self._files)} of bag '
                            f'{str(self.path)!r}: {one_line(exc)}') from None
-
-    def write_batch(self, topics: Sequence[str], topic_index, stamps_ns, sources: Sequence,
-                    source_index, starts, lengths) -> None:
-        """Append many CDR messages (same arguments as BagWriter.write_batch), in order."""
-        import numpy as np
-        self._require_open()
-        bufs = [np.frombuffer(s, dtype=np.uint8) if not isinstance(s, np.ndarray) else s
-                for s in sources]
-        for t, s, k, a, n in zip(np.asarray(topic_index, dtype=np.int64).tolist(),
-                                 np.asarray(stamps_ns, dtype=np.int64).tolist(),
-                                 np.asarray(source_index, dtype=np.int64).tolist(),
-                                 np.asarray(starts, dtype=np.int64).tolist(),
-                                 np.asarray(lengths, dtype=np.int64).tolist()):
-            self.write(topics[t], s, bufs[k][a:a + n].tobytes())
 
     def close(self) -> Path:
         """Finish the last file and write the combined metadata.yaml. Returns the bag path."""

@@ -5,6 +5,7 @@ No rclpy, no generated message modules: the .msg files are parsed with rosbags.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -90,3 +91,14 @@ def find_msg_dirs(env: Mapping[str, str] = os.environ) -> list[Path]:
 def default_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
     """make_typestore(find_msg_dirs(env))."""
     return make_typestore(find_msg_dirs(env))
+
+
+@functools.lru_cache(maxsize=4)
+def _shared(dirs: tuple) -> Typestore:
+    return make_typestore(dirs)
+
+
+def shared_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
+    """default_typestore(env), built once per process for read-only use (serialising,
+    deserialising, definitions and hashes); never register types into it."""
+    return _shared(tuple(find_msg_dirs(env)))

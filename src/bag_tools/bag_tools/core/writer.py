@@ -134,69 +134,6 @@ class BagWriter:
             raise BagError(f'cannot write to bag {str(self.path)!r}: {one_line(exc)}') from None
         self.message_count += 1
 
-    def write_batch(self, topics: Sequence[str], topic_index, stamps_ns, sources: Sequence,
-                    source_index, starts, lengths) -> None:
-        """Append many CDR messages at once (same result as write() for each, in order).
-
-        Message i: topic topics[topic_index[i]], log time stamps_ns[i], data
-        sources[source_index[i]][starts[i]:starts[i] + lengths[i]] (bytes-like buffers).
-        Uses a vectorised MCAP path when possible, else write() per message.
-        """
-        import numpy as np
-
-        from .fastcdr import FastPathError, McapBatch
-        writer = self._require_open()
-        ti = np.asarray(topic_index, dtype=np.int64)
-        stamps = np.asarray(stamps_ns, dtype=np.int64)
-        si = np.asarray(source_index, dtype=np.int64)
-        starts = np.asarray(starts, dtype=np.int64)
-        lengths = np.asarray(lengths, dtype=np.int64)
-        if not ti.size:
-            return
-        conns = []
-        for t in topics:
-            conn = self._connections.get(t)
-            if conn is None:
-                raise BagError(f'topic {t!r} was not added to bag {str(self.path)!r}; '
-                               f'known topics: {sorted(self._connections)!r}')
-            conns.append(conn)
-        bufs = [np.frombuffer(s, dtype=np.uint8) if not isinstance(s, np.ndarray) else s
-                for s in sources]
-        try:
-            batch = McapBatch(writer)
-        except FastPathError:
-            batch = None
-        # a write() overridden (subclass, test double) is honoured message by message
-        ok = batch is not None and type(self).write is _PLAIN_WRITE and stamps.min() >= 0 and (lengths >= 4).all()
-        if ok:
-            for k, b in enumerate(bufs):
-                sel = si == k
-                if sel.any():
-                    s0, l0 = starts[sel], lengths[sel]
-                    if s0.min() < 0 or int((s0 + l0).max()) > b.size:
-                        ok = False
-                        break
-                    h0, h1 = b[s0], b[s0 + 1]
-                    if (h0 != 0).any() or (h1 > 1).any():
-                        ok = False
-                        break
-        if not ok:
-            for t, s, k, a, n in zip(ti.tolist(), stamps.tolist(), si.tolist(),
-                                     starts.tolist(), lengths.tolist()):
-                self.write(topics[t], s, bufs[k][a:a + n].tobytes())
-            return
-        cid_of = np.array([c.id for c in conns], dtype=np.int64)
-        cids = cid_of[ti]
-        try:
-            batch.write(cids, stamps, bufs, si, starts, lengths)
-        except Exception as exc:  # noqa: BLE001
-            raise BagError(f'cannot write to bag {str(self.path)!r}: {one_line(exc)}') from None
-        for k, c in enumerate(conns):
-            writer.counts[c.id] += int(np.count_nonzero(ti == k))
-        writer.min_timestamp = min(int(stamps.min()), writer.min_timestamp)
-        writer.max_timestamp = max(int(stamps.max()), writer.max_timestamp)
-        self.message_count += int(ti.size)
-
     def close(self) -> Path:
         """Finish the MCAP summary and write metadata.yaml. Returns the bag path."""
         writer = self._require_open()
@@ -240,5 +177,3 @@ class BagWriter:
         else:
             self.abort()
 
-
-_PLAIN_WRITE = BagWriter.write

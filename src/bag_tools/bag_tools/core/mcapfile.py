@@ -1,0 +1,582 @@
+"""MCAP at the record level: the summary of a file, batch reading of messages, batch writing,
+and ExtendedBag, a new bag that is an input bag plus new topics.
+
+Record layouts follow the MCAP specification (https://mcap.dev/spec). Everything here works on
+uncompressed, indexed files (what rosbags and `ros2 bag record` write by default); anything else
+raises FastPathError and callers use the generic rosbags path.
+
+ExtendedBag copies the input file's data section byte for byte (os.copy_file_range, in a
+thread, while the caller computes), then appends the new topics' chunks, a new summary and
+footer, and a metadata.yaml made from the input's. The input chunks keep their offsets, so
+their chunk indexes are copied too. The new chunks overlap the input's in time, which MCAP
+allows: log-time-order readers (rosbag2's MCAP plugin for `ros2 bag play`, rosbags) merge
+the chunks.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import shutil
+import struct
+import threading
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import BagError, one_line
+from .fastcdr import FastPathError, _gather, stride_runs
+from .writer import METADATA_VERSION, check_new_bag_path
+
+MAGIC = b'\x89MCAP0\r\n'
+CHUNK_BYTES = 2**20  # new chunks hold about this many bytes of records (as rosbags)
+RECORD_HEADER = 31   # message record: opcode u8, length u64, channel u16, seq u32, log, publish
+_U8 = np.uint8
+
+
+# --------------------------------------------------------------------------- summary
+@dataclass
+class Chunk:
+    start: int            # offset of the chunk record
+    length: int           # chunk record length incl. opcode and length
+    records_start: int    # offset of the records inside
+    records_size: int
+    message_index: dict   # channel id -> offset of its message index record
+    index_length: int     # bytes of message index records after the chunk
+    compression: str
+    raw: bytes            # the chunk index record (opcode 0x08) as in the file
+
+
+@dataclass
+class McapSummary:
+    path: Path
+    size: int
+    data_end: int                                  # where the summary starts
+    schemas: dict = field(default_factory=dict)    # id -> (name, encoding, data, raw record)
+    channels: dict = field(default_factory=dict)   # id -> (schema id, topic, raw record)
+    chunks: list = field(default_factory=list)     # [Chunk]
+    channel_counts: dict = field(default_factory=dict)  # from the statistics record
+    start_ns: int = 0
+    end_ns: int = 0
+    metadata_names: list = field(default_factory=list)
+    attachments: int = 0
+    has_statistics: bool = False
+
+    def topic_ids(self) -> dict:
+        return {t: cid for cid, (_s, t, _r) in self.channels.items()}
+
+    @property
+    def chunks_end(self) -> int:
+        """End of the last chunk's message indexes: the input bytes ExtendedBag copies."""
+        return max((c.start + c.length + c.index_length for c in self.chunks), default=0)
+
+
+def _string(data, pos: int) -> tuple:
+    n, = struct.unpack_from('<I', data, pos)
+    return bytes(data[pos + 4:pos + 4 + n]).decode('utf-8'), pos + 4 + n
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return bytes((op,)) + struct.pack('<Q', len(body)) + body
+
+
+def _str(s: str) -> bytes:
+    b = s.encode('utf-8')
+    return struct.pack('<I', len(b)) + b
+
+
+def _map(items: dict) -> bytes:
+    body = b''.join(_str(k) + _str(v) for k, v in items.items())
+    return struct.pack('<I', len(body)) + body
+
+
+def read_summary(path: str | Path, data=None) -> McapSummary:
+    """Parse the summary section of an MCAP file (FastPathError if it has none or is odd)."""
+    path = Path(path)
+    if data is None:
+        data = map_file(path)
+    size = len(data)
+    try:
+        return _read_summary(path, data, size)
+    except (struct.error, IndexError, UnicodeDecodeError) as exc:
+        raise FastPathError(f'cannot parse MCAP summary: {exc}') from None
+
+
+def _read_summary(path: Path, data, size: int) -> McapSummary:
+    if size < 8 + 37 or bytes(data[:8]) != MAGIC or bytes(data[size - 8:size]) != MAGIC:
+        raise FastPathError('not an MCAP file')
+    fo = size - 8 - 29  # footer: opcode 0x02, len 20, summary_start, summary_offset_start, crc
+    if data[fo] != 0x02:
+        raise FastPathError('no MCAP footer')
+    summary_start, = struct.unpack_from('<Q', data, fo + 9)
+    if summary_start == 0 or summary_start >= fo:
+        raise FastPathError('MCAP without summary')
+    s = McapSummary(path, size, summary_start)
+    pos = summary_start
+    while pos < fo:
+        op = data[pos]
+        ln, = struct.unpack_from('<Q', data, pos + 1)
+        rec = pos + 9
+        if rec + ln > fo:
+            raise FastPathError('truncated summary')
+        raw = bytes(data[pos:rec + ln])
+        if op == 0x03:  # schema
+            sid, = struct.unpack_from('<H', data, rec)
+            name, p = _string(data, rec + 2)
+            enc, p = _string(data, p)
+            n, = struct.unpack_from('<I', data, p)
+            s.schemas[sid] = (name, enc, bytes(data[p + 4:p + 4 + n]), raw)
+        elif op == 0x04:  # channel
+            cid, sid = struct.unpack_from('<HH', data, rec)
+            topic, _p = _string(data, rec + 4)
+            s.channels[cid] = (sid, topic, raw)
+        elif op == 0x08:  # chunk index
+            _st, _et, cstart, clen, mlen = struct.unpack_from('<QQQQI', data, rec)
+            mi = {}
+            p = rec + 36
+            for _ in range(mlen // 10):
+                cid, moff = struct.unpack_from('<HQ', data, p)
+                mi[cid] = moff
+                p += 10
+            milen, = struct.unpack_from('<Q', data, p)
+            comp, _p = _string(data, p + 8)
+            if cstart + clen > summary_start or data[cstart] != 0x06:
+                raise FastPathError('chunk index does not point to a chunk')
+            _c, p = _string(data, cstart + 9 + 28)
+            rsize, = struct.unpack_from('<Q', data, p)
+            s.chunks.append(Chunk(cstart, clen, p + 8, rsize, mi, milen, comp, raw))
+        elif op == 0x0B:  # statistics
+            (_mc, _sc, _cc, s.attachments, _mdc, _chc, s.start_ns,
+             s.end_ns) = struct.unpack_from('<QHIIIIQQ', data, rec)
+            n, = struct.unpack_from('<I', data, rec + 42)
+            for k in range(n // 10):
+                cid, cnt = struct.unpack_from('<HQ', data, rec + 46 + 10 * k)
+                s.channel_counts[cid] = cnt
+            s.has_statistics = True
+        elif op == 0x0D:  # metadata index
+            name, _p = _string(data, rec + 16)
+            s.metadata_names.append(name)
+        elif op == 0x0A:  # attachment index
+            s.attachments += 1
+        pos = rec + ln
+    return s
+
+
+# --------------------------------------------------------------------------- batch reading
+class RawMessages:
+    """Raw messages of one or more topics: arrays in log order (ties as rosbags orders)."""
+
+    def __init__(self, buf: np.ndarray, log_ns: np.ndarray, channel: np.ndarray,
+                 starts: np.ndarray, lengths: np.ndarray, holder=None) -> None:
+        self.buf = buf
+        self.log_ns = log_ns
+        self.channel = channel  # topic index per message
+        self.starts = starts
+        self.lengths = lengths
+        self._holder = holder
+
+    def select(self, mask: np.ndarray) -> RawMessages:
+        return RawMessages(self.buf, self.log_ns[mask], self.channel[mask], self.starts[mask],
+                           self.lengths[mask], self._holder)
+
+    def data(self, i: int) -> bytes:
+        s = int(self.starts[i])
+        return self.buf[s:s + int(self.lengths[i])].tobytes()
+
+
+def map_file(path: str | Path) -> mmap.mmap:
+    """The file mapped read-only, its pages mapped in at once where the OS allows (faster
+    than one page fault per touched page when most of the file is read)."""
+    path = Path(path)
+    with path.open('rb') as fh:
+        if path.stat().st_size == 0:
+            raise FastPathError('empty file')
+        return mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_SHARED | getattr(mmap, 'MAP_POPULATE', 0),
+                         prot=mmap.PROT_READ)
+
+
+def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
+                    summary: McapSummary | None = None, mm: mmap.mmap | None = None) -> tuple:
+    """(RawMessages of the topics in log order, [topic per channel index]) of one .mcap file.
+
+    Only uncompressed MCAP with a summary and message indexes (what rosbags writes); anything
+    else raises FastPathError.
+    """
+    mm = map_file(mcap_path) if mm is None else mm
+    summary = read_summary(mcap_path, mm) if summary is None else summary
+    if any(c.compression for c in summary.chunks):
+        raise FastPathError('compressed chunks')
+    buf = np.frombuffer(mm, dtype=_U8)
+    size = buf.size
+    want = {t: i for i, t in enumerate(topics)}
+    logs, chans, offs, ords, cks = [], [], [], [], []
+    for c in summary.chunks:
+        for cid, moff in c.message_index.items():
+            t = summary.channels.get(cid, (0, None, b''))[1]
+            if t not in want:
+                continue
+            if mm[moff] != 0x07:
+                raise FastPathError('bad message index')
+            _cid, blen = struct.unpack_from('<HI', mm, moff + 9)
+            ent = np.frombuffer(mm, dtype='<u8', count=blen // 8,
+                                offset=moff + 15).reshape(-1, 2)
+            rel = ent[:, 1].astype(np.int64)
+            if rel.size and (rel.min() < 0 or rel.max() + RECORD_HEADER > c.records_size):
+                raise FastPathError('message offset outside its chunk')
+            logs.append(ent[:, 0].astype(np.int64))
+            offs.append(c.records_start + rel)
+            ords.append(rel)
+            chans.append(np.full(rel.size, want[t], dtype=np.int64))
+            cks.append(np.full(rel.size, c.start, dtype=np.int64))
+    if not logs:
+        z = np.zeros(0, np.int64)
+        return RawMessages(buf, z, z, z, z, mm), list(topics)
+    log = np.concatenate(logs)
+    off = np.concatenate(offs)
+    chan = np.concatenate(chans)
+    if (buf[off] != 0x05).any():
+        raise FastPathError('message index does not point to messages')
+    rec_len = _gather(buf, off + 1, '<u8').astype(np.int64)
+    rec_log = _gather(buf, off + 15, '<u8').astype(np.int64)
+    if (rec_log != log).any() or (rec_len < 22).any() or (off + 9 + rec_len > size).any():
+        raise FastPathError('message index disagrees with the messages')
+    # rosbags order: log time, then chunk start offset, then position in the chunk
+    order = np.lexsort((np.concatenate(ords), np.concatenate(cks), log))
+    return RawMessages(buf, log[order], chan[order], (off + RECORD_HEADER)[order],
+                       (rec_len - 22)[order], mm), list(topics)
+
+
+# --------------------------------------------------------------------------- writing
+def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.ndarray,
+                        cids: np.ndarray, log_ns: np.ndarray) -> None:
+    """Write the 31-byte message record headers at buf[rec_starts[i]] (sequence 0,
+    publish time = log time, as rosbags writes)."""
+    cols = (('u1', 0, 5), ('<u8', 1, 22 + data_len), ('<u2', 9, cids), ('<u4', 11, 0),
+            ('<u8', 15, log_ns), ('<u8', 23, log_ns))
+    st = rec_starts.tolist()
+    for lo, hi, stride in stride_runs(rec_starts):
+        k = hi - lo
+        for dtype, off, v in cols:
+            view = np.ndarray((k,), dtype=dtype, buffer=buf, offset=st[lo] + off,
+                              strides=(stride,))
+            view[...] = v if np.isscalar(v) else v[lo:hi]
+
+
+class McapBag:
+    """A rosbag2 bag of one uncompressed, indexed MCAP file, opened without rosbags: its
+    metadata.yaml, MCAP summary and a read-only mapping of the file.
+
+    FastPathError unless it suits the batch paths: metadata version 9, no compression,
+    schemas, channels and statistics in the summary agreeing with metadata.yaml, no
+    attachments and no metadata records but rosbag2's.
+    """
+
+    def __init__(self, src: str | Path) -> None:
+        self.path = Path(src)
+        try:
+            meta = yaml.load((self.path / 'metadata.yaml').read_text(encoding='utf-8'),
+                             Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
+            info = meta['rosbag2_bagfile_information']
+            files = list(info['relative_file_paths'])
+            ok = (int(info['version']) == METADATA_VERSION and len(files) == 1
+                  and info.get('storage_identifier') == 'mcap'
+                  and not info.get('compression_format') and not info.get('compression_mode'))
+            self.hashes = {t['topic_metadata']['name']:
+                           t['topic_metadata'].get('type_description_hash', '')
+                           for t in info.get('topics_with_message_count') or []}
+            known = {t['topic_metadata']['name']: int(t['message_count'])
+                     for t in info.get('topics_with_message_count') or []}
+        except Exception as exc:  # noqa: BLE001 - anything odd: the generic path reports it
+            raise FastPathError(f'metadata.yaml: {one_line(exc)}') from None
+        if not ok:
+            raise FastPathError('not a one-file uncompressed MCAP bag of metadata version 9')
+        self.info = info
+        self.mcap = self.path / str(files[0])
+        try:
+            self.mm = map_file(self.mcap)
+        except (OSError, ValueError) as exc:
+            raise FastPathError(f'cannot map {self.mcap}: {exc}') from None
+        self.summary = s = read_summary(self.mcap, self.mm)
+        if (not s.has_statistics or not s.channels or not s.chunks or s.attachments
+                or any(c.compression for c in s.chunks)
+                or any(n != 'rosbag2' for n in s.metadata_names)
+                or any(sid not in s.schemas for sid, _t, _r in s.channels.values())):
+            raise FastPathError('MCAP summary not suited to the batch paths')
+        ids = s.topic_ids()
+        if len(ids) != len(s.channels) or ids.keys() != known.keys() or any(
+                known[t] != s.channel_counts.get(cid, 0) for t, cid in ids.items()):
+            raise FastPathError('metadata.yaml and the MCAP statistics differ')
+
+    def topics(self) -> dict:
+        """topic -> (type name, message count)."""
+        s = self.summary
+        return {t: (s.schemas[sid][0], s.channel_counts.get(cid, 0))
+                for cid, (sid, t, _r) in s.channels.items()}
+
+
+class ExtendedBag:
+    """A new bag dst = the McapBag src plus new topics (see the module doc).
+
+    Use as a context manager: entering creates dst and starts copying the input; leaving
+    finishes the file and writes metadata.yaml (last, so an unfinished bag has none), or
+    removes dst if the block raised.
+    """
+
+    def __init__(self, src: McapBag, dst: str | Path) -> None:
+        self.src, self.dst = src, Path(dst)
+        check_new_bag_path(self.dst)
+        self.info = src.info
+        self.mcap = src.mcap
+        self.mm = src.mm
+        self.summary = s = src.summary
+        self.copy_end = s.chunks_end
+        self._schema_ids = {v[0]: k for k, v in s.schemas.items()}
+        self._new_schemas: list = []   # raw schema records
+        self._new_channels: list = []  # (cid, topic, type, rihs01, raw record)
+        self._chunk_index: list = []   # raw chunk index records of the new chunks
+        self._counts: dict = defaultdict(int)
+        self._times = [s.start_ns, s.end_ns]
+        self._definitions_written = False
+        self._fd = -1
+        self._pos = 0
+        self._thread: threading.Thread | None = None
+        self._copy_error: BaseException | None = None
+
+    # -- lifecycle -------------------------------------------------------------------
+    def __enter__(self) -> ExtendedBag:
+        check_new_bag_path(self.dst)
+        self.dst.mkdir()
+        try:
+            self.out = self.dst / f'{self.dst.name}.mcap'
+            self._fd = os.open(self.out, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            os.ftruncate(self._fd, self.copy_end)
+        except BaseException:
+            self._abort()
+            raise
+        self._pos = self.copy_end
+        self._thread = threading.Thread(target=self._copy, name='bag-copy', daemon=True)
+        self._thread.start()
+        return self
+
+    def _copy(self) -> None:
+        try:
+            with self.mcap.open('rb') as fi:
+                done = 0
+                while done < self.copy_end:
+                    try:
+                        n = os.copy_file_range(fi.fileno(), self._fd, self.copy_end - done,
+                                               done, done)
+                    except OSError:  # e.g. not supported here: plain copy
+                        n = os.pwrite(self._fd, self.mm[done:min(done + 2**24, self.copy_end)],
+                                      done)
+                    if n <= 0:
+                        raise OSError(f'copy stopped at byte {done} of {self.copy_end}')
+                    done += n
+        except BaseException as exc:  # noqa: BLE001 - re-raised by the main thread
+            self._copy_error = exc
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self._abort()
+            return
+        try:
+            self._finish()
+        except BaseException as err:
+            self._abort()
+            if isinstance(err, OSError):
+                raise BagError(f'cannot write bag {str(self.dst)!r}: {one_line(err)}') from None
+            raise
+
+    def _join(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._copy_error is not None:
+            raise self._copy_error
+
+    def _abort(self) -> None:
+        try:
+            if self._thread is not None:
+                self._thread.join()
+                self._thread = None
+        finally:
+            if self._fd >= 0:
+                os.close(self._fd)
+                self._fd = -1
+            shutil.rmtree(self.dst, ignore_errors=True)
+
+    # -- topics and messages -----------------------------------------------------------
+    def add_topic(self, topic: str, type_name: str, msgdef: str, rihs01: str) -> int:
+        """A new channel (and schema unless the input has the type); returns its channel id."""
+        if self._definitions_written:
+            raise BagError(f'topic {topic!r} added after the first message; add topics first')
+        if topic in self.summary.topic_ids() or any(c[1] == topic for c in self._new_channels):
+            raise BagError(f'topic {topic!r} is in the bag already')
+        sid = self._schema_ids.get(type_name)
+        if sid is None:
+            sid = max([0, *self._schema_ids.values()]) + 1
+            self._schema_ids[type_name] = sid
+            self._new_schemas.append(_record(0x03, struct.pack('<H', sid) + _str(type_name)
+                                             + _str('ros2msg') + _str(msgdef)))
+        cid = max([0, *self.summary.channels, *(c[0] for c in self._new_channels)]) + 1
+        if cid >= 2**16:
+            raise FastPathError('too many channels')
+        raw = _record(0x04, struct.pack('<HH', cid, sid) + _str(topic) + _str('cdr')
+                      + _map({'offered_qos_profiles': '[]', 'topic_type_hash': rihs01}))
+        self._new_channels.append((cid, topic, type_name, rihs01, raw))
+        return cid
+
+    def _write(self, *parts) -> None:
+        try:
+            for part in parts:
+                view = memoryview(part).cast('B')
+                while view.nbytes:
+                    n = os.pwrite(self._fd, view, self._pos)
+                    self._pos += n
+                    view = view[n:]
+        except OSError as exc:
+            raise BagError(f'cannot write bag {str(self.dst)!r}: {one_line(exc)}') from None
+
+    def _write_definitions(self) -> None:
+        if not self._definitions_written:  # schemas and channels precede their messages
+            self._write(b''.join(self._new_schemas) + b''.join(c[4] for c in self._new_channels))
+            self._definitions_written = True
+
+    def write_records(self, buf: np.ndarray, rec_starts: np.ndarray, data_len: np.ndarray,
+                      cids: np.ndarray, log_ns: np.ndarray) -> None:
+        """Append messages whose CDR data sit in buf (a writable uint8 array) right after a
+        31-byte gap each, records back to back from rec_starts[0]. Fills the record headers in
+        buf. Messages out of log order are put in order (stable) first."""
+        rec_starts = np.asarray(rec_starts, dtype=np.int64)
+        m = int(rec_starts.size)
+        if m == 0:
+            return
+        data_len = np.asarray(data_len, dtype=np.int64)
+        cids = np.asarray(cids, dtype=np.int64)
+        log_ns = np.asarray(log_ns, dtype=np.int64)
+        ends = rec_starts + RECORD_HEADER + data_len
+        if (rec_starts[1:] != ends[:-1]).any() or log_ns.min() < 0 or ends[-1] > buf.size \
+                or rec_starts[0] < 0 or (data_len < 0).any():
+            raise BagError('records must lie back to back inside the buffer, log times >= 0')
+        if (np.diff(log_ns) < 0).any():
+            o = np.argsort(log_ns, kind='stable')
+            buf = np.concatenate([buf[a:b] for a, b in zip(rec_starts[o].tolist(),
+                                                          ends[o].tolist())])
+            data_len, cids, log_ns = data_len[o], cids[o], log_ns[o]
+            ends = np.cumsum(RECORD_HEADER + data_len)
+            rec_starts = ends - RECORD_HEADER - data_len
+        self._write_definitions()
+        fill_record_headers(buf, rec_starts, data_len, cids, log_ns)
+        i = 0
+        rel_end = ends - rec_starts[0]
+        while i < m:
+            base = int(rec_starts[i]) - int(rec_starts[0])
+            j = max(int(np.searchsorted(rel_end, base + CHUNK_BYTES, 'right')), i + 1)
+            self._write_chunk(buf, rec_starts[i:j], ends[j - 1], cids[i:j], log_ns[i:j])
+            i = j
+        for cid in np.unique(cids).tolist():
+            self._counts[cid] += int(np.count_nonzero(cids == cid))
+        self._times = [min(self._times[0], int(log_ns[0])), max(self._times[1], int(log_ns[-1]))]
+
+    def _write_chunk(self, buf, starts, end, cids, log) -> None:
+        r0 = int(starts[0])
+        size = int(end) - r0
+        t0, t1 = int(log.min()), int(log.max())
+        chunk_start = self._pos
+        head = struct.pack('<QQQI', t0, t1, size, 0) + _str('') + struct.pack('<Q', size)
+        self._write(bytes((0x06,)) + struct.pack('<Q', len(head) + size) + head,
+                    memoryview(buf)[r0:r0 + size])
+        chunk_len = self._pos - chunk_start
+        rel = starts - r0
+        index = []
+        parts = []
+        pos = self._pos
+        for cid in np.unique(cids).tolist():
+            sel = cids == cid
+            ent = np.empty((int(sel.sum()), 2), dtype='<u8')
+            ent[:, 0], ent[:, 1] = log[sel], rel[sel]
+            body = struct.pack('<HI', cid, ent.nbytes) + ent.tobytes()
+            index.append(struct.pack('<HQ', cid, pos))
+            rec = _record(0x07, body)
+            parts.append(rec)
+            pos += len(rec)
+        self._write(b''.join(parts))
+        mi = b''.join(index)
+        self._chunk_index.append(_record(0x08, struct.pack('<QQQQI', t0, t1, chunk_start,
+                                                           chunk_len, len(mi)) + mi
+                                         + struct.pack('<Q', self._pos - chunk_start - chunk_len)
+                                         + _str('') + struct.pack('<QQ', size, size)))
+
+    # -- closing -----------------------------------------------------------------------
+    def _metadata(self) -> dict:
+        s = self.summary
+        info = dict(self.info)
+        counts = dict(s.channel_counts)
+        counts.update(self._counts)
+        total = sum(counts.values())
+        start, end = self._times
+        name = self.out.name
+        topics = list(info.get('topics_with_message_count') or [])
+        for cid, topic, type_name, rihs01, _raw in self._new_channels:
+            topics.append({'topic_metadata': {'name': topic, 'type': type_name,
+                                              'serialization_format': 'cdr',
+                                              'offered_qos_profiles': [],
+                                              'type_description_hash': rihs01},
+                           'message_count': self._counts.get(cid, 0)})
+        custom = dict(info.get('custom_data') or {})
+        custom['writer'] = 'bag_tools.core'
+        info.update({'relative_file_paths': [name], 'message_count': total,
+                     'duration': {'nanoseconds': max(0, end - start)},
+                     'starting_time': {'nanoseconds_since_epoch': start},
+                     'topics_with_message_count': topics, 'custom_data': custom,
+                     'files': [{'path': name, 'starting_time': {'nanoseconds_since_epoch': start},
+                                'duration': {'nanoseconds': max(0, end - start)},
+                                'message_count': total}]})
+        return info
+
+    def _finish(self) -> None:
+        self._write_definitions()
+        s = self.summary
+        info = self._metadata()
+        dumper = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
+        text = yaml.dump(info, Dumper=dumper, default_flow_style=False)
+        meta_start = self._pos
+        self._write(_record(0x0C, _str('rosbag2') + _map({'serialized_metadata': text.strip()})))
+        meta_len = self._pos - meta_start
+        self._write(_record(0x0F, struct.pack('<I', 0)))  # data end
+        summary_start = self._pos
+        groups = []
+
+        def group(op, records):
+            start = self._pos
+            if records:
+                self._write(b''.join(records))
+                groups.append(_record(0x0E, struct.pack('<BQQ', op, start, self._pos - start)))
+
+        group(0x03, [v[3] for v in s.schemas.values()] + self._new_schemas)
+        group(0x04, [v[2] for v in s.channels.values()] + [c[4] for c in self._new_channels])
+        group(0x08, [c.raw for c in s.chunks] + self._chunk_index)
+        group(0x0D, [_record(0x0D, struct.pack('<QQ', meta_start, meta_len) + _str('rosbag2'))])
+        counts = dict(s.channel_counts)
+        counts.update(self._counts)
+        cmap = b''.join(struct.pack('<HQ', c, n) for c, n in sorted(counts.items()))
+        start, end = self._times
+        group(0x0B, [_record(0x0B, struct.pack(
+            '<QHIIIIQQ', sum(counts.values()), len(s.schemas) + len(self._new_schemas),
+            len(s.channels) + len(self._new_channels), 0, 1,
+            len(s.chunks) + len(self._chunk_index), start, end)
+            + struct.pack('<I', len(cmap)) + cmap)])
+        offsets_start = self._pos
+        self._write(b''.join(groups))
+        self._write(_record(0x02, struct.pack('<QQI', summary_start, offsets_start, 0)), MAGIC)
+        self._join()  # the copied input bytes must be complete before the bag is
+        os.close(self._fd)
+        self._fd = -1
+        tmp = self.dst / 'metadata.yaml.tmp'
+        tmp.write_text(yaml.dump({'rosbag2_bagfile_information': info}, Dumper=dumper,
+                                 default_flow_style=False), encoding='utf-8')
+        tmp.replace(self.dst / 'metadata.yaml')
