@@ -95,6 +95,21 @@ def test_make_typestore_errors(tmp_path, store):
     assert_one_line(err, tmp_path / 'nope')
 
 
+def test_shared_typestore_agrees_with_the_full_jazzy_store(store):
+    """The minimal read-only store of the fast paths gives the same definitions, hashes and
+    bytes as the full one for every force_tester_msgs type."""
+    from bag_tools.core.typestore import shared_typestore
+    shared = shared_typestore({'AMENT_PREFIX_PATH': ''})
+    ours = sorted(t for t in store.types if t.startswith('force_tester_msgs/'))
+    assert len(ours) >= 8 and all(t in shared.types for t in ours)
+    for t in ours:
+        assert shared.hash_rihs01(t) == store.hash_rihs01(t), t
+        assert shared.generate_msgdef(t, ros_version=2) == store.generate_msgdef(t,
+                                                                                ros_version=2)
+    cdr = bytes(force(store, T0, 3))
+    assert bytes(shared.serialize_cdr(shared.deserialize_cdr(cdr, FORCE), FORCE)) == cdr
+
+
 # -- writer / reader round trip ----------------------------------------------------------------
 def test_round_trip_bytes_and_stamps(bag, store):
     path, msgs = bag

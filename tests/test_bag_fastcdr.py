@@ -26,8 +26,7 @@ from bag_tools.core.convert import campaign_to_bag  # noqa: E402
 from bag_tools.core.daq import write_campaign  # noqa: E402
 from bag_tools.core.fastcdr import FastPathError, decode_blocks, encode_blocks  # noqa: E402
 from bag_tools.core.errors import BagError  # noqa: E402
-from bag_tools.core.mcapfile import (RECORD_HEADER, ExtendedBag, McapBag,  # noqa: E402
-                                     read_topics_raw)
+from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw  # noqa: E402
 from bag_tools.core.offline import correct  # noqa: E402
 
 MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
@@ -377,16 +376,6 @@ def test_read_topics_raw_small_bag_and_decode(store, tmp_path):
 
 
 # --------------------------------------------------------------------------- 4. ExtendedBag
-def _records(msgs):
-    """A buffer holding msgs [(cid, log, cdr)] each after a 31-byte gap, back to back."""
-    lens = np.array([len(c) for _i, _l, c in msgs], dtype=np.int64)
-    buf = np.frombuffer(bytearray(b''.join(bytes(RECORD_HEADER) + bytes(c)
-                                           for _i, _l, c in msgs)), np.uint8)
-    starts = np.cumsum(lens + RECORD_HEADER) - lens - RECORD_HEADER
-    return (buf, starts, lens, np.array([i for i, _l, _c in msgs]),
-            np.array([lg for _i, lg, _c in msgs], dtype=np.int64))
-
-
 def _meta_counts(path):
     with open_bag(path) as b:
         return b.topics(), b.start_ns, b.end_ns, b.message_count
@@ -425,7 +414,8 @@ def test_extended_bag_is_input_plus_new_topics(store, tmp_path):
                                                                       ('/score', ACCEL))}
         half = len(new) // 2
         for part in (sorted(new[:half], key=lambda m: m[2]), new[half:]):  # 2nd: unsorted
-            out.write_records(*_records([(cids[t], lg, c) for t, _ty, lg, c in part]))
+            out.write_messages([cids[t] for t, *_ in part], [m[2] for m in part],
+                               [m[3] for m in part])
     mcap_out = single_mcap(tmp_path / 'out')
     assert mcap_out.read_bytes()[:target.copy_end] == src_bytes[:target.copy_end]
     got = generic(tmp_path / 'out')
@@ -456,12 +446,11 @@ def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
             out.add_topic('/x', FORCE, store.generate_msgdef(FORCE, ros_version=2)[0], 'h')
             raise RuntimeError('stop')
     assert not (tmp_path / 'out').exists()
-    with pytest.raises(BagError, match='back to back'):
+    with pytest.raises(BagError, match='log times >= 0'):
         with ExtendedBag(McapBag(src), tmp_path / 'out') as out:
             cid = out.add_topic('/x', FORCE, store.generate_msgdef(FORCE, ros_version=2)[0],
                                 'h')
-            buf, st, ln, ci, lg = _records([(cid, T0, b'\0\1\0\0'), (cid, T0, b'\0\1\0\0')])
-            out.write_records(buf, st + np.array([0, 1]), ln, ci, lg)
+            out.write_messages([cid, cid], [T0, -1], [b'\0\1\0\0', b'\0\1\0\0'])
     assert not (tmp_path / 'out').exists()
     with pytest.raises(BagError, match='exists already'):
         ExtendedBag(McapBag(src), src)

@@ -60,21 +60,33 @@ def stride_runs(offsets: np.ndarray, *keys: np.ndarray) -> list:
 
 
 # --------------------------------------------------------------------------- gathers
-def _gather(buf: np.ndarray, offs: np.ndarray, dtype: str) -> np.ndarray:
-    """The dtype values at byte offsets offs of buf (strided views where regular)."""
-    size = np.dtype(dtype).itemsize
+def _gather_rows(buf: np.ndarray, offs: np.ndarray, width: int,
+                 runs: list | None = None) -> np.ndarray:
+    """(m, width) uint8: the bytes buf[offs[i]:offs[i] + width] (strided views where regular;
+    runs: stride_runs(offs), or of any offsets that differ from offs by a constant)."""
     offs = np.asarray(offs, dtype=np.int64)
-    if offs.size and (int(offs.min()) < 0 or int(offs.max()) + size > buf.size):
+    if offs.size and (int(offs.min()) < 0 or int(offs.max()) + width > buf.size):
         raise FastPathError('field outside the message buffer')
-    runs = stride_runs(offs)
+    runs = stride_runs(offs) if runs is None else runs
     if len(runs) > offs.size // 4 + 8:
-        idx = offs[:, None] + np.arange(size, dtype=np.int64)
-        return buf[idx].copy().view(dtype).reshape(-1)
-    out = np.empty(offs.size, dtype=dtype)
+        return buf[offs[:, None] + np.arange(width, dtype=np.int64)]
+    out = np.empty((offs.size, width), dtype=_U8)
     for lo, hi, stride in runs:
-        out[lo:hi] = np.ndarray((hi - lo,), dtype=dtype, buffer=buf, offset=int(offs[lo]),
-                                strides=(stride,))
+        out[lo:hi] = np.ndarray((hi - lo, width), dtype=_U8, buffer=buf,
+                                offset=int(offs[lo]), strides=(stride, 1))
     return out
+
+
+def _field(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
+    """Column bytes rows[:, at:at + size] as dtype values."""
+    size = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, at:at + size]).view(dtype).reshape(-1)
+
+
+def _gather(buf: np.ndarray, offs: np.ndarray, dtype: str, runs: list | None = None
+            ) -> np.ndarray:
+    """The dtype values at byte offsets offs of buf."""
+    return _field(_gather_rows(buf, offs, np.dtype(dtype).itemsize, runs), 0, dtype)
 
 
 def _gather_f64_indexed(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray,
@@ -111,14 +123,13 @@ def gather_f64(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.nd
     if len(runs) > starts.size // 4 + 8:  # irregular layout: per-run views would be slow
         _gather_f64_indexed(buf, starts, counts, out)
         return out.astype(np.float64, copy=False)
-    dest = (np.cumsum(counts) - counts).tolist()
-    st, cn = starts.tolist(), counts.tolist()
+    dest = np.cumsum(counts) - counts
     for lo, hi, stride in runs:
-        n, k = cn[lo], hi - lo
+        n, k, d0 = int(counts[lo]), hi - lo, int(dest[lo])
         if n:
-            view = np.ndarray((k, n), dtype='<f8', buffer=buf, offset=st[lo],
+            view = np.ndarray((k, n), dtype='<f8', buffer=buf, offset=int(starts[lo]),
                               strides=(stride, 8))
-            out[dest[lo]:dest[lo] + k * n].reshape(k, n)[...] = view
+            out[d0:d0 + k * n].reshape(k, n)[...] = view
     return out.astype(np.float64, copy=False)
 
 
@@ -166,28 +177,36 @@ def decode_blocks(buf, starts: np.ndarray, lengths: np.ndarray,
                       {f: z for f in fields}, b, (z, z))
     if (lengths < 24).any():
         raise FastPathError('message too short')
-    enc = _gather(b, starts, 'u2')
-    if (enc != 0x0100).any():  # bytes 00 01: CDR_LE
+    runs = stride_runs(starts)
+
+    def at(rel, width):  # rows of width bytes at starts + rel (rel: int or per message)
+        if np.ndim(rel) == 0 or (rel == rel[0]).all():
+            return _gather_rows(b, starts + int(np.ravel(rel)[0]), width, runs)
+        return _gather_rows(b, starts + rel, width)
+
+    head = at(0, 16)  # encapsulation, stamp, frame_id length
+    if (_field(head, 0, '<u2') != 0x0100).any():  # bytes 00 01: CDR_LE
         raise FastPathError('not little-endian CDR')
     body = starts + 4
     end = starts + lengths
-    sec = _gather(b, body, '<i4').astype(np.int64)
-    nsec = _gather(b, body + 4, '<u4').astype(np.int64)
-    slen = _gather(b, body + 8, '<u4').astype(np.int64)
+    sec = _field(head, 4, '<i4').astype(np.int64)
+    nsec = _field(head, 8, '<u4').astype(np.int64)
+    slen = _field(head, 12, '<u4').astype(np.int64)
     if (slen < 1).any() or (body + 12 + slen > end).any():
         raise FastPathError('bad frame_id length')
     cur = (12 + slen + 7) & ~7
     if (body + cur + 16 > end).any():
         raise FastPathError('message too short')
-    rate = _gather(b, body + cur, '<f8')
-    seq = _gather(b, body + cur + 8, '<u8')
+    rs = at(4 + cur, 16)
+    rate = _field(rs, 0, '<f8')
+    seq = _field(rs, 8, '<u8')
     cur = cur + 16
     counts, vstarts = {}, {}
     for f in fields:
         cur = (cur + 3) & ~3
         if (body + cur + 4 > end).any():
             raise FastPathError('message too short')
-        n = _gather(b, body + cur, '<u4').astype(np.int64)
+        n = _field(at(4 + cur, 4), 0, '<u4').astype(np.int64)
         cur = cur + 4
         cur = np.where(n > 0, (cur + 7) & ~7, cur)
         if (body + cur + 8 * n > end).any():
@@ -209,14 +228,50 @@ def _view(buf: np.ndarray, offset: int, k: int, stride: int, dtype: str,
     return np.ndarray(shape, dtype=dtype, buffer=buf, offset=offset, strides=strides)
 
 
+def _block_layout(fields: Sequence[str], cnt: dict, head_len: int, m: int) -> tuple:
+    """Per message and field the offsets of the count and of the data (relative to the byte
+    after the encapsulation header), and the message lengths."""
+    size = np.full(m, head_len, dtype=np.int64)
+    pos_c, pos_d = {}, {}
+    for f in fields:
+        size = (size + 3) & ~3
+        pos_c[f] = size.copy()
+        size = size + 4
+        n = cnt[f]
+        size = np.where(n > 0, (size + 7) & ~7, size)
+        pos_d[f] = size.copy()
+        size = size + 8 * n
+    return pos_c, pos_d, size + 4
+
+
+def _frame_layout(frame_id: str) -> tuple:
+    """(frame_id bytes with NUL, offset of sample_rate_hz, length of the fixed head)."""
+    fb = frame_id.encode('utf-8') + b'\x00'
+    off = (12 + len(fb) + 7) & ~7
+    return fb, off, off + 16
+
+
+def _counts(fields: Sequence[str], counts: dict, m: int) -> dict:
+    return {f: (np.asarray(counts[f], dtype=np.int64) if f in counts
+                else np.zeros(m, np.int64)) for f in fields}
+
+
+def block_lengths(fields: Sequence[str], counts: dict, frame_id: str = '') -> np.ndarray:
+    """The CDR byte lengths encode_blocks gives messages with these sample counts."""
+    m = len(next(iter(counts.values()))) if counts else 0
+    return _block_layout(fields, _counts(fields, counts, m), _frame_layout(frame_id)[2], m)[2]
+
+
 def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
-                  values: dict, frame_id: str = '', gap: int = 0) -> tuple:
-    """CDR of m block messages -> (buffer bytes, starts, lengths).
+                  values: dict, frame_id: str = '', gap: int = 0, out: np.ndarray | None = None,
+                  starts: np.ndarray | None = None) -> tuple:
+    """CDR of m block messages -> (buffer, starts, lengths).
 
     stamps_ns, seqs: int arrays (m,); rate_hz scalar or (m,); fields: float64[] field names in
     type order; counts[f]: (m,) sample counts (absent: all 0); values[f]: concatenated values.
-    gap: zero bytes left before each message (room for a record header); the buffer is then a
-    writable numpy uint8 array instead of bytes.
+    The buffer is bytes with the messages back to back, or with gap > 0 a writable uint8 array
+    with gap zero bytes before each message (room for a record header). With out and starts,
+    message i is written at out[starts[i]:] (room for block_lengths() bytes) and out returned.
     """
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     m = stamps.size
@@ -231,12 +286,8 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
     if m and (sec.min() < -2**31 or sec.max() >= 2**31):
         raise FastPathError('stamp out of int32 seconds')
     nsec = stamps % NS_PER_S
-    fb = frame_id.encode('utf-8') + b'\x00'
-    off = 12 + len(fb)
-    off = (off + 7) & ~7
-    head_len = off + 16
-    cnt = {f: (np.asarray(counts[f], dtype=np.int64) if f in counts
-               else np.zeros(m, np.int64)) for f in fields}
+    fb, off, head_len = _frame_layout(frame_id)
+    cnt = _counts(fields, counts, m)
     vals = {}
     for f in fields:
         tot = int(cnt[f].sum())
@@ -244,39 +295,36 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
             vals[f] = np.asarray(values[f], dtype='<f8').reshape(-1)
             if vals[f].size != tot:
                 raise FastPathError(f'{f}: {vals[f].size} values for {tot} samples')
-    # per message, per field: offset of the count and of the data (relative to body)
-    size = np.full(m, head_len, dtype=np.int64)
-    pos_c, pos_d = {}, {}
-    for f in fields:
-        size = (size + 3) & ~3
-        pos_c[f] = size.copy()
-        size = size + 4
-        n = cnt[f]
-        size = np.where(n > 0, (size + 7) & ~7, size)
-        pos_d[f] = size.copy()
-        size = size + 8 * n
-    lengths = size + 4
-    starts = np.cumsum(lengths + gap) - lengths
-    out = np.zeros(int((lengths + gap).sum()), dtype=_U8)
+    pos_c, pos_d, lengths = _block_layout(fields, cnt, head_len, m)
+    given = out is not None
+    if not given:
+        starts = np.cumsum(lengths + gap) - lengths
+        out = np.zeros(int((lengths + gap).sum()), dtype=_U8)
+    else:
+        starts = np.asarray(starts, dtype=np.int64)
+        if m and (starts.min() < 0 or int((starts + lengths).max()) > out.size):
+            raise FastPathError('messages outside the output buffer')
     fixed = np.zeros(head_len + 4, dtype=_U8)
     fixed[:4] = (0, 1, 0, 0)
     fixed[16:16 + len(fb)] = np.frombuffer(fb, dtype=_U8)
     fixed[12:16] = np.frombuffer(struct.pack('<I', len(fb)), dtype=_U8)
-    dest = {f: (np.cumsum(cnt[f]) - cnt[f]).tolist() for f in fields}
-    st = starts.tolist()
+    dest = {f: np.cumsum(cnt[f]) - cnt[f] for f in fields}
     # messages with the same counts have the same layout: one strided view per run
     for lo, hi, stride in stride_runs(starts, *(cnt[f] for f in fields)):
-        k, s0 = hi - lo, st[lo]
+        k, s0 = hi - lo, int(starts[lo])
         _view(out, s0, k, stride, 'u1', head_len + 4)[...] = fixed
         _view(out, s0 + 4, k, stride, '<i4')[...] = sec[lo:hi]
         _view(out, s0 + 8, k, stride, '<u4')[...] = nsec[lo:hi]
         _view(out, s0 + 4 + off, k, stride, '<f8')[...] = rate[lo:hi]
         _view(out, s0 + 12 + off, k, stride, '<u8')[...] = seq[lo:hi]
         for f in fields:
-            n = int(cnt[f][lo])
-            _view(out, s0 + 4 + int(pos_c[f][lo]), k, stride, '<u4')[...] = n
+            n, p_c = int(cnt[f][lo]), int(pos_c[f][lo])
+            _view(out, s0 + 4 + p_c, k, stride, '<u4')[...] = n
             if n:
-                d0 = dest[f][lo]
-                _view(out, s0 + 4 + int(pos_d[f][lo]), k, stride, '<f8', n)[...] = \
+                p_d = int(pos_d[f][lo])
+                if given and p_d > p_c + 4:  # alignment padding: out is not ours to zero
+                    _view(out, s0 + 8 + p_c, k, stride, 'u1', p_d - p_c - 4)[...] = 0
+                d0 = int(dest[f][lo])
+                _view(out, s0 + 4 + p_d, k, stride, '<f8', n)[...] = \
                     vals[f][d0:d0 + k * n].reshape(k, n)
-    return (out if gap else out.tobytes()), starts, lengths
+    return (out if gap or given else out.tobytes()), starts, lengths

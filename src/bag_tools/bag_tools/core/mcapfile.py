@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 from .errors import BagError, one_line
-from .fastcdr import FastPathError, _gather, stride_runs
+from .fastcdr import FastPathError, _field, _gather_rows, stride_runs
 from .writer import METADATA_VERSION, check_new_bag_path
 
 MAGIC = b'\x89MCAP0\r\n'
@@ -213,7 +213,7 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
     buf = np.frombuffer(mm, dtype=_U8)
     size = buf.size
     want = {t: i for i, t in enumerate(topics)}
-    logs, chans, offs, ords, cks = [], [], [], [], []
+    logs, chans, offs = [], [], []
     for c in summary.chunks:
         for cid, moff in c.message_index.items():
             t = summary.channels.get(cid, (0, None, b''))[1]
@@ -229,23 +229,20 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
                 raise FastPathError('message offset outside its chunk')
             logs.append(ent[:, 0].astype(np.int64))
             offs.append(c.records_start + rel)
-            ords.append(rel)
             chans.append(np.full(rel.size, want[t], dtype=np.int64))
-            cks.append(np.full(rel.size, c.start, dtype=np.int64))
     if not logs:
         z = np.zeros(0, np.int64)
         return RawMessages(buf, z, z, z, z, mm), list(topics)
     log = np.concatenate(logs)
     off = np.concatenate(offs)
     chan = np.concatenate(chans)
-    if (buf[off] != 0x05).any():
-        raise FastPathError('message index does not point to messages')
-    rec_len = _gather(buf, off + 1, '<u8').astype(np.int64)
-    rec_log = _gather(buf, off + 15, '<u8').astype(np.int64)
-    if (rec_log != log).any() or (rec_len < 22).any() or (off + 9 + rec_len > size).any():
+    rec = _gather_rows(buf, off, 23)  # opcode, record length, channel, sequence, log time
+    rec_len = _field(rec, 1, '<u8').astype(np.int64)
+    if (rec[:, 0] != 0x05).any() or (_field(rec, 15, '<u8').astype(np.int64) != log).any() \
+            or (rec_len < 22).any() or (off + 9 + rec_len > size).any():
         raise FastPathError('message index disagrees with the messages')
-    # rosbags order: log time, then chunk start offset, then position in the chunk
-    order = np.lexsort((np.concatenate(ords), np.concatenate(cks), log))
+    # rosbags order: log time, then chunk start offset, then position in the chunk (= offset)
+    order = np.lexsort((off, log))
     return RawMessages(buf, log[order], chan[order], (off + RECORD_HEADER)[order],
                        (rec_len - 22)[order], mm), list(topics)
 
@@ -257,11 +254,10 @@ def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.nd
     publish time = log time, as rosbags writes)."""
     cols = (('u1', 0, 5), ('<u8', 1, 22 + data_len), ('<u2', 9, cids), ('<u4', 11, 0),
             ('<u8', 15, log_ns), ('<u8', 23, log_ns))
-    st = rec_starts.tolist()
     for lo, hi, stride in stride_runs(rec_starts):
-        k = hi - lo
+        k, s0 = hi - lo, int(rec_starts[lo])
         for dtype, off, v in cols:
-            view = np.ndarray((k,), dtype=dtype, buffer=buf, offset=st[lo] + off,
+            view = np.ndarray((k,), dtype=dtype, buffer=buf, offset=s0 + off,
                               strides=(stride,))
             view[...] = v if np.isscalar(v) else v[lo:hi]
 
@@ -341,10 +337,11 @@ class ExtendedBag:
         self._counts: dict = defaultdict(int)
         self._times = [s.start_ns, s.end_ns]
         self._definitions_written = False
+        self._pending: list = []  # (file offset, buffer) laid out by reserve(), not yet written
         self._fd = -1
         self._pos = 0
-        self._thread: threading.Thread | None = None
-        self._copy_error: BaseException | None = None
+        self._threads: list = []  # background copy and writes
+        self._errors: list = []
 
     # -- lifecycle -------------------------------------------------------------------
     def __enter__(self) -> ExtendedBag:
@@ -358,26 +355,40 @@ class ExtendedBag:
             self._abort()
             raise
         self._pos = self.copy_end
-        self._thread = threading.Thread(target=self._copy, name='bag-copy', daemon=True)
-        self._thread.start()
+        self._background(self._copy)
         return self
 
+    def _background(self, fn, *args) -> None:
+        def run():
+            try:
+                fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - re-raised by the main thread
+                self._errors.append(exc)
+        t = threading.Thread(target=run, name='bag-io', daemon=True)
+        t.start()
+        self._threads.append(t)
+
     def _copy(self) -> None:
-        try:
-            with self.mcap.open('rb') as fi:
-                done = 0
-                while done < self.copy_end:
-                    try:
-                        n = os.copy_file_range(fi.fileno(), self._fd, self.copy_end - done,
-                                               done, done)
-                    except OSError:  # e.g. not supported here: plain copy
-                        n = os.pwrite(self._fd, self.mm[done:min(done + 2**24, self.copy_end)],
-                                      done)
-                    if n <= 0:
-                        raise OSError(f'copy stopped at byte {done} of {self.copy_end}')
-                    done += n
-        except BaseException as exc:  # noqa: BLE001 - re-raised by the main thread
-            self._copy_error = exc
+        with self.mcap.open('rb') as fi:
+            done = 0
+            while done < self.copy_end:
+                try:
+                    n = os.copy_file_range(fi.fileno(), self._fd, self.copy_end - done,
+                                           done, done)
+                except OSError:  # e.g. not supported here: plain copy
+                    n = os.pwrite(self._fd, self.mm[done:min(done + 2**24, self.copy_end)],
+                                  done)
+                if n <= 0:
+                    raise OSError(f'copy stopped at byte {done} of {self.copy_end}')
+                done += n
+
+    def _write_at(self, pos: int, data) -> int:
+        view = memoryview(data).cast('B')
+        while view.nbytes:
+            n = os.pwrite(self._fd, view, pos)
+            pos += n
+            view = view[n:]
+        return pos
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
@@ -392,17 +403,16 @@ class ExtendedBag:
             raise
 
     def _join(self) -> None:
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        if self._copy_error is not None:
-            raise self._copy_error
+        for t in self._threads:
+            t.join()
+        self._threads = []
+        if self._errors:
+            raise self._errors[0]
 
     def _abort(self) -> None:
         try:
-            if self._thread is not None:
-                self._thread.join()
-                self._thread = None
+            for t in self._threads:
+                t.join()
         finally:
             if self._fd >= 0:
                 os.close(self._fd)
@@ -433,83 +443,104 @@ class ExtendedBag:
     def _write(self, *parts) -> None:
         try:
             for part in parts:
-                view = memoryview(part).cast('B')
-                while view.nbytes:
-                    n = os.pwrite(self._fd, view, self._pos)
-                    self._pos += n
-                    view = view[n:]
+                self._pos = self._write_at(self._pos, part)
         except OSError as exc:
             raise BagError(f'cannot write bag {str(self.dst)!r}: {one_line(exc)}') from None
+
+    def commit(self) -> None:
+        """Start writing the buffers of earlier reserve() calls (their data must be complete)
+        in the background; the rest are written when the bag is closed."""
+        pending, self._pending = self._pending, []
+        for pos, buf in pending:
+            self._background(self._write_at, pos, buf)
 
     def _write_definitions(self) -> None:
         if not self._definitions_written:  # schemas and channels precede their messages
             self._write(b''.join(self._new_schemas) + b''.join(c[4] for c in self._new_channels))
             self._definitions_written = True
 
-    def write_records(self, buf: np.ndarray, rec_starts: np.ndarray, data_len: np.ndarray,
-                      cids: np.ndarray, log_ns: np.ndarray) -> None:
-        """Append messages whose CDR data sit in buf (a writable uint8 array) right after a
-        31-byte gap each, records back to back from rec_starts[0]. Fills the record headers in
-        buf. Messages out of log order are put in order (stable) first."""
-        rec_starts = np.asarray(rec_starts, dtype=np.int64)
-        m = int(rec_starts.size)
-        if m == 0:
-            return
-        data_len = np.asarray(data_len, dtype=np.int64)
+    def reserve(self, cids, data_len, log_ns) -> tuple:
+        """Lay out new messages (channel ids, CDR byte lengths, log times; any order) as chunks
+        at the end of the file: returns (buf, starts), the uint8 buffer of that stretch of the
+        file and, per message in the caller's order, where its CDR data go in buf. Chunk, record
+        and message-index headers are filled in here; the caller must write every data byte
+        before the bag is closed (when buf is written to the file). In the file the messages
+        are in log order (stable)."""
         cids = np.asarray(cids, dtype=np.int64)
+        data_len = np.asarray(data_len, dtype=np.int64)
         log_ns = np.asarray(log_ns, dtype=np.int64)
-        ends = rec_starts + RECORD_HEADER + data_len
-        if (rec_starts[1:] != ends[:-1]).any() or log_ns.min() < 0 or ends[-1] > buf.size \
-                or rec_starts[0] < 0 or (data_len < 0).any():
-            raise BagError('records must lie back to back inside the buffer, log times >= 0')
-        if (np.diff(log_ns) < 0).any():
-            o = np.argsort(log_ns, kind='stable')
-            buf = np.concatenate([buf[a:b] for a, b in zip(rec_starts[o].tolist(),
-                                                          ends[o].tolist())])
-            data_len, cids, log_ns = data_len[o], cids[o], log_ns[o]
-            ends = np.cumsum(RECORD_HEADER + data_len)
-            rec_starts = ends - RECORD_HEADER - data_len
+        m = int(cids.size)
+        if m == 0:
+            return np.zeros(0, _U8), np.zeros(0, np.int64)
+        if log_ns.min() < 0 or (data_len < 4).any():
+            raise BagError('messages need log times >= 0 and CDR data of >= 4 bytes')
         self._write_definitions()
-        fill_record_headers(buf, rec_starts, data_len, cids, log_ns)
-        i = 0
-        rel_end = ends - rec_starts[0]
-        while i < m:
-            base = int(rec_starts[i]) - int(rec_starts[0])
-            j = max(int(np.searchsorted(rel_end, base + CHUNK_BYTES, 'right')), i + 1)
-            self._write_chunk(buf, rec_starts[i:j], ends[j - 1], cids[i:j], log_ns[i:j])
-            i = j
-        for cid in np.unique(cids).tolist():
-            self._counts[cid] += int(np.count_nonzero(cids == cid))
-        self._times = [min(self._times[0], int(log_ns[0])), max(self._times[1], int(log_ns[-1]))]
+        order = np.argsort(log_ns, kind='stable')
+        if (order == np.arange(m)).all():
+            order = None
+        c, n, lg = (cids, data_len, log_ns) if order is None else \
+            (cids[order], data_len[order], log_ns[order])
+        rec_end = np.cumsum(RECORD_HEADER + n)     # record ends relative to the first record
+        rec_rel = rec_end - RECORD_HEADER - n
+        bounds = [0]
+        while bounds[-1] < m:                      # chunks of about CHUNK_BYTES of records
+            i = bounds[-1]
+            base = int(rec_rel[i])
+            bounds.append(max(int(np.searchsorted(rec_end, base + CHUNK_BYTES, 'right')), i + 1))
+        # layout: per chunk the chunk record (header 49 bytes + records), then its indexes
+        plan, pos = [], self._pos
+        abs_rec = np.empty(m, dtype=np.int64)
+        for i, j in zip(bounds[:-1], bounds[1:]):
+            size = int(rec_end[j - 1] - rec_rel[i])
+            abs_rec[i:j] = pos + 49 + rec_rel[i:j] - rec_rel[i]
+            ch = c[i:j]
+            chans = np.unique(ch).tolist()
+            counts = [int(np.count_nonzero(ch == k)) for k in chans]
+            mi_len = sum(15 + 16 * k for k in counts)
+            plan.append((i, j, pos, size, chans, mi_len))
+            pos += 49 + size + mi_len
+        total = pos - self._pos
+        buf = np.empty(total, dtype=_U8)  # every byte is written: by us or by the caller
+        shift = self._pos
+        self._pending.append((self._pos, buf))
+        fill_record_headers(buf, abs_rec - shift, n, c, lg)
+        for i, j, start, size, chans, mi_len in plan:
+            t0, t1 = int(lg[i:j].min()), int(lg[i:j].max())
+            head = bytes((0x06,)) + struct.pack('<QQQQI', 40 + size, t0, t1, size, 0) \
+                + _str('') + struct.pack('<Q', size)
+            buf[start - shift:start - shift + 49] = np.frombuffer(head, _U8)
+            p = start + 49 + size
+            index = []
+            rel = abs_rec[i:j] - (start + 49)
+            for k in chans:
+                sel = c[i:j] == k
+                ent = np.empty((int(sel.sum()), 2), dtype='<u8')
+                ent[:, 0], ent[:, 1] = lg[i:j][sel], rel[sel]
+                rec = _record(0x07, struct.pack('<HI', k, ent.nbytes) + ent.tobytes())
+                buf[p - shift:p - shift + len(rec)] = np.frombuffer(rec, _U8)
+                index.append(struct.pack('<HQ', k, p))
+                p += len(rec)
+            mi = b''.join(index)
+            self._chunk_index.append(_record(0x08, struct.pack(
+                '<QQQQI', t0, t1, start, 49 + size, len(mi)) + mi + struct.pack('<Q', mi_len)
+                + _str('') + struct.pack('<QQ', size, size)))
+        self._pos += total
+        for k in np.unique(c).tolist():
+            self._counts[k] += int(np.count_nonzero(c == k))
+        self._times = [min(self._times[0], int(lg.min())), max(self._times[1], int(lg.max()))]
+        data = abs_rec - shift + RECORD_HEADER
+        if order is not None:
+            out = np.empty(m, dtype=np.int64)
+            out[order] = data
+            data = out
+        return buf, data
 
-    def _write_chunk(self, buf, starts, end, cids, log) -> None:
-        r0 = int(starts[0])
-        size = int(end) - r0
-        t0, t1 = int(log.min()), int(log.max())
-        chunk_start = self._pos
-        head = struct.pack('<QQQI', t0, t1, size, 0) + _str('') + struct.pack('<Q', size)
-        self._write(bytes((0x06,)) + struct.pack('<Q', len(head) + size) + head,
-                    memoryview(buf)[r0:r0 + size])
-        chunk_len = self._pos - chunk_start
-        rel = starts - r0
-        index = []
-        parts = []
-        pos = self._pos
-        for cid in np.unique(cids).tolist():
-            sel = cids == cid
-            ent = np.empty((int(sel.sum()), 2), dtype='<u8')
-            ent[:, 0], ent[:, 1] = log[sel], rel[sel]
-            body = struct.pack('<HI', cid, ent.nbytes) + ent.tobytes()
-            index.append(struct.pack('<HQ', cid, pos))
-            rec = _record(0x07, body)
-            parts.append(rec)
-            pos += len(rec)
-        self._write(b''.join(parts))
-        mi = b''.join(index)
-        self._chunk_index.append(_record(0x08, struct.pack('<QQQQI', t0, t1, chunk_start,
-                                                           chunk_len, len(mi)) + mi
-                                         + struct.pack('<Q', self._pos - chunk_start - chunk_len)
-                                         + _str('') + struct.pack('<QQ', size, size)))
+    def write_messages(self, cids, log_ns, datas: Sequence[bytes]) -> None:
+        """Append messages given as CDR bytes (any order; few: copied one by one)."""
+        lens = np.array([len(d) for d in datas], dtype=np.int64)
+        buf, starts = self.reserve(cids, lens, log_ns)
+        for d, s in zip(datas, starts.tolist()):
+            buf[s:s + len(d)] = np.frombuffer(d, _U8)
 
     # -- closing -----------------------------------------------------------------------
     def _metadata(self) -> dict:
@@ -540,6 +571,7 @@ class ExtendedBag:
 
     def _finish(self) -> None:
         self._write_definitions()
+        self.commit()
         s = self.summary
         info = self._metadata()
         dumper = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)

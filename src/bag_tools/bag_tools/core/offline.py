@@ -34,8 +34,8 @@ from .convert import CORRECTED_NAME, CORRECTED_TOPIC, header, place_pulls, stamp
 from .daq import (CAMPAIGN_FILE, NS_PER_S, Campaign, DaqPull, end_stamp_ns, read_campaign,
                   sample_stamps_ns, write_campaign)
 from .errors import BagError
-from .fastcdr import FastPathError, decode_blocks, encode_blocks
-from .mcapfile import RECORD_HEADER, ExtendedBag, McapBag, read_topics_raw
+from .fastcdr import FastPathError, block_lengths, decode_blocks, encode_blocks
+from .mcapfile import ExtendedBag, McapBag, read_topics_raw
 from .reader import open_bag
 from .typestore import default_typestore, shared_typestore
 from .writer import BagWriter
@@ -348,21 +348,27 @@ def _read_bag(src: Path, fast: McapBag | None, runs: _Runs, warnings: list,
             'frame': frame}
 
 
-def _corrected_blocks(arr: dict, data: dict, gap: int) -> tuple:
-    """The /corrected_force blocks (one per input pair, seq from 0) as encode_blocks gives
-    them, and their log times (each block's last sample, as the live node publishes)."""
+def _corrected_blocks(arr: dict, data: dict, target: ExtendedBag | None = None,
+                      cid: int = 0) -> tuple:
+    """The /corrected_force blocks (one per input pair, seq from 0) and their log times (each
+    block's last sample, as the live node publishes): encode_blocks' (buffer, starts, lengths)
+    of their CDR, or, with a target, encoded in place into the space target.reserve() gives."""
     stamps, ns, rates = data['pairs']
     ends = np.cumsum(ns)
     last = np.where(ns > 0, arr['t'][np.maximum(ends - 1, 0)], stamps)
+    counts = {f: ns for f in CORRECTED_FIELDS}
+    out = starts = None
+    if target is not None:
+        out, starts = target.reserve(np.full(ns.size, cid),
+                                     block_lengths(CORRECTED_FIELDS, counts, data['frame']), last)
     try:
-        buf, starts, lengths = encode_blocks(
-            stamps, rates, np.arange(stamps.size), CORRECTED_FIELDS,
-            {f: ns for f in CORRECTED_FIELDS},
-            {'raw_n': arr['raw'], 'inertial_n': arr['inertial'], 'corrected_n': arr['corrected'],
-             'filtered_n': arr['filtered']}, data['frame'], gap=gap)
+        enc = encode_blocks(stamps, rates, np.arange(stamps.size), CORRECTED_FIELDS, counts,
+                            {'raw_n': arr['raw'], 'inertial_n': arr['inertial'],
+                             'corrected_n': arr['corrected'], 'filtered_n': arr['filtered']},
+                            data['frame'], out=out, starts=starts)
     except FastPathError as exc:
         raise BagError(f'cannot write the corrected blocks: {exc}') from None
-    return buf, starts, lengths, last
+    return (*enc, last)
 
 
 def _result_messages(store, pulls: list, by_pull: list) -> list:
@@ -397,31 +403,19 @@ def _extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
     return ExtendedBag(fast, dst)
 
 
-def _write_extension(target: ExtendedBag, arr: dict, data: dict, pulls: list,
-                     by_pull: list) -> None:
+def _add_result_topics(target: ExtendedBag) -> dict:
     store = shared_typestore()
-    cids = {t: target.add_topic(t, ty, store.generate_msgdef(ty, ros_version=2)[0],
+    return {t: target.add_topic(t, ty, store.generate_msgdef(ty, ros_version=2)[0],
                                 store.hash_rihs01(ty))
             for t, ty in ((CORRECTED_TOPIC, CORRECTED_NAME), ('/pull_score', SCORE_TYPE),
                           ('/set_summary', SUMMARY_TYPE))}
-    buf, starts, lengths, last = _corrected_blocks(arr, data, RECORD_HEADER)
-    target.write_records(buf, starts - RECORD_HEADER, lengths,
-                         np.full(starts.size, cids[CORRECTED_TOPIC]), last)
-    small = _result_messages(store, pulls, by_pull)
-    if small:
-        lens = np.array([len(g[4]) for g in small], dtype=np.int64)
-        sbuf = np.frombuffer(bytearray(b''.join(bytes(RECORD_HEADER) + g[4] for g in small)),
-                             dtype=np.uint8)
-        target.write_records(sbuf, np.cumsum(lens + RECORD_HEADER) - lens - RECORD_HEADER,
-                             lens, np.array([cids[g[2]] for g in small]),
-                             np.array([g[0] for g in small], dtype=np.int64))
 
 
 def _write_bag(src: Path, dst: Path, arr: dict, data: dict, pulls: list, by_pull: list,
                warnings: list) -> None:
     """The generic writer: every input message through rosbags, merged with the results."""
     store = default_typestore()
-    buf, starts, lengths, last = _corrected_blocks(arr, data, 0)
+    buf, starts, lengths, last = _corrected_blocks(arr, data)
     generated = [(int(lg), 0, CORRECTED_TOPIC, CORRECTED_NAME, buf[a:a + k])
                  for lg, a, k in zip(last.tolist(), starts.tolist(), lengths.tolist())]
     generated += _result_messages(store, pulls, by_pull)
@@ -535,11 +529,17 @@ def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: in
         with target if target is not None else nullcontext():
             data = _read_bag(src, fast, runs, warnings, progress)
             arrays = runs.arrays()
+            if target is not None:  # written in the background while scoring
+                cids = _add_result_topics(target)
+                _corrected_blocks(arrays, data, target, cids[CORRECTED_TOPIC])
+                target.commit()
             pulls, stats = _score(arrays, data['windows'], data['drops'], loaded_fraction,
                                   warnings)
             by_pull = _running_summaries(pulls, stats)
             if target is not None:
-                _write_extension(target, arrays, data, pulls, by_pull)
+                small = _result_messages(shared_typestore(), pulls, by_pull)
+                target.write_messages([cids[g[2]] for g in small], [g[0] for g in small],
+                                      [g[4] for g in small])
     else:
         camp = read_campaign(src)
         warnings.extend(camp.warnings)

@@ -27,9 +27,15 @@ from typing import Optional, Tuple
 
 import numpy as np
 import yaml
-from scipy.signal import lfilter
 
 from .errors import CorrectionError
+
+
+def _lfilter():
+    """scipy.signal.lfilter, imported on first use (scipy.signal takes ~1 s to import, which
+    every command importing this module would otherwise pay)."""
+    from scipy.signal import lfilter
+    return lfilter
 
 
 @dataclass(frozen=True)
@@ -134,9 +140,9 @@ class ForcePrefilter:
             y, hum_state = self.hum.process(y, hum_state)
         for (b, a), zi in zip(self.stages, zis):
             if len(zi):
-                y, zf = lfilter(b, a, y, zi=zi)
+                y, zf = _lfilter()(b, a, y, zi=zi)
             else:
-                y, zf = lfilter(b, a, y), zi
+                y, zf = _lfilter()(b, a, y), zi
             new.append(zf)
         self.state = (tuple(new), float(x[-1]), hum_state)
         if bad.any():
@@ -169,7 +175,7 @@ class HumCanceller:
         c, s = np.cos(self.w * n), np.sin(self.w * n)
         m = (np.abs(x) < self.unloaded).astype(float)
         terms = np.stack([m * c * c, m * c * s, m * s * s, m * x * c, m * x * s])
-        sums, zf = lfilter([1.0], [1.0, -self.lam], terms, axis=1, zi=self.lam * zi)
+        sums, zf = _lfilter()([1.0], [1.0, -self.lam], terms, axis=1, zi=self.lam * zi)
         # the sums before each sample: shift by one (the first uses the carried state)
         prev = np.concatenate([zi, sums[:, :-1]], axis=1)
         cc, cs, ss, xc, xs = prev
