@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 REPO = Path(__file__).resolve().parents[1]
 for _d in reversed([REPO / 'src' / p for p in ('bag_tools', 'force_tester_common',
@@ -241,6 +243,62 @@ def test_encode_blocks_equals_serialize_cdr(store, type_name):
             np.testing.assert_array_equal(blocks.stamp_ns, stamps)
             for f in flds:
                 np.testing.assert_array_equal(bits(blocks.values(f)), bits(values[f]))
+
+
+@pytest.mark.parametrize('regular', [True, False])
+def test_encode_blocks_into_a_given_buffer(store, regular):
+    """out/starts (messages anywhere, in any order, in a buffer full of junk) and gap give
+    the same message bytes as the plain call; block_lengths predicts the lengths."""
+    from bag_tools.core.fastcdr import block_lengths
+    rng = np.random.default_rng(21 + regular)
+    flds = fields_of(store, FORCE)
+    m = 300
+    counts = {f: (np.full(m, 50) if regular else rng.choice([0, 1, 50], m)) for f in flds}
+    values = {f: rand_values(rng, int(counts[f].sum())) for f in flds}
+    args = (T0 + np.arange(m) * 1_000_000, 50000.0, np.arange(m), flds, counts, values, 'lc')
+    ref, rst, rln = encode_blocks(*args)
+    np.testing.assert_array_equal(block_lengths(flds, counts, 'lc'), rln)
+    gapped, gst, gln = encode_blocks(*args, gap=31)
+    assert [bytes(gapped[a:a + n]) for a, n in zip(gst, gln)] == \
+        [ref[a:a + n] for a, n in zip(rst, rln)]
+    order = rng.permutation(m) if not regular else np.arange(m)
+    room = rln[order] + rng.integers(0, 9, m) * (not regular)
+    pos = np.empty(m, np.int64)
+    pos[order] = np.cumsum(room) - room + 5
+    out = rng.integers(0, 256, int(room.sum()) + 5, dtype=np.uint8)
+    buf, st, ln = encode_blocks(*args, out=out, starts=pos)
+    assert buf is out
+    assert [bytes(out[a:a + n]) for a, n in zip(pos, ln)] == [ref[a:a + n] for a, n in
+                                                             zip(rst, rln)]
+    with pytest.raises(FastPathError):
+        encode_blocks(*args, out=out[:-9], starts=pos + 4)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.sampled_from([8, 8, 8, 16, 1700, -24, 0, 3]), max_size=60),
+       st.lists(st.integers(0, 3), min_size=60, max_size=60), st.integers(0, 2))
+def test_stride_runs_and_gathers_match_indexing(steps, counts, kind):
+    """Runs cover every message once, each one stride and one count; gathers through them
+    equal plain indexing for regular, irregular and overlapping layouts."""
+    from bag_tools.core.fastcdr import _gather, gather_f64, stride_runs
+    offs = 64 + np.cumsum([0] + steps[:-1]).astype(np.int64) if steps else np.zeros(0, np.int64)
+    offs = offs - min(0, int(offs.min(initial=0))) + 64
+    m = offs.size
+    cnt = np.array(counts[:m], dtype=np.int64) if kind else np.full(m, 2, np.int64)
+    runs = stride_runs(offs, cnt)
+    covered = []
+    for lo, hi, stride in runs:
+        assert hi > lo and stride > 0
+        assert (np.diff(offs[lo:hi]) == stride).all() and (cnt[lo:hi] == cnt[lo]).all()
+        covered += range(lo, hi)
+    assert covered == list(range(m))
+    buf = np.random.default_rng(m).integers(0, 256, int(offs.max(initial=0)) + 64,
+                                            dtype=np.uint8)
+    want = [buf[o:o + 8].view('<f8')[0] for o in offs.tolist()]
+    np.testing.assert_array_equal(bits(_gather(buf, offs, '<f8')), bits(want))
+    vals = [buf[o:o + 8 * c].view('<f8') for o, c in zip(offs.tolist(), cnt.tolist())]
+    ref = np.concatenate(vals) if vals else np.zeros(0)
+    np.testing.assert_array_equal(bits(gather_f64(buf, offs, cnt)), bits(ref))
 
 
 def test_encode_blocks_absent_fields_and_errors(store):
@@ -686,3 +744,33 @@ def test_correct_write_fast_equals_encode_path(base_bag, tmp_path, monkeypatch, 
     assert u1 == u2 == 1
     assert r1 == r2
     assert generic(tmp_path / 'a') == generic(tmp_path / 'b')
+
+
+def test_correct_fast_path_segments_and_extension(base_bag, tmp_path, monkeypatch):
+    """The fast path cuts runs into segments (prefilter and correction state carried across):
+    tiny segments that split blocks' runs anywhere give the generic path's numbers, with and
+    without an extension, and the same output bag."""
+    ext = tmp_path / 'extension.yaml'
+    ext.write_text('correction:\n  mass_kg: 1.2\n  moving_cell_gain: 1.01\n'
+                   '  accel_delay_s: 3.0e-5\n  ac_coupling_time_constant_s: 2.0\n'
+                   '  mains_hum_hz: 60.0\n')
+    for extension in (None, ext):
+        out = {}
+        for mode, seg in (('generic', None), ('fast', 37), ('fast', 10**9)):
+            with monkeypatch.context() as mp:
+                if seg is not None:
+                    mp.setattr(offline, 'SEGMENT_SAMPLES', seg)
+                else:
+                    mp.setattr(offline, '_read_bag_fast', lambda *a: (_ for _ in ()).throw(
+                        FastPathError('disabled by the test')))
+                dst = tmp_path / f'{mode}-{seg}-{extension is not None}'
+                out[(mode, seg)] = (correct(base_bag, dst, extension=extension), generic(dst))
+        (ref, ref_bag), *others = out.values()
+        assert ref['pulls'] and ref['runs'] >= 2
+        for res, bag in others:
+            assert res['runs'] == ref['runs'] and res['warnings'] == ref['warnings']
+            for p, q in zip(res['pulls'], ref['pulls']):
+                for k in p:
+                    assert p[k] == q[k] or abs(p[k] - q[k]) <= 1e-9, (k, p[k], q[k])
+            assert [(t, lg) for t, _ty, lg, _c in bag] == [(t, lg) for t, _ty, lg, _c in ref_bag]
+            assert bag == ref_bag  # bit for bit, incl. the corrected blocks

@@ -312,11 +312,13 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
     # messages with the same counts have the same layout: one strided view per run
     for lo, hi, stride in stride_runs(starts, *(cnt[f] for f in fields)):
         k, s0 = hi - lo, int(starts[lo])
-        _view(out, s0, k, stride, 'u1', head_len + 4)[...] = fixed
-        _view(out, s0 + 4, k, stride, '<i4')[...] = sec[lo:hi]
-        _view(out, s0 + 8, k, stride, '<u4')[...] = nsec[lo:hi]
-        _view(out, s0 + 4 + off, k, stride, '<f8')[...] = rate[lo:hi]
-        _view(out, s0 + 12 + off, k, stride, '<u8')[...] = seq[lo:hi]
+        head = np.empty((k, head_len + 4), dtype=_U8)  # built contiguous, copied in one pass
+        head[...] = fixed
+        _view(head, 4, k, head_len + 4, '<i4')[...] = sec[lo:hi]
+        _view(head, 8, k, head_len + 4, '<u4')[...] = nsec[lo:hi]
+        _view(head, 4 + off, k, head_len + 4, '<f8')[...] = rate[lo:hi]
+        _view(head, 12 + off, k, head_len + 4, '<u8')[...] = seq[lo:hi]
+        _view(out, s0, k, stride, 'u1', head_len + 4)[...] = head
         for f in fields:
             n, p_c = int(cnt[f][lo]), int(pos_c[f][lo])
             _view(out, s0 + 4 + p_c, k, stride, '<u4')[...] = n

@@ -95,33 +95,40 @@ def _map(items: dict) -> bytes:
 
 
 def read_summary(path: str | Path, data=None) -> McapSummary:
-    """Parse the summary section of an MCAP file (FastPathError if it has none or is odd)."""
+    """Parse the summary section of an MCAP file (FastPathError if it has none or is odd).
+    data: the file's bytes (or a mapping of it); by default only the summary, the footer and
+    the chunk headers are read from the file."""
     path = Path(path)
-    if data is None:
-        data = map_file(path)
-    size = len(data)
     try:
-        return _read_summary(path, data, size)
+        if data is not None:
+            return _read_summary(path, lambda o, n: bytes(data[o:o + n]), len(data))
+        with path.open('rb') as fh:
+            size = os.fstat(fh.fileno()).st_size
+            return _read_summary(path, lambda o, n: os.pread(fh.fileno(), n, o), size)
     except (struct.error, IndexError, UnicodeDecodeError) as exc:
         raise FastPathError(f'cannot parse MCAP summary: {exc}') from None
+    except OSError as exc:
+        raise FastPathError(f'cannot read {str(path)!r}: {exc}') from None
 
 
-def _read_summary(path: Path, data, size: int) -> McapSummary:
-    if size < 8 + 37 or bytes(data[:8]) != MAGIC or bytes(data[size - 8:size]) != MAGIC:
+def _read_summary(path: Path, read, size: int) -> McapSummary:
+    if size < 8 + 37 or read(0, 8) != MAGIC or read(size - 8, 8) != MAGIC:
         raise FastPathError('not an MCAP file')
     fo = size - 8 - 29  # footer: opcode 0x02, len 20, summary_start, summary_offset_start, crc
-    if data[fo] != 0x02:
+    footer = read(fo, 29)
+    if footer[0] != 0x02:
         raise FastPathError('no MCAP footer')
-    summary_start, = struct.unpack_from('<Q', data, fo + 9)
+    summary_start, = struct.unpack_from('<Q', footer, 9)
     if summary_start == 0 or summary_start >= fo:
         raise FastPathError('MCAP without summary')
     s = McapSummary(path, size, summary_start)
-    pos = summary_start
-    while pos < fo:
+    data = read(summary_start, fo - summary_start)
+    pos = 0
+    while pos < len(data):
         op = data[pos]
         ln, = struct.unpack_from('<Q', data, pos + 1)
         rec = pos + 9
-        if rec + ln > fo:
+        if rec + ln > len(data):
             raise FastPathError('truncated summary')
         raw = bytes(data[pos:rec + ln])
         if op == 0x03:  # schema
@@ -144,11 +151,12 @@ def _read_summary(path: Path, data, size: int) -> McapSummary:
                 p += 10
             milen, = struct.unpack_from('<Q', data, p)
             comp, _p = _string(data, p + 8)
-            if cstart + clen > summary_start or data[cstart] != 0x06:
+            head = read(cstart, 9 + 28 + 4 + 64 + 8) if cstart + clen <= summary_start else b''
+            if not head or head[0] != 0x06:
                 raise FastPathError('chunk index does not point to a chunk')
-            _c, p = _string(data, cstart + 9 + 28)
-            rsize, = struct.unpack_from('<Q', data, p)
-            s.chunks.append(Chunk(cstart, clen, p + 8, rsize, mi, milen, comp, raw))
+            _c, p = _string(head, 9 + 28)
+            rsize, = struct.unpack_from('<Q', head, p)
+            s.chunks.append(Chunk(cstart, clen, cstart + p + 8, rsize, mi, milen, comp, raw))
         elif op == 0x0B:  # statistics
             (_mc, _sc, _cc, s.attachments, _mdc, _chc, s.start_ns,
              s.end_ns) = struct.unpack_from('<QHIIIIQQ', data, rec)
@@ -248,18 +256,21 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
 
 
 # --------------------------------------------------------------------------- writing
+_RECORD = np.dtype([('op', 'u1'), ('len', '<u8'), ('channel', '<u2'), ('seq', '<u4'),
+                    ('log', '<u8'), ('publish', '<u8')])  # packed: 31 bytes
+
+
 def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.ndarray,
                         cids: np.ndarray, log_ns: np.ndarray) -> None:
     """Write the 31-byte message record headers at buf[rec_starts[i]] (sequence 0,
     publish time = log time, as rosbags writes)."""
-    cols = (('u1', 0, 5), ('<u8', 1, 22 + data_len), ('<u2', 9, cids), ('<u4', 11, 0),
-            ('<u8', 15, log_ns), ('<u8', 23, log_ns))
+    head = np.zeros(rec_starts.size, dtype=_RECORD)
+    head['op'], head['len'], head['channel'] = 5, 22 + data_len, cids
+    head['log'] = head['publish'] = log_ns
+    rows = head.view(_U8).reshape(-1, RECORD_HEADER)
     for lo, hi, stride in stride_runs(rec_starts):
-        k, s0 = hi - lo, int(rec_starts[lo])
-        for dtype, off, v in cols:
-            view = np.ndarray((k,), dtype=dtype, buffer=buf, offset=s0 + off,
-                              strides=(stride,))
-            view[...] = v if np.isscalar(v) else v[lo:hi]
+        np.ndarray((hi - lo, RECORD_HEADER), dtype=_U8, buffer=buf,
+                   offset=int(rec_starts[lo]), strides=(stride, 1))[...] = rows[lo:hi]
 
 
 class McapBag:
@@ -292,11 +303,8 @@ class McapBag:
             raise FastPathError('not a one-file uncompressed MCAP bag of metadata version 9')
         self.info = info
         self.mcap = self.path / str(files[0])
-        try:
-            self.mm = map_file(self.mcap)
-        except (OSError, ValueError) as exc:
-            raise FastPathError(f'cannot map {self.mcap}: {exc}') from None
-        self.summary = s = read_summary(self.mcap, self.mm)
+        self.summary = s = read_summary(self.mcap)
+        self._mm: mmap.mmap | None = None
         if (not s.has_statistics or not s.channels or not s.chunks or s.attachments
                 or any(c.compression for c in s.chunks)
                 or any(n != 'rosbag2' for n in s.metadata_names)
@@ -306,6 +314,16 @@ class McapBag:
         if len(ids) != len(s.channels) or ids.keys() != known.keys() or any(
                 known[t] != s.channel_counts.get(cid, 0) for t, cid in ids.items()):
             raise FastPathError('metadata.yaml and the MCAP statistics differ')
+
+    @property
+    def mm(self) -> mmap.mmap:
+        """The file mapped read-only (on first use)."""
+        if self._mm is None:
+            try:
+                self._mm = map_file(self.mcap)
+            except (OSError, ValueError) as exc:
+                raise FastPathError(f'cannot map {self.mcap}: {exc}') from None
+        return self._mm
 
     def topics(self) -> dict:
         """topic -> (type name, message count)."""
@@ -327,7 +345,6 @@ class ExtendedBag:
         check_new_bag_path(self.dst)
         self.info = src.info
         self.mcap = src.mcap
-        self.mm = src.mm
         self.summary = s = src.summary
         self.copy_end = s.chunks_end
         self._schema_ids = {v[0]: k for k, v in s.schemas.items()}
@@ -338,6 +355,7 @@ class ExtendedBag:
         self._times = [s.start_ns, s.end_ns]
         self._definitions_written = False
         self._pending: list = []  # (file offset, buffer) laid out by reserve(), not yet written
+        self._written: list = []  # (writer thread, buffer) of committed buffers, to reuse
         self._fd = -1
         self._pos = 0
         self._threads: list = []  # background copy and writes
@@ -358,7 +376,7 @@ class ExtendedBag:
         self._background(self._copy)
         return self
 
-    def _background(self, fn, *args) -> None:
+    def _background(self, fn, *args) -> threading.Thread:
         def run():
             try:
                 fn(*args)
@@ -367,6 +385,7 @@ class ExtendedBag:
         t = threading.Thread(target=run, name='bag-io', daemon=True)
         t.start()
         self._threads.append(t)
+        return t
 
     def _copy(self) -> None:
         with self.mcap.open('rb') as fi:
@@ -376,8 +395,8 @@ class ExtendedBag:
                     n = os.copy_file_range(fi.fileno(), self._fd, self.copy_end - done,
                                            done, done)
                 except OSError:  # e.g. not supported here: plain copy
-                    n = os.pwrite(self._fd, self.mm[done:min(done + 2**24, self.copy_end)],
-                                  done)
+                    piece = os.pread(fi.fileno(), min(2**24, self.copy_end - done), done)
+                    n = os.pwrite(self._fd, piece, done) if piece else 0
                 if n <= 0:
                     raise OSError(f'copy stopped at byte {done} of {self.copy_end}')
                 done += n
@@ -452,7 +471,7 @@ class ExtendedBag:
         in the background; the rest are written when the bag is closed."""
         pending, self._pending = self._pending, []
         for pos, buf in pending:
-            self._background(self._write_at, pos, buf)
+            self._written.append((self._background(self._write_at, pos, buf), buf))
 
     def _write_definitions(self) -> None:
         if not self._definitions_written:  # schemas and channels precede their messages
@@ -500,7 +519,15 @@ class ExtendedBag:
             plan.append((i, j, pos, size, chans, mi_len))
             pos += 49 + size + mi_len
         total = pos - self._pos
-        buf = np.empty(total, dtype=_U8)  # every byte is written: by us or by the caller
+        buf = None
+        if len(self._written) >= 2:  # double buffering: reuse the older written buffer
+            thread, old = self._written.pop(0)
+            thread.join()
+            if self._errors:
+                raise self._errors[0]
+            buf = old[:total] if old.size >= total else None
+        if buf is None:
+            buf = np.empty(total, dtype=_U8)  # every byte is written: by us or the caller
         shift = self._pos
         self._pending.append((self._pos, buf))
         fill_record_headers(buf, abs_rec - shift, n, c, lg)

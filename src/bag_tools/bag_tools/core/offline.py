@@ -83,62 +83,135 @@ def _pull_event(msg, starts: dict, windows: list, warnings: list) -> None:
         windows.append((st[0], stamp_of(msg), st[1], int(msg.pull_id)))
 
 
-class _Runs:
-    """Concatenated corrected samples of the whole recording, in time order."""
+PART_KEYS = ('t', 'stationary', 'raw', 'inertial', 'corrected', 'filtered')
+SEGMENT_SAMPLES = 1 << 17  # the fast path corrects, scores and writes this many at a time
 
-    def __init__(self, params: CorrectionParams, extension: Extension | None = None) -> None:
-        self.params = params
-        self.extension = extension
-        self.parts: dict = {k: [] for k in ('t', 'stationary', 'raw', 'inertial', 'corrected',
-                                            'filtered')}
+
+class _Scorer:
+    """Scores pull windows (start, end, set, pull_id) over corrected samples fed in time order
+    (or all at once): a window is scored once a sample at or after its end has been seen (or at
+    finish), so only the samples of open windows are held. Same result as slicing the whole
+    recording with searchsorted."""
+
+    KEYS = ('stationary', 'raw', 'corrected', 'filtered')
+
+    def __init__(self, windows: list, drops: list, loaded_fraction: float) -> None:
+        self.windows = list(windows)
+        self.open = {i: [] for i in range(len(self.windows))}
+        self.outcome: dict = {}
+        self.drops = np.array(sorted(drops), dtype=np.int64)
+        self.loaded_fraction = loaded_fraction
+
+    def add(self, seg: dict) -> None:
+        t = seg['t']
+        if not t.size:
+            return
+        last = int(t[-1])
+        for i in list(self.open):
+            start, end = self.windows[i][:2]
+            lo, hi = np.searchsorted(t, [start, end])
+            if hi > lo:
+                self.open[i].append({k: seg[k][lo:hi] for k in self.KEYS})
+            if last >= end:
+                self._score(i)
+
+    def _score(self, i: int) -> None:
+        parts = self.open.pop(i)
+        start, end, set_id, pull_id = self.windows[i]
+        if not parts:
+            self.outcome[i] = f'pull {pull_id} (set {set_id}): no corrected samples; not scored'
+            return
+        arrays = [np.concatenate([p[k] for p in parts]) if len(parts) > 1 else parts[0][k]
+                  for k in self.KEYS]
+        try:
+            self.outcome[i] = score_pull(*arrays, loaded_fraction=self.loaded_fraction)
+        except CorrectionError as exc:
+            self.outcome[i] = f'pull {pull_id} (set {set_id}) not scored: {exc}'
+
+    def finish(self, warnings: list) -> tuple:
+        """(per-pull dicts, SetStatistics), in window order; problems go to warnings."""
+        for i in list(self.open):
+            self._score(i)
+        stats, pulls = SetStatistics(), []
+        for i, (start, end, set_id, pull_id) in enumerate(self.windows):
+            s = self.outcome[i]
+            if isinstance(s, str):
+                warnings.append(s)
+                continue
+            dropped = int(np.count_nonzero((self.drops >= start) & (self.drops < end)))
+            pulls.append({'pull_id': int(pull_id), 'set': int(set_id), 'start_ns': int(start),
+                          'end_ns': int(end), 'dropped_blocks': dropped,
+                          **{k: float(getattr(s, k)) for k in SCORE_FIELDS}})
+            stats.add(set_id, replace(s, dropped_blocks=dropped))
+        return pulls, stats
+
+
+class _Stream:
+    """The live correction node's arithmetic over a recording fed in time order, a whole run or
+    a segment of a run at a time: the extension's prefilter and m*a + moving average, their
+    state carried within a run and reset at each new run (as the node resets after a
+    discontinuity; the core guarantees any split gives the same numbers). Each piece goes on to
+    the scorer (once the pull windows are known), to an ExtendedBag as /force_corrected blocks
+    (with `write_to`), and is kept whole if `keep` or while the pull windows are unknown."""
+
+    def __init__(self, params: CorrectionParams, extension: Extension | None,
+                 loaded_fraction: float, keep: bool = True) -> None:
+        self.params, self.extension = params, extension
+        self.loaded_fraction, self.keep = loaded_fraction, keep
+        self.parts: dict = {k: [] for k in PART_KEYS}
         self.nan_count = 0
         self.runs = 0
+        self.scorer: _Scorer | None = None
+        self.target: tuple | None = None  # (ExtendedBag, channel id)
+        self.seq = 0
+        self._state = None
+        self._prefilter = None
 
-    def add_run(self, stamps: np.ndarray, force: np.ndarray, accel: np.ndarray,
-                stationary: np.ndarray) -> Any:
+    def windows_known(self, windows: list, drops: list) -> None:
+        self.scorer = _Scorer(windows, drops, self.loaded_fraction)
+
+    def write_to(self, target: ExtendedBag, cid: int) -> None:
+        self.target = (target, cid)
+
+    def add(self, stamps: np.ndarray, force: np.ndarray, accel: np.ndarray,
+            stationary: np.ndarray, rate_hz: float, new_run: bool = True,
+            blocks: tuple | None = None, frame: str = '') -> Any:
+        """Correct one piece; blocks = (stamps, sample counts, rates) of its blocks, needed
+        when writing to a bag."""
+        if new_run:
+            self.runs += 1
+            self._state = initial_state(self.params)
+            self._prefilter = None if self.extension is None else \
+                ForcePrefilter(self.extension, rate_hz)
         measured = force
-        if self.extension is not None and len(stamps) > 1:  # as the live node: fresh filters per run
-            force = ForcePrefilter(self.extension, 1e9 / float(stamps[1] - stamps[0])).process(force)
-        out, _ = correct_block(force, accel, self.params, initial_state(self.params))
+        if self._prefilter is not None:
+            force = self._prefilter.process(force)
+        out, self._state = correct_block(force, accel, self.params, self._state)
         self.nan_count += out.nan_count
-        self.runs += 1
-        for k, v in (('t', stamps), ('stationary', stationary), ('raw', measured),
-                     ('inertial', out.inertial_n), ('corrected', out.corrected_n),
-                     ('filtered', out.filtered_n)):
-            self.parts[k].append(v)
+        seg = dict(zip(PART_KEYS, (stamps, stationary, measured, out.inertial_n,
+                                   out.corrected_n, out.filtered_n)))
+        if self.scorer is not None:
+            self.scorer.add(seg)
+        if self.target is not None:
+            _corrected_blocks(seg, blocks, frame, self.seq, *self.target)
+            self.target[0].commit()
+        self.seq += len(blocks[0]) if blocks is not None else 0
+        if self.keep or self.scorer is None:  # pulls not known yet: kept for scoring
+            for k in PART_KEYS:
+                self.parts[k].append(seg[k])
         return out
 
     def arrays(self) -> dict:
         return {k: (v[0] if len(v) == 1 else np.concatenate(v) if v else np.empty(0))
                 for k, v in self.parts.items()}
 
-
-def _score(arrays: dict, windows: list, events: list, loaded_fraction: float,
-           warnings: list) -> tuple:
-    """Score each (start, end, set, pull_id) window; returns (per-pull dicts, SetStatistics)."""
-    t = arrays['t']
-    stats = SetStatistics()
-    pulls = []
-    ev_stamps = np.array(sorted(events), dtype=np.int64) if events else np.empty(0, np.int64)
-    for start, end, set_id, pull_id in windows:
-        lo, hi = np.searchsorted(t, [start, end])
-        if hi <= lo:
-            warnings.append(f'pull {pull_id} (set {set_id}): no corrected samples; not scored')
-            continue
-        try:
-            s = score_pull(*(arrays[k][lo:hi] for k in ('stationary', 'raw', 'corrected',
-                                                        'filtered')),
-                           loaded_fraction=loaded_fraction)
-        except CorrectionError as exc:
-            warnings.append(f'pull {pull_id} (set {set_id}) not scored: {exc}')
-            continue
-        dropped = int(np.count_nonzero((ev_stamps >= start) & (ev_stamps < end)))
-        d = {'pull_id': int(pull_id), 'set': int(set_id), 'start_ns': int(start),
-             'end_ns': int(end), 'dropped_blocks': dropped,
-             **{k: float(getattr(s, k)) for k in SCORE_FIELDS}}
-        stats.add(set_id, replace(s, dropped_blocks=dropped))
-        pulls.append(d)
-    return pulls, stats
+    def scores(self, windows: list, drops: list, warnings: list) -> tuple:
+        """(per-pull dicts, SetStatistics): from the scorer fed as the data came when the
+        windows were known first, else from the kept arrays."""
+        if self.scorer is None:
+            self.windows_known(windows, drops)
+            self.scorer.add(self.arrays())
+        return self.scorer.finish(warnings)
 
 
 def _summaries(stats: SetStatistics) -> list:
@@ -170,33 +243,33 @@ def _fast_bag(src: Path) -> McapBag | None:
         return None
 
 
-def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Concatenated sample_stamps_ns(stamps[i], n[i], rate[i]) (same arithmetic)."""
-    total = int(n.sum())
-    if n.size and (n == n[0]).all() and (rate == rate[0]).all():  # the usual case: 2-D
-        k = np.arange(int(n[0]), dtype=np.int64)
-        r = float(rate[0])
-        off = (k * NS_PER_S) // int(r) if r == np.floor(r) else \
-            np.round(k * (NS_PER_S / r)).astype(np.int64)
-        return (stamps[:, None] + off[None, :]).reshape(-1)
-    first = np.repeat(stamps, n)
-    k = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
-    r = np.repeat(rate, n)
-    out = np.empty(total, dtype=np.int64)
-    isint = r == np.floor(r)
+def _sample_stamps(first: np.ndarray, k: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Stamp of sample k of blocks starting at first (sample_stamps_ns' arithmetic)."""
+    out = np.empty(np.broadcast(first, k, rate).shape, dtype=np.int64)
+    first, k, rate = np.broadcast_arrays(first, k, rate)
+    isint = rate == np.floor(rate)
     if isint.any():
-        ri = r[isint].astype(np.int64)
-        out[isint] = first[isint] + (k[isint] * NS_PER_S) // ri
+        out[isint] = first[isint] + (k[isint] * NS_PER_S) // rate[isint].astype(np.int64)
     if not isint.all():
         nr = ~isint
-        out[nr] = first[nr] + np.round(k[nr] * (NS_PER_S / r[nr])).astype(np.int64)
+        out[nr] = first[nr] + np.round(k[nr] * (NS_PER_S / rate[nr])).astype(np.int64)
     return out
 
 
-def _read_bag_fast(bag: McapBag, runs: _Runs, warnings: list) -> dict:
+def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Concatenated sample_stamps_ns(stamps[i], n[i], rate[i])."""
+    if n.size and (n == n[0]).all() and (rate == rate[0]).all():  # the usual case: 2-D
+        offsets = _sample_stamps(np.zeros(1, np.int64), np.arange(int(n[0])), rate[:1])
+        return (stamps[:, None] + offsets[None, :]).reshape(-1)
+    k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+    return _sample_stamps(np.repeat(stamps, n), k, np.repeat(rate, n))
+
+
+def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list) -> dict:
     """_read_bag for the common case, with whole-topic numpy decoding. The aligner's result
-    is computed in closed form; raises FastPathError (before touching runs) whenever the
-    aligner would report anything but discontinuities, so the generic path handles it."""
+    is computed in closed form; raises FastPathError (before touching the stream) whenever the
+    aligner would report anything but discontinuities, so the generic path handles it. The
+    samples go through the stream in segments of about SEGMENT_SAMPLES, windows known first."""
     topics = bag.topics()
     force_t = [n for n, t in topics.items() if t[0] == FORCE_TYPE]
     accel_t = [n for n, t in topics.items() if t[0] == ACCEL_TYPE]
@@ -247,29 +320,42 @@ def _read_bag_fast(bag: McapBag, runs: _Runs, warnings: list) -> dict:
         _pull_event(store.deserialize_cdr(raw.data(i), PULL_EVENT_TYPE), starts, windows,
                     warnings)
     stamps = fb.stamp_ns
+    last = _sample_stamps(stamps, n - 1, fr)
+    if (stamps[1:] <= last[:-1]).any():
+        raise FastPathError('blocks overlap in time')
     cont = np.zeros(m, dtype=bool)
     if m > 1:
         expected = stamps[:-1] + n[:-1] * 1e9 / fr[:-1]
         cont[1:] = ((np.abs(fr[:-1] - fr[1:]) <= 1e-9 * np.maximum(np.abs(fr[:-1]),
                                                                      np.abs(fr[1:])))
                     & (np.abs(stamps[1:] - expected) <= 0.5e9 / fr[1:]))
-    bounds = [*np.flatnonzero(~cont).tolist(), m]
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
-        sel = np.arange(lo, hi)
-        runs.add_run(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
-                     fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
-                     fb.values('stationary_n', sel))
     for pid in starts:
         warnings.append(f'pull {pid} has no END; not scored')
-    return {'pairs': (stamps, n, fr), 'windows': sorted(windows), 'drops': [],
-            'frame': fb.frame_id(m - 1)}
+    windows = sorted(windows)
+    stream.windows_known(windows, [])
+    frame = fb.frame_id(m - 1)
+    bounds = [*np.flatnonzero(~cont).tolist(), m]
+    ends = np.cumsum(n)
+    for lo, hi in zip(bounds[:-1], bounds[1:]):  # runs, cut into segments
+        base = int(ends[lo] - n[lo])
+        cuts = np.searchsorted(ends[lo:hi], base + np.arange(SEGMENT_SAMPLES,
+                                                             int(ends[hi - 1]) - base,
+                                                             SEGMENT_SAMPLES), 'right') + lo
+        segs = [lo, *sorted(set(cuts.tolist()) - {lo, hi}), hi]
+        for a, b in zip(segs[:-1], segs[1:]):
+            sel = np.arange(a, b)
+            stream.add(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
+                       fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
+                       fb.values('stationary_n', sel), float(fr[a]), new_run=a == lo,
+                       blocks=(stamps[sel], n[sel], fr[sel]), frame=frame)
+    return {'pairs': (stamps, n, fr), 'windows': windows, 'drops': [], 'frame': frame}
 
 
-def _read_bag(src: Path, fast: McapBag | None, runs: _Runs, warnings: list,
+def _read_bag(src: Path, fast: McapBag | None, stream: _Stream, warnings: list,
               progress: Progress | None) -> dict:
     if fast is not None:
         try:
-            return _read_bag_fast(fast, runs, warnings)
+            return _read_bag_fast(fast, stream, warnings)
         except FastPathError:
             pass
     with open_bag(src) as bag:
@@ -299,8 +385,11 @@ def _read_bag(src: Path, fast: McapBag | None, runs: _Runs, warnings: list,
                 s = np.concatenate([p[3] for p in run])
                 st = np.concatenate([sample_stamps_ns(p[0].stamp_ns, p[0].n_samples,
                                                       p[0].sample_rate_hz) for p in run])
-                runs.add_run(st, f, a, s)
-                pairs.extend((p[0].stamp_ns, p[0].n_samples, p[0].sample_rate_hz) for p in run)
+                blocks = [(p[0].stamp_ns, p[0].n_samples, p[0].sample_rate_hz) for p in run]
+                stream.add(st, f, a, s, float(run[0][0].sample_rate_hz),
+                           blocks=tuple(np.array(c, dtype=d) for c, d in zip(
+                               zip(*blocks), (np.int64, np.int64, float))), frame=frame)
+                pairs.extend(blocks)
                 run.clear()
 
         if not event_t:
@@ -348,24 +437,26 @@ def _read_bag(src: Path, fast: McapBag | None, runs: _Runs, warnings: list,
             'frame': frame}
 
 
-def _corrected_blocks(arr: dict, data: dict, target: ExtendedBag | None = None,
-                      cid: int = 0) -> tuple:
-    """The /corrected_force blocks (one per input pair, seq from 0) and their log times (each
-    block's last sample, as the live node publishes): encode_blocks' (buffer, starts, lengths)
-    of their CDR, or, with a target, encoded in place into the space target.reserve() gives."""
-    stamps, ns, rates = data['pairs']
+def _corrected_blocks(arr: dict, blocks: tuple, frame: str, seq0: int = 0,
+                      target: ExtendedBag | None = None, cid: int = 0) -> tuple:
+    """/force_corrected blocks for the input blocks (stamps, sample counts, rates) whose
+    samples arr holds, seq from seq0, logged at their last sample (as the live node publishes):
+    encode_blocks' (buffer, starts, lengths) and the log times, or, with a target, encoded
+    into the space target.reserve() lays out."""
+    stamps, ns, rates = blocks
     ends = np.cumsum(ns)
     last = np.where(ns > 0, arr['t'][np.maximum(ends - 1, 0)], stamps)
     counts = {f: ns for f in CORRECTED_FIELDS}
     out = starts = None
     if target is not None:
         out, starts = target.reserve(np.full(ns.size, cid),
-                                     block_lengths(CORRECTED_FIELDS, counts, data['frame']), last)
+                                     block_lengths(CORRECTED_FIELDS, counts, frame), last)
     try:
-        enc = encode_blocks(stamps, rates, np.arange(stamps.size), CORRECTED_FIELDS, counts,
-                            {'raw_n': arr['raw'], 'inertial_n': arr['inertial'],
-                             'corrected_n': arr['corrected'], 'filtered_n': arr['filtered']},
-                            data['frame'], out=out, starts=starts)
+        enc = encode_blocks(stamps, rates, seq0 + np.arange(stamps.size), CORRECTED_FIELDS,
+                            counts, {'raw_n': arr['raw'], 'inertial_n': arr['inertial'],
+                                     'corrected_n': arr['corrected'],
+                                     'filtered_n': arr['filtered']},
+                            frame, out=out, starts=starts)
     except FastPathError as exc:
         raise BagError(f'cannot write the corrected blocks: {exc}') from None
     return (*enc, last)
@@ -415,7 +506,7 @@ def _write_bag(src: Path, dst: Path, arr: dict, data: dict, pulls: list, by_pull
                warnings: list) -> None:
     """The generic writer: every input message through rosbags, merged with the results."""
     store = default_typestore()
-    buf, starts, lengths, last = _corrected_blocks(arr, data)
+    buf, starts, lengths, last = _corrected_blocks(arr, data['pairs'], data['frame'])
     generated = [(int(lg), 0, CORRECTED_TOPIC, CORRECTED_NAME, buf[a:a + k])
                  for lg, a, k in zip(last.tolist(), starts.tolist(), lengths.tolist())]
     generated += _result_messages(store, pulls, by_pull)
@@ -448,7 +539,7 @@ def _write_bag(src: Path, dst: Path, arr: dict, data: dict, pulls: list, by_pull
 
 
 # --------------------------------------------------------------------------- campaign
-def _campaign_runs(camp: Campaign, runs: _Runs) -> tuple:
+def _campaign_runs(camp: Campaign, stream: _Stream) -> tuple:
     """Correct each pull (joining contiguous pulls into one run). Returns (windows, outs)."""
     rate = camp.sample_rate_hz
     placed = place_pulls(camp)
@@ -467,10 +558,10 @@ def _campaign_runs(camp: Campaign, runs: _Runs) -> tuple:
     outs = []
     for g in groups:
         ch = [x[2].channels for x in g]
-        out = runs.add_run(np.concatenate([sample_stamps_ns(s, n, rate) for s, n, _ in g]),
-                           np.concatenate([c['force_moving_n'] for c in ch]),
-                           np.concatenate([c['accel_axial_m_s2'] for c in ch]),
-                           np.concatenate([c['force_stationary_n'] for c in ch]))
+        out = stream.add(np.concatenate([sample_stamps_ns(s, n, rate) for s, n, _ in g]),
+                         np.concatenate([c['force_moving_n'] for c in ch]),
+                         np.concatenate([c['accel_axial_m_s2'] for c in ch]),
+                         np.concatenate([c['force_stationary_n'] for c in ch]), rate)
         pos = 0
         for _s, n, _p in g:
             outs.append({k: getattr(out, k)[pos:pos + n] for k in
@@ -521,20 +612,17 @@ def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: in
                            progress, warnings, extension)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
-    runs = _Runs(params, ext)
     target = None
     if kind == 'bag':
         fast = _fast_bag(src)
         target = _extension_target(fast, dst) if to == 'bag' else None
+        stream = _Stream(params, ext, loaded_fraction, keep=target is None)
         with target if target is not None else nullcontext():
-            data = _read_bag(src, fast, runs, warnings, progress)
-            arrays = runs.arrays()
-            if target is not None:  # written in the background while scoring
+            if target is not None:  # results go out as they are computed
                 cids = _add_result_topics(target)
-                _corrected_blocks(arrays, data, target, cids[CORRECTED_TOPIC])
-                target.commit()
-            pulls, stats = _score(arrays, data['windows'], data['drops'], loaded_fraction,
-                                  warnings)
+                stream.write_to(target, cids[CORRECTED_TOPIC])
+            data = _read_bag(src, fast, stream, warnings, progress)
+            pulls, stats = stream.scores(data['windows'], data['drops'], warnings)
             by_pull = _running_summaries(pulls, stats)
             if target is not None:
                 small = _result_messages(shared_typestore(), pulls, by_pull)
@@ -543,21 +631,22 @@ def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: in
     else:
         camp = read_campaign(src)
         warnings.extend(camp.warnings)
-        windows, outs = _campaign_runs(camp, runs)
-        pulls, stats = _score(runs.arrays(), windows, [], loaded_fraction, warnings)
+        stream = _Stream(params, ext, loaded_fraction)
+        windows, outs = _campaign_runs(camp, stream)
+        pulls, stats = stream.scores(windows, [], warnings)
         by_pull = _running_summaries(pulls, stats)
     result = {'params': {'mass_kg': params.mass_kg, 'window': params.window,
                          'loaded_fraction': loaded_fraction},
-              'pulls': pulls, 'sets': _summaries(stats), 'nan_samples': runs.nan_count,
-              'runs': runs.runs, 'warnings': warnings}
+              'pulls': pulls, 'sets': _summaries(stats), 'nan_samples': stream.nan_count,
+              'runs': stream.runs, 'warnings': warnings}
     if to == 'bag':
         if target is None:
-            _write_bag(src, dst, runs.arrays(), data, pulls, by_pull, warnings)
+            _write_bag(src, dst, stream.arrays(), data, pulls, by_pull, warnings)
     else:
         if kind == 'bag':
             from .convert import read_bag_pulls
             rate, bpulls = read_bag_pulls(src, [], None)
-            arrays = runs.arrays()
+            arrays = stream.arrays()
             new = []
             for i, p in enumerate(bpulls):
                 start = p.meta['start_ns']
