@@ -187,10 +187,6 @@ class RawMessages:
         self.lengths = lengths
         self._holder = holder
 
-    def select(self, mask: np.ndarray) -> RawMessages:
-        return RawMessages(self.buf, self.log_ns[mask], self.channel[mask], self.starts[mask],
-                           self.lengths[mask], self._holder)
-
     def data(self, i: int) -> bytes:
         s = int(self.starts[i])
         return self.buf[s:s + int(self.lengths[i])].tobytes()

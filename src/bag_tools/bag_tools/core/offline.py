@@ -3,10 +3,16 @@
 Bag input: the /force and /accel blocks (by type) are paired by force_correction's BlockAligner
 in log order, exactly as correction_node does, and the filter restarts where the aligner
 reports a discontinuity (pair.continuous False), exactly as the node does. Each continuous run
-is corrected in one correct_block call: the core guarantees the result equals block-by-block
-streaming bit for bit, so the numbers equal the live node's. Pulls are cut by the PullEvent
-START/END windows by sample time and scored with score_pull (what PullAccumulator.score does)
-and SetStatistics, like validator_node.
+goes through correct_block whole or in segments with the state carried over: the core
+guarantees the result equals block-by-block streaming bit for bit, so the numbers equal the
+live node's. Pulls are cut by the PullEvent START/END windows by sample time and scored with
+score_pull (what PullAccumulator.score does) and SetStatistics, like validator_node.
+
+Fast path (the usual bag: one uncompressed MCAP file, blocks that pair one to one without
+drops): the blocks are decoded a topic at a time with numpy (fastcdr, mcapfile), corrected,
+scored and written in segments of SEGMENT_SAMPLES, and the output bag is the input file copied
+byte for byte plus the result topics (mcapfile.ExtendedBag). Anything else takes the generic
+path (rosbags message by message, the BlockAligner itself), which gives the same numbers.
 
 Campaign input: each pull is one run; consecutive pulls form one run only when the second's
 start_ns is exactly where the first ends (a contiguous recording, as the sim publishes).
