@@ -271,7 +271,8 @@ def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) ->
     return _sample_stamps(np.repeat(stamps, n), k, np.repeat(rate, n))
 
 
-def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list) -> dict:
+def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list,
+                   progress: Progress | None = None) -> dict:
     """_read_bag for the common case, with whole-topic numpy decoding. The aligner's result
     is computed in closed form; raises FastPathError (before touching the stream) whenever the
     aligner would report anything but discontinuities, so the generic path handles it. The
@@ -354,6 +355,8 @@ def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list) -> dict:
                        fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
                        fb.values('stationary_n', sel), float(fr[a]), new_run=a == lo,
                        blocks=(stamps[sel], n[sel], fr[sel]), frame=frame)
+            if progress:  # in messages, as the generic path counts
+                progress(2 * b, raw.log_ns.size)
     return {'pairs': (stamps, n, fr), 'windows': windows, 'drops': [], 'frame': frame}
 
 
@@ -361,7 +364,7 @@ def _read_bag(src: Path, fast: McapBag | None, stream: _Stream, warnings: list,
               progress: Progress | None) -> dict:
     if fast is not None:
         try:
-            return _read_bag_fast(fast, stream, warnings)
+            return _read_bag_fast(fast, stream, warnings, progress)
         except FastPathError:
             pass
     with open_bag(src) as bag:
