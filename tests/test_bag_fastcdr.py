@@ -774,3 +774,35 @@ def test_correct_fast_path_segments_and_extension(base_bag, tmp_path, monkeypatc
                     assert p[k] == q[k] or abs(p[k] - q[k]) <= 1e-9, (k, p[k], q[k])
             assert [(t, lg) for t, _ty, lg, _c in bag] == [(t, lg) for t, _ty, lg, _c in ref_bag]
             assert bag == ref_bag  # bit for bit, incl. the corrected blocks
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(1, 400), min_size=1, max_size=12), st.integers(0, 2**31))
+def test_scorer_fed_in_pieces_equals_one_pass(cuts, seed):
+    """_Scorer fed a recording in arbitrary pieces scores every window (overlapping, empty,
+    beyond the data, unscorable) exactly as when fed the whole recording at once."""
+    rng = np.random.default_rng(seed)
+    n = 1500
+    t = T0 + np.arange(n, dtype=np.int64) * 20_000
+    stat = np.abs(rng.normal(0, 1, n)) * (rng.random() < 0.9)  # sometimes all zero: unscorable
+    seg = {'t': t, 'stationary': stat, 'raw': rng.normal(0, 1, n),
+           'corrected': rng.normal(0, 1, n), 'filtered': rng.normal(0, 1, n)}
+    windows = []
+    for k in range(8):
+        a = int(rng.integers(-100, n + 100))
+        b = a + int(rng.integers(0, 700))
+        windows.append((T0 + a * 20_000, T0 + b * 20_000, 1 + k % 3, k))
+    windows.sort()
+    drops = [int(T0 + rng.integers(0, n) * 20_000) for _ in range(5)]
+    whole = offline._Scorer(windows, drops, 0.1)
+    whole.add(seg)
+    w_warn: list = []
+    ref = whole.finish(w_warn)
+    pieces = offline._Scorer(windows, drops, 0.1)
+    bounds = sorted({0, n, *[c % n for c in np.cumsum(cuts).tolist()]})
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        pieces.add({k: v[a:b] for k, v in seg.items()})
+    p_warn: list = []
+    got = pieces.finish(p_warn)
+    assert got[0] == ref[0] and p_warn == w_warn
+    assert got[1].sets() == ref[1].sets()

@@ -103,7 +103,8 @@ class _Scorer:
 
     def __init__(self, windows: list, drops: list, loaded_fraction: float) -> None:
         self.windows = list(windows)
-        self.open = {i: [] for i in range(len(self.windows))}
+        by_start = sorted(range(len(self.windows)), key=lambda i: self.windows[i][:2])
+        self.open = {i: [] for i in by_start}  # stays in start order
         self.outcome: dict = {}
         self.drops = np.array(sorted(drops), dtype=np.int64)
         self.loaded_fraction = loaded_fraction
@@ -112,9 +113,11 @@ class _Scorer:
         t = seg['t']
         if not t.size:
             return
-        last = int(t[-1])
+        last, latest = int(t[-1]), int(t.max())
         for i in list(self.open):
             start, end = self.windows[i][:2]
+            if start > latest:  # this and the later windows have no samples here
+                break
             lo, hi = np.searchsorted(t, [start, end])
             if hi > lo:
                 self.open[i].append({k: seg[k][lo:hi] for k in self.KEYS})
