@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import queue
 import shutil
 import struct
 import threading
@@ -351,7 +352,8 @@ class ExtendedBag:
         self._times = [s.start_ns, s.end_ns]
         self._definitions_written = False
         self._pending: list = []  # (file offset, buffer) laid out by reserve(), not yet written
-        self._written: list = []  # (writer thread, buffer) of committed buffers, to reuse
+        self._written: list = []  # (written event, buffer) of committed buffers, to reuse
+        self._queue: queue.SimpleQueue | None = None  # buffers for the writer thread
         self._fd = -1
         self._pos = 0
         self._threads: list = []  # background copy and writes
@@ -418,6 +420,8 @@ class ExtendedBag:
             raise
 
     def _join(self) -> None:
+        if self._queue is not None:
+            self._queue.put(None)  # the writer thread ends after the queued buffers
         for t in self._threads:
             t.join()
         self._threads = []
@@ -426,6 +430,9 @@ class ExtendedBag:
 
     def _abort(self) -> None:
         try:
+            if self._queue is not None:
+                self._errors.append(BagError('aborted'))  # the writer skips what is left
+                self._queue.put(None)
             for t in self._threads:
                 t.join()
         finally:
@@ -463,11 +470,27 @@ class ExtendedBag:
             raise BagError(f'cannot write bag {str(self.dst)!r}: {one_line(exc)}') from None
 
     def commit(self) -> None:
-        """Start writing the buffers of earlier reserve() calls (their data must be complete)
-        in the background; the rest are written when the bag is closed."""
+        """Queue the buffers of earlier reserve() calls (their data must be complete) for the
+        writer thread; the rest are written when the bag is closed."""
+        if self._queue is None:
+            self._queue = queue.SimpleQueue()
+            self._background(self._writer)
         pending, self._pending = self._pending, []
         for pos, buf in pending:
-            self._written.append((self._background(self._write_at, pos, buf), buf))
+            done = threading.Event()
+            self._queue.put((pos, buf, done))
+            self._written.append((done, buf))
+
+    def _writer(self) -> None:
+        while (item := self._queue.get()) is not None:
+            pos, buf, done = item
+            try:
+                if not self._errors:
+                    self._write_at(pos, buf)
+            except BaseException as exc:  # noqa: BLE001 - re-raised by the main thread
+                self._errors.append(exc)
+            finally:
+                done.set()
 
     def _write_definitions(self) -> None:
         if not self._definitions_written:  # schemas and channels precede their messages
@@ -517,8 +540,8 @@ class ExtendedBag:
         total = pos - self._pos
         buf = None
         if len(self._written) >= 2:  # double buffering: reuse the older written buffer
-            thread, old = self._written.pop(0)
-            thread.join()
+            done, old = self._written.pop(0)
+            done.wait()
             if self._errors:
                 raise self._errors[0]
             buf = old[:total] if old.size >= total else None
