@@ -83,12 +83,6 @@ def _field(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
     return np.ascontiguousarray(rows[:, at:at + size]).view(dtype).reshape(-1)
 
 
-def _gather(buf: np.ndarray, offs: np.ndarray, dtype: str, runs: list | None = None
-            ) -> np.ndarray:
-    """The dtype values at byte offsets offs of buf."""
-    return _field(_gather_rows(buf, offs, np.dtype(dtype).itemsize, runs), 0, dtype)
-
-
 def _gather_f64_indexed(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray,
                         out: np.ndarray) -> None:
     """gather_f64 by fancy indexing (any layout)."""

@@ -186,7 +186,7 @@ class RawMessages:
         self.channel = channel  # topic index per message
         self.starts = starts
         self.lengths = lengths
-        self._holder = holder
+        self._holder = holder  # keeps the file mapping under buf alive
 
     def data(self, i: int) -> bytes:
         s = int(self.starts[i])
@@ -338,7 +338,7 @@ class ExtendedBag:
     """
 
     def __init__(self, src: McapBag, dst: str | Path) -> None:
-        self.src, self.dst = src, Path(dst)
+        self.dst = Path(dst)
         check_new_bag_path(self.dst)
         self.info = src.info
         self.mcap = src.mcap

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from .errors import SimError
-from .params import DriveParams, RigParams
+from .params import DriveParams, RigParams, check_keys
 
 
 @dataclass(frozen=True)
@@ -112,12 +112,7 @@ def apply_overrides(drive: DriveParams, overrides: Mapping | None) -> DriveParam
     """A copy of ``drive`` with some fields replaced (e.g. damping 0, voltage limit raised)."""
     if not overrides:
         return drive
-    if not isinstance(overrides, Mapping):
-        raise SimError(f'overrides is {overrides!r}; expected a mapping of DriveParams fields')
-    names = [f.name for f in fields(DriveParams)]
-    unknown = sorted(set(overrides) - set(names))
-    if unknown:
-        raise SimError(f'overrides has unknown key(s) {unknown}; expected only {names}')
+    check_keys(DriveParams, overrides, 'overrides')
     clean = {}
     for k, v in overrides.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):

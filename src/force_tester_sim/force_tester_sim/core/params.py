@@ -168,13 +168,19 @@ class RigParams:
         raise SimError(f'test set {n!r} is unknown; expected one of {known}')
 
 
-def _build(cls, data: Any, where: str):
+def check_keys(cls, data: Any, where: str) -> list:
+    """data must be a mapping whose keys are fields of the dataclass cls; returns the names."""
     if not isinstance(data, Mapping):
         raise SimError(f'{where} is {data!r}; expected a mapping of {cls.__name__} fields')
     names = [f.name for f in fields(cls)]
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise SimError(f'{where} has unknown key(s) {unknown}; expected only {names}')
+    return names
+
+
+def _build(cls, data: Any, where: str):
+    names = check_keys(cls, data, where)
     kwargs = {}
     for f in fields(cls):
         if f.name not in data:
