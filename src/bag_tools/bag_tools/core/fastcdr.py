@@ -40,19 +40,27 @@ class FastPathError(Exception):
 # --------------------------------------------------------------------------- strided access
 def stride_runs(offsets: np.ndarray, *keys: np.ndarray) -> list:
     """Split message offsets into runs [lo, hi) with one positive stride (and equal keys[k][i]
-    within the run): such a run is one strided numpy view of the buffer. A new run starts
-    after every change of stride, so runs are maximal up to one-element runs at the changes.
-    Returns [(lo, hi, stride)]."""
+    within the run): such a run is one strided numpy view of the buffer. Returns
+    [(lo, hi, stride)].
+
+    The step from message i to i + 1 joins them when it is positive, the keys agree and it
+    equals the step before or after it; where two such joined stretches of different strides
+    meet, the message between them stays with the first. So a lone odd step (e.g. from the
+    last message of one MCAP chunk to the first of the next) just ends a run, and irregular
+    layouts fall apart into one-message runs."""
     m = int(offsets.size)
     if m == 0:
         return []
     d = np.diff(offsets)
-    cut = np.zeros(m + 1, dtype=bool)  # cut[i]: a run starts at i
-    cut[0] = cut[m] = True
+    good = d > 0
     for k in keys:
-        cut[1:m] |= k[1:] != k[:-1]
-    cut[1:m] |= d <= 0
-    cut[2:m] |= d[1:] != d[:-1]  # d[i] != d[i - 1]: element i ends a run
+        good &= k[1:] == k[:-1]
+    same = np.zeros(m, dtype=bool)        # same[j]: steps j - 1 and j agree (both good)
+    same[1:-1] = good[1:] & good[:-1] & (d[1:] == d[:-1])
+    joined = same[:-1] | same[1:]         # step j is part of a stretch of equal steps
+    joined[1:] &= ~(joined[:-1] & ~same[1:-1])  # a new stride after a joined step: cut it
+    cut = np.ones(m + 1, dtype=bool)      # cut[i]: a run starts at i
+    cut[1:m] = ~joined
     b = np.flatnonzero(cut)
     lo, hi = b[:-1], b[1:]
     stride = np.where(hi - lo > 1, np.append(d, 1)[lo], 1)
@@ -74,6 +82,25 @@ def _gather_rows(buf: np.ndarray, offs: np.ndarray, width: int,
     for lo, hi, stride in runs:
         out[lo:hi] = np.ndarray((hi - lo, width), dtype=_U8, buffer=buf,
                                 offset=int(offs[lo]), strides=(stride, 1))
+    return out
+
+
+def gather_struct(buf: np.ndarray, offs: np.ndarray, dtype: np.dtype,
+                  runs: list | None = None) -> np.ndarray:
+    """Structured (m,) array: the record of dtype (fields at their offsets, itemsize bytes)
+    at each buf[offs[i]:], in one strided copy per run (runs: stride_runs(offs) or of offsets
+    differing from offs by a constant)."""
+    offs = np.asarray(offs, dtype=np.int64)
+    width = dtype.itemsize
+    if offs.size and (int(offs.min()) < 0 or int(offs.max()) + width > buf.size):
+        raise FastPathError('field outside the message buffer')
+    runs = stride_runs(offs) if runs is None else runs
+    if len(runs) > offs.size // 4 + 8:
+        return _gather_rows(buf, offs, width, runs).view(dtype).reshape(-1)
+    out = np.empty(offs.size, dtype=dtype)
+    for lo, hi, stride in runs:
+        out[lo:hi] = np.ndarray((hi - lo,), dtype=dtype, buffer=buf, offset=int(offs[lo]),
+                                strides=(stride,))
     return out
 
 
@@ -155,6 +182,51 @@ class Blocks:
         return self._buf[off:off + ln].tobytes().decode('utf-8')
 
 
+def _decode_uniform(b: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+                    fields: Sequence[str], runs: list) -> Blocks | None:
+    """decode_blocks when every message has the first one's layout (one frame_id, one sample
+    count per field: a recording's usual case): all header fields in one strided pass.
+    None when the layout differs anywhere (decode_blocks then decodes field by field)."""
+    s0, length = int(starts[0]), int(lengths[0])
+    if (lengths != length).any() or s0 + length > b.size:
+        return None
+    first = b[s0:s0 + length].tobytes()
+    slen = struct.unpack_from('<I', first, 12)[0]
+    cur = (12 + slen + 7) & ~7
+    if slen < 1 or 4 + cur + 16 > length:
+        return None
+    names, formats, offsets = ['enc', 'sec', 'nsec', 'slen', 'rate', 'seq'], \
+        ['<u2', '<i4', '<u4', '<u4', '<f8', '<u8'], [0, 4, 8, 12, 4 + cur, 12 + cur]
+    cur += 16
+    counts, vstarts = {}, {}
+    for f in fields:
+        cur = (cur + 3) & ~3
+        if 4 + cur + 4 > length:
+            return None
+        names.append(f)
+        formats.append('<u4')
+        offsets.append(4 + cur)
+        n = struct.unpack_from('<I', first, 4 + cur)[0]
+        cur += 4
+        if n:
+            cur = (cur + 7) & ~7
+        counts[f], vstarts[f] = n, starts + 4 + cur
+        cur += 8 * n
+    if 4 + cur != length:
+        return None
+    head = gather_struct(b, starts, np.dtype({'names': names, 'formats': formats,
+                                              'offsets': offsets, 'itemsize': offsets[-1] + 4}),
+                         runs)
+    if (head['enc'] != 0x0100).any():
+        raise FastPathError('not little-endian CDR')
+    if (head['slen'] != slen).any() or any((head[f] != counts[f]).any() for f in fields):
+        return None
+    m = starts.size
+    return Blocks(head['sec'].astype(np.int64) * NS_PER_S + head['nsec'], head['rate'].copy(),
+                  head['seq'].copy(), {f: np.full(m, counts[f], np.int64) for f in fields},
+                  vstarts, b, (starts + 16, np.full(m, slen - 1, np.int64)))
+
+
 def decode_blocks(buf, starts: np.ndarray, lengths: np.ndarray,
                   fields: Sequence[str]) -> Blocks:
     """Decode block messages (CDR incl. encapsulation header) at buf[starts[i]:+lengths[i]].
@@ -172,6 +244,9 @@ def decode_blocks(buf, starts: np.ndarray, lengths: np.ndarray,
     if (lengths < 24).any():
         raise FastPathError('message too short')
     runs = stride_runs(starts)
+    uniform = _decode_uniform(b, starts, lengths, fields, runs)
+    if uniform is not None:
+        return uniform
 
     def at(rel, width):  # rows of width bytes at starts + rel (rel: int or per message)
         if np.ndim(rel) == 0 or (rel == rel[0]).all():

@@ -30,7 +30,7 @@ import numpy as np
 import yaml
 
 from .errors import BagError, one_line
-from .fastcdr import FastPathError, _field, _gather_rows, stride_runs
+from .fastcdr import FastPathError, gather_struct, stride_runs
 from .writer import METADATA_VERSION, check_new_bag_path
 
 MAGIC = b'\x89MCAP0\r\n'
@@ -204,6 +204,12 @@ def map_file(path: str | Path) -> mmap.mmap:
                          prot=mmap.PROT_READ)
 
 
+_RECORD = np.dtype([('op', 'u1'), ('len', '<u8'), ('channel', '<u2'), ('seq', '<u4'),
+                    ('log', '<u8'), ('publish', '<u8')])  # message record header, 31 bytes
+_RECORD_HEAD = np.dtype({'names': ['op', 'len', 'log'], 'formats': ['u1', '<u8', '<u8'],
+                         'offsets': [0, 1, 15], 'itemsize': 23})  # up to the log time
+
+
 def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
                     summary: McapSummary | None = None, mm: mmap.mmap | None = None) -> tuple:
     """(RawMessages of the topics in log order, [topic per channel index]) of one .mcap file.
@@ -241,9 +247,9 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
     log = np.concatenate(logs)
     off = np.concatenate(offs)
     chan = np.concatenate(chans)
-    rec = _gather_rows(buf, off, 23)  # opcode, record length, channel, sequence, log time
-    rec_len = _field(rec, 1, '<u8').astype(np.int64)
-    if (rec[:, 0] != 0x05).any() or (_field(rec, 15, '<u8').astype(np.int64) != log).any() \
+    rec = gather_struct(buf, off, _RECORD_HEAD)
+    rec_len = rec['len'].astype(np.int64)
+    if (rec['op'] != 0x05).any() or (rec['log'].astype(np.int64) != log).any() \
             or (rec_len < 22).any() or (off + 9 + rec_len > size).any():
         raise FastPathError('message index disagrees with the messages')
     # rosbags order: log time, then chunk start offset, then position in the chunk (= offset)
@@ -252,9 +258,6 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
                        (rec_len - 22)[order], mm), list(topics)
 
 
-# --------------------------------------------------------------------------- writing
-_RECORD = np.dtype([('op', 'u1'), ('len', '<u8'), ('channel', '<u2'), ('seq', '<u4'),
-                    ('log', '<u8'), ('publish', '<u8')])  # packed: 31 bytes
 
 
 def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.ndarray,
@@ -264,10 +267,9 @@ def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.nd
     head = np.zeros(rec_starts.size, dtype=_RECORD)
     head['op'], head['len'], head['channel'] = 5, 22 + data_len, cids
     head['log'] = head['publish'] = log_ns
-    rows = head.view(_U8).reshape(-1, RECORD_HEADER)
     for lo, hi, stride in stride_runs(rec_starts):
-        np.ndarray((hi - lo, RECORD_HEADER), dtype=_U8, buffer=buf,
-                   offset=int(rec_starts[lo]), strides=(stride, 1))[...] = rows[lo:hi]
+        np.ndarray((hi - lo,), dtype=_RECORD, buffer=buf, offset=int(rec_starts[lo]),
+                   strides=(stride,))[...] = head[lo:hi]
 
 
 class McapBag:
