@@ -97,11 +97,12 @@ def gather_struct(buf: np.ndarray, offs: np.ndarray, dtype: np.dtype,
     runs = stride_runs(offs) if runs is None else runs
     if len(runs) > offs.size // 4 + 8:
         return _gather_rows(buf, offs, width, runs).view(dtype).reshape(-1)
-    out = np.empty(offs.size, dtype=dtype)
+    raw = np.dtype((np.void, width))  # copied as whole records (field by field is slower)
+    out = np.empty(offs.size, dtype=raw)
     for lo, hi, stride in runs:
-        out[lo:hi] = np.ndarray((hi - lo,), dtype=dtype, buffer=buf, offset=int(offs[lo]),
+        out[lo:hi] = np.ndarray((hi - lo,), dtype=raw, buffer=buf, offset=int(offs[lo]),
                                 strides=(stride,))
-    return out
+    return out.view(dtype)
 
 
 def _field(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
@@ -182,6 +183,9 @@ class Blocks:
         return self._buf[off:off + ln].tobytes().decode('utf-8')
 
 
+_COUNT = np.dtype([('n', '<u4')])
+
+
 def _decode_uniform(b: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
                     fields: Sequence[str], runs: list) -> Blocks | None:
     """decode_blocks when every message has the first one's layout (one frame_id, one sample
@@ -195,17 +199,16 @@ def _decode_uniform(b: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
     cur = (12 + slen + 7) & ~7
     if slen < 1 or 4 + cur + 16 > length:
         return None
-    names, formats, offsets = ['enc', 'sec', 'nsec', 'slen', 'rate', 'seq'], \
-        ['<u2', '<i4', '<u4', '<u4', '<f8', '<u8'], [0, 4, 8, 12, 4 + cur, 12 + cur]
+    head_fields = {'names': ['enc', 'sec', 'nsec', 'slen', 'rate', 'seq'],
+                   'formats': ['<u2', '<i4', '<u4', '<u4', '<f8', '<u8'],
+                   'offsets': [0, 4, 8, 12, 4 + cur, 12 + cur]}
     cur += 16
-    counts, vstarts = {}, {}
+    counts, vstarts, count_at = {}, {}, {}
     for f in fields:
         cur = (cur + 3) & ~3
         if 4 + cur + 4 > length:
             return None
-        names.append(f)
-        formats.append('<u4')
-        offsets.append(4 + cur)
+        count_at[f] = 4 + cur
         n = struct.unpack_from('<I', first, 4 + cur)[0]
         cur += 4
         if n:
@@ -214,13 +217,20 @@ def _decode_uniform(b: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
         cur += 8 * n
     if 4 + cur != length:
         return None
-    head = gather_struct(b, starts, np.dtype({'names': names, 'formats': formats,
-                                              'offsets': offsets, 'itemsize': offsets[-1] + 4}),
-                         runs)
+    if fields:  # the first count directly follows seq: read with the head
+        head_fields['names'].append(fields[0])
+        head_fields['formats'].append('<u4')
+        head_fields['offsets'].append(count_at[fields[0]])
+    head = gather_struct(b, starts, np.dtype(dict(
+        head_fields, itemsize=head_fields['offsets'][-1] + 4)), runs)
     if (head['enc'] != 0x0100).any():
         raise FastPathError('not little-endian CDR')
-    if (head['slen'] != slen).any() or any((head[f] != counts[f]).any() for f in fields):
+    if (head['slen'] != slen).any():
         return None
+    for i, f in enumerate(fields):
+        n = head[f] if i == 0 else gather_struct(b, starts + count_at[f], _COUNT, runs)['n']
+        if (n != counts[f]).any():
+            return None
     m = starts.size
     return Blocks(head['sec'].astype(np.int64) * NS_PER_S + head['nsec'], head['rate'].copy(),
                   head['seq'].copy(), {f: np.full(m, counts[f], np.int64) for f in fields},

@@ -20,6 +20,7 @@ import os
 import queue
 import shutil
 import struct
+import sys
 import threading
 from collections import defaultdict
 from collections.abc import Sequence
@@ -331,6 +332,10 @@ class McapBag:
                 for cid, (sid, t, _r) in s.channels.items()}
 
 
+QUEUED_BYTES = 1 << 26  # ExtendedBag: committed bytes waiting for the writer thread, at most
+SWITCH_INTERVAL_S = 5e-4  # ExtendedBag: the GIL switch interval while its threads run
+
+
 class ExtendedBag:
     """A new bag dst = the McapBag src plus new topics (see the module doc).
 
@@ -360,6 +365,7 @@ class ExtendedBag:
         self._pos = 0
         self._threads: list = []  # background copy and writes
         self._errors: list = []
+        self._switch_interval: float | None = None  # the process's, while ours is set
 
     # -- lifecycle -------------------------------------------------------------------
     def __enter__(self) -> ExtendedBag:
@@ -373,6 +379,10 @@ class ExtendedBag:
             self._abort()
             raise
         self._pos = self.copy_end
+        # the copy and writer threads need the GIL back after each system call; with the
+        # default 5 ms switch interval they would wait behind the caller's computing
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL_S))
         self._background(self._copy)
         return self
 
@@ -427,6 +437,7 @@ class ExtendedBag:
         for t in self._threads:
             t.join()
         self._threads = []
+        self._restore_switch_interval()
         if self._errors:
             raise self._errors[0]
 
@@ -438,10 +449,16 @@ class ExtendedBag:
             for t in self._threads:
                 t.join()
         finally:
+            self._restore_switch_interval()
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
             shutil.rmtree(self.dst, ignore_errors=True)
+
+    def _restore_switch_interval(self) -> None:
+        if self._switch_interval is not None:
+            sys.setswitchinterval(self._switch_interval)
+            self._switch_interval = None
 
     # -- topics and messages -----------------------------------------------------------
     def add_topic(self, topic: str, type_name: str, msgdef: str, rihs01: str) -> int:
@@ -541,7 +558,10 @@ class ExtendedBag:
             pos += 49 + size + mi_len
         total = pos - self._pos
         buf = None
-        if len(self._written) >= 2:  # double buffering: reuse the older written buffer
+        # reuse the oldest committed buffer once written; wait for it only when many bytes
+        # are queued (the writes share the disk with the input copy and may lag behind)
+        if self._written and (self._written[0][0].is_set() or sum(
+                b.size for _d, b in self._written) > QUEUED_BYTES):
             done, old = self._written.pop(0)
             done.wait()
             if self._errors:

@@ -274,6 +274,25 @@ def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) ->
     return _sample_stamps(np.repeat(stamps, n), k, np.repeat(rate, n))
 
 
+def _segments(ends: np.ndarray, lo: int, hi: int, wanted: np.ndarray) -> list:
+    """Block boundaries cutting blocks [lo, hi) (ends: cumulative sample counts) into
+    segments of at most 2 * SEGMENT_SAMPLES samples (unless one block is longer), cut at the
+    wanted boundaries unless that makes a segment shorter than SEGMENT_SAMPLES / 4, and where
+    none is wanted, every SEGMENT_SAMPLES."""
+    def samples(a, b):
+        return int(ends[b - 1]) - (int(ends[a - 1]) if a else 0)
+
+    cuts = [lo]
+    for c in [*sorted(set(wanted[(wanted > lo) & (wanted < hi)].tolist())), hi]:
+        while samples(cuts[-1], c) > 2 * SEGMENT_SAMPLES:
+            base = int(ends[cuts[-1] - 1]) if cuts[-1] else 0
+            cuts.append(max(int(np.searchsorted(ends, base + SEGMENT_SAMPLES, 'right')),
+                            cuts[-1] + 1))
+        if c > cuts[-1] and (c == hi or samples(cuts[-1], c) >= SEGMENT_SAMPLES // 4):
+            cuts.append(c)
+    return cuts
+
+
 def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list,
                    progress: Progress | None = None) -> dict:
     """_read_bag for the common case, with whole-topic numpy decoding. The aligner's result
@@ -346,12 +365,11 @@ def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list,
     frame = fb.frame_id(m - 1)
     bounds = [*np.flatnonzero(~cont).tolist(), m]
     ends = np.cumsum(n)
+    # blocks where a window starts: a segment boundary there keeps most windows in one
+    # segment, which the scorer then takes without copying
+    window_blocks = np.searchsorted(last, np.array([w[0] for w in windows], dtype=np.int64))
     for lo, hi in zip(bounds[:-1], bounds[1:]):  # runs, cut into segments
-        base = int(ends[lo] - n[lo])
-        cuts = np.searchsorted(ends[lo:hi], base + np.arange(SEGMENT_SAMPLES,
-                                                             int(ends[hi - 1]) - base,
-                                                             SEGMENT_SAMPLES), 'right') + lo
-        segs = [lo, *sorted(set(cuts.tolist()) - {lo, hi}), hi]
+        segs = _segments(ends, lo, hi, window_blocks)
         for a, b in zip(segs[:-1], segs[1:]):
             sel = np.arange(a, b)
             stream.add(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
