@@ -268,9 +268,10 @@ def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.nd
     head = np.zeros(rec_starts.size, dtype=_RECORD)
     head['op'], head['len'], head['channel'] = 5, 22 + data_len, cids
     head['log'] = head['publish'] = log_ns
+    raw = head.view(np.dtype((np.void, RECORD_HEADER)))  # copied whole, not field by field
     for lo, hi, stride in stride_runs(rec_starts):
-        np.ndarray((hi - lo,), dtype=_RECORD, buffer=buf, offset=int(rec_starts[lo]),
-                   strides=(stride,))[...] = head[lo:hi]
+        np.ndarray((hi - lo,), dtype=raw.dtype, buffer=buf, offset=int(rec_starts[lo]),
+                   strides=(stride,))[...] = raw[lo:hi]
 
 
 class McapBag:
