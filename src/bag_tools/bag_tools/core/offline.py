@@ -276,9 +276,9 @@ def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) ->
 
 def _segments(ends: np.ndarray, lo: int, hi: int, wanted: np.ndarray) -> list:
     """Block boundaries cutting blocks [lo, hi) (ends: cumulative sample counts) into
-    segments of at most 2 * SEGMENT_SAMPLES samples (unless one block is longer), cut at the
-    wanted boundaries unless that makes a segment shorter than SEGMENT_SAMPLES / 4, and where
-    none is wanted, every SEGMENT_SAMPLES."""
+    segments of SEGMENT_SAMPLES to 2 * SEGMENT_SAMPLES samples (unless one block or the run is
+    longer or shorter), cut at the wanted boundaries where that allows, else every
+    SEGMENT_SAMPLES."""
     def samples(a, b):
         return int(ends[b - 1]) - (int(ends[a - 1]) if a else 0)
 
@@ -288,7 +288,7 @@ def _segments(ends: np.ndarray, lo: int, hi: int, wanted: np.ndarray) -> list:
             base = int(ends[cuts[-1] - 1]) if cuts[-1] else 0
             cuts.append(max(int(np.searchsorted(ends, base + SEGMENT_SAMPLES, 'right')),
                             cuts[-1] + 1))
-        if c > cuts[-1] and (c == hi or samples(cuts[-1], c) >= SEGMENT_SAMPLES // 4):
+        if c > cuts[-1] and (c == hi or samples(cuts[-1], c) >= SEGMENT_SAMPLES):
             cuts.append(c)
     return cuts
 
