@@ -388,23 +388,29 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
     fixed[16:16 + len(fb)] = np.frombuffer(fb, dtype=_U8)
     fixed[12:16] = np.frombuffer(struct.pack('<I', len(fb)), dtype=_U8)
     dest = {f: np.cumsum(cnt[f]) - cnt[f] for f in fields}
-    # messages with the same counts have the same layout: one strided view per run
+    # messages with the same counts have the same layout: one strided view per run; the head
+    # up to the first field's values is built contiguous and copied in one pass, each later
+    # count with its alignment padding in one more
     for lo, hi, stride in stride_runs(starts, *(cnt[f] for f in fields)):
         k, s0 = hi - lo, int(starts[lo])
-        head = np.empty((k, head_len + 4), dtype=_U8)  # built contiguous, copied in one pass
-        head[...] = fixed
-        _view(head, 4, k, head_len + 4, '<i4')[...] = sec[lo:hi]
-        _view(head, 8, k, head_len + 4, '<u4')[...] = nsec[lo:hi]
-        _view(head, 4 + off, k, head_len + 4, '<f8')[...] = rate[lo:hi]
-        _view(head, 12 + off, k, head_len + 4, '<u8')[...] = seq[lo:hi]
-        _view(out, s0, k, stride, 'u1', head_len + 4)[...] = head
+        first = fields[0] if fields else None
+        width = head_len + 4 if first is None else \
+            4 + (int(pos_d[first][lo]) if cnt[first][lo] else int(pos_c[first][lo]) + 4)
+        head = np.zeros((k, width), dtype=_U8)
+        head[:, :head_len + 4] = fixed
+        _view(head, 4, k, width, '<i4')[...] = sec[lo:hi]
+        _view(head, 8, k, width, '<u4')[...] = nsec[lo:hi]
+        _view(head, 4 + off, k, width, '<f8')[...] = rate[lo:hi]
+        _view(head, 12 + off, k, width, '<u8')[...] = seq[lo:hi]
+        if first is not None:
+            _view(head, 4 + int(pos_c[first][lo]), k, width, '<u4')[...] = cnt[first][lo]
+        _view(out, s0, k, stride, 'u1', width)[...] = head
         for f in fields:
             n, p_c = int(cnt[f][lo]), int(pos_c[f][lo])
-            _view(out, s0 + 4 + p_c, k, stride, '<u4')[...] = n
+            p_d = int(pos_d[f][lo]) if n else p_c + 4
+            if f != first:  # the count and the padding after it (zero) as one value
+                _view(out, s0 + 4 + p_c, k, stride, '<u8' if p_d - p_c == 8 else '<u4')[...] = n
             if n:
-                p_d = int(pos_d[f][lo])
-                if given and p_d > p_c + 4:  # alignment padding: out is not ours to zero
-                    _view(out, s0 + 8 + p_c, k, stride, 'u1', p_d - p_c - 4)[...] = 0
                 d0 = int(dest[f][lo])
                 _view(out, s0 + 4 + p_d, k, stride, '<f8', n)[...] = \
                     vals[f][d0:d0 + k * n].reshape(k, n)
