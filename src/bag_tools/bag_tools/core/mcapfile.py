@@ -209,6 +209,7 @@ _RECORD = np.dtype([('op', 'u1'), ('len', '<u8'), ('channel', '<u2'), ('seq', '<
                     ('log', '<u8'), ('publish', '<u8')])  # message record header, 31 bytes
 _RECORD_HEAD = np.dtype({'names': ['op', 'len', 'log'], 'formats': ['u1', '<u8', '<u8'],
                          'offsets': [0, 1, 15], 'itemsize': 23})  # up to the log time
+_INDEX_ENTRY = np.dtype([('log', '<u8'), ('offset', '<u8')])  # message index entry
 
 
 def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
@@ -225,7 +226,7 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
     buf = np.frombuffer(mm, dtype=_U8)
     size = buf.size
     want = {t: i for i, t in enumerate(topics)}
-    logs, chans, offs = [], [], []
+    index = []  # per message index record: entries start, count, chunk records start/size, topic
     for c in summary.chunks:
         for cid, moff in c.message_index.items():
             t = summary.channels.get(cid, (0, None, b''))[1]
@@ -234,20 +235,23 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
             if mm[moff] != 0x07:
                 raise FastPathError('bad message index')
             _cid, blen = struct.unpack_from('<HI', mm, moff + 9)
-            ent = np.frombuffer(mm, dtype='<u8', count=blen // 8,
-                                offset=moff + 15).reshape(-1, 2)
-            rel = ent[:, 1].astype(np.int64)
-            if rel.size and (rel.min() < 0 or rel.max() + RECORD_HEADER > c.records_size):
-                raise FastPathError('message offset outside its chunk')
-            logs.append(ent[:, 0].astype(np.int64))
-            offs.append(c.records_start + rel)
-            chans.append(np.full(rel.size, want[t], dtype=np.int64))
-    if not logs:
+            if blen % 16 or moff + 15 + blen > size:
+                raise FastPathError('bad message index')
+            index.append((moff + 15, blen // 16, c.records_start, c.records_size, want[t]))
+    counts = np.array([i[1] for i in index], dtype=np.int64)
+    if not counts.sum():
         z = np.zeros(0, np.int64)
         return RawMessages(buf, z, z, z, z, mm), list(topics)
-    log = np.concatenate(logs)
-    off = np.concatenate(offs)
-    chan = np.concatenate(chans)
+    a = np.array(index, dtype=np.int64)
+    first = np.cumsum(counts) - counts
+    pos = np.repeat(a[:, 0] - 16 * first, counts) + 16 * np.arange(int(counts.sum()))
+    ent = gather_struct(buf, pos, _INDEX_ENTRY)  # all entries, in runs of one index each
+    log = ent['log'].astype(np.int64)
+    rel = ent['offset'].astype(np.int64)
+    if (rel < 0).any() or (rel + RECORD_HEADER > np.repeat(a[:, 3], counts)).any():
+        raise FastPathError('message offset outside its chunk')
+    off = np.repeat(a[:, 2], counts) + rel
+    chan = np.repeat(a[:, 4], counts)
     rec = gather_struct(buf, off, _RECORD_HEAD)
     rec_len = rec['len'].astype(np.int64)
     if (rec['op'] != 0x05).any() or (rec['log'].astype(np.int64) != log).any() \
