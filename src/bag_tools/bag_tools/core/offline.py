@@ -43,7 +43,7 @@ from .errors import BagError
 from .fastcdr import FastPathError, block_lengths, decode_blocks, encode_blocks
 from .mcapfile import ExtendedBag, McapBag, read_topics_raw
 from .reader import open_bag
-from .typestore import default_typestore, shared_typestore
+from .typestore import default_typestore, shared_typestore, type_definition
 from .writer import BagWriter
 
 FORCE_TYPE = 'force_tester_msgs/msg/ForceBlock'
@@ -309,7 +309,7 @@ def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list,
     accel_topic = '/accel' if '/accel' in accel_t else sorted(accel_t)[0]
     wanted = [force_topic, accel_topic, *event_t]
     store = shared_typestore()
-    if any(bag.hashes.get(t) != store.hash_rihs01(topics[t][0]) for t in wanted):
+    if any(bag.hashes.get(t) != type_definition(topics[t][0])[1] for t in wanted):
         raise FastPathError('message definitions differ from force_tester_msgs')
     raw, _ = read_topics_raw(bag.mcap, wanted, bag.summary, bag.mm)
     for i, t in enumerate(wanted):
@@ -525,9 +525,7 @@ def _extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
 
 
 def _add_result_topics(target: ExtendedBag) -> dict:
-    store = shared_typestore()
-    return {t: target.add_topic(t, ty, store.generate_msgdef(ty, ros_version=2)[0],
-                                store.hash_rihs01(ty))
+    return {t: target.add_topic(t, ty, *type_definition(ty))
             for t, ty in ((CORRECTED_TOPIC, CORRECTED_NAME), ('/pull_score', SCORE_TYPE),
                           ('/set_summary', SUMMARY_TYPE))}
 

@@ -118,3 +118,14 @@ def shared_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
     once per process for read-only use: serialising, deserialising, definitions and hashes
     (the same as default_typestore's; tested). Never register types into it."""
     return _shared(tuple(find_msg_dirs(env)))
+
+
+@functools.lru_cache(maxsize=32)
+def _definition(type_name: str, dirs: tuple) -> tuple:
+    store = _shared(dirs)
+    return store.generate_msgdef(type_name, ros_version=2)[0], store.hash_rihs01(type_name)
+
+
+def type_definition(type_name: str, env: Mapping[str, str] = os.environ) -> tuple:
+    """(ros2msg definition, RIHS01 hash) of a type in shared_typestore(), computed once."""
+    return _definition(type_name, tuple(find_msg_dirs(env)))
