@@ -134,6 +134,10 @@ def check_decoded(store, blocks, msgs, flds, sel_check=True, rng=None):
             refp = np.concatenate([np.asarray(getattr(msgs[k], f), dtype=np.float64)
                                    for k in sel.tolist()])
             np.testing.assert_array_equal(bits(part), bits(refp))
+            lo = int(rng.integers(0, len(msgs)))
+            hi = int(rng.integers(lo, len(msgs) + 1))
+            np.testing.assert_array_equal(bits(blocks.values(f, slice(lo, hi))),
+                                          bits(blocks.values(f, np.arange(lo, hi))))
 
 
 # --------------------------------------------------------------------------- 1. decode
@@ -169,6 +173,38 @@ def test_decode_blocks_equals_rosbags(store, type_name):
     for i in range(0, len(cdrs), 37):
         b = decode_blocks(cdrs[i], [0], [len(cdrs[i])], flds)
         check_decoded(store, b, [back[i]], flds, sel_check=False)
+
+
+@pytest.mark.parametrize('odd', [None, 'counts', 'frame', 'frame_text'])
+def test_decode_blocks_uniform_layout(store, odd):
+    """Messages of one layout (a recording's usual case) are decoded in one strided pass per
+    field, also when chunk-like gaps break the stride; one message whose later counts differ
+    at the same length (or whose frame_id length differs) sends the batch down the general path
+    with the same result; a frame_id of the same length keeps the one pass."""
+    rng = np.random.default_rng(11)
+    flds = fields_of(store, ACCEL)
+    msgs = [rand_block(store, rng, ACCEL, frame_id='accel', counts=[6, 6, 6])
+            for _ in range(60)]
+    if odd == 'counts':
+        msgs[41] = rand_block(store, rng, ACCEL, frame_id='accel', counts=[6, 5, 7])
+    elif odd:  # same message length either way (the frame_id is padded to 8 bytes)
+        msgs[41] = rand_block(store, rng, ACCEL, frame_id='accelxy' if odd == 'frame'
+                              else 'accek', counts=[6, 6, 6])
+    cdrs = [store.serialize_cdr(m, ACCEL) for m in msgs]
+    assert len({len(c) for c in cdrs}) == 1
+    back = [store.deserialize_cdr(c, ACCEL) for c in cdrs]
+    stride = len(cdrs[0]) + 31
+    starts = np.arange(60) * stride + 3 + 977 * (np.arange(60) // 13)  # a gap every 13
+    buf = np.zeros(int(starts[-1]) + stride, np.uint8)
+    for a, c in zip(starts.tolist(), cdrs):
+        buf[a:a + len(c)] = np.frombuffer(c, np.uint8)
+    blocks = decode_blocks(buf, starts, np.full(60, len(cdrs[0])), flds)
+    assert (blocks._runs is not None) == (odd in (None, 'frame_text'))
+    check_decoded(store, blocks, back, flds, rng=rng)
+    for lo, hi in ((0, 60), (12, 14), (13, 13), (5, 59), (26, 27)):
+        for f in flds:
+            np.testing.assert_array_equal(bits(blocks.values(f, slice(lo, hi))),
+                                          bits(blocks.values(f, np.arange(lo, hi))))
 
 
 def test_decode_blocks_empty_and_rejects(store):

@@ -129,10 +129,12 @@ def _gather_f64_indexed(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray,
         out[rep_dst + k] = view[rep_src + k]
 
 
-def gather_f64(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+def gather_f64(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray,
+               runs: list | None = None) -> np.ndarray:
     """Concatenation of counts[i] float64 (LE) at byte offsets starts[i] of buf.
 
-    Messages laid out at a regular stride (the usual case) are copied as strided views."""
+    Messages laid out at a regular stride (the usual case) are copied as strided views
+    (runs: stride_runs(starts, counts) when known)."""
     starts = np.asarray(starts, dtype=np.int64)
     counts = np.asarray(counts, dtype=np.int64)
     total = int(counts.sum())
@@ -141,7 +143,7 @@ def gather_f64(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.nd
         return out.astype(np.float64)
     if int(starts.min()) < 0 or int((starts + 8 * counts).max()) > buf.size:
         raise FastPathError('values outside the message buffer')
-    runs = stride_runs(starts, counts)
+    runs = stride_runs(starts, counts) if runs is None else runs
     if len(runs) > starts.size // 4 + 8:  # irregular layout: per-run views would be slow
         _gather_f64_indexed(buf, starts, counts, out)
         return out.astype(np.float64, copy=False)
@@ -159,7 +161,7 @@ def gather_f64(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.nd
 class Blocks:
     """Decoded block messages: per message stamp_ns, rate, seq, and per field counts/values."""
 
-    def __init__(self, stamp_ns, rate_hz, seq, counts, starts, buf, frame_ids):
+    def __init__(self, stamp_ns, rate_hz, seq, counts, starts, buf, frame_ids, runs=None):
         self.stamp_ns = stamp_ns      # int64 (m,)
         self.rate_hz = rate_hz        # float64 (m,)
         self.seq = seq                # uint64 (m,)
@@ -167,16 +169,29 @@ class Blocks:
         self._starts = starts         # {field: int64 (m,) byte offsets of the values}
         self._buf = buf
         self._frame = frame_ids       # (offsets, lengths) of the frame_id bytes
+        self._runs = runs             # uniform layout: stride runs of every field's starts
+        self._run_lo = None if runs is None else np.array([r[0] for r in runs], np.int64)
 
     def __len__(self) -> int:
         return int(self.stamp_ns.size)
 
-    def values(self, field: str, sel: np.ndarray | None = None) -> np.ndarray:
-        """Concatenated values of field over the messages sel (index array; default all)."""
+    def values(self, field: str, sel: np.ndarray | slice | None = None) -> np.ndarray:
+        """Concatenated values of field over the messages sel (index array or slice with
+        step 1; default all)."""
         starts, counts = self._starts[field], self.counts[field]
+        runs = None
+        if isinstance(sel, slice):
+            lo, hi, step = sel.indices(len(self))
+            if step != 1:
+                raise ValueError(f'slice step {step}; expected 1')
+            if self._runs is not None:  # the runs within [lo, hi), from lo
+                first = max(int(np.searchsorted(self._run_lo, lo, 'right')) - 1, 0)
+                runs = [(max(a, lo) - lo, min(b, hi) - lo, st) for a, b, st in
+                        self._runs[first:int(np.searchsorted(self._run_lo, hi, 'left'))]
+                        if b > lo and a < hi]
         if sel is not None:
             starts, counts = starts[sel], counts[sel]
-        return gather_f64(self._buf, starts, counts)
+        return gather_f64(self._buf, starts, counts, runs)
 
     def frame_id(self, i: int) -> str:
         off, ln = int(self._frame[0][i]), int(self._frame[1][i])
@@ -234,7 +249,7 @@ def _decode_uniform(b: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
     m = starts.size
     return Blocks(head['sec'].astype(np.int64) * NS_PER_S + head['nsec'], head['rate'].copy(),
                   head['seq'].copy(), {f: np.full(m, counts[f], np.int64) for f in fields},
-                  vstarts, b, (starts + 16, np.full(m, slen - 1, np.int64)))
+                  vstarts, b, (starts + 16, np.full(m, slen - 1, np.int64)), runs)
 
 
 def decode_blocks(buf, starts: np.ndarray, lengths: np.ndarray,

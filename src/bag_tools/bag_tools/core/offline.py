@@ -371,7 +371,7 @@ def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list,
     for lo, hi in zip(bounds[:-1], bounds[1:]):  # runs, cut into segments
         segs = _segments(ends, lo, hi, window_blocks)
         for a, b in zip(segs[:-1], segs[1:]):
-            sel = np.arange(a, b)
+            sel = slice(a, b)
             stream.add(_block_sample_stamps(stamps[sel], n[sel], fr[sel]),
                        fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
                        fb.values('stationary_n', sel), float(fr[a]), new_run=a == lo,
