@@ -316,7 +316,8 @@ def test_encode_blocks_into_a_given_buffer(store, regular):
 def test_stride_runs_and_gathers_match_indexing(steps, counts, kind):
     """Runs cover every message once, each one stride and one count; gathers through them
     equal plain indexing for regular, irregular and overlapping layouts."""
-    from bag_tools.core.fastcdr import _field, _gather_rows, gather_f64, stride_runs
+    from bag_tools.core.fastcdr import (_field, _gather_rows, gather_f64, gather_struct,
+                                        stride_runs)
     offs = 64 + np.cumsum([0] + steps[:-1]).astype(np.int64) if steps else np.zeros(0, np.int64)
     offs = offs - min(0, int(offs.min(initial=0))) + 64
     m = offs.size
@@ -336,6 +337,43 @@ def test_stride_runs_and_gathers_match_indexing(steps, counts, kind):
     vals = [buf[o:o + 8 * c].view('<f8') for o, c in zip(offs.tolist(), cnt.tolist())]
     ref = np.concatenate(vals) if vals else np.zeros(0)
     np.testing.assert_array_equal(bits(gather_f64(buf, offs, cnt)), bits(ref))
+    rec = gather_struct(buf, offs, np.dtype({'names': ['a', 'b'], 'formats': ['<u2', '<f8'],
+                                             'offsets': [1, 5], 'itemsize': 13}))
+    assert rec['a'].tolist() == [int(buf[o + 1]) | int(buf[o + 2]) << 8 for o in offs.tolist()]
+    np.testing.assert_array_equal(bits(rec['b']),
+                                  bits([buf[o + 5:o + 13].view('<f8')[0] for o in offs.tolist()]))
+
+
+def test_stride_runs_one_run_per_chunk():
+    """Messages at one stride broken by a lone odd step (a chunk boundary) give one run per
+    chunk, not an extra one-message run at each boundary."""
+    from bag_tools.core.fastcdr import stride_runs
+    offs = np.concatenate([5000 * c + 100 * np.arange(40) for c in range(6)])
+    assert stride_runs(offs) == [(40 * c, 40 * c + 40, 100) for c in range(6)]
+    assert stride_runs(np.array([0, 10, 20, 35, 50, 65])) == [(0, 3, 10), (3, 6, 15)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(1, 900), min_size=1, max_size=40), st.integers(1, 400),
+       st.lists(st.integers(0, 45), max_size=8))
+def test_segments_cover_the_run_and_cut_at_pull_starts(sizes, seg, wanted):
+    """Segments cover the blocks once, in order; each is at most 2 * SEGMENT_SAMPLES unless
+    it is a single block; a wanted boundary is a cut unless it would leave a segment shorter
+    than SEGMENT_SAMPLES (and it is never cut past)."""
+    n = np.array(sizes, dtype=np.int64)
+    ends = np.cumsum(n)
+    m = n.size
+    want = np.array(wanted, dtype=np.int64)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(offline, 'SEGMENT_SAMPLES', seg)
+        cuts = offline._segments(ends, 0, m, want)
+    assert cuts[0] == 0 and cuts[-1] == m and all(b > a for a, b in zip(cuts, cuts[1:]))
+    size = [int(ends[b - 1] - (ends[a - 1] if a else 0)) for a, b in zip(cuts, cuts[1:])]
+    assert all(s <= 2 * seg or b - a == 1 for s, a, b in zip(size, cuts, cuts[1:]))
+    for c in set(wanted) & set(range(1, m)):
+        if c not in cuts:  # skipped: too close to the cut before it
+            before = max(x for x in cuts if x < c)
+            assert ends[c - 1] - (ends[before - 1] if before else 0) < seg
 
 
 def test_encode_blocks_absent_fields_and_errors(store):
@@ -535,6 +573,7 @@ def test_extended_bag_is_input_plus_new_topics(store, tmp_path):
 
 def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
     rng = np.random.default_rng(12)
+    before = sys.getswitchinterval()
     src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
     with pytest.raises(RuntimeError):
         with ExtendedBag(McapBag(src), tmp_path / 'out') as out:
@@ -549,6 +588,16 @@ def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
     assert not (tmp_path / 'out').exists()
     with pytest.raises(BagError, match='exists already'):
         ExtendedBag(McapBag(src), src)
+    assert sys.getswitchinterval() == before  # set while the bag was open, then restored
+
+
+def test_extended_bag_sets_and_restores_the_switch_interval(store, tmp_path):
+    rng = np.random.default_rng(14)
+    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:20])
+    before = sys.getswitchinterval()
+    with ExtendedBag(McapBag(src), tmp_path / 'out'):
+        assert sys.getswitchinterval() == min(before, 5e-4)
+    assert sys.getswitchinterval() == before
 
 
 @pytest.mark.parametrize('damage', ['no_metadata', 'version_8', 'two_files', 'no_summary'])

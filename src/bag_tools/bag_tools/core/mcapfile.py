@@ -263,8 +263,7 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
                        (rec_len - 22)[order], mm), list(topics)
 
 
-
-
+# --------------------------------------------------------------------------- writing
 def fill_record_headers(buf: np.ndarray, rec_starts: np.ndarray, data_len: np.ndarray,
                         cids: np.ndarray, log_ns: np.ndarray) -> None:
     """Write the 31-byte message record headers at buf[rec_starts[i]] (sequence 0,

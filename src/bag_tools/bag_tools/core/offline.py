@@ -10,8 +10,9 @@ score_pull (what PullAccumulator.score does) and SetStatistics, like validator_n
 
 Fast path (the usual bag: one uncompressed MCAP file, blocks that pair one to one without
 drops): the blocks are decoded a topic at a time with numpy (fastcdr, mcapfile), corrected,
-scored and written in segments of SEGMENT_SAMPLES, and the output bag is the input file copied
-byte for byte plus the result topics (mcapfile.ExtendedBag). Anything else takes the generic
+scored and written in segments of one or more pulls (cut where pull windows start; about
+SEGMENT_SAMPLES to twice that), and the output bag is the input file copied byte for byte
+plus the result topics (mcapfile.ExtendedBag). Anything else takes the generic
 path (rosbags message by message, the BlockAligner itself), which gives the same numbers.
 
 Campaign input: each pull is one run; consecutive pulls form one run only when the second's
@@ -298,7 +299,7 @@ def _read_bag_fast(bag: McapBag, stream: _Stream, warnings: list,
     """_read_bag for the common case, with whole-topic numpy decoding. The aligner's result
     is computed in closed form; raises FastPathError (before touching the stream) whenever the
     aligner would report anything but discontinuities, so the generic path handles it. The
-    samples go through the stream in segments of about SEGMENT_SAMPLES, windows known first."""
+    samples go through the stream in segments (_segments), windows known first."""
     topics = bag.topics()
     force_t = [n for n, t in topics.items() if t[0] == FORCE_TYPE]
     accel_t = [n for n, t in topics.items() if t[0] == ACCEL_TYPE]
