@@ -569,6 +569,14 @@ def test_extended_bag_is_input_plus_new_topics(store, tmp_path):
         assert topics[t].count == sum(m[0] == t for m in want)
     again = McapBag(tmp_path / 'out')  # the output suits the fast paths itself
     assert again.hashes['/corr'] == store.hash_rihs01(FORCE)
+    # metadata.yaml is the MCAP's rosbag2 metadata record under its root key, as yaml writes it
+    import yaml
+    from mcap.reader import make_reader
+    with open(mcap_out, 'rb') as f:
+        (record,) = [m for m in make_reader(f).iter_metadata() if m.name == 'rosbag2']
+    info = yaml.safe_load(record.metadata['serialized_metadata'])
+    assert (tmp_path / 'out' / 'metadata.yaml').read_text() == yaml.safe_dump(
+        {'rosbag2_bagfile_information': info}, default_flow_style=False)
 
 
 def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
@@ -860,6 +868,26 @@ def test_correct_fast_path_segments_and_extension(base_bag, tmp_path, monkeypatc
                     assert p[k] == q[k] or abs(p[k] - q[k]) <= 1e-9, (k, p[k], q[k])
             assert [(t, lg) for t, _ty, lg, _c in bag] == [(t, lg) for t, _ty, lg, _c in ref_bag]
             assert bag == ref_bag  # bit for bit, incl. the corrected blocks
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 5_000_000), min_size=1, max_size=30), st.integers(1, 60),
+       st.sampled_from([50_000.0, 1000.0, 48_000.0, 3.0, 44_100.0, 12_345.6]),
+       st.lists(st.integers(-2_000_000, 200_000_000), max_size=20))
+def test_block_stamps_equal_the_sample_array(gaps, n, rate, probes):
+    """_BlockStamps (what the fast path hands the scorer) answers size, t[i], max() and
+    searchsorted exactly as the per-sample stamp array would, for any rate."""
+    span = int(np.ceil(n * 1e9 / rate))
+    stamps = T0 + np.cumsum(np.array(gaps, dtype=np.int64) + span)
+    m = stamps.size
+    t = offline._block_sample_stamps(stamps, np.full(m, n), np.full(m, rate))
+    ref = np.concatenate([offline._sample_stamps(np.full(n, s), np.arange(n), np.full(n, rate))
+                          for s in stamps.tolist()])
+    assert isinstance(t, offline._BlockStamps)
+    np.testing.assert_array_equal(t.array(), ref)
+    assert t.size == ref.size and t[-1] == ref[-1] == t.max() and t[0] == ref[0]
+    v = np.concatenate([T0 + np.array(probes, dtype=np.int64), ref[::7], ref[::11] + 1])
+    np.testing.assert_array_equal(t.searchsorted(v), np.searchsorted(ref, v))
 
 
 @settings(max_examples=60, deadline=None)

@@ -681,6 +681,10 @@ class ExtendedBag:
         os.close(self._fd)
         self._fd = -1
         tmp = self.dst / 'metadata.yaml.tmp'
-        tmp.write_text(yaml.dump({'rosbag2_bagfile_information': info}, Dumper=dumper,
-                                 default_flow_style=False), encoding='utf-8')
+        # the same YAML one level down (every line indented: what yaml.dump of the nested
+        # mapping gives, without dumping twice)
+        tmp.write_text('rosbag2_bagfile_information:\n'
+                       + ''.join(line if line == '\n' else '  ' + line
+                                 for line in text.splitlines(keepends=True)),
+                       encoding='utf-8')
         tmp.replace(self.dst / 'metadata.yaml')

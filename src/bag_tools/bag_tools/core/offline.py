@@ -119,7 +119,7 @@ class _Scorer:
             start, end = self.windows[i][:2]
             if start > latest:  # this and the later windows have no samples here
                 break
-            lo, hi = np.searchsorted(t, [start, end])
+            lo, hi = t.searchsorted([start, end])
             if hi > lo:
                 self.open[i].append({k: seg[k][lo:hi] for k in self.KEYS})
             if last >= end:
@@ -207,6 +207,8 @@ class _Stream:
             self.target[0].commit()
         self.seq += len(blocks[0]) if blocks is not None else 0
         if self.keep or self.scorer is None:  # pulls not known yet: kept for scoring
+            if isinstance(stamps, _BlockStamps):
+                seg['t'] = stamps.array()
             for k in PART_KEYS:
                 self.parts[k].append(seg[k])
         return out
@@ -266,11 +268,42 @@ def _sample_stamps(first: np.ndarray, k: np.ndarray, rate: np.ndarray) -> np.nda
     return out
 
 
-def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Concatenated sample_stamps_ns(stamps[i], n[i], rate[i])."""
-    if n.size and (n == n[0]).all() and (rate == rate[0]).all():  # the usual case: 2-D
-        offsets = _sample_stamps(np.zeros(1, np.int64), np.arange(int(n[0])), rate[:1])
-        return (stamps[:, None] + offsets[None, :]).reshape(-1)
+class _BlockStamps:
+    """The sample stamps of consecutive blocks of one size and rate (block stamps increasing,
+    blocks not overlapping) without the per-sample array: what _Scorer reads (size, t[i],
+    max(), searchsorted) computed from the blocks; array() gives the samples' stamps."""
+
+    def __init__(self, stamps: np.ndarray, n: int, rate: float) -> None:
+        self.stamps, self.n = stamps, n
+        self.offsets = _sample_stamps(np.zeros(1, np.int64), np.arange(n), np.full(1, rate))
+        self.size = stamps.size * n
+
+    def __getitem__(self, i: int) -> np.int64:
+        i = range(self.size)[i]
+        return self.stamps[i // self.n] + self.offsets[i % self.n]
+
+    def max(self) -> np.int64:
+        return self[-1]
+
+    def searchsorted(self, values) -> np.ndarray:
+        """np.searchsorted(self.array(), values) (side 'left'): samples stamped before each
+        value. The blocks before the last block starting before it lie wholly before it."""
+        v = np.asarray(values, dtype=np.int64)
+        b = np.searchsorted(self.stamps, v)
+        prev = np.maximum(b - 1, 0)
+        return np.where(b > 0, prev * self.n + np.searchsorted(self.offsets,
+                                                               v - self.stamps[prev]), 0)
+
+    def array(self) -> np.ndarray:
+        return (self.stamps[:, None] + self.offsets[None, :]).reshape(-1)
+
+
+def _block_sample_stamps(stamps: np.ndarray, n: np.ndarray,
+                         rate: np.ndarray) -> np.ndarray | _BlockStamps:
+    """Concatenated sample_stamps_ns(stamps[i], n[i], rate[i]), as a _BlockStamps when the
+    blocks are of one size and rate (the usual case)."""
+    if n.size and n[0] > 0 and (n == n[0]).all() and (rate == rate[0]).all():
+        return _BlockStamps(stamps, int(n[0]), float(rate[0]))
     k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
     return _sample_stamps(np.repeat(stamps, n), k, np.repeat(rate, n))
 
@@ -475,8 +508,7 @@ def _corrected_blocks(arr: dict, blocks: tuple, frame: str, seq0: int = 0,
     encode_blocks' (buffer, starts, lengths) and the log times, or, with a target, encoded
     into the space target.reserve() lays out."""
     stamps, ns, rates = blocks
-    ends = np.cumsum(ns)
-    last = np.where(ns > 0, arr['t'][np.maximum(ends - 1, 0)], stamps)
+    last = np.where(ns > 0, _sample_stamps(stamps, np.maximum(ns - 1, 0), rates), stamps)
     counts = {f: ns for f in CORRECTED_FIELDS}
     out = starts = None
     if target is not None:
