@@ -113,11 +113,17 @@ def _shared(dirs: tuple) -> Typestore:
     return store
 
 
+@functools.lru_cache(maxsize=8)
+def _msg_dirs(ament_prefix_path: str) -> tuple:
+    return tuple(find_msg_dirs({'AMENT_PREFIX_PATH': ament_prefix_path}))
+
+
 def shared_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
     """The force_tester_msgs types (with std_msgs/Header and builtin_interfaces/Time), built
-    once per process for read-only use: serialising, deserialising, definitions and hashes
-    (the same as default_typestore's; tested). Never register types into it."""
-    return _shared(tuple(find_msg_dirs(env)))
+    once per process (and AMENT_PREFIX_PATH) for read-only use: serialising, deserialising,
+    definitions and hashes (the same as default_typestore's; tested). Never register types
+    into it."""
+    return _shared(_msg_dirs(env.get('AMENT_PREFIX_PATH', '')))
 
 
 @functools.lru_cache(maxsize=32)
@@ -128,4 +134,4 @@ def _definition(type_name: str, dirs: tuple) -> tuple:
 
 def type_definition(type_name: str, env: Mapping[str, str] = os.environ) -> tuple:
     """(ros2msg definition, RIHS01 hash) of a type in shared_typestore(), computed once."""
-    return _definition(type_name, tuple(find_msg_dirs(env)))
+    return _definition(type_name, _msg_dirs(env.get('AMENT_PREFIX_PATH', '')))
