@@ -551,12 +551,14 @@ class ExtendedBag:
         # layout: per chunk the chunk record (header 49 bytes + records), then its indexes
         plan, pos = [], self._pos
         abs_rec = np.empty(m, dtype=np.int64)
+        single = int(c[0]) if (c == c[0]).all() else None  # one channel: the usual case
         for i, j in zip(bounds[:-1], bounds[1:]):
             size = int(rec_end[j - 1] - rec_rel[i])
             abs_rec[i:j] = pos + 49 + rec_rel[i:j] - rec_rel[i]
             ch = c[i:j]
-            chans = np.unique(ch).tolist()
-            counts = [int(np.count_nonzero(ch == k)) for k in chans]
+            chans = [single] if single is not None else np.unique(ch).tolist()
+            counts = [j - i] if single is not None else \
+                [int(np.count_nonzero(ch == k)) for k in chans]
             mi_len = sum(15 + 16 * k for k in counts)
             plan.append((i, j, pos, size, chans, mi_len))
             pos += 49 + size + mi_len
@@ -585,8 +587,8 @@ class ExtendedBag:
             index = []
             rel = abs_rec[i:j] - (start + 49)
             for k in chans:
-                sel = c[i:j] == k
-                ent = np.empty((int(sel.sum()), 2), dtype='<u8')
+                sel = slice(None) if single is not None else c[i:j] == k
+                ent = np.empty((rel[sel].size, 2), dtype='<u8')
                 ent[:, 0], ent[:, 1] = lg[i:j][sel], rel[sel]
                 rec = _record(0x07, struct.pack('<HI', k, ent.nbytes) + ent.tobytes())
                 buf[p - shift:p - shift + len(rec)] = np.frombuffer(rec, _U8)
@@ -597,7 +599,7 @@ class ExtendedBag:
                 '<QQQQI', t0, t1, start, 49 + size, len(mi)) + mi + struct.pack('<Q', mi_len)
                 + _str('') + struct.pack('<QQ', size, size)))
         self._pos += total
-        for k in np.unique(c).tolist():
+        for k in ([single] if single is not None else np.unique(c).tolist()):
             self._counts[k] += int(np.count_nonzero(c == k))
         self._times = [min(self._times[0], int(lg.min())), max(self._times[1], int(lg.max()))]
         data = abs_rec - shift + RECORD_HEADER
