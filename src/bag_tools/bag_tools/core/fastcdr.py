@@ -150,10 +150,10 @@ def gather_f64(buf: np.ndarray, starts: np.ndarray, counts: np.ndarray,
     dest = np.cumsum(counts) - counts
     for lo, hi, stride in runs:
         n, k, d0 = int(counts[lo]), hi - lo, int(dest[lo])
-        if n:
-            view = np.ndarray((k, n), dtype='<f8', buffer=buf, offset=int(starts[lo]),
-                              strides=(stride, 8))
-            out[d0:d0 + k * n].reshape(k, n)[...] = view
+        if n:  # each message's values as one record (memcpy; they are rarely 8-aligned)
+            row = np.dtype((np.void, 8 * n))
+            out[d0:d0 + k * n].view(row)[...] = np.ndarray(
+                (k,), dtype=row, buffer=buf, offset=int(starts[lo]), strides=(stride,))
     return out.astype(np.float64, copy=False)
 
 
@@ -386,7 +386,7 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
     for f in fields:
         tot = int(cnt[f].sum())
         if tot:
-            vals[f] = np.asarray(values[f], dtype='<f8').reshape(-1)
+            vals[f] = np.ascontiguousarray(values[f], dtype='<f8').reshape(-1)
             if vals[f].size != tot:
                 raise FastPathError(f'{f}: {vals[f].size} values for {tot} samples')
     pos_c, pos_d, lengths = _block_layout(fields, cnt, head_len, m)
@@ -427,6 +427,7 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
                 _view(out, s0 + 4 + p_c, k, stride, '<u8' if p_d - p_c == 8 else '<u4')[...] = n
             if n:
                 d0 = int(dest[f][lo])
-                _view(out, s0 + 4 + p_d, k, stride, '<f8', n)[...] = \
-                    vals[f][d0:d0 + k * n].reshape(k, n)
+                row = np.dtype((np.void, 8 * n))  # one record per message (memcpy)
+                _view(out, s0 + 4 + p_d, k, stride, row)[...] = \
+                    vals[f][d0:d0 + k * n].view(row)
     return (out if gap or given else out.tobytes()), starts, lengths
