@@ -167,3 +167,38 @@ def test_extension_file_sets_the_mass_and_a_bad_one_is_refused(ros, tmp_path):
         assert node.get_parameter('extension_file').value == str(good)
     finally:
         node.destroy_node()
+
+
+def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path):
+    """The recorder publishes how many messages it has written (what `./ft demo` waits on
+    before stopping it): the count matches the blocks sent and the bag it closes."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
+    from bag_tools.core.info import bag_info
+    from bag_tools.recorder_node import RecorderNode
+    node = RecorderNode(parameter_overrides=[Parameter('bag_path', value=str(tmp_path / 'bag')),
+                                             Parameter('topics', value=['/force'])])
+    probe = rclpy.create_node('probe')
+    pub = probe.create_publisher(TOPICS['/force'].msg_type, '/force', BLOCK_QOS)
+    counts = []
+    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: counts.extend(
+        int(kv.value) for st in m.status if st.name.startswith('recorder:')
+        for kv in st.values if kv.key == 'messages'), EVENT_QOS)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    ex.add_node(probe)
+    try:
+        assert spin_until(ex, lambda: pub.get_subscription_count() > 0)
+        for k in range(7):
+            msg = TOPICS['/force'].msg_type()
+            fill_block(msg, 1_700_000_000 * 10**9 + k * 10**6, 50_000.0, k,
+                       {'moving_n': np.ones(50), 'stationary_n': np.ones(50)}, 'force')
+            pub.publish(msg)
+        assert spin_until(ex, lambda: counts and counts[-1] == 7), counts
+        assert counts == sorted(counts)
+    finally:
+        node.close()
+        ex.shutdown()
+        probe.destroy_node()
+        node.destroy_node()
+    assert bag_info(tmp_path / 'bag')['topics']['/force']['count'] == 7

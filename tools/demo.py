@@ -97,7 +97,12 @@ class ScoreCollector:
         rclpy.init(args=['ft_demo'])
         self.node = rclpy.create_node('ft_demo')
         self.scores = []
+        self.recorded = []  # (time, messages) from the recorder's progress reports
         self.node.create_subscription(PullScore, '/pull_score', self._on_score, SCORE_QOS)
+        from diagnostic_msgs.msg import DiagnosticArray
+        from force_tester_common.ros import EVENT_QOS
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      EVENT_QOS)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
 
@@ -112,6 +117,29 @@ class ScoreCollector:
 
     def _on_score(self, msg):
         self.scores.append({k: getattr(msg, k) for k in SCORE_FIELDS})
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            if status.name.startswith('recorder:'):
+                values = {kv.key: kv.value for kv in status.values}
+                if 'messages' in values:
+                    self.recorded.append((time.monotonic(), values))
+
+    def wait_recorder_caught_up(self, quiet_s: float = 1.0, timeout: float = 30.0) -> bool:
+        """Wait until the recorder has as many /force_corrected blocks as /force blocks (the
+        correction node has caught up) and its message count has not changed for quiet_s (it
+        has written everything published), at most timeout."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.1)
+            if not self.recorded:
+                continue
+            now, values = time.monotonic(), self.recorded[-1][1]
+            since = min(t for t, v in self.recorded if v['messages'] == values['messages'])
+            if (values.get('/force_corrected') == values.get('/force')
+                    and now - since >= quiet_s and now - self.recorded[-1][0] < quiet_s):
+                return True
+        return False
 
     def wait(self, n: int, timeout: float, alive=lambda: True, progress=None) -> bool:
         deadline = time.monotonic() + timeout
@@ -181,7 +209,8 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         ok = collector.wait(expected, timeout, alive=lambda: not graph.dead(),
                             progress=lambda sc: say(f"demo: scored pull {sc['pull_id'] + 1}/{expected} "
                                                     f"(set {sc['test_set']})"))
-        time.sleep(0.5)  # let the recorder take the last messages
+        if ok and not collector.wait_recorder_caught_up():  # it may lag behind on a busy machine
+            say('demo: the recorder did not catch up within 30 s; stopping it anyway')
     finally:
         codes = graph.stop()
         collector.close()

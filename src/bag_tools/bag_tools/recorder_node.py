@@ -63,6 +63,9 @@ def split_limits(values: dict) -> dict:
             'max_duration_ns': int(round(values['max_bag_duration_s'] * 1e9))}
 
 
+PROGRESS_S = 0.5  # period of the recorder's progress report on /diagnostics
+
+
 class RecorderNode(Node):
     def __init__(self, **kwargs):
         super().__init__('recorder', **kwargs)
@@ -74,8 +77,10 @@ class RecorderNode(Node):
         self.wanted = list(self.params.values['topics'])
         self.subscribed = {}
         self.count = 0
+        self.counts = {}  # topic -> messages written
         self._discover()
         self.create_timer(0.1, self._discover)
+        self.create_timer(PROGRESS_S, self._progress)
         limits = split_limits(self.params.values)
         split = ''
         if limits['max_bytes'] or limits['max_duration_ns']:
@@ -101,6 +106,14 @@ class RecorderNode(Node):
             self.subscribed[topic] = self.create_subscription(
                 cls, topic, lambda data, t=topic: self._write(t, data), BLOCK_QOS, raw=True)
 
+    def _progress(self):
+        """How many messages are in the bag so far, in all and per topic (on /diagnostics, not
+        in the log): a monitor can see the recording advance, and tell when it has caught up."""
+        with self.lock:
+            if self.writer is not None:
+                self.diag.report(OK, f'recorded {self.count} messages', log=False,
+                                 messages=self.count, **self.counts)
+
     def _write(self, topic: str, data: bytes):
         with self.lock:
             if self.writer is not None:
@@ -110,6 +123,7 @@ class RecorderNode(Node):
                     self.diag.report(ERROR, f'cannot record a {topic} message: {exc}')
                     return
                 self.count += 1
+                self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def close(self):
         with self.lock:
