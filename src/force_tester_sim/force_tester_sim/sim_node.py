@@ -15,8 +15,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, Diagnostics, main_for
+from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, WARN, Diagnostics, main_for
 from force_tester_msgs.msg import PullEvent
+from rclpy.duration import Duration
 from rclpy.node import Node
 
 from .core.pull import simulate_pull
@@ -36,8 +37,10 @@ SPECS = [
                                   "measured levels, yielding first (the reference campaign's coupons)"),
     ParamSpec('wait_for_subscribers', 0, 'wait until /force has this many subscribers before publishing',
               (0, 100)),
-    ParamSpec('exit_when_done', False, 'shut the node down after the last pull'),
+    ParamSpec('exit_when_done', False, 'shut the node down after the last pull (once the '
+              'subscribers have acknowledged every block, at most ACK_TIMEOUT_S)'),
 ]
+ACK_TIMEOUT_S = 30.0  # exit_when_done: how long to wait for lagging subscribers
 CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise', 'coupons', 'drive')
 
 
@@ -112,6 +115,13 @@ class SimNode(Node):
                 self._event(PullEvent.END, sample_stamp_ns(t0_ns, index, rate_hz), pull_id, rig, spec)
         self.diag.report(OK, f'done: {len(pulls)} pull(s), {index} samples per channel')
         if self.params.values['exit_when_done']:
+            # a reliable reader that lags (a recorder on a busy machine) has not acknowledged
+            # the last blocks yet; they would be lost with this process
+            late = [pub.topic_name for pub in [*(p for _t, p in self.block_pubs), self.event_pub]
+                    if not pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))]
+            if late:
+                self.diag.report(WARN, f'exiting with unacknowledged messages on {late} after '
+                                 f'{ACK_TIMEOUT_S:g} s')
             self.context.try_shutdown()
 
     def _event(self, kind, stamp_ns, pull_id, rig, spec):
