@@ -474,7 +474,6 @@ def test_read_topics_raw_equals_generic_reader(store, tmp_path):
     bag = write_plain(tmp_path / 'bag', store, msgs)
     mcap = single_mcap(bag)
     with open_bag(bag) as b:
-        from rosbags.rosbag2 import Reader  # noqa: F401
         n_chunks = len(b._reader.storage.storages[0].chunks) \
             if hasattr(getattr(b._reader, 'storage', None), 'storages') else None
     if n_chunks is not None:
