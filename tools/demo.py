@@ -97,7 +97,7 @@ class ScoreCollector:
         rclpy.init(args=['ft_demo'])
         self.node = rclpy.create_node('ft_demo')
         self.scores = []
-        self.recorded = []  # (time, messages) from the recorder's progress reports
+        self.recorded = []  # (time, {key: value}) from the recorder's progress reports
         self.node.create_subscription(PullScore, '/pull_score', self._on_score, SCORE_QOS)
         from diagnostic_msgs.msg import DiagnosticArray
         from force_tester_common.ros import EVENT_QOS
