@@ -7,7 +7,6 @@ the code under test receives only the data and the nominal rig.
 from __future__ import annotations
 
 import json
-import math
 import os
 import tempfile
 from pathlib import Path

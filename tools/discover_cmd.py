@@ -44,9 +44,7 @@ def main(args) -> int:
         camp = read_campaign(folder)
         pulls = [(p.meta, p.channels) for p in camp.pulls]
         report = discover(pulls, rig, Path(args.out))
-    except (BagError, CorrectionError, SimError) as exc:
-        return _error(exc)
-    except OSError as exc:
+    except (BagError, CorrectionError, SimError, OSError) as exc:
         return _error(exc)
     finally:
         if tmp is not None:

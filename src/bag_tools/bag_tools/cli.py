@@ -68,7 +68,7 @@ def cmd_play(args) -> int:
 
 def cmd_record(args) -> int:
     """Run the recorder node in this process until Ctrl-C."""
-    from .recorder_node import DEFAULT_TOPICS, RecorderNode
+    from .recorder_node import DEFAULT_TOPICS, RecorderNode, split_description
     from force_tester_common.ros import spin_nodes
     if os.path.exists(args.output):
         raise BagError(f'output {args.output!r} exists already; expected a new directory name')
@@ -79,11 +79,8 @@ def cmd_record(args) -> int:
     ros_args = ['--ros-args', '-p', f'bag_path:={args.output}', '-p', f'topics:={list(topics)!r}',
                 '-p', f'max_bag_size_mb:={float(args.max_size)!r}',
                 '-p', f'max_bag_duration_s:={float(args.max_duration)!r}']
-    split = [f'{args.max_size:g} MB'] if args.max_size else []
-    split += [f'{args.max_duration:g} s'] if args.max_duration else []
-    split_text = f' (new .mcap file every {" or ".join(split)})' if split else ''
-    print(f'recording {", ".join(topics)} to {args.output}{split_text}; Ctrl-C stops',
-          file=sys.stderr)
+    print(f'recording {", ".join(topics)} to {args.output}'
+          f'{split_description(args.max_size, args.max_duration)}; Ctrl-C stops', file=sys.stderr)
     return spin_nodes(RecorderNode, args=['recorder', *ros_args])
 
 

@@ -63,6 +63,13 @@ def split_limits(values: dict) -> dict:
             'max_duration_ns': int(round(values['max_bag_duration_s'] * 1e9))}
 
 
+def split_description(max_bag_size_mb: float, max_bag_duration_s: float) -> str:
+    """' (new .mcap file every 50 MB or 10 s)' for the split limits set; '' for none."""
+    parts = [f'{max_bag_size_mb:g} MB'] if max_bag_size_mb else []
+    parts += [f'{max_bag_duration_s:g} s'] if max_bag_duration_s else []
+    return f" (new .mcap file every {' or '.join(parts)})" if parts else ''
+
+
 PROGRESS_S = 0.5  # period of the recorder's progress report on /diagnostics
 
 
@@ -76,19 +83,18 @@ class RecorderNode(Node):
                                       **split_limits(self.params.values)).open()
         self.wanted = list(self.params.values['topics'])
         self.subscribed = {}
-        self.count = 0
         self.counts = {}  # topic -> messages written
         self._discover()
         self.create_timer(0.1, self._discover)
         self.create_timer(PROGRESS_S, self._progress)
-        limits = split_limits(self.params.values)
-        split = ''
-        if limits['max_bytes'] or limits['max_duration_ns']:
-            parts = [f"{self.params.values['max_bag_size_mb']:g} MB"] if limits['max_bytes'] else []
-            if limits['max_duration_ns']:
-                parts.append(f"{self.params.values['max_bag_duration_s']:g} s")
-            split = f" (new file every {' or '.join(parts)})"
+        split = split_description(self.params.values['max_bag_size_mb'],
+                                  self.params.values['max_bag_duration_s'])
         self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")
+
+    @property
+    def count(self) -> int:
+        """Messages written so far."""
+        return sum(self.counts.values())
 
     def _discover(self):
         graph = dict(self.get_topic_names_and_types())
@@ -122,7 +128,6 @@ class RecorderNode(Node):
                 except BagError as exc:
                     self.diag.report(ERROR, f'cannot record a {topic} message: {exc}')
                     return
-                self.count += 1
                 self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def close(self):

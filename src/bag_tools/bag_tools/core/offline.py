@@ -51,7 +51,9 @@ FORCE_TYPE = 'force_tester_msgs/msg/ForceBlock'
 ACCEL_TYPE = 'force_tester_msgs/msg/AccelBlock'
 SCORE_TYPE = 'force_tester_msgs/msg/PullScore'
 SUMMARY_TYPE = 'force_tester_msgs/msg/SetSummary'
-OUTPUT_TOPICS = (CORRECTED_TOPIC, '/pull_score', '/set_summary')
+RESULT_TOPICS = ((CORRECTED_TOPIC, CORRECTED_NAME), ('/pull_score', SCORE_TYPE),
+                 ('/set_summary', SUMMARY_TYPE))  # what correct adds to a bag
+OUTPUT_TOPICS = tuple(t for t, _ty in RESULT_TOPICS)
 SCORE_FIELDS = ('stationary_peak_n', 'raw_peak_n', 'corrected_peak_n', 'filtered_peak_n',
                 'raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct', 'raw_rms_n',
                 'corrected_rms_n', 'filtered_rms_n')
@@ -558,9 +560,7 @@ def _extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
 
 
 def _add_result_topics(target: ExtendedBag) -> dict:
-    return {t: target.add_topic(t, ty, *type_definition(ty))
-            for t, ty in ((CORRECTED_TOPIC, CORRECTED_NAME), ('/pull_score', SCORE_TYPE),
-                          ('/set_summary', SUMMARY_TYPE))}
+    return {t: target.add_topic(t, ty, *type_definition(ty)) for t, ty in RESULT_TOPICS}
 
 
 def _write_bag(src: Path, dst: Path, arr: dict, data: dict, pulls: list, by_pull: list,
@@ -588,8 +588,7 @@ def _write_bag(src: Path, dst: Path, arr: dict, data: dict, pulls: list, by_pull
                     warnings.append(f'topic {t} ({type_name}) not copied: its type is unknown')
                     continue
             writer.add_topic(t, type_name)
-        for t, type_name in ((CORRECTED_TOPIC, CORRECTED_NAME), ('/pull_score', SCORE_TYPE),
-                             ('/set_summary', SUMMARY_TYPE)):
+        for t, type_name in RESULT_TOPICS:
             writer.add_topic(t, type_name)
         keep = [t for t in keep if t in writer.topics]
         src_iter = ((m.stamp_ns, -1, m.topic, m.type_name, m.cdr) for m in bag.messages(keep)) \

@@ -176,4 +176,3 @@ class BagWriter:
                 self.close()
         else:
             self.abort()
-

@@ -30,7 +30,6 @@ nothing named gives `unexplained`.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,18 +82,6 @@ def _filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
 def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:
     """T = F_stat + m1 a1 (eq 21/23) with a1 from F_stat = K u1 + c1 v1 (exact in the frequency domain)."""
     return _filtered(fs, dt) + _filtered(fs, dt, lambda w: -m1 * w ** 2 / (k1 + 1j * c1 * w))
-
-
-def advance(x: np.ndarray, d_s: float, dt: float) -> np.ndarray:
-    """x(t + d): fractional advance by FFT phase shift (linear trend removed first)."""
-    if d_s == 0.0:
-        return x
-    n = len(x)
-    trend = np.linspace(x[0], x[-1], n)
-    X = np.fft.rfft(x - trend)
-    f = np.fft.rfftfreq(n, dt)
-    y = np.fft.irfft(X * np.exp(2j * np.pi * f * d_s), n)
-    return y + trend + (x[-1] - x[0]) * d_s / (dt * (n - 1))
 
 
 @dataclass

@@ -51,7 +51,7 @@ def force_errors(res, named, rig):
     return base, ext
 
 
-def _where(n, c, res):
+def _where(n, c):
     p = c['parameters']
     if n == 'mains_hum':
         return f'a spectral line at {p["frequency_hz"]:.2f} Hz on the moving cell, on the whole record (also with no load)'
@@ -84,7 +84,7 @@ def build_report(res, named, left, rig) -> dict:
         ev = dict(c['evidence'])
         gain = ev.get('rms_gain')
         causes.append({'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
-                       'evidence': ev, 'gain': gain, 'channel': c['channel'], 'where': _where(n, c, res)})
+                       'evidence': ev, 'gain': gain, 'channel': c['channel'], 'where': _where(n, c)})
     base, ext = res['force_errors'] = force_errors(res, named, rig)
     primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
     if primary == 'unexplained':
@@ -94,26 +94,15 @@ def build_report(res, named, left, rig) -> dict:
             'evidence': {'statistic': 'residual variance share above the quiet-record floor',
                          'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE,
                          'rule': left['rule']}, 'gain': 1.0})
-    elif False:   # leftover structure next to named causes is reported under 'leftover' only
-        causes.append({'name': 'unexplained', 'parameters': {
-            'dominant_frequency_hz': left['dominant_frequency_hz'], 'correlated_channel': left['correlated_channel'],
-            'share_of_residual_variance': left['share_of_residual_variance']},
-            'evidence': {'statistic': 'residual variance share above the quiet-record floor after the extension',
-                         'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE},
-            'gain': 1.0})
     if primary in ('mount_resonance', 'coulomb_friction') and not any(n in FORCE_CHANNEL for n in named):
-        ev = cand[primary]['evidence']
         # RMS on the cause's own channel (held-out); no other channel changes
-        b = e = None
-        gain = ev['rms_gain']
         metric = ('RMS on held-out pulls of ' + cand[primary]['channel'] + ' (per-pull amplitude/phase of the '
                   'modes fitted)' if primary == 'mount_resonance' else 'RMS on held-out pulls of the motor-current '
                   'residual (force balance), A')
         if primary == 'mount_resonance':
-            b_, e_ = _ring_rms(res, rig)
+            baseline_error, extended_error = _ring_rms(res, rig)
         else:
-            b_, e_ = _current_rms(res, rig, cand[primary]['parameters']['force_n'])
-        baseline_error, extended_error = b_, e_
+            baseline_error, extended_error = _current_rms(res, rig, cand[primary]['parameters']['force_n'])
     else:
         baseline_error, extended_error = _rms(base), _rms(ext)
         metric = ('RMS (N) on the held-out pulls of the moving-cell prediction residual F_move - F_pred over the '
