@@ -32,7 +32,8 @@ for _pkg in ('bag_tools', 'force_tester_common', 'force_correction', 'force_test
 import numpy as np  # noqa: E402
 
 from bag_tools.core.convert import bag_to_campaign, campaign_to_bag  # noqa: E402
-from bag_tools.core.daq import NS_PER_S, read_campaign, write_campaign  # noqa: E402
+from bag_tools.core.daq import read_campaign, write_campaign  # noqa: E402
+from force_tester_common.core.clock import NS_PER_S  # noqa: E402
 from bag_tools.core.offline import correct  # noqa: E402
 from force_correction.core import (CorrectionParams, SetStatistics, correct_signal,  # noqa: E402
                                    score_pull)

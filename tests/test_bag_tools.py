@@ -27,7 +27,7 @@ from bag_tools.core.daq import (CAMPAIGN_FILE, BagError, read_campaign, read_csv
 from bag_tools.core.offline import correct  # noqa: E402
 from force_correction.core import (CorrectionParams, SetStatistics, correct_signal,  # noqa: E402
                                    score_pull)
-from force_tester_common.channels import OPTIONAL_CHANNELS, REQUIRED_CHANNELS  # noqa: E402
+from force_tester_common.core.channels import OPTIONAL_CHANNELS, REQUIRED_CHANNELS  # noqa: E402
 
 MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
 RATE = 50000.0

@@ -12,7 +12,8 @@ import numpy as np
 import force_tester_msgs.msg
 from builtin_interfaces.msg import Time
 
-from .channels import BLOCK_TYPES, CORRECTED_TYPE
+from .core import clock
+from .core.channels import BLOCK_TYPES, CORRECTED_TYPE
 
 
 @dataclass(frozen=True)
@@ -32,11 +33,11 @@ CORRECTED_TOPIC = BlockTopic(CORRECTED_TYPE[1][0], _msg_class(CORRECTED_TYPE[0])
 
 
 def stamp_to_ns(stamp: Time) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return clock.stamp_to_ns(stamp.sec, stamp.nanosec)
 
 
 def ns_to_stamp(ns: int) -> Time:
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    sec, nanosec = clock.ns_to_stamp(ns)
     return Time(sec=sec, nanosec=nanosec)
 
 

@@ -13,6 +13,7 @@ import time
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 
+from force_tester_common.core.clock import sample_stamp_ns
 from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, WARN, Diagnostics, main_for
@@ -21,7 +22,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 
 from .core.pull import simulate_pull
-from .core.sim_config import SimConfig, block_bounds, sample_stamp_ns
+from .core.sim_config import SimConfig, block_bounds
 
 SPECS = [
     ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),

@@ -20,18 +20,20 @@ from typing import Any, Callable, Iterator
 import numpy as np
 from rosbags.typesys.store import Typestore
 
-from force_tester_common.channels import (BLOCK_TYPES, CORRECTED_TYPE, OPTIONAL_CHANNELS,
-                                          PULL_EVENT_TYPE, REQUIRED_CHANNELS)
+from force_tester_common.core.channels import (BLOCK_TYPES, CORRECTED_TYPE, OPTIONAL_CHANNELS,
+                                               PULL_END, PULL_EVENT_TOPIC, PULL_EVENT_TYPE,
+                                               PULL_START, REQUIRED_CHANNELS)
+from force_tester_common.core.clock import (NS_PER_S, end_stamp_ns, ns_to_stamp,
+                                            record_stamps_ns, sample_stamps_ns, stamp_to_ns)
+from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
-from .daq import (CORRECTED_COLUMNS, DEFAULT_EPOCH_NS, DEFAULT_GAP_NS, FT_M, G_M_S2, LBF_N,
-                  NS_PER_S, Campaign, DaqPull, end_stamp_ns, read_campaign, sample_stamps_ns,
-                  time_column, write_campaign)
+from .daq import (CORRECTED_COLUMNS, DEFAULT_EPOCH_NS, DEFAULT_GAP_NS, Campaign, DaqPull,
+                  read_campaign, time_column, write_campaign)
 from .errors import BagError
 from .reader import open_bag
 from .typestore import default_typestore
 from .writer import BagWriter
 
-PULL_START, PULL_END = 0, 1
 CORRECTED_NAME, (CORRECTED_TOPIC, CORRECTED_FIELDS) = CORRECTED_TYPE
 #: Block types exported to campaign columns: type -> {field: column}.
 EXPORT_FIELDS = {t: fields for t, (_topic, fields) in BLOCK_TYPES.items()}
@@ -47,14 +49,13 @@ Progress = Callable[[int, int], None]
 # --------------------------------------------------------------------------- messages
 def header(store: Typestore, stamp_ns: int, frame_id: str = ''):
     T = store.types
-    return T['std_msgs/msg/Header'](
-        stamp=T['builtin_interfaces/msg/Time'](sec=int(stamp_ns) // NS_PER_S,
-                                               nanosec=int(stamp_ns) % NS_PER_S),
-        frame_id=frame_id)
+    sec, nanosec = ns_to_stamp(stamp_ns)
+    return T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
+                                    frame_id=frame_id)
 
 
 def stamp_of(msg: Any) -> int:
-    return int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
+    return stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
 
 
 _EMPTY = np.empty(0, dtype=np.float64)
@@ -119,8 +120,8 @@ def iter_campaign_messages(camp: Campaign, store: Typestore, block_size: int = 5
     for (start, pid), p in zip(place_pulls(camp), camp.pulls):
         ch = p.channels
         n = len(ch['time_s'])
-        stamps = sample_stamps_ns(start, n, rate)
-        yield '/pull_event', PULL_EVENT_TYPE, start, pull_event_cdr(store, start, PULL_START,
+        stamps = record_stamps_ns(start, n, rate)
+        yield PULL_EVENT_TOPIC, PULL_EVENT_TYPE, start, pull_event_cdr(store, start, PULL_START,
                                                                      p.meta, pid)
         for b0 in range(0, n, block_size):
             b1 = min(b0 + block_size, n)
@@ -131,7 +132,7 @@ def iter_campaign_messages(camp: Campaign, store: Typestore, block_size: int = 5
                                                         seqs[topic], arrays)
                 seqs[topic] += 1
         end = end_stamp_ns(start, n, rate)
-        yield '/pull_event', PULL_EVENT_TYPE, end, pull_event_cdr(store, end, PULL_END,
+        yield PULL_EVENT_TOPIC, PULL_EVENT_TYPE, end, pull_event_cdr(store, end, PULL_END,
                                                                    p.meta, pid)
 
 
@@ -158,7 +159,7 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
             if topic not in writer.topics:
                 writer.add_topic(topic, type_name)
             writer.write(topic, log_ns, cdr)
-            if progress and topic == '/pull_event':
+            if progress and topic == PULL_EVENT_TOPIC:
                 done += 1
                 if done % 2 == 0:
                     progress(done // 2, len(camp.pulls))
@@ -187,11 +188,7 @@ class _Series:
         lengths = np.asarray(self.lengths, dtype=np.int64)
         first = np.repeat(np.asarray(self.stamps, dtype=np.int64), lengths)
         starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
-        k = np.arange(first.size, dtype=np.int64) - starts
-        if float(int(self.rate)) == self.rate:
-            t = first + (k * NS_PER_S) // int(self.rate)
-        else:
-            t = first + np.round(k * (NS_PER_S / self.rate)).astype(np.int64)
+        t = sample_stamps_ns(first, np.arange(first.size, dtype=np.int64) - starts, self.rate)
         v = np.concatenate(self.values)
         if t.size > 1 and not (np.diff(t) >= 0).all():
             order = np.argsort(t, kind='stable')

@@ -26,16 +26,13 @@ from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 import yaml
 
-from force_tester_common.channels import CHANNELS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.channels import CHANNELS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, record_stamps_ns
 
 from .errors import BagError, one_line
 
 CAMPAIGN_FILE = 'campaign.yaml'
 FORMAT = 'force_tester_daq/1'
-NS_PER_S = 1_000_000_000
-LBF_N = 4.4482216152605      # 1 lbf in newtons
-FT_M = 0.3048                # 1 ft in metres
-G_M_S2 = 9.80665             # standard gravity, m/s^2
 #: Columns written by `correct` into a campaign (optional extras, also accepted on reading).
 CORRECTED_COLUMNS = ('inertial_n', 'corrected_n', 'filtered_n')
 KNOWN_COLUMNS = CHANNELS + CORRECTED_COLUMNS
@@ -73,22 +70,6 @@ class Campaign:
 
 
 # --------------------------------------------------------------------------- helpers
-def sample_stamps_ns(start_ns: int, n: int, rate_hz: float) -> np.ndarray:
-    """Stamp of sample k = start_ns + k / rate (exact integer arithmetic for integer rates,
-    the sim's sample clock); int64."""
-    k = np.arange(n, dtype=np.int64)
-    if float(int(rate_hz)) == rate_hz:
-        return np.int64(start_ns) + (k * NS_PER_S) // int(rate_hz)
-    return np.int64(start_ns) + np.round(k * (NS_PER_S / rate_hz)).astype(np.int64)
-
-
-def end_stamp_ns(start_ns: int, n: int, rate_hz: float) -> int:
-    """Stamp just after the last of n samples (PullEvent END)."""
-    if float(int(rate_hz)) == rate_hz:
-        return int(start_ns) + (n * NS_PER_S) // int(rate_hz)
-    return int(start_ns) + round(n * NS_PER_S / rate_hz)
-
-
 def time_column(n: int, rate_hz: float) -> np.ndarray:
     """time_s = k / rate exactly (float64 division, as the sim does)."""
     return np.arange(n) / rate_hz

@@ -35,11 +35,12 @@ import numpy as np
 from force_correction.core.extension import Extension, ForcePrefilter
 from force_correction.core import (BlockAligner, CorrectionError, CorrectionParams,
                                    SetStatistics, correct_block, initial_state, score_pull)
-from force_tester_common.channels import PULL_EVENT_TYPE
+from force_tester_common.core.channels import PULL_EVENT_TYPE
 
 from .convert import CORRECTED_NAME, CORRECTED_TOPIC, header, place_pulls, stamp_of
-from .daq import (CAMPAIGN_FILE, NS_PER_S, Campaign, DaqPull, end_stamp_ns, read_campaign,
-                  sample_stamps_ns, write_campaign)
+from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, record_stamps_ns
+
+from .daq import CAMPAIGN_FILE, Campaign, DaqPull, read_campaign, write_campaign
 from .errors import BagError
 from .fastcdr import FastPathError, block_lengths, decode_blocks, encode_blocks
 from .mcapfile import ExtendedBag, McapBag, read_topics_raw
@@ -449,7 +450,7 @@ def _read_bag(src: Path, fast: McapBag | None, stream: _Stream, warnings: list,
                 f = np.concatenate([p[1] for p in run])
                 a = np.concatenate([p[2] for p in run])
                 s = np.concatenate([p[3] for p in run])
-                st = np.concatenate([sample_stamps_ns(p[0].stamp_ns, p[0].n_samples,
+                st = np.concatenate([record_stamps_ns(p[0].stamp_ns, p[0].n_samples,
                                                       p[0].sample_rate_hz) for p in run])
                 blocks = [(p[0].stamp_ns, p[0].n_samples, p[0].sample_rate_hz) for p in run]
                 stream.add(st, f, a, s, float(run[0][0].sample_rate_hz),
@@ -618,7 +619,7 @@ def _campaign_runs(camp: Campaign, stream: _Stream) -> tuple:
     outs = []
     for g in groups:
         ch = [x[2].channels for x in g]
-        out = stream.add(np.concatenate([sample_stamps_ns(s, n, rate) for s, n, _ in g]),
+        out = stream.add(np.concatenate([record_stamps_ns(s, n, rate) for s, n, _ in g]),
                          np.concatenate([c['force_moving_n'] for c in ch]),
                          np.concatenate([c['accel_axial_m_s2'] for c in ch]),
                          np.concatenate([c['force_stationary_n'] for c in ch]), rate)
@@ -711,7 +712,7 @@ def correct(src: str | Path, dst: str | Path, mass_kg: float = 1.152, window: in
             for i, p in enumerate(bpulls):
                 start = p.meta['start_ns']
                 n = len(p.channels['time_s'])
-                t = sample_stamps_ns(start, n, rate)
+                t = record_stamps_ns(start, n, rate)
                 lo, hi = np.searchsorted(arrays['t'], [t[0], t[-1] + 1])
                 idx = np.rint((arrays['t'][lo:hi] - start) * (rate / NS_PER_S)).astype(np.int64)
                 ch = dict(p.channels)

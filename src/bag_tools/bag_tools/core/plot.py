@@ -11,7 +11,9 @@ import numpy as np
 
 from force_correction.core import CorrectionError, CorrectionParams, correct_signal
 
-from .daq import FT_M, G_M_S2, LBF_N, DaqPull, read_campaign
+from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
+
+from .daq import DaqPull, read_campaign
 from .errors import BagError
 
 

@@ -1,6 +1,6 @@
 """ROS-free physics core of force_tester_sim (numpy/scipy/yaml only)."""
 from .errors import SimError
-from .units import FT_M, G_M_S2, LBF_N
+from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 from .params import (DaqParams, DriveParams, ForceChainParams, RigParams, SensorParams, TestSet,
                      load_rig, rig_from_dict, NOMINAL_YAML)
 from .chain import ChainParams, chain_rhs, force_move, force_stat, linear_matrices, tension

@@ -10,7 +10,7 @@ import yaml
 
 from .departures import NO_DEPARTURES, Departures, departures_from_data
 from .errors import SimError
-from .units import FT_M, G_M_S2, LBF_N
+from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
 NOMINAL_YAML = Path(__file__).resolve().parent.parent / 'config' / 'nominal.yaml'
 

@@ -13,7 +13,7 @@ from .errors import SimError
 from .integrate import ChainTrajectory, integrate_chain
 from .motion import PrescribedMotion, hold_time_s, nominal_slack_m
 from .params import RigParams
-from .units import NS_PER_S
+from force_tester_common.core.clock import record_stamps_ns
 
 CHANNELS = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2',
             'force_moving_n', 'force_stationary_n', 'motor_velocity_cmd_m_s', 'motor_current_a',
@@ -138,11 +138,7 @@ def sample_stamps_ns(rig: RigParams, start_ns: int) -> np.ndarray:
     """Absolute stamps (int64 ns) of a record starting at ``start_ns`` (exact for integer rates)."""
     if not isinstance(start_ns, (int, np.integer)):
         raise SimError(f'start_ns is {start_ns!r}; expected an integer number of nanoseconds')
-    rate = rig.daq.sample_rate_hz
-    k = np.arange(rig.daq.n_samples, dtype=np.int64)
-    if float(int(rate)) == rate:
-        return np.int64(start_ns) + (k * NS_PER_S) // int(rate)
-    return np.int64(start_ns) + np.round(k * (NS_PER_S / rate)).astype(np.int64)
+    return record_stamps_ns(start_ns, rig.daq.n_samples, rig.daq.sample_rate_hz)
 
 
 @dataclass

@@ -9,8 +9,6 @@ from .campaign import truth_pull_specs
 from .params import RigParams, load_rig
 from .pull import make_pull_specs
 
-NS_PER_S = 1_000_000_000
-
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -53,14 +51,6 @@ class SimConfig:
         if self.coupons == 'measured':
             return truth_pull_specs(rig, test_set, self.pulls_per_set, seed)
         return make_pull_specs(rig, test_set, self.pulls_per_set, seed)
-
-
-def sample_stamp_ns(t0_ns: int, index: int, sample_rate_hz: float) -> int:
-    """Stamp of sample ``index`` on a clock starting at ``t0_ns`` (exact for integer rates)."""
-    rate = int(sample_rate_hz)
-    if rate == sample_rate_hz:
-        return t0_ns + (index * NS_PER_S) // rate
-    return t0_ns + round(index * NS_PER_S / sample_rate_hz)
 
 
 def block_bounds(n_samples: int, block_size: int) -> Iterator[tuple]:

@@ -12,7 +12,7 @@ import numpy as np
 from .drive import DriveControl, back_emf_limit_m_s, simulate_drive, steady_state_speed_m_s
 from .errors import SimError
 from .params import RigParams
-from .units import FT_M
+from force_tester_common.core.units import FT_M
 
 COMMAND_FPS = 30.0
 DURATION_S = 0.5

@@ -1,0 +1,11 @@
+"""Defaults and ranges of the live correction and scoring: the node parameters, the core's
+CorrectionParams, offline `correct` and the CLIs all take them from here. Ranges are inclusive."""
+
+MASS_KG = 1.152                    # m2, thesis Table 7: 2.54 lbf/g (0.079 slug)
+MASS_RANGE_KG = (1e-6, 1000.0)
+WINDOW = 140                       # moving-average samples, thesis eq 25 (2.8 ms at 50 kHz)
+WINDOW_RANGE = (1, 50_000)         # up to 1 s at 50 kHz
+MAX_PENDING = 500                  # blocks a channel may wait for its partner before it is dropped
+MAX_PENDING_RANGE = (1, 10_000)
+LOADED_FRACTION = 0.1              # RMS window: stationary force above this share of its peak
+LOADED_FRACTION_RANGE = (0.01, 0.99)
