@@ -33,12 +33,12 @@ import numpy as np  # noqa: E402
 
 from bag_tools.core.convert import bag_to_campaign, campaign_to_bag  # noqa: E402
 from bag_tools.core.daq import read_campaign, write_campaign  # noqa: E402
+from force_correction.core import CorrectionParams, SetStatistics, correct_signal, score_pull  # noqa: E402
+from force_correction.offline import correct  # noqa: E402
 from force_tester_common.core.clock import NS_PER_S  # noqa: E402
-from bag_tools.core.offline import correct  # noqa: E402
-from force_correction.core import (CorrectionParams, SetStatistics, correct_signal,  # noqa: E402
-                                   score_pull)
 from force_tester_sim.core.params import load_rig  # noqa: E402
-from force_tester_sim.core.pull import make_pull_specs, simulate_pull  # noqa: E402
+from force_tester_sim.core.pull import make_pull_specs  # noqa: E402
+from force_tester_sim.core.simulate import simulate_pull  # noqa: E402
 
 
 def sim_pulls(n: int, contiguous: bool = True) -> list:
@@ -106,7 +106,7 @@ def main() -> int:
             t_mems.append(timed(in_memory, pulls[:k], params)[0])
             shutil.rmtree(tmp / f'rep{r}')
         t_bag, t_mem = statistics.median(t_bags), statistics.median(t_mems)
-        cli = [sys.executable, '-c', 'import sys; from bag_tools.cli import main; '
+        cli = [sys.executable, '-c', 'import sys; from force_correction.offline.cli import main; '
                'sys.exit(main(sys.argv[1:]))', 'correct', str(tmp / 'small_bag'),
                str(tmp / 'cli_out')]
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
@@ -115,8 +115,7 @@ def main() -> int:
             + [os.environ.get('PYTHONPATH', '')]))
         t_cli, _ = timed(subprocess.run, cli, env=env, check=True, capture_output=True)
         mem = in_memory(pulls[:k], params)
-        worst = max(abs(s['filtered_mean_pct'] - mem[s['set_id']].filtered_mean_pct)
-                    for s in res['sets'])
+        worst = max(abs(s.filtered_mean_pct - mem[s.set_id].filtered_mean_pct) for s in res.sets)
         t_camp, _ = timed(correct, tmp / 'small', tmp / 'small_corrected_campaign')
 
         n = args.pulls

@@ -37,13 +37,15 @@ def main() -> int:
     args = ap.parse_args()
 
     import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
     from force_correction.core.params import CorrectionParams
     from force_correction.core.streaming import correct_signal
     from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, stamp_to_ns
     from force_tester_common.ros import BLOCK_QOS
     from force_tester_sim.core.params import load_rig
-    from force_tester_sim.core.pull import make_pull_specs, simulate_pull
-    from rclpy.executors import SingleThreadedExecutor
+    from force_tester_sim.core.pull import make_pull_specs
+    from force_tester_sim.core.simulate import simulate_pull
 
     rig = load_rig()
     pull = simulate_pull(rig, make_pull_specs(rig, 3, 1, seed=0)[0])

@@ -1,56 +1,212 @@
-"""The ROS-free cores stay ROS-free; every package keeps the core / conversions / node split."""
+"""The architecture rules of ARCHITECTURE.md, enforced: the layering matrix, ROS-free cores, no
+import cycles between modules, one home for shared facts, and ruff's rule set."""
+from __future__ import annotations
+
 import ast
+import re
+import shutil
 import subprocess
 import sys
+import tokenize
 from pathlib import Path
 
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / 'src'
-CORE_PACKAGES = ['force_tester_sim', 'force_correction', 'bag_tools']
-ROS_MODULES = ('rclpy', 'rosidl_runtime_py', 'force_tester_msgs', 'std_msgs', 'diagnostic_msgs',
-               'builtin_interfaces')
-ALLOWED = ('force_tester_common.channels',)  # pure data, no ROS import (checked below)
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / 'src'
+TOOLS = ROOT / 'tools'
+
+# package -> the workspace packages it may import (force_tester_msgs is a ROS message package)
+LAYERS = {
+    'force_tester_common': set(),
+    'force_tester_sim': {'force_tester_common'},
+    'bag_tools': {'force_tester_common'},
+    'force_correction': {'force_tester_common', 'bag_tools'},
+    'force_discovery': {'force_tester_common', 'force_tester_sim', 'force_correction', 'bag_tools'},
+    'ft_cli': {'force_tester_common', 'force_tester_sim', 'bag_tools', 'force_correction',
+               'force_discovery'},
+}
+ROS_MODULES = {'rclpy', 'rcl_interfaces', 'rosidl_runtime_py', 'force_tester_msgs', 'std_msgs',
+               'diagnostic_msgs', 'builtin_interfaces'}
+# ROS-free parts: what they may import from outside the workspace
+PURE_THIRD_PARTY = {'numpy', 'scipy', 'yaml'}
+BAG_THIRD_PARTY = PURE_THIRD_PARTY | {'rosbags', 'mcap', 'ruamel', 'nptdms', 'matplotlib'}
 
 
-@pytest.mark.parametrize('package', CORE_PACKAGES)
-def test_core_sources_import_no_ros(package):
-    core = SRC / package / package / 'core'
-    files = sorted(core.glob('*.py'))
-    assert len(files) >= 2, f'{core} holds no modules'
-    for path in files:
-        tree = ast.parse(path.read_text(), str(path))
-        for node in ast.walk(tree):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0:
-                names = [node.module or '']
-            for name in names:
-                assert name.split('.')[0] not in ROS_MODULES, f'{path.name} imports {name}'
-                if name.startswith('force_tester_common'):
-                    assert name in ALLOWED, f'{path.name} imports {name}'
+def package_dirs() -> dict:
+    out = {p.name: p / p.name for p in sorted(SRC.iterdir()) if (p / p.name / '__init__.py').is_file()}
+    out['ft_cli'] = TOOLS / 'ft_cli'
+    return out
 
 
-def test_allowed_shared_modules_import_nothing():
-    for mod in ALLOWED:
-        path = SRC / mod.split('.')[0] / (mod.replace('.', '/') + '.py')
-        tree = ast.parse(path.read_text(), str(path))
-        assert not [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))], path
+def modules() -> dict:
+    """module name -> source path, for every workspace module."""
+    out = {}
+    for d in package_dirs().values():
+        for path in sorted(d.rglob('*.py')):
+            rel = path.relative_to(d.parent).with_suffix('')
+            parts = list(rel.parts)
+            if parts[-1] == '__init__':
+                parts.pop()
+            out['.'.join(parts)] = path
+    return out
 
 
-@pytest.mark.parametrize('package', CORE_PACKAGES)
-def test_importing_core_loads_no_rclpy(package):
-    code = (f'import importlib, pkgutil, sys\n'
-            f'import {package}.core as core\n'
-            f'mods = [m.name for m in pkgutil.iter_modules(core.__path__)]\n'
-            f'for m in mods: importlib.import_module("{package}.core." + m)\n'
-            f'bad = sorted(m for m in sys.modules if m.split(".")[0] in {ROS_MODULES!r})\n'
-            f'print(len(mods), bad)\n'
-            f'sys.exit(1 if bad else 0)\n')
+MODULES = modules()
+
+
+def imports_of(name: str, path: Path) -> list:
+    """Absolute names of everything ``path`` imports, anywhere in the file (functions too)."""
+    tree = ast.parse(path.read_text(), str(path))
+    package = name if path.name == '__init__.py' else name.rpartition('.')[0]
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split('.')
+                base = base[:len(base) - node.level + 1]
+                mod = '.'.join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ''
+            for a in node.names:  # `from pkg import submodule` imports the submodule
+                sub = f'{mod}.{a.name}'
+                out.append(sub if sub in MODULES else mod)
+    return out
+
+
+def is_pure(name: str) -> bool:
+    """A ROS-free part: a package's core, and the offline tools and discovery built on cores."""
+    parts = name.split('.')
+    return 'core' in parts or parts[:2] == ['force_correction', 'offline'] or parts[0] == 'force_discovery'
+
+
+def test_every_package_is_known():
+    assert set(package_dirs()) == set(LAYERS), 'add the new package to LAYERS and ARCHITECTURE.md'
+    assert len(MODULES) > 40
+
+
+@pytest.mark.parametrize('name', sorted(MODULES))
+def test_layering(name):
+    """A module imports only the workspace packages its package may import, and a ROS-free part
+    imports no ROS and only the ROS-free parts of other packages."""
+    pkg = name.split('.')[0]
+    for mod in imports_of(name, MODULES[name]):
+        top = mod.split('.')[0]
+        if top in LAYERS and top != pkg:
+            assert top in LAYERS[pkg], f'{name} imports {mod}: {pkg} may import {sorted(LAYERS[pkg])}'
+        if not is_pure(name):
+            continue
+        assert top not in ROS_MODULES, f'{name} is ROS-free but imports {mod}'
+        if top in LAYERS and top != pkg:
+            assert is_pure(mod) or mod == 'bag_tools.cli', f'{name} imports {mod}, which is not ROS-free'
+        if top not in LAYERS and top not in sys.stdlib_module_names:
+            allowed = BAG_THIRD_PARTY if pkg in ('bag_tools', 'force_correction', 'force_discovery') \
+                else PURE_THIRD_PARTY
+            assert top in allowed, f'{name} imports {mod}; a ROS-free part may import {sorted(allowed)}'
+
+
+def test_shared_facts_import_only_numpy():
+    for name, path in MODULES.items():
+        if name.startswith('force_tester_common.core'):
+            for mod in imports_of(name, path):
+                top = mod.split('.')[0]
+                assert top in sys.stdlib_module_names or top == 'numpy' or \
+                    mod.startswith('force_tester_common.core'), f'{name} imports {mod}'
+
+
+def test_no_import_cycles():
+    graph = {name: {m for m in imports_of(name, path) if m in MODULES and m != name}
+             for name, path in MODULES.items()}
+    index, low, stack, on, cycles, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):  # Tarjan's strongly connected components
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    assert cycles == []
+
+
+def test_importing_cores_loads_no_rclpy():
+    code = ('import importlib, sys\n'
+            f'for m in {sorted(n for n in MODULES if is_pure(n))!r}: importlib.import_module(m)\n'
+            f'bad = sorted(m for m in sys.modules if m.split(".")[0] in {sorted(ROS_MODULES)!r})\n'
+            'print(bad)\nsys.exit(1 if bad else 0)\n')
+    paths = [str(d.parent) for d in package_dirs().values()]
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         env={'PYTHONPATH': f"{SRC / package}:{SRC / 'force_tester_common'}:{SRC / 'force_correction'}",
-                              'PATH': '/usr/bin:/bin',
+                         env={'PYTHONPATH': ':'.join(paths), 'PATH': '/usr/bin:/bin',
                               '_ROS_WHEELS_BOOTSTRAP_COMPLETE': '1'})
     assert out.returncode == 0, out.stdout + out.stderr
-    assert int(out.stdout.split()[0]) >= 2
+
+
+# ------------------------------------------------------------------ one home for shared facts
+FACTS = ROOT / 'src' / 'force_tester_common' / 'force_tester_common' / 'core'
+# numbers that are facts with a home in force_tester_common.core; a literal copy elsewhere is a defect
+FACT_NUMBERS = {1.152: 'MASS_KG', 4.4482216152605: 'LBF_N', 0.3048: 'FT_M', 9.80665: 'G_M_S2',
+                1e9: 'NS_PER_S', 0.5e9: 'NS_PER_S'}
+FACT_PATTERNS = {r'\bwindow\b\W{1,4}140\b': 'WINDOW', r'\bmax_pending\b\W{1,4}500\b': 'MAX_PENDING',
+                 r"\bPULL_(START|END)\s*=": 'PULL_START/PULL_END'}
+
+
+def _code_files():
+    for base in (ROOT / 'src', ROOT / 'tools', ROOT / 'benchmarks'):
+        for path in sorted(base.rglob('*.py')):
+            if FACTS not in path.parents and 'install' not in path.parts:
+                yield path
+
+
+def test_no_literal_copies_of_shared_facts():
+    found = []
+    for path in _code_files():
+        with tokenize.open(path) as f:
+            for tok in tokenize.generate_tokens(f.readline):
+                if tok.type == tokenize.NUMBER:
+                    value = ast.literal_eval(tok.string)
+                    if isinstance(value, (int, float)) and value in FACT_NUMBERS:
+                        found.append(f'{path.relative_to(ROOT)}:{tok.start[0]}: {tok.string} '
+                                     f'(import {FACT_NUMBERS[value]})')
+        text = path.read_text()
+        for pattern, fact in FACT_PATTERNS.items():
+            for m in re.finditer(pattern, text):
+                found.append(f'{path.relative_to(ROOT)}:{text.count(chr(10), 0, m.start()) + 1}: '
+                             f'{m.group(0)!r} (import {fact})')
+    assert found == []
+
+
+def test_pull_event_codes_match_the_message_definition():
+    from force_tester_common.core import channels
+    text = (SRC / 'force_tester_msgs' / 'msg' / 'PullEvent.msg').read_text()
+    codes = dict(re.findall(r'^uint8 (START|END)=(\d+)', text, re.M))
+    assert {'START': channels.PULL_START, 'END': channels.PULL_END} == \
+        {k: int(v) for k, v in codes.items()}
+
+
+def test_ruff():
+    ruff = shutil.which('ruff') or str(Path(sys.executable).with_name('ruff'))
+    if not Path(ruff).exists():
+        pytest.fail('ruff is not installed (requirements.txt lists it)')
+    out = subprocess.run([ruff, 'check', '--no-cache', '--output-format', 'concise', str(ROOT)],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stdout[-4000:] + out.stderr

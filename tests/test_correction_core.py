@@ -1,18 +1,31 @@
 """Unit and property tests of force_correction.core (no ROS needed)."""
 
 import copy
+import dataclasses
 import math
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from force_correction.core import (
-    EVENT_KINDS, MAX_WINDOW, BlockAligner, CorrectionError, CorrectionParams,
-    InertialCorrector, PullAccumulator, SetStatistics, correct_block, correct_signal,
-    initial_state, score_pull)
+    EVENT_KINDS,
+    MAX_WINDOW,
+    BlockAligner,
+    CorrectionError,
+    CorrectionParams,
+    InertialCorrector,
+    PullAccumulator,
+    SetStatistics,
+    correct_block,
+    correct_signal,
+    initial_state,
+    score_pull,
+)
+from force_tester_common.core.correction import MASS_KG, WINDOW
 
 ATOL = 1e-9
 
@@ -65,8 +78,8 @@ def make_signal(seed, n, offset, scale, nan_frac=0.0):
 # ----------------------------------------------------------------------------- params
 def test_params_defaults():
     p = CorrectionParams()
-    assert p.mass_kg == 1.152 and p.window == 140
-    with pytest.raises(Exception):
+    assert (p.mass_kg, p.window) == (MASS_KG, WINDOW)  # the shared defaults
+    with pytest.raises(dataclasses.FrozenInstanceError):
         p.window = 3  # frozen
 
 
@@ -296,11 +309,15 @@ def test_aligner_dropped_block():
     al = BlockAligner(('force', 'accel'))
     pairs, events = [], []
     for b in blocks_for('force', 6):
-        p, e = al.push(*b); pairs += p; events += e
+        p, e = al.push(*b)
+        pairs += p
+        events += e
     acc = blocks_for('accel', 6)
     del acc[2]  # lost upstream
     for b in acc:
-        p, e = al.push(*b); pairs += p; events += e
+        p, e = al.push(*b)
+        pairs += p
+        events += e
     assert [p.seqs['force'] for p in pairs] == [0, 1, 3, 4, 5]
     kinds = [(e.kind, e.channel, e.seq) for e in events]
     assert ('dropped', 'accel', 3) in kinds
@@ -316,7 +333,8 @@ def test_aligner_max_pending_and_out_of_order():
     al = BlockAligner(('force', 'accel'), max_pending=5)
     events = []
     for b in blocks_for('force', 8):
-        _, e = al.push(*b); events += e
+        _, e = al.push(*b)
+        events += e
     assert [e.seq for e in events if e.kind == 'unmatched'] == [0, 1, 2]
     assert al.pending_count('force') == 5
     _, e = al.push('force', 10**18, 3, RATE, N, None)  # seq/stamp going backwards
@@ -419,8 +437,10 @@ def test_score_pull_hand_example():
 
 def test_score_pull_ignores_nan_and_rejects_bad_peak():
     s, raw, cor, fil = hand_pull()
-    raw = raw.copy(); raw[10] = np.nan; raw[40] = np.nan
-    s2 = s.copy(); s2[0] = np.nan
+    raw = raw.copy()
+    raw[10] = raw[40] = np.nan
+    s2 = s.copy()
+    s2[0] = np.nan
     r = score_pull(s2, raw, cor, fil)
     assert r.raw_diff_pct == pytest.approx(20.0) and math.isfinite(r.raw_rms_n)
     with pytest.raises(CorrectionError, match=r'stationary peak -5.0 N'):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from force_tester_sim.core import CHANNELS, load_rig, nominal_pull_spec, run_pull, sample_times_s, simulate_pull
-from force_tester_sim.core.coupled import (DriveMotion, check_fits, drive_on_grid, run_coupled_pull)
+from force_tester_sim.core.coupled import DriveMotion, check_fits, drive_on_grid, run_coupled_pull
 from force_tester_sim.core.departures import Departures
 from force_tester_sim.core.errors import SimError
 

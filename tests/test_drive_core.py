@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
+from force_tester_common.core.units import FT_M
 from force_tester_sim.core.drive import DriveControl, simulate_drive
 from force_tester_sim.core.errors import SimError
 from force_tester_sim.core.params import load_rig
 from force_tester_sim.core.thesis import format_report, mass_sweep, top_speed_study
-from force_tester_common.core.units import FT_M
 
 CMD = 30.0 * FT_M
 NO_DAMPING = {'viscous_damping_motor_n_s_per_m': 0.0, 'viscous_damping_actuator_n_s_per_m': 0.0}

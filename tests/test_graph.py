@@ -7,9 +7,8 @@ fresh correction + validator pair, which must reproduce the live scores.
 import subprocess
 import time
 
-import pytest
-
 import demo
+import pytest
 
 pytestmark = pytest.mark.slow
 
@@ -32,6 +31,7 @@ def test_live_graph_scores_every_pull_without_drops(live):
 def pull_from_bag(bag_path, pull_id):
     """The /force and /accel samples of one pull, read back from the recorded bag."""
     import numpy as np
+
     from bag_tools.core.reader import open_bag
     chunks = {'/force': {}, '/accel': {}}
     with open_bag(bag_path) as bag:
@@ -120,6 +120,7 @@ def test_offline_correct_reproduces_the_live_recording(live, tmp_path):
     """`./ft bag correct` on the live bag (correction + validator output recorded) gives the live
     corrected blocks and scores: offline and live share one core."""
     import numpy as np
+
     from bag_tools.core.offline import correct
     from bag_tools.core.reader import open_bag
     demo = live[0] / 'bag'

@@ -82,6 +82,7 @@ class Loop:
 
     def __init__(self, node):
         from diagnostic_msgs.msg import DiagnosticArray
+
         from force_tester_common.conversions import CORRECTED_TOPIC
         from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
         self.node = node
@@ -173,9 +174,10 @@ def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path):
     """The recorder publishes how many messages it has written (what `./ft demo` waits on
     before stopping it): the count matches the blocks sent and the bag it closes."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
+
     from bag_tools.core.info import bag_info
     from bag_tools.recorder_node import RecorderNode
+    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
     node = RecorderNode(parameter_overrides=[Parameter('bag_path', value=str(tmp_path / 'bag')),
                                              Parameter('topics', value=['/force'])])
     probe = rclpy.create_node('probe')

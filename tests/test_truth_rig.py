@@ -11,12 +11,20 @@ import numpy as np
 import pytest
 import yaml
 
-from force_tester_sim.core import (SimError, integrate_chain, integrate_reference, load_rig, make_pull_specs,
-                                   rig_from_dict, sample_times_s, simulate_pull)
-from force_tester_sim.core.campaign import (TRUTH_SETS, generate_campaign, truth_pull_specs)
 from force_correction.core.campaign_stats import campaign_tables, format_tables
+from force_tester_sim.core import (
+    SimError,
+    integrate_chain,
+    integrate_reference,
+    load_rig,
+    make_pull_specs,
+    rig_from_dict,
+    sample_times_s,
+    simulate_pull,
+)
+from force_tester_sim.core.campaign import TRUTH_SETS, generate_campaign, truth_pull_specs
 from force_tester_sim.core.chain import force_move, force_stat
-from force_tester_sim.core.departures import (CATALOG, NO_DEPARTURES, departures_from_data, high_pass)
+from force_tester_sim.core.departures import CATALOG, NO_DEPARTURES, departures_from_data, high_pass
 from force_tester_sim.core.pull import chain_params, motion_for, run_pull
 
 ROOT = Path(__file__).resolve().parents[1]

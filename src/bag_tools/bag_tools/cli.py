@@ -1,7 +1,9 @@
 """./ft bag COMMAND: record, play, inspect, convert and correct bags and DAQ campaigns.
 
-Every failure ends with one line on stderr, `./ft bag CMD: error: ...`, and a non-zero exit
-code (2 for bad input, 1 for an internal error, 130 for Ctrl-C); never a traceback.
+bag_tools holds the I/O commands; `correct` and `plot` come from force_correction (see
+build_parser). Every failure ends with one line on stderr, `./ft bag CMD: error: ...`, and a
+non-zero exit code (2 for bad input, 1 for an I/O failure or an internal error, 130 for
+Ctrl-C); never a traceback.
 """
 from __future__ import annotations
 
@@ -10,11 +12,29 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from .core.errors import BagError, one_line
 
-LBF_N = 4.4482216152605
+
+@dataclass(frozen=True)
+class Command:
+    """A subcommand of ./ft bag contributed by another package: its parser set-up, what runs it
+    and the exception types that mean bad input (exit 2)."""
+
+    name: str
+    help: str
+    description: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    errors: tuple = ()
+
+    def add_to(self, sub) -> None:
+        p = sub.add_parser(self.name, help=self.help, description=self.description)
+        self.add_arguments(p)
+        p.set_defaults(func=self.run)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -49,7 +69,7 @@ class Progress:
             self.shown = False
 
 
-def _warn(cmd: str, warnings: list) -> None:
+def warn(cmd: str, warnings) -> None:
     for w in warnings:
         print(f'./ft bag {cmd}: warning: {one_line(w)}', file=sys.stderr)
 
@@ -68,8 +88,9 @@ def cmd_play(args) -> int:
 
 def cmd_record(args) -> int:
     """Run the recorder node in this process until Ctrl-C."""
-    from .recorder_node import DEFAULT_TOPICS, RecorderNode, split_description
     from force_tester_common.ros import spin_nodes
+
+    from .recorder_node import DEFAULT_TOPICS, RecorderNode, split_description
     if os.path.exists(args.output):
         raise BagError(f'output {args.output!r} exists already; expected a new directory name')
     topics = args.topics or DEFAULT_TOPICS
@@ -93,7 +114,7 @@ def cmd_export(args) -> int:
                               workers=args.jobs)
     finally:
         prog.close()
-        _warn('export', warnings)
+        warn('export', warnings)
     from .core.daq import read_campaign
     camp = read_campaign(out)
     print(f'exported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz to {out}')
@@ -102,8 +123,7 @@ def cmd_export(args) -> int:
 
 def cmd_import(args) -> int:
     from .core.convert import campaign_to_bag
-    from .core.daq import (Campaign, DaqPull, check_channels, check_meta, parse_mapping,
-                           read_campaign, read_tdms)
+    from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_campaign, read_tdms
     warnings: list = []
     src = args.src
     if src.lower().endswith('.tdms'):
@@ -129,60 +149,13 @@ def cmd_import(args) -> int:
                               warnings=warnings)
     finally:
         prog.close()
-        _warn('import', warnings)
+        warn('import', warnings)
     print(f'imported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz into {out}')
     return 0
 
 
-def format_summary(result: dict) -> str:
-    """Per-set table: set, pulls, mean stationary peak (lbf), mean +- std % diff."""
-    def f(x, w=6, d=1):
-        return f'{x:{w}.{d}f}' if isinstance(x, float) and math.isfinite(x) else ' ' * (w - 1) + '-'
-    lines = ['set pulls  stationary   diff raw %      diff m*a %     diff m*a+MA %',
-             '             peak lbf   mean    std    mean    std    mean    std',
-             '-' * 70]
-    for s in result['sets']:
-        lines.append(f"{s['set_id']:>3} {s['pulls']:>5}  {f(s['mean_stationary_peak_n'] / LBF_N, 10)}"
-                     f" {f(s['raw_mean_pct'])} {f(s['raw_std_pct'])}"
-                     f"  {f(s['corrected_mean_pct'])} {f(s['corrected_std_pct'])}"
-                     f"  {f(s['filtered_mean_pct'])} {f(s['filtered_std_pct'])}")
-    p = result['params']
-    dropped = sum(x['dropped_blocks'] for x in result['pulls'])
-    lines.append(f"m2 = {p['mass_kg']:g} kg, window = {p['window']}; % difference is thesis "
-                 f"eq 1 at the peaks; std over pulls (ddof 1); NaN samples: "
-                 f"{result['nan_samples']}; dropped blocks: {dropped}")
-    return '\n'.join(lines)
-
-
-def cmd_correct(args) -> int:
-    from .core.offline import correct
-    warnings: list = []
-    prog = Progress('correct', 'messages')
-    try:
-        result = correct(args.src, args.dst, mass_kg=args.mass_kg, window=args.window,
-                         loaded_fraction=args.loaded_fraction, to=args.to, progress=prog,
-                         warnings=warnings, extension=args.extension)
-    finally:
-        prog.close()
-        _warn('correct', warnings)
-    print(format_summary(result))
-    print(f'written to {args.dst}')
-    return 0
-
-
-def cmd_plot(args) -> int:
-    from .core.plot import load_pull, plot_pull
-    warnings: list = []
-    pull, rate = load_pull(args.src, args.pull, warnings)
-    _warn('plot', warnings)
-    out = args.out or f'pull_{args.pull}.png'
-    plot_pull(pull, rate, out, si=args.si, mass_kg=args.mass_kg, window=args.window, full=args.full)
-    print(f'wrote {out}')
-    return 0
-
-
 # --------------------------------------------------------------------------- parser
-def _positive_float(name):
+def positive_float(name):
     def conv(text):
         try:
             v = float(text)
@@ -194,7 +167,9 @@ def _positive_float(name):
     return conv
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
+    """The ./ft bag parser: bag_tools' own commands plus ``extra`` ones from the packages above
+    it (force_correction adds correct and plot), which bag_tools itself does not import."""
     p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
                 'rosbag2 MCAP bags and DAQ campaign folders (see src/bag_tools/README.md).')
     sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND',
@@ -235,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     tg = im.add_argument_group('TDMS source (one pull)')
     tg.add_argument('--map', action='append', metavar='COLUMN=CHANNEL',
                     help="DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
-    tg.add_argument('--rate', type=_positive_float('--rate'), default=None,
+    tg.add_argument('--rate', type=positive_float('--rate'), default=None,
                     help='sample rate, Hz, when the file has no time_s channel')
     tg.add_argument('--set', type=int, default=0, help='test set (default 0: unknown)')
     tg.add_argument('--coupon-lbf', type=float, default=0.0)
@@ -245,47 +220,24 @@ def build_parser() -> argparse.ArgumentParser:
     tg.add_argument('--pull-id', type=int, default=None)
     im.set_defaults(func=cmd_import)
 
-    c = sub.add_parser('correct', help='offline m*a correction + scoring (same core as the live nodes)',
-                       description='Correct a bag or a campaign with the live correction core '
-                       'and score every pull; writes a new bag (adds /force_corrected, '
-                       '/pull_score, /set_summary) or a campaign (adds inertial_n, corrected_n, '
-                       'filtered_n columns and scores.json). Prints the per-set table.')
-    c.add_argument('src', help='bag or campaign folder')
-    c.add_argument('dst', help='output bag or campaign folder (must not exist)')
-    c.add_argument('--mass-kg', type=_positive_float('--mass-kg'), default=1.152,
-                   help='moving-side mass m2, kg (default 1.152)')
-    c.add_argument('--window', type=int, default=140, help='moving average, samples (default 140)')
-    c.add_argument('--extension', metavar='YAML', default=None,
-                   help="extension.yaml of ./ft discover: undo its correction: section before m*a "
-                        "(its mass_kg replaces --mass-kg)")
-    c.add_argument('--loaded-fraction', type=float, default=0.1,
-                   help='RMS window: stationary > this x its peak (default 0.1)')
-    c.add_argument('--to', choices=('bag', 'campaign'), default=None,
-                   help='output kind (default: the kind of SRC)')
-    c.set_defaults(func=cmd_correct)
-
-    pt = sub.add_parser('plot', help='one pull -> PNG (forces, accelerometer, encoder)',
-                        description='Plot one pull like thesis Figures 10-16: stationary vs '
-                        'moving vs corrected force, accelerometer, encoder position and '
-                        'velocity. lbf, g, ft and ft/s unless --si. Needs matplotlib.')
-    pt.add_argument('src', help='bag or campaign folder')
-    pt.add_argument('--pull', type=int, required=True, help='pull number, 1-based, in time order')
-    pt.add_argument('--out', default=None, help='PNG to write (default pull_N.png)')
-    pt.add_argument('--si', action='store_true', help='SI units (N, m/s^2, m, m/s)')
-    pt.add_argument('--mass-kg', type=_positive_float('--mass-kg'), default=1.152)
-    pt.add_argument('--window', type=int, default=140)
-    pt.add_argument('--full', action='store_true', help='show the whole record, not just the pull')
-    pt.set_defaults(func=cmd_plot)
+    for command in extra:
+        command.add_to(sub)
     return p
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv=None, extra: Sequence[Command] = ()) -> int:
+    """Run one command. Bad input (BagError, or an extra command's own error type) exits 2, an
+    I/O failure (disk full, permission) 1, Ctrl-C 130; each with one line on stderr."""
+    args = build_parser(extra).parse_args(argv)
+    input_errors = (BagError, *(e for c in extra for e in c.errors))
     try:
         return args.func(args)
-    except BagError as exc:
-        print(f'./ft bag {args.command}: error: {exc}', file=sys.stderr)
+    except input_errors as exc:
+        print(f'./ft bag {args.command}: error: {one_line(exc)}', file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f'./ft bag {args.command}: error: I/O failure: {one_line(exc)}', file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f'./ft bag {args.command}: error: interrupted; no partial output is left',
               file=sys.stderr)

@@ -12,9 +12,10 @@ import argparse
 import sys
 import time
 
-from force_tester_common.ros import BLOCK_QOS, ros_init
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+
+from force_tester_common.ros import BLOCK_QOS, ros_init
 
 from .core.errors import BagError
 from .core.playback import schedule

@@ -11,16 +11,17 @@ import os
 import sys
 import threading
 
-from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, main_for
 from rclpy.node import Node
 
-from .core.errors import BagError
-from .core.typestore import default_typestore
-from .core.split_writer import open_bag_writer
+from force_tester_common.core.channels import GRAPH_TOPICS
+from force_tester_common.node_params import NodeParams, ParamSpec
+from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, main_for
 
-DEFAULT_TOPICS = ['/motor', '/encoder', '/accel', '/force', '/pull_event', '/force_corrected',
-                  '/pull_score', '/set_summary']
+from .core.errors import BagError
+from .core.split_writer import open_bag_writer
+from .core.typestore import default_typestore
+
+DEFAULT_TOPICS = list(GRAPH_TOPICS)
 
 SPECS = [
     ParamSpec('bag_path', 'bag', 'directory of the bag to write (must not exist yet)', read_only=True),

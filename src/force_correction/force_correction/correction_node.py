@@ -6,24 +6,27 @@ the filter restarts after the gap, so the two channels are never silently misali
 """
 from __future__ import annotations
 
-from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, stamp_to_ns, to_array
-from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, main_for
 from rclpy.node import Node
 
-from .core.pairing import BlockAligner
+from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, stamp_to_ns, to_array
+from force_tester_common.core import correction as C
+from force_tester_common.node_params import NodeParams, ParamSpec
+from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, main_for
+
 from .core.extension import Extension, ForcePrefilter
+from .core.pairing import BlockAligner
 from .core.params import CorrectionParams
 from .core.streaming import InertialCorrector
 
 SPECS = [
-    ParamSpec('mass_kg', 1.152, 'mass between the moving cell and the accelerometer, m2 (thesis eq 24)',
-              (1e-6, 1000.0)),
-    ParamSpec('window', 140, 'moving-average length N in samples (thesis eq 25; 140 = 2.8 ms at 50 kHz)',
-              (1, 50_000)),
+    ParamSpec('mass_kg', C.MASS_KG, 'mass between the moving cell and the accelerometer, m2 (thesis eq 24)',
+              C.MASS_RANGE_KG),
+    ParamSpec('window', C.WINDOW, 'moving-average length N in samples (thesis eq 25; 2.8 ms at 50 kHz)',
+              C.WINDOW_RANGE),
     ParamSpec('extension_file', '', 'extension.yaml of ./ft discover: its correction: section (mass, cell gain, '
                                     'accelerometer delay, AC coupling, mains hum) is undone before m*a ("" = none)'),
-    ParamSpec('max_pending', 500, 'blocks a channel may wait for its partner before it is dropped', (1, 10_000), read_only=True),
+    ParamSpec('max_pending', C.MAX_PENDING, 'blocks a channel may wait for its partner before it is dropped',
+              C.MAX_PENDING_RANGE, read_only=True),
 ]
 
 TOPICS = {t.topic: t for t in BLOCK_TOPICS}
@@ -71,7 +74,8 @@ class CorrectionNode(Node):
         for event in events:
             self.counts['events'] += 1
             self.diag.report(WARN, f'{event.kind} block on {event.channel}: {event.detail}',
-                             key=(event.kind, event.channel), channel=event.channel, seq=event.seq, stamp_ns=event.stamp_ns)
+                             key=(event.kind, event.channel), channel=event.channel, seq=event.seq,
+                             stamp_ns=event.stamp_ns)
         for pair in pairs:
             self._correct(pair)
 

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 from collections import deque
 
-from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, ns_to_stamp, stamp_to_ns, to_array
-from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, SCORE_QOS, WARN, Diagnostics, main_for
 from force_tester_msgs.msg import PullEvent, PullScore, SetSummary
 from rclpy.node import Node
+
+from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, ns_to_stamp, stamp_to_ns, to_array
+from force_tester_common.core import correction as C
+from force_tester_common.core.channels import PULL_EVENT_TOPIC, PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC
+from force_tester_common.core.scores import PULL_SCORE_FIELDS, SET_SUMMARY_FIELDS
+from force_tester_common.node_params import NodeParams, ParamSpec
+from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, SCORE_QOS, WARN, Diagnostics, main_for
 
 from .core.errors import CorrectionError
 from .core.pairing import BlockAligner
@@ -24,17 +28,18 @@ RECENT_PAIRS = 4000  # pairs kept to replay into a pull whose START event arrive
 FINISH_TIMEOUT_S = 5.0  # after END, score what arrived once no new data has come for this long
 
 SPECS = [
-    ParamSpec('loaded_fraction', 0.1, 'RMS window: samples where the stationary force exceeds this '
-                                      'fraction of its peak', (0.01, 0.99)),
-    ParamSpec('max_pending', 20_000, 'blocks a channel may wait for its partner before it is dropped '
-                                     '(the corrected stream lags the force stream; 20 s of 1 ms blocks)',
-              (1, 1_000_000), read_only=True),
+    ParamSpec('loaded_fraction', C.LOADED_FRACTION, 'RMS window: samples where the stationary force exceeds '
+                                                    'this fraction of its peak', C.LOADED_FRACTION_RANGE),
+    ParamSpec('max_pending', C.VALIDATOR_MAX_PENDING, 'blocks a channel may wait for its partner before it is '
+                                                      'dropped (the corrected stream lags the force stream)',
+              C.MAX_PENDING_RANGE, read_only=True),
 ]
 
 
 def check(values: dict) -> dict:
-    if not 0.0 < values['loaded_fraction'] < 1.0:
-        raise CorrectionError(f"loaded_fraction {values['loaded_fraction']} is out of range; expected (0, 1)")
+    lo, hi = C.LOADED_FRACTION_RANGE
+    if not lo <= values['loaded_fraction'] <= hi:
+        raise CorrectionError(f"loaded_fraction {values['loaded_fraction']} is out of range; expected [{lo}, {hi}]")
     return values
 
 
@@ -48,13 +53,13 @@ class ValidatorNode(Node):
         self.pulls = {}  # pull_id -> PullAccumulator
         self.idle_s = {}  # pull_id -> seconds since END without the data reaching it
         self.stats = SetStatistics()
-        self.score_pub = self.create_publisher(PullScore, '/pull_score', SCORE_QOS)
-        self.summary_pub = self.create_publisher(SetSummary, '/set_summary', SCORE_QOS)
+        self.score_pub = self.create_publisher(PullScore, PULL_SCORE_TOPIC, SCORE_QOS)
+        self.summary_pub = self.create_publisher(SetSummary, SET_SUMMARY_TOPIC, SCORE_QOS)
         self.create_subscription(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic,
                                  lambda m: self._on_block('corrected', m, len(m.raw_n)), BLOCK_QOS)
         self.create_subscription(FORCE.msg_type, FORCE.topic,
                                  lambda m: self._on_block('force', m, len(m.stationary_n)), BLOCK_QOS)
-        self.create_subscription(PullEvent, '/pull_event', self._on_event, EVENT_QOS)
+        self.create_subscription(PullEvent, PULL_EVENT_TOPIC, self._on_event, EVENT_QOS)
         self.create_timer(0.5, self._check_timeouts)
 
     def _on_event(self, msg: PullEvent):
@@ -115,22 +120,13 @@ class ValidatorNode(Node):
             return
         self.stats.add(acc.set_id, s)
         msg = PullScore(pull_id=pull_id, test_set=acc.set_id, dropped_blocks=s.dropped_blocks,
-                        **{k: float(getattr(s, k)) for k in (
-                            'stationary_peak_n', 'raw_peak_n', 'corrected_peak_n', 'filtered_peak_n',
-                            'raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct',
-                            'raw_rms_n', 'corrected_rms_n', 'filtered_rms_n')})
+                        **{k: float(getattr(s, k)) for k in PULL_SCORE_FIELDS})
         msg.header.stamp = ns_to_stamp(acc.start_ns)
         self.score_pub.publish(msg)
         self.diag.report(OK, f'pull {pull_id} (set {acc.set_id}): peak difference raw {s.raw_diff_pct:.1f} %, '
                              f'm*a {s.corrected_diff_pct:.1f} %, filtered {s.filtered_diff_pct:.1f} %')
         summary = self.stats.summary(acc.set_id)
-        out = SetSummary(test_set=acc.set_id, pulls=summary.pulls,
-                         stationary_peak_mean_n=summary.mean_stationary_peak_n,
-                         raw_diff_mean_pct=summary.raw_mean_pct, raw_diff_std_pct=summary.raw_std_pct,
-                         corrected_diff_mean_pct=summary.corrected_mean_pct,
-                         corrected_diff_std_pct=summary.corrected_std_pct,
-                         filtered_diff_mean_pct=summary.filtered_mean_pct,
-                         filtered_diff_std_pct=summary.filtered_std_pct)
+        out = SetSummary(test_set=acc.set_id, **{f: getattr(summary, k) for f, k in SET_SUMMARY_FIELDS.items()})
         out.header.stamp = msg.header.stamp
         self.summary_pub.publish(out)
 

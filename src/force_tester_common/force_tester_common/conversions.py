@@ -8,8 +8,8 @@ from __future__ import annotations
 import array
 from dataclasses import dataclass
 
-import numpy as np
 import force_tester_msgs.msg
+import numpy as np
 from builtin_interfaces.msg import Time
 
 from .core import clock

@@ -8,21 +8,23 @@ time by default (parameter ``rate`` > 1 runs faster). Changed parameters apply f
 """
 from __future__ import annotations
 
+import multiprocessing
 import threading
 import time
-import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 
-from force_tester_common.core.clock import sample_stamp_ns
-from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
-from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, EVENT_QOS, ERROR, OK, WARN, Diagnostics, main_for
 from force_tester_msgs.msg import PullEvent
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from .core.pull import simulate_pull
+from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
+from force_tester_common.core.channels import PULL_EVENT_TOPIC
+from force_tester_common.core.clock import sample_stamp_ns
+from force_tester_common.node_params import NodeParams, ParamSpec
+from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, WARN, Diagnostics, main_for
+
 from .core.sim_config import SimConfig, block_bounds
+from .core.simulate import simulate_pull
 
 SPECS = [
     ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),
@@ -56,7 +58,7 @@ class SimNode(Node):
         self.params = NodeParams(self, SPECS, config_from)
         self.diag = Diagnostics(self, 'simulator')
         self.block_pubs = [(t, self.create_publisher(t.msg_type, t.topic, BLOCK_QOS)) for t in BLOCK_TOPICS]
-        self.event_pub = self.create_publisher(PullEvent, '/pull_event', EVENT_QOS)
+        self.event_pub = self.create_publisher(PullEvent, PULL_EVENT_TOPIC, EVENT_QOS)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name='sim-publisher', daemon=True)
         self._thread.start()

@@ -20,15 +20,37 @@ from typing import Any, Callable, Iterator
 import numpy as np
 from rosbags.typesys.store import Typestore
 
-from force_tester_common.core.channels import (BLOCK_TYPES, CORRECTED_TYPE, OPTIONAL_CHANNELS,
-                                               PULL_END, PULL_EVENT_TOPIC, PULL_EVENT_TYPE,
-                                               PULL_START, REQUIRED_CHANNELS)
-from force_tester_common.core.clock import (NS_PER_S, end_stamp_ns, ns_to_stamp,
-                                            record_stamps_ns, sample_stamps_ns, stamp_to_ns)
+from force_tester_common.core.channels import (
+    BLOCK_TYPES,
+    CORRECTED_TYPE,
+    OPTIONAL_CHANNELS,
+    PULL_END,
+    PULL_EVENT_TOPIC,
+    PULL_EVENT_TYPE,
+    PULL_START,
+    REQUIRED_CHANNELS,
+)
+from force_tester_common.core.clock import (
+    NS_PER_S,
+    end_stamp_ns,
+    ns_to_stamp,
+    record_stamps_ns,
+    sample_stamps_ns,
+    stamp_to_ns,
+)
 from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
-from .daq import (CORRECTED_COLUMNS, DEFAULT_EPOCH_NS, DEFAULT_GAP_NS, Campaign, DaqPull,
-                  read_campaign, time_column, write_campaign)
+from .daq import (
+    CAMPAIGN_FILE,
+    CORRECTED_COLUMNS,
+    DEFAULT_EPOCH_NS,
+    DEFAULT_GAP_NS,
+    Campaign,
+    DaqPull,
+    read_campaign,
+    time_column,
+    write_campaign,
+)
 from .errors import BagError
 from .reader import open_bag
 from .typestore import default_typestore
@@ -44,6 +66,19 @@ QUIET_TYPES = ('force_tester_msgs/msg/PullScore', 'force_tester_msgs/msg/SetSumm
                'diagnostic_msgs/msg/DiagnosticArray', 'rosgraph_msgs/msg/Log')
 
 Progress = Callable[[int, int], None]
+
+
+def source_kind(src: str | Path) -> str:
+    """'campaign' (a DAQ export folder) or 'bag' (a rosbag2 directory); BagError otherwise."""
+    p = Path(src)
+    if (p / CAMPAIGN_FILE).is_file():
+        return 'campaign'
+    if (p / 'metadata.yaml').is_file() or any(p.glob('*.mcap')):
+        return 'bag'
+    if not p.exists():
+        raise BagError(f'source {str(p)!r} does not exist; expected a bag or a campaign folder')
+    raise BagError(f'source {str(p)!r} is neither a bag (metadata.yaml) nor a campaign '
+                   f'({CAMPAIGN_FILE})')
 
 
 # --------------------------------------------------------------------------- messages

@@ -26,15 +26,15 @@ from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 import yaml
 
-from force_tester_common.core.channels import CHANNELS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
-from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, record_stamps_ns
+from force_tester_common.core.channels import CHANNELS, CORRECTED_FIELDS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.clock import NS_PER_S
 
 from .errors import BagError, one_line
 
 CAMPAIGN_FILE = 'campaign.yaml'
 FORMAT = 'force_tester_daq/1'
 #: Columns written by `correct` into a campaign (optional extras, also accepted on reading).
-CORRECTED_COLUMNS = ('inertial_n', 'corrected_n', 'filtered_n')
+CORRECTED_COLUMNS = tuple(f for f in CORRECTED_FIELDS if f != 'raw_n')
 KNOWN_COLUMNS = CHANNELS + CORRECTED_COLUMNS
 #: Relative tolerance between campaign.yaml's sample_rate_hz and the rate of the time column.
 RATE_RTOL = 1e-6

@@ -8,15 +8,15 @@ from typing import Dict, List
 
 import numpy as np
 
+from force_tester_common.core.correction import MASS_KG, WINDOW
+from force_tester_common.core.units import G_M_S2, LBF_N
+
 from .params import CorrectionParams
 from .scoring import score_pull
 from .streaming import correct_signal
 
-LBF_N = 4.4482216152605
-G_M_S2 = 9.80665
 
-
-def pull_scores(channels: Dict[str, np.ndarray], m2_nominal: float = 1.152, window: int = 140) -> dict:
+def pull_scores(channels: Dict[str, np.ndarray], m2_nominal: float = MASS_KG, window: int = WINDOW) -> dict:
     """Thesis eq 1 peak % differences of one pull (raw, after m*a, after m*a + moving average) and peaks."""
     c = correct_signal(channels['force_moving_n'], channels['accel_axial_m_s2'], CorrectionParams(m2_nominal, window))
     sc = score_pull(channels['force_stationary_n'], c.raw_n, c.corrected_n, c.filtered_n)
@@ -26,7 +26,7 @@ def pull_scores(channels: Dict[str, np.ndarray], m2_nominal: float = 1.152, wind
             'ma_diff_pct': sc.corrected_diff_pct, 'ma_filter_diff_pct': sc.filtered_diff_pct}
 
 
-def campaign_tables(campaign, m2_nominal: float = 1.152, window: int = 140) -> List[dict]:
+def campaign_tables(campaign, m2_nominal: float = MASS_KG, window: int = WINDOW) -> List[dict]:
     """Per-set statistics like thesis Tables 7-9 (means and sample standard deviations over the set's pulls):
     stationary_avg_lbf, moving_avg_lbf, a2_max_g (mean of the per-pull max |a2|), raw_diff_pct, ma_diff_pct
     (after m*a with ``m2_nominal``), ma_filter_diff_pct (then the ``window``-point trailing average)."""

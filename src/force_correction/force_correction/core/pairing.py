@@ -10,10 +10,13 @@ rate. Anything that cannot be paired is discarded and reported as an :class:`Ali
 - ``unmatched``: a pending block was discarded because a later stamp was paired (it can never
   pair: channels are in order) or it waited more than ``max_pending`` blocks.
 - ``rate_mismatch`` / ``length_mismatch``: blocks with the same stamp disagree; all discarded.
-- ``discontinuity``: an emitted pair does not follow the previous pair without a gap, i.e.
-  |stamp - (prev_stamp + prev_n * 1e9 / rate)| > half a sample, or the rate changed. The pair
-  carries ``continuous=False``; callers should reset filter state. (Not reported for the first
-  pair, which is also ``continuous=False``.)
+- ``discontinuity``: an emitted pair does not follow the previous pair without a gap (see
+  :func:`follows`). The pair carries ``continuous=False``; callers should reset filter state.
+  (Not reported for the first pair, which is also ``continuous=False``.)
+
+The rules are also exported as functions on arrays (:func:`rates_equal`, :func:`follows`,
+:func:`clean_pairing`), so a reader that decodes whole topics at once (offline ``correct``'s
+fast path) applies exactly the aligner's rules without a second copy of them.
 """
 
 from __future__ import annotations
@@ -22,7 +25,12 @@ import math
 import numbers
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any, Dict, Iterable, List, Optional, Tuple
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple
+
+import numpy as np
+
+from force_tester_common.core.clock import NS_PER_S, end_stamp_ns
+from force_tester_common.core.correction import MAX_PENDING, MAX_PENDING_RANGE
 
 from .errors import CorrectionError
 
@@ -30,7 +38,66 @@ EVENT_KINDS = frozenset(
     {'dropped', 'unmatched', 'rate_mismatch', 'length_mismatch', 'out_of_order',
      'discontinuity'})
 
-_RATE_RTOL = 1e-9
+RATE_RTOL = 1e-9  # two blocks' rates are equal within this relative tolerance
+
+
+def rates_equal(a, b):
+    """The aligner's rate rule, elementwise: |a - b| <= RATE_RTOL * max(|a|, |b|)."""
+    return np.abs(a - b) <= RATE_RTOL * np.maximum(np.abs(a), np.abs(b))
+
+
+def follows(prev_stamp_ns, prev_n, prev_rate_hz, stamp_ns, rate_hz):
+    """The continuity rule, elementwise: a block follows the previous one without a gap when the
+    rates are equal and its stamp lies within half a sample of where the previous one ended
+    (prev_stamp + prev_n / prev_rate)."""
+    expected = prev_stamp_ns + prev_n * NS_PER_S / prev_rate_hz
+    return rates_equal(prev_rate_hz, rate_hz) & (np.abs(stamp_ns - expected) <= 0.5 * NS_PER_S / rate_hz)
+
+
+@dataclass(frozen=True)
+class BlockHeaders:
+    """One channel's block headers as arrays, in arrival order (what a bag reader decodes in one
+    pass). ``arrival``: each block's position in the arrival order of all channels together."""
+
+    stamp_ns: np.ndarray
+    seq: np.ndarray
+    rate_hz: np.ndarray
+    n_samples: np.ndarray
+    arrival: np.ndarray
+
+
+def clean_pairing(channels: Mapping[str, BlockHeaders], max_pending: int = MAX_PENDING) -> Optional[str]:
+    """None when a BlockAligner fed these blocks in arrival order pairs block i of every channel
+    with block i of the others and reports no event but discontinuities; else the first rule
+    that fails. Seqs must fit int64."""
+    names = list(channels)
+    ref = channels[names[0]]
+    m = ref.stamp_ns.size
+    if m == 0:
+        return 'no blocks'
+    for name, b in channels.items():
+        if b.stamp_ns.size != m:
+            return f'{name} has {b.stamp_ns.size} blocks, {names[0]} {m}: unpaired blocks'
+        if (np.diff(b.seq) != 1).any() or (np.diff(b.stamp_ns) <= 0).any():
+            return f'dropped or out-of-order blocks on {name}'
+        if not (np.isfinite(b.rate_hz).all() and (b.rate_hz > 0).all()):
+            return f'bad sample rates on {name}'
+    for name in names[1:]:
+        b = channels[name]
+        if not np.array_equal(b.stamp_ns, ref.stamp_ns):
+            return f'{name} and {names[0]} stamps differ'
+        if not rates_equal(b.rate_hz, ref.rate_hz).all():
+            return f'{name} and {names[0]} rates differ'
+        if not np.array_equal(b.n_samples, ref.n_samples):
+            return f'{name} and {names[0]} block lengths differ'
+    index = np.arange(m)
+    for name, b in channels.items():
+        # partners of this channel's blocks that had arrived when each of them arrived
+        before = np.min([np.searchsorted(channels[o].arrival, b.arrival) for o in names if o != name]
+                        or [index + 1], axis=0)
+        if (index - before + 1).max() > max_pending:
+            return f'{name} blocks wait for their partners longer than max_pending {max_pending}'
+    return None
 
 
 @dataclass(frozen=True)
@@ -60,8 +127,8 @@ class AlignedPair:
 
     @property
     def end_stamp_ns(self) -> int:
-        """Stamp the next contiguous block would carry (rounded to the nearest ns)."""
-        return self.stamp_ns + int(round(self.n_samples * 1e9 / self.sample_rate_hz))
+        """Stamp the next contiguous block would carry (the sample clock's end stamp)."""
+        return end_stamp_ns(self.stamp_ns, self.n_samples, self.sample_rate_hz)
 
 
 @dataclass
@@ -84,10 +151,6 @@ def _is_int(x) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool)
 
 
-def _rates_equal(a: float, b: float) -> bool:
-    return abs(a - b) <= _RATE_RTOL * max(abs(a), abs(b))
-
-
 class BlockAligner:
     """Pairs blocks of named channels by exact stamp; see module docstring.
 
@@ -95,15 +158,16 @@ class BlockAligner:
     max_pending: a channel holding more than this many unpaired blocks discards its oldest.
     """
 
-    def __init__(self, channels: Iterable[str] = ('force', 'accel'), max_pending: int = 50):
+    def __init__(self, channels: Iterable[str] = ('force', 'accel'), max_pending: int = MAX_PENDING):
         names = tuple(channels)
         if len(names) < 1 or len(set(names)) != len(names):
             raise CorrectionError(
                 f"channels {names!r} are invalid; expected one or more unique names")
-        if not _is_int(max_pending) or not 1 <= max_pending <= 1_000_000:
+        lo, hi = MAX_PENDING_RANGE
+        if not _is_int(max_pending) or not lo <= max_pending <= hi:
             raise CorrectionError(
                 f"max_pending {max_pending!r} is out of range; expected an integer in "
-                f"[1, 1000000]")
+                f"[{lo}, {hi}]")
         self._names = names
         self._max_pending = int(max_pending)
         self._ch: Dict[str, _Channel] = {c: _Channel() for c in names}
@@ -208,7 +272,7 @@ class BlockAligner:
         ref = group[ref_name]
         for c in self._names[1:]:
             b = group[c]
-            if not _rates_equal(b.rate_hz, ref.rate_hz):
+            if not rates_equal(b.rate_hz, ref.rate_hz):
                 for name, bb in group.items():
                     self._event(events, 'rate_mismatch', name, bb.seq, bb.stamp_ns,
                                 f"stamp {ref.stamp_ns} ns: {ref_name} rate {ref.rate_hz} Hz "
@@ -227,14 +291,13 @@ class BlockAligner:
         prev = self._last_pair
         continuous = False
         if prev is not None:
-            half = 0.5e9 / ref.rate_hz
-            expected = prev.stamp_ns + prev.n_samples * 1e9 / prev.sample_rate_hz
-            continuous = (_rates_equal(prev.sample_rate_hz, ref.rate_hz)
-                          and abs(ref.stamp_ns - expected) <= half)
+            continuous = bool(follows(prev.stamp_ns, prev.n_samples, prev.sample_rate_hz,
+                                      ref.stamp_ns, ref.rate_hz))
             if not continuous:
+                expected = prev.stamp_ns + prev.n_samples * NS_PER_S / prev.sample_rate_hz
                 self._event(events, 'discontinuity', self._names[0], ref.seq, ref.stamp_ns,
                             f"stamp {ref.stamp_ns} ns, expected {expected:.0f} ns "
-                            f"(+/- {half:.0f} ns) after stamp {prev.stamp_ns} ns with "
+                            f"(+/- {0.5 * NS_PER_S / ref.rate_hz:.0f} ns) after stamp {prev.stamp_ns} ns with "
                             f"{prev.n_samples} samples at {prev.sample_rate_hz} Hz; rate now "
                             f"{ref.rate_hz} Hz")
         pair = AlignedPair(

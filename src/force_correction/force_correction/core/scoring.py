@@ -15,6 +15,9 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from force_tester_common.core.clock import record_stamps_ns
+from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE
+
 from .errors import CorrectionError
 
 
@@ -55,7 +58,7 @@ def _rms(err: np.ndarray) -> float:
     return float(np.sqrt(np.mean(fin * fin))) if fin.size else math.nan
 
 
-def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = 0.1
+def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = LOADED_FRACTION
                ) -> PullScoreResult:
     """Score one pull; all inputs are per-sample arrays of equal length (N).
 
@@ -65,9 +68,10 @@ def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = 0.
     stationary peak is <= 0 or the stationary signal is all NaN.
     """
     lf = loaded_fraction
-    if isinstance(lf, bool) or not isinstance(lf, numbers.Real) or not 0.0 <= float(lf) < 1.0:
+    lo, hi = LOADED_FRACTION_RANGE
+    if isinstance(lf, bool) or not isinstance(lf, numbers.Real) or not lo <= float(lf) <= hi:
         raise CorrectionError(
-            f"loaded_fraction {lf!r} is out of range; expected a float in [0, 1)")
+            f"loaded_fraction {lf!r} is out of range; expected a float in [{lo}, {hi}]")
     lf = float(lf)
     s = _arr(stationary, 'stationary')
     sigs = {'raw': _arr(raw, 'raw'), 'corrected': _arr(corrected, 'corrected'),
@@ -100,7 +104,7 @@ class PullAccumulator:
     """Collects the samples of one pull, block by block, and scores it at the end.
 
     The pull covers sample times t with start_ns <= t < end_ns (integer ns; end open until
-    :meth:`finish`). A block's sample k has time ``stamp_ns + round(k * 1e9 / rate)``, so a
+    :meth:`finish`). A block's samples are stamped by the sample clock (``record_stamps_ns``), so a
     block straddling the start or end contributes exactly its samples inside the pull.
     Blocks may arrive after ``finish`` (late); they are still assigned by their sample times.
     """
@@ -159,7 +163,7 @@ class PullAccumulator:
             if a.shape[0] != n:
                 raise CorrectionError(
                     f"{k} has {a.shape[0]} samples but stationary has {n}; expected equal")
-        t = int(stamp_ns) + np.round(np.arange(n) * (1e9 / rate)).astype(np.int64)
+        t = record_stamps_ns(int(stamp_ns), n, rate)
         keep = t >= self.start_ns
         if self.end_ns is not None:
             keep &= t < self.end_ns
@@ -182,7 +186,7 @@ class PullAccumulator:
             out[k] = np.concatenate(self._parts[k])[order]
         return out
 
-    def score(self, loaded_fraction: float = 0.1) -> PullScoreResult:
+    def score(self, loaded_fraction: float = LOADED_FRACTION) -> PullScoreResult:
         a = self.arrays()
         res = score_pull(a['stationary'], a['raw'], a['corrected'], a['filtered'],
                          loaded_fraction=loaded_fraction)

@@ -40,3 +40,7 @@ PULL_SCORE_TOPIC = '/pull_score'
 SET_SUMMARY_TYPE = 'force_tester_msgs/msg/SetSummary'
 SET_SUMMARY_TOPIC = '/set_summary'
 DIAGNOSTICS_TOPIC = '/diagnostics'
+
+#: every topic of the live graph but /diagnostics (what the recorder records by default)
+GRAPH_TOPICS = (*(topic for topic, _fields in BLOCK_TYPES.values()), PULL_EVENT_TOPIC,
+                CORRECTED_TYPE[1][0], PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC)

@@ -22,10 +22,17 @@ import numpy as np
 from .errors import SimError
 from .motion import hold_time_s, nominal_slack_m
 from .params import RigParams
-from .pull import (COUPON_SCATTER_REL, DECEL_SCATTER_REL, LANYARD_STIFFNESS_SCATTER_REL,
-                   SLACK_SCATTER_M, SPEED_SCATTER_REL, PullSpec, _clipped_normal, make_pull_specs, simulate_pull)
-
-
+from .pull import (
+    COUPON_SCATTER_REL,
+    DECEL_SCATTER_REL,
+    LANYARD_STIFFNESS_SCATTER_REL,
+    SLACK_SCATTER_M,
+    SPEED_SCATTER_REL,
+    PullSpec,
+    _clipped_normal,
+    make_pull_specs,
+)
+from .simulate import simulate_pull
 
 # The stationary side (m1 on its cell, about 3.9 kHz) has a period of 0.255 ms: an elastic rise lasting a whole
 # number of these periods leaves it without overshoot (a ramp of one period excites no ringing), so the

@@ -8,11 +8,14 @@ from typing import Any, Mapping
 
 import yaml
 
-from .departures import NO_DEPARTURES, Departures, departures_from_data
-from .errors import SimError
 from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
+from .departures import NO_DEPARTURES, Departures, departures_from_data
+from .errors import SimError
+
 NOMINAL_YAML = Path(__file__).resolve().parent.parent / 'config' / 'nominal.yaml'
+#: the truth reference rig: the datasheet rig plus documented departures (the sim README)
+TRUTH_YAML = NOMINAL_YAML.with_name('truth_reference.yaml')
 
 
 @dataclass(frozen=True)

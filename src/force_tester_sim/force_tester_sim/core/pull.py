@@ -7,13 +7,14 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .departures import apply_sensor_departures
+from force_tester_common.core.clock import record_stamps_ns
+
 from .chain import ChainParams, force_move, force_stat, tension
+from .departures import apply_sensor_departures
 from .errors import SimError
 from .integrate import ChainTrajectory, integrate_chain
 from .motion import PrescribedMotion, hold_time_s, nominal_slack_m
 from .params import RigParams
-from force_tester_common.core.clock import record_stamps_ns
 
 CHANNELS = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2',
             'force_moving_n', 'force_stationary_n', 'motor_velocity_cmd_m_s', 'motor_current_a',
@@ -245,12 +246,3 @@ def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
     taut_index, break_index, break_end_index, truth = events_and_truth(t, traj, p, (x3, v3, a3), T, fm, fs)
     return PullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,
                       traj.break_s, truth)
-
-
-def simulate_pull(rig: RigParams, spec: PullSpec, noise: bool = True, drive: bool = False) -> Dict[str, np.ndarray]:
-    """The DAQ export columns of one pull (keys: CHANNELS). ``drive=True``: the drive model coupled to the force
-    chain (core/coupled.py, run_coupled_pull) instead of the prescribed carriage motion."""
-    if drive:
-        from .coupled import run_coupled_pull   # coupled imports this module
-        return run_coupled_pull(rig, spec, noise).channels
-    return run_pull(rig, spec, noise).channels

@@ -4,8 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterator
 
-from .errors import SimError
 from .campaign import truth_pull_specs
+from .errors import SimError
 from .params import RigParams, load_rig
 from .pull import make_pull_specs
 

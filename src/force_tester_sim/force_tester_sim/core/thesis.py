@@ -9,10 +9,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from force_tester_common.core.units import FT_M
+
 from .drive import DriveControl, back_emf_limit_m_s, simulate_drive, steady_state_speed_m_s
 from .errors import SimError
 from .params import RigParams
-from force_tester_common.core.units import FT_M
 
 COMMAND_FPS = 30.0
 DURATION_S = 0.5
@@ -49,10 +50,11 @@ def _summary(run: dict, current_limit_a: float) -> dict:
     }
 
 
-def top_speed_study(rig: RigParams, control: DriveControl = DriveControl(),
+def top_speed_study(rig: RigParams, control: DriveControl | None = None,
                     command_fps: float = COMMAND_FPS, duration_s: float = DURATION_S) -> dict:
     """Peak / plateau / current / power / distance at a 30 fps command, and the plateau's cause,
     decided by two reruns: viscous damping set to zero, and the voltage limit raised 20 %."""
+    control = DriveControl() if control is None else control
     if not isinstance(rig, RigParams):
         raise SimError(f'rig is {type(rig).__name__}; expected RigParams')
     cmd = command_fps * FT_M
@@ -89,9 +91,10 @@ def _with_carriage_mass(rig: RigParams, mass_kg: float) -> RigParams:
     return replace(rig, drive=replace(d, carriage_mass_kg=float(mass_kg), actuator_inertia_kg_m2=j_z))
 
 
-def mass_sweep(rig: RigParams, masses=(1, 16, 31, 46, 61), control: DriveControl = DriveControl(),
+def mass_sweep(rig: RigParams, masses=(1, 16, 31, 46, 61), control: DriveControl | None = None,
                command_fps: float = COMMAND_FPS, duration_s: float = DURATION_S) -> list:
     """Peak and plateau speed at the 30 fps command for each carriage mass (thesis Figure 28)."""
+    control = DriveControl() if control is None else control
     out = []
     for m in masses:
         r = _with_carriage_mass(rig, m)

@@ -14,14 +14,18 @@ import sys
 import time
 from pathlib import Path
 
-from ft_cli import ROOT
+from force_tester_common.core.units import FT_M
 
-CACHE = ROOT / 'runs' / 'cache'
+from ..paths import RUNS
+
+NAME = 'thesis'
+HELP = "the thesis's top-speed predictions and Tables 7-9 beside ours (--json FILE for the figures)"
+CACHE = RUNS / 'cache'
 
 
 def add_arguments(p):
     p.add_argument('--json', metavar='FILE', help='also write the figures as JSON')
-    p.add_argument('--plots', metavar='DIR', default=str(ROOT / 'runs' / 'thesis'),
+    p.add_argument('--plots', metavar='DIR', default=str(RUNS / 'thesis'),
                    help='folder for the PNG plots (default runs/thesis)')
     p.add_argument('--pulls', type=int, default=20, help='pulls per set in the reference campaign (default 20)')
     p.add_argument('--seed', type=int, default=2013, help='seed of the reference campaign (default 2013)')
@@ -30,15 +34,11 @@ def add_arguments(p):
                    help='where the reference campaign is cached (default runs/cache)')
 
 
-def truth_rig_path() -> Path:
-    import force_tester_sim.core as core
-    return Path(core.__file__).resolve().parents[1] / 'config' / 'truth_reference.yaml'
-
-
 def cache_key(pulls: int, seed: int) -> str:
     import force_tester_sim.core as core
+    from force_tester_sim.core.params import TRUTH_YAML
     h = hashlib.sha256(f'{pulls}:{seed}'.encode())
-    h.update(truth_rig_path().read_bytes())
+    h.update(TRUTH_YAML.read_bytes())
     for src in sorted(Path(core.__file__).parent.glob('*.py')):
         h.update(src.read_bytes())
     return h.hexdigest()[:16]
@@ -48,7 +48,7 @@ def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) ->
     """The reference campaign folder (DAQ export format), generated if the cache does not hold it."""
     from bag_tools.core.daq import write_campaign
     from force_tester_sim.core.campaign import generate_campaign
-    from force_tester_sim.core.params import load_rig
+    from force_tester_sim.core.params import TRUTH_YAML, load_rig
     key = cache_key(pulls, seed)
     folder = cache / f'reference_campaign_{key}'
     if (folder / 'campaign.yaml').is_file():
@@ -56,7 +56,7 @@ def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) ->
     say(f'generating the reference campaign ({5 * pulls} pulls of 2 s at 50 kHz, truth rig, seed {seed}) '
         f'into {folder} ...')
     t0 = time.monotonic()
-    pulls_data = generate_campaign(load_rig(truth_rig_path()), pulls=pulls, seed=seed, workers=2)
+    pulls_data = generate_campaign(load_rig(TRUTH_YAML), pulls=pulls, seed=seed, workers=2)
     for old in cache.glob('reference_campaign_*'):  # a stale campaign (older model or other size)
         shutil.rmtree(old, ignore_errors=True)
     cache.mkdir(parents=True, exist_ok=True)
@@ -68,23 +68,23 @@ def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) ->
 def plot_top_speed(result: dict, path) -> bool:
     """Save velocity, current and power vs time as a PNG. ``result``: a top_speed_study dict or a
     simulate_drive dict. Returns False (and writes nothing) when matplotlib is not importable."""
-    run = result.get('run', result)
+    rec = result.get('run', result)
     try:
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
     except ImportError:
         return False
-    t = run['time_s']
+    t = rec['time_s']
     fig, ax = plt.subplots(3, 1, sharex=True, figsize=(7, 8))
-    ax[0].plot(t, run['velocity_m_s'] / 0.3048, label='velocity')
-    ax[0].plot(t, run['command_m_s'] / 0.3048, '--', label='command')
+    ax[0].plot(t, rec['velocity_m_s'] / FT_M, label='velocity')
+    ax[0].plot(t, rec['command_m_s'] / FT_M, '--', label='command')
     ax[0].set_ylabel('fps')
     ax[0].legend()
-    ax[1].plot(t, run['current_a'])
+    ax[1].plot(t, rec['current_a'])
     ax[1].set_ylabel('current, A')
-    ax[2].plot(t, run['power_w'] / 1e3, label='V i')
-    ax[2].plot(t, run['mech_power_w'] / 1e3, label='F v')
+    ax[2].plot(t, rec['power_w'] / 1e3, label='V i')
+    ax[2].plot(t, rec['mech_power_w'] / 1e3, label='F v')
     ax[2].set_ylabel('kW')
     ax[2].set_xlabel('time, s')
     ax[2].legend()
@@ -94,7 +94,7 @@ def plot_top_speed(result: dict, path) -> bool:
     return True
 
 
-def main(args) -> int:
+def run(args) -> int:
     from force_tester_sim.core.params import load_rig
     from force_tester_sim.core.thesis import format_report, mass_sweep, top_speed_study
     say = lambda m: print(m, file=sys.stderr)  # noqa: E731

@@ -9,12 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from force_correction.core import CorrectionError, CorrectionParams, correct_signal
-
+from bag_tools.core.convert import read_bag_pulls, source_kind
+from bag_tools.core.daq import DaqPull, read_campaign
 from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
-from .daq import DaqPull, read_campaign
-from .errors import BagError
+from ..core.errors import CorrectionError
+from ..core.params import CorrectionParams
+from ..core.streaming import correct_signal
 
 
 def _pyplot():
@@ -23,7 +24,7 @@ def _pyplot():
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt  # noqa: PLC0415
     except ImportError:
-        raise BagError('plotting needs matplotlib: pip install matplotlib (see '
+        raise CorrectionError('plotting needs matplotlib: pip install matplotlib (see '
                        'requirements.txt)') from None
     return plt
 
@@ -31,39 +32,34 @@ def _pyplot():
 def load_pull(src: str | Path, pull: int, warnings: list | None = None) -> tuple:
     """(DaqPull, sample_rate_hz) of pull number `pull` (1-based position in the campaign or
     bag, in time order)."""
-    from .offline import source_kind  # noqa: PLC0415
     warnings = [] if warnings is None else warnings
     if source_kind(src) == 'campaign':
         camp = read_campaign(src)
         pulls, rate = camp.pulls, camp.sample_rate_hz
         warnings.extend(camp.warnings)
     else:
-        from .convert import read_bag_pulls  # noqa: PLC0415
         rate, pulls = read_bag_pulls(src, warnings)
     if isinstance(pull, bool) or not isinstance(pull, int) or not 1 <= pull <= len(pulls):
-        raise BagError(f'pull {pull!r} is out of range; expected 1..{len(pulls)} '
+        raise CorrectionError(f'pull {pull!r} is out of range; expected 1..{len(pulls)} '
                        f'({len(pulls)} pull(s) in {str(src)!r})')
     return pulls[pull - 1], rate
 
 
 def plot_pull(pull: DaqPull, rate_hz: float, out: str | Path, si: bool = False,
-              mass_kg: float = 1.152, window: int = 140, title: str | None = None,
+              params: CorrectionParams | None = None, title: str | None = None,
               full: bool = False) -> Path:
     """Write the figure of one pull to `out` (PNG). Corrected force: the campaign's
     corrected/filtered columns when present, else computed with the correction core. The time
     axis shows the pull (stationary cell above 5 % of its peak, from 20 ms before to 60 ms after)
     unless `full`."""
     plt = _pyplot()
+    params = CorrectionParams() if params is None else params
     ch = pull.channels
     t = ch['time_s'] * 1e3
     if 'corrected_n' in ch and 'filtered_n' in ch:
         corrected, filtered = ch['corrected_n'], ch['filtered_n']
     else:
-        try:
-            res = correct_signal(ch['force_moving_n'], ch['accel_axial_m_s2'],
-                                 CorrectionParams(mass_kg=mass_kg, window=window))
-        except CorrectionError as exc:
-            raise BagError(str(exc)) from None
+        res = correct_signal(ch['force_moving_n'], ch['accel_axial_m_s2'], params)
         corrected, filtered = res.corrected_n, res.filtered_n
     f_unit, f_k = ('N', 1.0) if si else ('lbf', 1.0 / LBF_N)
     a_unit, a_k = ('m/s$^2$', 1.0) if si else ('g', 1.0 / G_M_S2)
@@ -76,7 +72,7 @@ def plot_pull(pull: DaqPull, rate_hz: float, out: str | Path, si: bool = False,
     ax.plot(t, ch['force_stationary_n'] * f_k, label='stationary cell', lw=1.0)
     ax.plot(t, ch['force_moving_n'] * f_k, label='moving cell (raw)', lw=0.8)
     ax.plot(t, corrected * f_k, label='corrected (F - m a)', lw=0.8)
-    ax.plot(t, filtered * f_k, label=f'corrected + MA({window})', lw=1.0)
+    ax.plot(t, filtered * f_k, label=f'corrected + MA({params.window})', lw=1.0)
     ax.set_ylabel(f'force, {f_unit}')
     ax.legend(loc='upper right', fontsize=8)
     ax = axes[1]
@@ -103,8 +99,6 @@ def plot_pull(pull: DaqPull, rate_hz: float, out: str | Path, si: bool = False,
     out = Path(out)
     try:
         fig.savefig(out, dpi=110)
-    except OSError as exc:
-        raise BagError(f'cannot write plot {str(out)!r}: {exc}') from None
     finally:
         plt.close(fig)
     return out

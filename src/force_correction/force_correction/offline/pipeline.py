@@ -1,0 +1,167 @@
+"""Offline `correct`: the live correction and scoring applied to a recorded bag or campaign.
+
+The numbers equal the live nodes': the same pairing rules (force_correction.core.pairing), the
+same streaming core (bit for bit for any block split) and the same scoring. A bag's output is a
+new bag (the input plus /force_corrected, /pull_score, /set_summary); a campaign's is a new
+campaign (plus inertial_n, corrected_n, filtered_n columns and scores.json).
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+from contextlib import nullcontext
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+from bag_tools.core.convert import campaign_to_bag, source_kind
+from bag_tools.core.daq import DaqPull, read_campaign
+from bag_tools.core.fastcdr import FastPathError
+from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE, MASS_KG, MAX_PENDING, WINDOW
+
+from ..core.errors import CorrectionError
+from ..core.extension import Extension
+from ..core.pairing import BlockAligner
+from ..core.params import CorrectionParams
+from . import bag as bagio
+from .campaign import bag_pulls_with_columns, correct_runs, write_corrected_campaign
+from .result import CorrectionResult
+from .scorer import running_summaries
+from .stream import SEGMENT_SAMPLES, CorrectionStream
+
+Progress = Callable[[int, int], None]
+PATHS = ('auto', 'fast', 'fast_read', 'generic')
+
+
+@dataclass(frozen=True)
+class CorrectionSetup:
+    """Everything offline `correct` computes with, validated: the correction parameters, the
+    extension undone before m*a, the scoring window, the aligner's patience and the fast path's
+    segment size (it changes no number, only memory and speed)."""
+
+    params: CorrectionParams = field(default_factory=CorrectionParams)
+    extension: Extension | None = None
+    loaded_fraction: float = LOADED_FRACTION
+    max_pending: int = MAX_PENDING
+    segment_samples: int = SEGMENT_SAMPLES
+
+    def __post_init__(self):
+        lo, hi = LOADED_FRACTION_RANGE
+        if not lo <= self.loaded_fraction <= hi:
+            raise CorrectionError(f'loaded_fraction {self.loaded_fraction!r} is out of range; '
+                                  f'expected a float in [{lo}, {hi}]')
+        if not isinstance(self.segment_samples, int) or self.segment_samples < 1:
+            raise CorrectionError(f'segment_samples {self.segment_samples!r} is out of range; '
+                                  'expected an integer >= 1')
+        BlockAligner(max_pending=self.max_pending)  # validates it
+
+    @classmethod
+    def build(cls, mass_kg: float = MASS_KG, window: int = WINDOW,
+              extension_file: str | Path | None = None, **kwargs) -> CorrectionSetup:
+        """From plain options: an extension file's mass_kg replaces ``mass_kg`` (as in the node)."""
+        ext = Extension.from_yaml(extension_file) if extension_file is not None else None
+        if ext is not None and ext.mass_kg is not None:
+            mass_kg = ext.mass_kg
+        return cls(CorrectionParams(mass_kg=mass_kg, window=window), ext, **kwargs)
+
+
+def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = None, *,
+            to: str | None = None, path: str = 'auto',
+            progress: Progress | None = None) -> CorrectionResult:
+    """Correct and score a bag or a campaign; write the result to dst (a new bag or campaign).
+
+    to: 'bag' or 'campaign' (default: the kind of src). path, for a bag: 'auto' (the fast path
+    where it applies, else the generic one), 'fast' (CorrectionError if it does not apply),
+    'fast_read' (the fast reader, the generic writer) or 'generic'.
+    """
+    setup = CorrectionSetup() if setup is None else setup
+    src, dst = Path(src), Path(dst)
+    kind = source_kind(src)
+    to = to or kind
+    if to not in ('bag', 'campaign'):
+        raise CorrectionError(f'output kind {to!r} is invalid; expected bag or campaign')
+    if path not in PATHS:
+        raise CorrectionError(f'path {path!r} is invalid; expected one of {", ".join(PATHS)}')
+    if dst.exists():
+        raise CorrectionError(f'output {str(dst)!r} exists already; expected a new directory name')
+    if kind == 'campaign' and to == 'bag':  # the same placement of pulls, then that bag
+        if not dst.parent.is_dir():
+            raise CorrectionError(f'parent directory {str(dst.parent)!r} of output {str(dst)!r} '
+                                  'does not exist')
+        tmp = Path(tempfile.mkdtemp(prefix=f'.{dst.name}.import-', dir=dst.parent))
+        try:
+            warnings: list = []
+            campaign_to_bag(src, tmp / 'bag', warnings=warnings)
+            res = correct(tmp / 'bag', dst, setup, to='bag', path=path, progress=progress)
+            return replace(res, warnings=(*warnings, *res.warnings))
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if kind == 'bag':
+        return _correct_bag(src, dst, setup, to, path, progress)
+    return _correct_campaign(src, dst, setup)
+
+
+def _result(setup, pulls, stats, stream, path, warnings) -> CorrectionResult:
+    return CorrectionResult(setup.params, setup.loaded_fraction, pulls,
+                            tuple(stats.summary(s) for s in sorted(stats.sets())),
+                            stream.nan_count, stream.runs, path, tuple(warnings))
+
+
+def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: str,
+                 progress) -> CorrectionResult:
+    warnings: list = []
+    fast = bagio.fast_bag(src) if path != 'generic' else None
+    if path == 'fast' and fast is None:
+        raise CorrectionError(f'bag {str(src)!r} is not one uncompressed MCAP file; the fast '
+                              'path does not apply')
+    target = bagio.extension_target(fast, dst) if to == 'bag' and path in ('auto', 'fast') \
+        else None
+    stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction,
+                              keep=target is None)
+    with target if target is not None else nullcontext():
+        if target is not None:  # results go out as they are computed
+            cids, sink = bagio.extended_sink(target)
+            stream.write_to(sink)
+        read, used = None, 'generic'
+        if fast is not None:
+            try:
+                read = bagio.read_fast(fast, stream, warnings, progress, setup.max_pending,
+                                       setup.segment_samples)
+                used = 'fast'
+            except FastPathError as exc:
+                if path == 'fast':
+                    raise CorrectionError(f'bag {str(src)!r}: the fast path does not apply: '
+                                          f'{exc}') from None
+        if read is None:
+            read = bagio.read_generic(src, stream, warnings, progress, setup.max_pending)
+        pulls, stats, score_warnings = stream.scores(read.windows, read.drops)
+        warnings += score_warnings
+        running = running_summaries(pulls, stats)
+        if target is not None:
+            bagio.write_results(target, cids, pulls, running)
+    if to == 'bag':
+        if target is None:
+            bagio.rewrite_bag(src, dst, stream.arrays(), read, pulls, running, warnings)
+        return _result(setup, pulls, stats, stream, used, warnings)
+    result = _result(setup, pulls, stats, stream, used, warnings)
+    camp_pulls, rate = bag_pulls_with_columns(src, stream.arrays())
+    write_corrected_campaign(dst, camp_pulls, rate, None, _scores_doc(result))
+    return result
+
+
+def _correct_campaign(src: Path, dst: Path, setup: CorrectionSetup) -> CorrectionResult:
+    camp = read_campaign(src)
+    stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction)
+    windows, columns = correct_runs(camp, stream)
+    pulls, stats, warnings = stream.scores(windows, [])
+    result = _result(setup, pulls, stats, stream, 'campaign', [*camp.warnings, *warnings])
+    camp_pulls = [DaqPull(p.meta, {**p.channels, **c}) for p, c in zip(camp.pulls, columns)]
+    rig = (camp.path / camp.rig) if camp.rig else None
+    write_corrected_campaign(dst, camp_pulls, camp.sample_rate_hz, rig, _scores_doc(result))
+    return result
+
+
+def _scores_doc(result: CorrectionResult) -> dict:
+    doc = result.as_dict()
+    del doc['warnings']
+    return doc

@@ -1,0 +1,67 @@
+"""Synthetic DAQ campaigns for the bag and offline-correction tests (pull-like records)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from force_tester_common.core.correction import MASS_KG
+
+REPO = Path(__file__).resolve().parents[1]
+SRC_DIRS = [REPO / 'src' / p for p in ('bag_tools', 'force_tester_common', 'force_correction',
+                                       'force_tester_sim')]
+MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
+RATE = 50000.0
+T0 = 1_700_000_000_000_000_000
+N = 1500  # samples per synthetic pull (30 ms)
+
+
+def synth(n=N, seed=0, peak=2000.0, optional=True):
+    """A pull-like record: a smooth tension pulse with a break, accel ringing, noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / RATE
+    tc = t[n // 2]
+    pulse = peak * np.exp(-((t - tc) / 2e-3) ** 2) * (t < tc + 1e-3)
+    accel = 50 * np.sin(2 * np.pi * 900 * t) * np.exp(-t / 0.01) + rng.normal(0, 0.5, n)
+    ch = {'time_s': t,
+          'encoder_position_m': 1.2 * t + 0.5 * t * t,
+          'accel_axial_m_s2': accel,
+          'force_moving_n': pulse + MASS_KG * accel + rng.normal(0, 0.3, n),
+          'force_stationary_n': pulse + rng.normal(0, 0.3, n)}
+    if optional:
+        ch.update(motor_current_a=rng.normal(3, 0.1, n), motor_voltage_v=rng.normal(40, 1, n),
+                  motor_velocity_cmd_m_s=np.full(n, 4.572), accel_lateral_m_s2=rng.normal(0, 1, n),
+                  accel_vertical_m_s2=rng.normal(0, 1, n))
+    return ch
+
+
+def meta(s, **kw):
+    return {'set': s, 'coupon_lbf': 200.0 * s, 'velocity_fps': 3.0 + s, 'decel_g': -0.5 * (s > 3),
+            **kw}
+
+
+def make_pulls(k=3, start=None, **kw):
+    out = []
+    for i in range(k):
+        m = meta(1 + i % 2)
+        if start is not None:
+            m['start_ns'] = start + i * (N * 20_000 + 5_000_000)
+            m['pull_id'] = 100 + i
+        out.append((m, synth(seed=i, peak=1000.0 * (i + 1), **kw)))
+    return out
+
+
+def run_cli(*args, module='bag_tools.cli'):
+    """`./ft bag ARGS` in a new process: bag_tools' own commands, or with
+    module='force_correction.offline.cli' the full ./ft bag (correct and plot too)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(map(str, SRC_DIRS)),
+               _ROS_WHEELS_BOOTSTRAP_COMPLETE='1')
+    return subprocess.run([sys.executable, '-m', module, *map(str, args)],
+                          capture_output=True, text=True, env=env, timeout=120)
+
+
+def no_partials(folder: Path):
+    return [p.name for p in folder.iterdir() if p.name.startswith('.')]
