@@ -21,7 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
-from demo import Graph  # noqa: E402
+from force_tester_common.core.clock import NS_PER_S  # noqa: E402
+from ft_cli.graph import Graph  # noqa: E402
 
 
 def cpu_seconds(pid: int) -> float:
@@ -78,14 +79,14 @@ def main() -> int:
             executor.spin_once(timeout_sec=0.05)
         time.sleep(0.5)
         cpu0 = cpu_seconds(proc.pid)
-        period_ns = int(args.block * 1e9 / rate)
+        period_ns = int(args.block * NS_PER_S / rate)
         done = threading.Event()
 
         def publish():
             t0 = time.time_ns()
             for k in range(n_blocks):
                 stamp = t0 + k * period_ns
-                wait = (stamp + period_ns - time.time_ns()) / 1e9  # block complete -> publish
+                wait = (stamp + period_ns - time.time_ns()) / NS_PER_S  # block complete -> publish
                 if wait > 0:
                     time.sleep(wait)
                 s = slice(k * args.block, (k + 1) * args.block)

@@ -16,12 +16,14 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-for sub in ('src/force_tester_sim', 'src/force_correction', 'src/bag_tools', 'tools', 'tests'):
+for sub in ('src/force_tester_sim', 'src/force_correction', 'src/force_discovery', 'src/force_tester_common',
+            'src/bag_tools', 'tools', 'tests', 'tests/force_discovery'):
     sys.path.insert(0, str(ROOT / sub))
 
-from force_tester_sim.core.params import load_rig  # noqa: E402
-from force_correction.core.discovery import discover  # noqa: E402
 import test_discovery as G  # noqa: E402  (the generator)
+
+from force_discovery.core.pipeline import discover  # noqa: E402
+from force_tester_sim.core.params import load_rig  # noqa: E402
 
 
 def main() -> int:

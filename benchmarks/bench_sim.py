@@ -45,7 +45,8 @@ def main() -> int:
           f'OPENBLAS_NUM_THREADS={os.environ.get("OPENBLAS_NUM_THREADS")})')
     for name, fn, n in (('prescribed', lambda: run_pull(rig, spec), 3),
                         ('coupled', lambda: run_coupled_pull(rig, spec), 3),
-                        ('coupled, LSODA drive (reference, best of 1)', lambda: run_coupled_pull(rig, spec, method='lsoda'), 1)):
+                        ('coupled, LSODA drive (reference, best of 1)',
+                         lambda: run_coupled_pull(rig, spec, method='lsoda'), 1)):
         wall, res = best_of(fn, n)
         extra = f', {res.iterations} passes' if hasattr(res, 'iterations') else ''
         rt = rec / wall

@@ -15,6 +15,7 @@ import time
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.ros import BLOCK_QOS, ros_init
 
 from .core.errors import BagError
@@ -83,7 +84,7 @@ class PlayerNode(Node):
     def play(self, msgs, offsets_ns) -> int:
         t0 = time.monotonic_ns()
         for msg, offset in zip(msgs, offsets_ns):
-            delay = (t0 + offset - time.monotonic_ns()) / 1e9
+            delay = (t0 + offset - time.monotonic_ns()) / NS_PER_S
             if delay > 0:
                 time.sleep(delay)
             self.pubs[msg.topic].publish(msg.cdr)

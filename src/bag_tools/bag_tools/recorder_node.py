@@ -14,6 +14,7 @@ import threading
 from rclpy.node import Node
 
 from force_tester_common.core.channels import GRAPH_TOPICS
+from force_tester_common.core.clock import seconds_to_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, main_for
 
@@ -61,7 +62,7 @@ def check(values: dict) -> dict:
 def split_limits(values: dict) -> dict:
     """max_bag_size_mb / max_bag_duration_s -> open_bag_writer's max_bytes / max_duration_ns."""
     return {'max_bytes': int(round(values['max_bag_size_mb'] * 1e6)),
-            'max_duration_ns': int(round(values['max_bag_duration_s'] * 1e9))}
+            'max_duration_ns': seconds_to_ns(values['max_bag_duration_s'])}
 
 
 def split_description(max_bag_size_mb: float, max_bag_duration_s: float) -> str:

@@ -10,6 +10,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from .core.clock import seconds_to_ns
+
 # 10 s of 1 ms blocks: a receiver may stall that long without a block being overwritten.
 BLOCK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 EVENT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -31,7 +33,7 @@ class Diagnostics:
         self._node = node
         self._name = f'{node.get_name()}: {name}'
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', EVENT_QOS)
-        self._interval_ns = int(interval_s * 1e9)
+        self._interval_ns = seconds_to_ns(interval_s)
         self._last = {}  # key -> (last report ns, reports held back since)
 
     def report(self, level: int, message: str, log: bool = True, key=None, **values) -> None:

@@ -50,7 +50,7 @@ def format_table(scores: list) -> str:
     for s in sorted({sc['test_set'] for sc in scores}):
         group = [sc for sc in scores if sc['test_set'] == s]
 
-        def mean(k):
+        def mean(k, group=group):
             return sum(g[k] for g in group) / len(group)
         rows.append(f"{s:>3} {len(group):>5} {mean('stationary_peak_n') / LBF_N:>11.1f} "
                     f"{mean('raw_peak_n') / LBF_N:>11.1f} {mean('corrected_peak_n') / LBF_N:>10.1f} "

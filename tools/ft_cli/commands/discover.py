@@ -7,10 +7,7 @@ HELP = ('find what the simulation gets wrong in measured data: name the cause, e
 
 
 def add_arguments(p):
-    try:  # TEMP until force_discovery lands
-        from force_discovery.cli import add_arguments as add
-    except ModuleNotFoundError:
-        return
+    from force_discovery.cli import add_arguments as add
     add(p)
 
 

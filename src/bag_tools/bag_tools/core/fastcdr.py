@@ -29,7 +29,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-NS_PER_S = 1_000_000_000
+from force_tester_common.core.clock import NS_PER_S
+
 _U8 = np.uint8
 
 

@@ -8,15 +8,15 @@ from typing import Any
 
 from rosbags.typesys.store import Typestore
 
+from force_tester_common.core.channels import PULL_EVENT_TYPE, PULL_START
+from force_tester_common.core.clock import NS_PER_S
+
 from .errors import BagError
 from .reader import open_bag
 
-PULL_EVENT_TYPE = 'force_tester_msgs/msg/PullEvent'
-PULL_START = 0  # PullEvent.START
-
 
 def _iso(ns: int) -> str:
-    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec='milliseconds')
+    return datetime.fromtimestamp(ns / NS_PER_S, tz=timezone.utc).isoformat(timespec='milliseconds')
 
 
 def _is_block_type(store: Typestore, type_name: str) -> bool:
@@ -102,7 +102,7 @@ def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, 
             'end_ns': bag.end_ns,
             'start': _iso(bag.start_ns),
             'end': _iso(bag.end_ns),
-            'duration_s': bag.duration_ns / 1e9,
+            'duration_s': bag.duration_ns / NS_PER_S,
             'topics': dict(sorted(topics.items())),
             'pulls': pulls,
         }

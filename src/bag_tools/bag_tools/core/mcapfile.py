@@ -20,160 +20,104 @@ import os
 import queue
 import shutil
 import struct
-import sys
 import threading
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
+from mcap.data_stream import RecordBuilder
+from mcap.reader import SeekingReader
+from mcap.records import (
+    Channel,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+from mcap.summary import Summary
 
 from .errors import BagError, one_line
 from .fastcdr import FastPathError, gather_struct, stride_runs
-from .writer import METADATA_VERSION, check_new_bag_path
+from .metadata import METADATA_VERSION, dump_info, load_metadata, write_metadata
+from .writer import check_new_bag_path
 
 MAGIC = b'\x89MCAP0\r\n'
+CHUNK_HEADER = 9 + 8 + 8 + 8 + 4 + 4 + 8  # chunk record up to its records, without compression name
 CHUNK_BYTES = 2**20  # new chunks hold about this many bytes of records (as rosbags)
 RECORD_HEADER = 31   # message record: opcode u8, length u64, channel u16, seq u32, log, publish
 _U8 = np.uint8
 
 
 # --------------------------------------------------------------------------- summary
-@dataclass
-class Chunk:
-    start: int            # offset of the chunk record
-    length: int           # chunk record length incl. opcode and length
-    records_start: int    # offset of the records inside
-    records_size: int
-    message_index: dict   # channel id -> offset of its message index record
-    index_length: int     # bytes of message index records after the chunk
-    compression: str
-    raw: bytes            # the chunk index record (opcode 0x08) as in the file
+def records_start(c: ChunkIndex) -> int:
+    """Offset of the first record inside the chunk c (after the chunk record's header)."""
+    return c.chunk_start_offset + CHUNK_HEADER + len(c.compression.encode())
+
+
+def serialize(*records) -> bytes:
+    """MCAP records (mcap.records objects) as bytes, as the mcap library writes them."""
+    out = RecordBuilder()
+    for r in records:
+        r.write(out)
+    return out.end()
 
 
 @dataclass
 class McapSummary:
+    """The summary section of an MCAP file, as the mcap library reads it."""
+
     path: Path
-    size: int
-    data_end: int                                  # where the summary starts
-    schemas: dict = field(default_factory=dict)    # id -> (name, encoding, data, raw record)
-    channels: dict = field(default_factory=dict)   # id -> (schema id, topic, raw record)
-    chunks: list = field(default_factory=list)     # [Chunk]
-    channel_counts: dict = field(default_factory=dict)  # from the statistics record
-    start_ns: int = 0
-    end_ns: int = 0
-    metadata_names: list = field(default_factory=list)
-    attachments: int = 0
-    has_statistics: bool = False
+    summary: Summary
+
+    @property
+    def schemas(self) -> dict:
+        return self.summary.schemas
+
+    @property
+    def channels(self) -> dict:
+        return self.summary.channels
+
+    @property
+    def chunks(self) -> list:
+        return self.summary.chunk_indexes
+
+    @property
+    def statistics(self) -> Statistics | None:
+        return self.summary.statistics
+
+    @property
+    def channel_counts(self) -> dict:
+        return dict(self.statistics.channel_message_counts) if self.statistics else {}
 
     def topic_ids(self) -> dict:
-        return {t: cid for cid, (_s, t, _r) in self.channels.items()}
+        return {c.topic: cid for cid, c in self.channels.items()}
 
     @property
     def chunks_end(self) -> int:
         """End of the last chunk's message indexes: the input bytes ExtendedBag copies."""
-        return max((c.start + c.length + c.index_length for c in self.chunks), default=0)
+        return max((c.chunk_start_offset + c.chunk_length + c.message_index_length
+                    for c in self.chunks), default=0)
 
 
-def _string(data, pos: int) -> tuple:
-    n, = struct.unpack_from('<I', data, pos)
-    return bytes(data[pos + 4:pos + 4 + n]).decode('utf-8'), pos + 4 + n
-
-
-def _record(op: int, body: bytes) -> bytes:
-    return bytes((op,)) + struct.pack('<Q', len(body)) + body
-
-
-def _str(s: str) -> bytes:
-    b = s.encode('utf-8')
-    return struct.pack('<I', len(b)) + b
-
-
-def _map(items: dict) -> bytes:
-    body = b''.join(_str(k) + _str(v) for k, v in items.items())
-    return struct.pack('<I', len(body)) + body
-
-
-def read_summary(path: str | Path, data=None) -> McapSummary:
-    """Parse the summary section of an MCAP file (FastPathError if it has none or is odd).
-    data: the file's bytes (or a mapping of it); by default only the summary, the footer and
-    the chunk headers are read from the file."""
+def read_summary(path: str | Path) -> McapSummary:
+    """The summary section of an MCAP file (FastPathError if it has none or is odd)."""
     path = Path(path)
     try:
-        if data is not None:
-            return _read_summary(path, lambda o, n: bytes(data[o:o + n]), len(data))
         with path.open('rb') as fh:
-            size = os.fstat(fh.fileno()).st_size
-            return _read_summary(path, lambda o, n: os.pread(fh.fileno(), n, o), size)
-    except (struct.error, IndexError, UnicodeDecodeError) as exc:
-        raise FastPathError(f'cannot parse MCAP summary: {exc}') from None
+            summary = SeekingReader(fh).get_summary()
     except OSError as exc:
         raise FastPathError(f'cannot read {str(path)!r}: {exc}') from None
-
-
-def _read_summary(path: Path, read, size: int) -> McapSummary:
-    if size < 8 + 37 or read(0, 8) != MAGIC or read(size - 8, 8) != MAGIC:
-        raise FastPathError('not an MCAP file')
-    fo = size - 8 - 29  # footer: opcode 0x02, len 20, summary_start, summary_offset_start, crc
-    footer = read(fo, 29)
-    if footer[0] != 0x02:
-        raise FastPathError('no MCAP footer')
-    summary_start, = struct.unpack_from('<Q', footer, 9)
-    if summary_start == 0 or summary_start >= fo:
+    except Exception as exc:  # noqa: BLE001 - the mcap library's errors on odd files vary
+        raise FastPathError(f'cannot parse MCAP summary: {one_line(exc)}') from None
+    if summary is None:
         raise FastPathError('MCAP without summary')
-    s = McapSummary(path, size, summary_start)
-    data = read(summary_start, fo - summary_start)
-    pos = 0
-    while pos < len(data):
-        op = data[pos]
-        ln, = struct.unpack_from('<Q', data, pos + 1)
-        rec = pos + 9
-        if rec + ln > len(data):
-            raise FastPathError('truncated summary')
-        raw = bytes(data[pos:rec + ln])
-        if op == 0x03:  # schema
-            sid, = struct.unpack_from('<H', data, rec)
-            name, p = _string(data, rec + 2)
-            enc, p = _string(data, p)
-            n, = struct.unpack_from('<I', data, p)
-            s.schemas[sid] = (name, enc, bytes(data[p + 4:p + 4 + n]), raw)
-        elif op == 0x04:  # channel
-            cid, sid = struct.unpack_from('<HH', data, rec)
-            topic, _p = _string(data, rec + 4)
-            s.channels[cid] = (sid, topic, raw)
-        elif op == 0x08:  # chunk index
-            _st, _et, cstart, clen, mlen = struct.unpack_from('<QQQQI', data, rec)
-            mi = {}
-            p = rec + 36
-            for _ in range(mlen // 10):
-                cid, moff = struct.unpack_from('<HQ', data, p)
-                mi[cid] = moff
-                p += 10
-            milen, = struct.unpack_from('<Q', data, p)
-            comp, _p = _string(data, p + 8)
-            head = read(cstart, 9 + 28 + 4 + 64 + 8) if cstart + clen <= summary_start else b''
-            if not head or head[0] != 0x06:
-                raise FastPathError('chunk index does not point to a chunk')
-            _c, p = _string(head, 9 + 28)
-            rsize, = struct.unpack_from('<Q', head, p)
-            s.chunks.append(Chunk(cstart, clen, cstart + p + 8, rsize, mi, milen, comp, raw))
-        elif op == 0x0B:  # statistics
-            (_mc, _sc, _cc, s.attachments, _mdc, _chc, s.start_ns,
-             s.end_ns) = struct.unpack_from('<QHIIIIQQ', data, rec)
-            n, = struct.unpack_from('<I', data, rec + 42)
-            for k in range(n // 10):
-                cid, cnt = struct.unpack_from('<HQ', data, rec + 46 + 10 * k)
-                s.channel_counts[cid] = cnt
-            s.has_statistics = True
-        elif op == 0x0D:  # metadata index
-            name, _p = _string(data, rec + 16)
-            s.metadata_names.append(name)
-        elif op == 0x0A:  # attachment index
-            s.attachments += 1
-        pos = rec + ln
-    return s
+    return McapSummary(path, summary)
 
 
 # --------------------------------------------------------------------------- batch reading
@@ -220,7 +164,7 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
     else raises FastPathError.
     """
     mm = map_file(mcap_path) if mm is None else mm
-    summary = read_summary(mcap_path, mm) if summary is None else summary
+    summary = read_summary(mcap_path) if summary is None else summary
     if any(c.compression for c in summary.chunks):
         raise FastPathError('compressed chunks')
     buf = np.frombuffer(mm, dtype=_U8)
@@ -228,16 +172,19 @@ def read_topics_raw(mcap_path: str | Path, topics: Sequence[str],
     want = {t: i for i, t in enumerate(topics)}
     index = []  # per message index record: entries start, count, chunk records start/size, topic
     for c in summary.chunks:
-        for cid, moff in c.message_index.items():
-            t = summary.channels.get(cid, (0, None, b''))[1]
-            if t not in want:
+        if c.chunk_start_offset + c.chunk_length > size or mm[c.chunk_start_offset] != 0x06:
+            raise FastPathError('chunk index does not point to a chunk')
+        for cid, moff in c.message_index_offsets.items():
+            ch = summary.channels.get(cid)
+            if ch is None or ch.topic not in want:
                 continue
+            t = ch.topic
             if mm[moff] != 0x07:
                 raise FastPathError('bad message index')
             _cid, blen = struct.unpack_from('<HI', mm, moff + 9)
             if blen % 16 or moff + 15 + blen > size:
                 raise FastPathError('bad message index')
-            index.append((moff + 15, blen // 16, c.records_start, c.records_size, want[t]))
+            index.append((moff + 15, blen // 16, records_start(c), c.compressed_size, want[t]))
     counts = np.array([i[1] for i in index], dtype=np.int64)
     if not counts.sum():
         z = np.zeros(0, np.int64)
@@ -289,9 +236,7 @@ class McapBag:
     def __init__(self, src: str | Path) -> None:
         self.path = Path(src)
         try:
-            meta = yaml.load((self.path / 'metadata.yaml').read_text(encoding='utf-8'),
-                             Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
-            info = meta['rosbag2_bagfile_information']
+            info = load_metadata(self.path)
             files = list(info['relative_file_paths'])
             ok = (int(info['version']) == METADATA_VERSION and len(files) == 1
                   and info.get('storage_identifier') == 'mcap'
@@ -309,10 +254,11 @@ class McapBag:
         self.mcap = self.path / str(files[0])
         self.summary = s = read_summary(self.mcap)
         self._mm: mmap.mmap | None = None
-        if (not s.has_statistics or not s.channels or not s.chunks or s.attachments
+        if (s.statistics is None or not s.channels or not s.chunks
+                or s.statistics.attachment_count or s.summary.attachment_indexes
                 or any(c.compression for c in s.chunks)
-                or any(n != 'rosbag2' for n in s.metadata_names)
-                or any(sid not in s.schemas for sid, _t, _r in s.channels.values())):
+                or any(m.name != 'rosbag2' for m in s.summary.metadata_indexes)
+                or any(c.schema_id not in s.schemas for c in s.channels.values())):
             raise FastPathError('MCAP summary not suited to the batch paths')
         ids = s.topic_ids()
         if len(ids) != len(s.channels) or ids.keys() != known.keys() or any(
@@ -332,12 +278,12 @@ class McapBag:
     def topics(self) -> dict:
         """topic -> (type name, message count)."""
         s = self.summary
-        return {t: (s.schemas[sid][0], s.channel_counts.get(cid, 0))
-                for cid, (sid, t, _r) in s.channels.items()}
+        counts = s.channel_counts
+        return {c.topic: (s.schemas[c.schema_id].name, counts.get(cid, 0))
+                for cid, c in s.channels.items()}
 
 
 QUEUED_BYTES = 1 << 26  # ExtendedBag: committed bytes waiting for the writer thread, at most
-SWITCH_INTERVAL_S = 5e-4  # ExtendedBag: the GIL switch interval while its threads run
 
 
 class ExtendedBag:
@@ -355,12 +301,12 @@ class ExtendedBag:
         self.mcap = src.mcap
         self.summary = s = src.summary
         self.copy_end = s.chunks_end
-        self._schema_ids = {v[0]: k for k, v in s.schemas.items()}
-        self._new_schemas: list = []   # raw schema records
-        self._new_channels: list = []  # (cid, topic, type, rihs01, raw record)
-        self._chunk_index: list = []   # raw chunk index records of the new chunks
+        self._schema_ids = {v.name: k for k, v in s.schemas.items()}
+        self._new_schemas: list = []   # Schema records
+        self._new_channels: list = []  # (Channel record, type name, rihs01)
+        self._chunk_index: list = []   # ChunkIndex records of the new chunks
         self._counts: dict = defaultdict(int)
-        self._times = [s.start_ns, s.end_ns]
+        self._times = [s.statistics.message_start_time, s.statistics.message_end_time]
         self._definitions_written = False
         self._pending: list = []  # (file offset, buffer) laid out by reserve(), not yet written
         self._written: list = []  # (written event, buffer) of committed buffers, to reuse
@@ -369,7 +315,6 @@ class ExtendedBag:
         self._pos = 0
         self._threads: list = []  # background copy and writes
         self._errors: list = []
-        self._switch_interval: float | None = None  # the process's, while ours is set
 
     # -- lifecycle -------------------------------------------------------------------
     def __enter__(self) -> ExtendedBag:
@@ -383,10 +328,6 @@ class ExtendedBag:
             self._abort()
             raise
         self._pos = self.copy_end
-        # the copy and writer threads need the GIL back after each system call; with the
-        # default 5 ms switch interval they would wait behind the caller's computing
-        self._switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL_S))
         self._background(self._copy)
         return self
 
@@ -429,10 +370,8 @@ class ExtendedBag:
             return
         try:
             self._finish()
-        except BaseException as err:
-            self._abort()
-            if isinstance(err, OSError):
-                raise BagError(f'cannot write bag {str(self.dst)!r}: {one_line(err)}') from None
+        except BaseException:
+            self._abort()  # an I/O failure (OSError) is not bad input: it propagates as it is
             raise
 
     def _join(self) -> None:
@@ -441,7 +380,6 @@ class ExtendedBag:
         for t in self._threads:
             t.join()
         self._threads = []
-        self._restore_switch_interval()
         if self._errors:
             raise self._errors[0]
 
@@ -453,44 +391,35 @@ class ExtendedBag:
             for t in self._threads:
                 t.join()
         finally:
-            self._restore_switch_interval()
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
             shutil.rmtree(self.dst, ignore_errors=True)
-
-    def _restore_switch_interval(self) -> None:
-        if self._switch_interval is not None:
-            sys.setswitchinterval(self._switch_interval)
-            self._switch_interval = None
 
     # -- topics and messages -----------------------------------------------------------
     def add_topic(self, topic: str, type_name: str, msgdef: str, rihs01: str) -> int:
         """A new channel (and schema unless the input has the type); returns its channel id."""
         if self._definitions_written:
             raise BagError(f'topic {topic!r} added after the first message; add topics first')
-        if topic in self.summary.topic_ids() or any(c[1] == topic for c in self._new_channels):
+        if topic in self.summary.topic_ids() or any(c.topic == topic for c, *_ in self._new_channels):
             raise BagError(f'topic {topic!r} is in the bag already')
         sid = self._schema_ids.get(type_name)
         if sid is None:
             sid = max([0, *self._schema_ids.values()]) + 1
             self._schema_ids[type_name] = sid
-            self._new_schemas.append(_record(0x03, struct.pack('<H', sid) + _str(type_name)
-                                             + _str('ros2msg') + _str(msgdef)))
-        cid = max([0, *self.summary.channels, *(c[0] for c in self._new_channels)]) + 1
+            self._new_schemas.append(Schema(id=sid, name=type_name, encoding='ros2msg',
+                                            data=msgdef.encode('utf-8')))
+        cid = max([0, *self.summary.channels, *(c.id for c, *_ in self._new_channels)]) + 1
         if cid >= 2**16:
             raise FastPathError('too many channels')
-        raw = _record(0x04, struct.pack('<HH', cid, sid) + _str(topic) + _str('cdr')
-                      + _map({'offered_qos_profiles': '[]', 'topic_type_hash': rihs01}))
-        self._new_channels.append((cid, topic, type_name, rihs01, raw))
+        channel = Channel(id=cid, topic=topic, message_encoding='cdr', schema_id=sid,
+                          metadata={'offered_qos_profiles': '[]', 'topic_type_hash': rihs01})
+        self._new_channels.append((channel, type_name, rihs01))
         return cid
 
     def _write(self, *parts) -> None:
-        try:
-            for part in parts:
-                self._pos = self._write_at(self._pos, part)
-        except OSError as exc:
-            raise BagError(f'cannot write bag {str(self.dst)!r}: {one_line(exc)}') from None
+        for part in parts:
+            self._pos = self._write_at(self._pos, part)
 
     def commit(self) -> None:
         """Queue the buffers of earlier reserve() calls (their data must be complete) for the
@@ -517,7 +446,7 @@ class ExtendedBag:
 
     def _write_definitions(self) -> None:
         if not self._definitions_written:  # schemas and channels precede their messages
-            self._write(b''.join(self._new_schemas) + b''.join(c[4] for c in self._new_channels))
+            self._write(serialize(*self._new_schemas, *(c for c, *_ in self._new_channels)))
             self._definitions_written = True
 
     def reserve(self, cids, data_len, log_ns) -> tuple:
@@ -548,20 +477,20 @@ class ExtendedBag:
             i = bounds[-1]
             base = int(rec_rel[i])
             bounds.append(max(int(np.searchsorted(rec_end, base + CHUNK_BYTES, 'right')), i + 1))
-        # layout: per chunk the chunk record (header 49 bytes + records), then its indexes
+        # layout: per chunk the chunk record (header CHUNK_HEADER bytes + records), then its indexes
         plan, pos = [], self._pos
         abs_rec = np.empty(m, dtype=np.int64)
         single = int(c[0]) if (c == c[0]).all() else None  # one channel: the usual case
         for i, j in zip(bounds[:-1], bounds[1:]):
             size = int(rec_end[j - 1] - rec_rel[i])
-            abs_rec[i:j] = pos + 49 + rec_rel[i:j] - rec_rel[i]
+            abs_rec[i:j] = pos + CHUNK_HEADER + rec_rel[i:j] - rec_rel[i]
             ch = c[i:j]
             chans = [single] if single is not None else np.unique(ch).tolist()
             counts = [j - i] if single is not None else \
                 [int(np.count_nonzero(ch == k)) for k in chans]
             mi_len = sum(15 + 16 * k for k in counts)
             plan.append((i, j, pos, size, chans, mi_len))
-            pos += 49 + size + mi_len
+            pos += CHUNK_HEADER + size + mi_len
         total = pos - self._pos
         buf = None
         # reuse the oldest committed buffer once written; wait for it only when many bytes
@@ -580,24 +509,26 @@ class ExtendedBag:
         fill_record_headers(buf, abs_rec - shift, n, c, lg)
         for i, j, start, size, chans, mi_len in plan:
             t0, t1 = int(lg[i:j].min()), int(lg[i:j].max())
-            head = bytes((0x06,)) + struct.pack('<QQQQI', 40 + size, t0, t1, size, 0) \
-                + _str('') + struct.pack('<Q', size)
-            buf[start - shift:start - shift + 49] = np.frombuffer(head, _U8)
-            p = start + 49 + size
+            # chunk record header (uncompressed, no CRC): op, length, start and end time,
+            # uncompressed size, CRC, compression '' and records size
+            head = struct.pack('<BQQQQIIQ', 0x06, CHUNK_HEADER - 9 + size, t0, t1, size, 0, 0, size)
+            buf[start - shift:start - shift + CHUNK_HEADER] = np.frombuffer(head, _U8)
+            p = start + CHUNK_HEADER + size
             index = []
-            rel = abs_rec[i:j] - (start + 49)
+            rel = abs_rec[i:j] - (start + CHUNK_HEADER)
             for k in chans:
                 sel = slice(None) if single is not None else c[i:j] == k
                 ent = np.empty((rel[sel].size, 2), dtype='<u8')
                 ent[:, 0], ent[:, 1] = lg[i:j][sel], rel[sel]
-                rec = _record(0x07, struct.pack('<HI', k, ent.nbytes) + ent.tobytes())
+                rec = struct.pack('<BQHI', 0x07, 6 + ent.nbytes, k, ent.nbytes) + ent.tobytes()
                 buf[p - shift:p - shift + len(rec)] = np.frombuffer(rec, _U8)
-                index.append(struct.pack('<HQ', k, p))
+                index.append((k, p))
                 p += len(rec)
-            mi = b''.join(index)
-            self._chunk_index.append(_record(0x08, struct.pack(
-                '<QQQQI', t0, t1, start, 49 + size, len(mi)) + mi + struct.pack('<Q', mi_len)
-                + _str('') + struct.pack('<QQ', size, size)))
+            self._chunk_index.append(ChunkIndex(
+                message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
+                chunk_length=CHUNK_HEADER + size, message_index_offsets=dict(index),
+                message_index_length=mi_len, compression='', compressed_size=size,
+                uncompressed_size=size))
         self._pos += total
         for k in ([single] if single is not None else np.unique(c).tolist()):
             self._counts[k] += int(np.count_nonzero(c == k))
@@ -626,12 +557,12 @@ class ExtendedBag:
         start, end = self._times
         name = self.out.name
         topics = list(info.get('topics_with_message_count') or [])
-        for cid, topic, type_name, rihs01, _raw in self._new_channels:
-            topics.append({'topic_metadata': {'name': topic, 'type': type_name,
+        for channel, type_name, rihs01 in self._new_channels:
+            topics.append({'topic_metadata': {'name': channel.topic, 'type': type_name,
                                               'serialization_format': 'cdr',
                                               'offered_qos_profiles': [],
                                               'type_description_hash': rihs01},
-                           'message_count': self._counts.get(cid, 0)})
+                           'message_count': self._counts.get(channel.id, 0)})
         custom = dict(info.get('custom_data') or {})
         custom['writer'] = 'bag_tools.core'
         info.update({'relative_file_paths': [name], 'message_count': total,
@@ -648,45 +579,36 @@ class ExtendedBag:
         self.commit()
         s = self.summary
         info = self._metadata()
-        dumper = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
-        text = yaml.dump(info, Dumper=dumper, default_flow_style=False)
         meta_start = self._pos
-        self._write(_record(0x0C, _str('rosbag2') + _map({'serialized_metadata': text.strip()})))
-        meta_len = self._pos - meta_start
-        self._write(_record(0x0F, struct.pack('<I', 0)))  # data end
+        self._write(serialize(Metadata(name='rosbag2',
+                                       metadata={'serialized_metadata': dump_info(info).strip()})))
+        meta = MetadataIndex(offset=meta_start, length=self._pos - meta_start, name='rosbag2')
+        self._write(serialize(DataEnd(data_section_crc=0)))
         summary_start = self._pos
-        groups = []
+        offsets = []
 
-        def group(op, records):
-            start = self._pos
-            if records:
-                self._write(b''.join(records))
-                groups.append(_record(0x0E, struct.pack('<BQQ', op, start, self._pos - start)))
+        def group(records):
+            start, data = self._pos, serialize(*records)
+            self._write(data)
+            offsets.append(SummaryOffset(group_opcode=data[0], group_start=start,
+                                         group_length=len(data)))
 
-        group(0x03, [v[3] for v in s.schemas.values()] + self._new_schemas)
-        group(0x04, [v[2] for v in s.channels.values()] + [c[4] for c in self._new_channels])
-        group(0x08, [c.raw for c in s.chunks] + self._chunk_index)
-        group(0x0D, [_record(0x0D, struct.pack('<QQ', meta_start, meta_len) + _str('rosbag2'))])
-        counts = dict(s.channel_counts)
-        counts.update(self._counts)
-        cmap = b''.join(struct.pack('<HQ', c, n) for c, n in sorted(counts.items()))
+        counts = {**s.channel_counts, **self._counts}
         start, end = self._times
-        group(0x0B, [_record(0x0B, struct.pack(
-            '<QHIIIIQQ', sum(counts.values()), len(s.schemas) + len(self._new_schemas),
-            len(s.channels) + len(self._new_channels), 0, 1,
-            len(s.chunks) + len(self._chunk_index), start, end)
-            + struct.pack('<I', len(cmap)) + cmap)])
+        channels = [*s.channels.values(), *(c for c, *_ in self._new_channels)]
+        schemas = [*s.schemas.values(), *self._new_schemas]
+        chunks = [*s.chunks, *self._chunk_index]
+        for records in (schemas, channels, chunks, [meta], [Statistics(
+                message_count=sum(counts.values()), schema_count=len(schemas),
+                channel_count=len(channels), attachment_count=0, metadata_count=1,
+                chunk_count=len(chunks), message_start_time=start, message_end_time=end,
+                channel_message_counts=dict(sorted(counts.items())))]):
+            group(records)
         offsets_start = self._pos
-        self._write(b''.join(groups))
-        self._write(_record(0x02, struct.pack('<QQI', summary_start, offsets_start, 0)), MAGIC)
+        self._write(serialize(*offsets, Footer(summary_start=summary_start,
+                                               summary_offset_start=offsets_start, summary_crc=0)),
+                    MAGIC)
         self._join()  # the copied input bytes must be complete before the bag is
         os.close(self._fd)
         self._fd = -1
-        tmp = self.dst / 'metadata.yaml.tmp'
-        # the same YAML one level down (every line indented: what yaml.dump of the nested
-        # mapping gives, without dumping twice)
-        tmp.write_text('rosbag2_bagfile_information:\n'
-                       + ''.join(line if line == '\n' else '  ' + line
-                                 for line in text.splitlines(keepends=True)),
-                       encoding='utf-8')
-        tmp.replace(self.dst / 'metadata.yaml')
+        write_metadata(self.dst, info)

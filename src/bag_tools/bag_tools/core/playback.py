@@ -8,6 +8,8 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from typing import NamedTuple
 
+from force_tester_common.core.clock import NS_PER_S, seconds_to_ns
+
 from .errors import BagError
 
 
@@ -58,11 +60,11 @@ def schedule(stamps_ns: Sequence[int], rate: float = 1.0, start_offset_s: float 
             raise BagError(f'stamp #{i} {s} ns is before the previous one {stamps[i - 1]} ns; '
                            'expected stamps in time order')
     first = stamps[0]
-    lo = bisect_left(stamps, first + round(start_s * 1e9))
-    hi = len(stamps) if stop_s is None else bisect_right(stamps, first + round(stop_s * 1e9))
+    lo = bisect_left(stamps, first + seconds_to_ns(start_s))
+    hi = len(stamps) if stop_s is None else bisect_right(stamps, first + seconds_to_ns(stop_s))
     if lo >= len(stamps):
         raise BagError(f'start offset {start_offset_s!r} s is beyond the end of the bag '
-                       f'({(stamps[-1] - first) / 1e9:.3f} s)')
+                       f'({(stamps[-1] - first) / NS_PER_S:.3f} s)')
     base = stamps[lo]
     if rate == 1:
         offsets = [s - base for s in stamps[lo:hi]]

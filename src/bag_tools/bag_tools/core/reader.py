@@ -7,13 +7,13 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, NamedTuple
 
-import yaml
 from rosbags.interfaces import Connection, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from .errors import BagError, one_line
+from .metadata import load_metadata
 
 
 class TopicSummary(NamedTuple):
@@ -26,32 +26,6 @@ class BagMessage(NamedTuple):
     type_name: str
     stamp_ns: int
     cdr: bytes
-
-
-def _check_bag_dir(path: Path) -> None:
-    if not path.exists():
-        raise BagError(f'bag {str(path)!r} does not exist; expected a rosbag2 directory')
-    if not path.is_dir():
-        raise BagError(f'bag {str(path)!r} is a file; expected a rosbag2 directory '
-                       'containing metadata.yaml and .mcap files')
-    meta = path / 'metadata.yaml'
-    if not meta.is_file():
-        hint = ' (unfinished recording? `ros2 bag reindex` may recover it)' \
-            if any(path.glob('*.mcap')) else ''
-        raise BagError(f'bag {str(path)!r} has no metadata.yaml; expected a rosbag2 '
-                       f'directory{hint}')
-    try:
-        doc = yaml.safe_load(meta.read_text(encoding='utf-8'))
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'metadata {str(meta)!r} is not valid YAML: {one_line(exc)}') from None
-    info = doc.get('rosbag2_bagfile_information') if isinstance(doc, dict) else None
-    if not isinstance(info, dict):
-        raise BagError(f'metadata {str(meta)!r} lacks rosbag2_bagfile_information; '
-                       'expected a rosbag2 metadata.yaml')
-    for rel in info.get('relative_file_paths') or []:
-        if not (path / str(rel)).is_file():
-            raise BagError(f'bag {str(path)!r} lists storage file {str(rel)!r} in '
-                           'metadata.yaml but it is missing')
 
 
 def _typestore_from_connections(connections: Iterable[Connection]) -> Typestore:
@@ -190,7 +164,7 @@ def open_bag(path: str | Path, typestore: Typestore | None = None,
     truncated/corrupt storage, or (unless allow_empty) a bag without messages.
     """
     path = Path(path)
-    _check_bag_dir(path)
+    load_metadata(path)
     try:
         reader = Reader(path)
         reader.open()

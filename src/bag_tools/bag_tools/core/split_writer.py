@@ -18,18 +18,16 @@ import os
 import shutil
 import tempfile
 from collections.abc import Sequence
-from io import StringIO
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-import yaml
 from rosbags.interfaces import Qos
 from rosbags.typesys.store import Typestore
-from ruamel.yaml import YAML
 
 from .errors import BagError, one_line
-from .writer import METADATA_VERSION, STORAGE_ID, BagWriter, check_new_bag_path
+from .metadata import METADATA_VERSION, load_metadata, write_metadata
+from .writer import STORAGE_ID, BagWriter, check_new_bag_path
 
 #: Approximate MCAP bytes per message besides its payload (message record + chunk index).
 MESSAGE_OVERHEAD_BYTES = 31 + 16
@@ -117,8 +115,7 @@ class SplitBagWriter:
         assert split is not None and self._tmp is not None
         name = split.path.name
         split_dir = split.close()
-        meta = yaml.safe_load((split_dir / 'metadata.yaml').read_text(encoding='utf-8'))
-        info = meta['rosbag2_bagfile_information']
+        info = load_metadata(split_dir)
         src = split_dir / f'{name}.mcap'
         os.replace(src, self.path / src.name)
         shutil.rmtree(split_dir, ignore_errors=True)
@@ -179,10 +176,7 @@ class SplitBagWriter:
             elif self._split is not None:
                 self._split.abort()
                 self._split = None
-            text = self._metadata_text()
-            tmp = self.path / 'metadata.yaml.tmp'
-            tmp.write_text(text, encoding='utf-8')
-            os.replace(tmp, self.path / 'metadata.yaml')
+            write_metadata(self.path, self._metadata())
         except BaseException as exc:
             if self._split is not None:
                 self._split.abort()
@@ -220,8 +214,8 @@ class SplitBagWriter:
         return len(self._files) + (self._split is not None)
 
     # -- metadata --------------------------------------------------------------------
-    def _metadata_text(self) -> str:
-        return combined_metadata_text(self._files)
+    def _metadata(self) -> dict[str, Any]:
+        return combined_metadata(self._files)
 
     # -- context manager -------------------------------------------------------------
     def __enter__(self) -> SplitBagWriter:
@@ -237,7 +231,7 @@ class SplitBagWriter:
 
 
 def combined_metadata(files: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """One rosbag2 metadata document from the metadata of single-file bags (in file order)."""
+    """One bag information mapping from those of single-file bags (in file order)."""
     if not files:
         raise BagError('no storage files to describe')
     topics: dict[str, dict[str, Any]] = {}
@@ -268,30 +262,19 @@ def combined_metadata(files: Sequence[dict[str, Any]]) -> dict[str, Any]:
         start, duration = _NO_START, 0
     first = files[0]
     return {
-        'rosbag2_bagfile_information': {
-            'version': METADATA_VERSION,
-            'storage_identifier': STORAGE_ID,
-            'relative_file_paths': [e['path'] for e in entries],
-            'duration': {'nanoseconds': duration},
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': total,
-            'topics_with_message_count': list(topics.values()),
-            'compression_format': first.get('compression_format', ''),
-            'compression_mode': first.get('compression_mode', ''),
-            'files': entries,
-            'custom_data': first.get('custom_data'),
-            'ros_distro': first.get('ros_distro', 'rosbags'),
-        },
+        'version': METADATA_VERSION,
+        'storage_identifier': STORAGE_ID,
+        'relative_file_paths': [e['path'] for e in entries],
+        'duration': {'nanoseconds': duration},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': total,
+        'topics_with_message_count': list(topics.values()),
+        'compression_format': first.get('compression_format', ''),
+        'compression_mode': first.get('compression_mode', ''),
+        'files': entries,
+        'custom_data': first.get('custom_data'),
+        'ros_distro': first.get('ros_distro', 'rosbags'),
     }
-
-
-def combined_metadata_text(files: Sequence[dict[str, Any]]) -> str:
-    """combined_metadata() as YAML text, formatted as rosbags writes metadata.yaml."""
-    out = YAML(typ='safe')
-    out.default_flow_style = False
-    buf = StringIO()
-    out.dump(combined_metadata(files), buf)
-    return buf.getvalue()
 
 
 def open_bag_writer(path: str | Path, typestore: Typestore, *, max_bytes: int = 0,

@@ -13,9 +13,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys.store import Typestore
 
 from .errors import BagError, one_line
+from .metadata import METADATA_VERSION
 
-#: rosbag2 metadata version written. Jazzy writes and reads version 9.
-METADATA_VERSION = 9
 STORAGE_ID = 'mcap'
 _MAX_STAMP = 2**63 - 1
 # First two bytes of a CDR encapsulation header: CDR_BE / CDR_LE (plain CDR, as rmw uses).

@@ -8,6 +8,7 @@ from typing import Any, Mapping
 
 import yaml
 
+from force_tester_common.core.correction import MASS_KG
 from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
 from .departures import NO_DEPARTURES, Departures, departures_from_data
@@ -72,8 +73,8 @@ class DriveParams:
 
 @dataclass(frozen=True)
 class ForceChainParams:
-    stationary_side_mass_kg: float = 1.152
-    moving_side_mass_kg: float = 1.152
+    stationary_side_mass_kg: float = MASS_KG  # thesis: both cells with their fixtures weigh 1.152 kg
+    moving_side_mass_kg: float = MASS_KG
     load_cell_stiffness_n_per_m: float = 7.0e8
     load_cell_damping_ratio: float = 0.02
     lanyard_stiffness_n_per_m: float = 8.0e5

@@ -27,7 +27,7 @@ from force_tester_sim.core.chain import force_move, force_stat
 from force_tester_sim.core.departures import CATALOG, NO_DEPARTURES, departures_from_data, high_pass
 from force_tester_sim.core.pull import chain_params, motion_for, run_pull
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TRUTH_YAML = ROOT / 'src/force_tester_sim/force_tester_sim/config/truth_reference.yaml'
 FS = 50000.0
 

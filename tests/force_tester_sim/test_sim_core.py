@@ -28,7 +28,7 @@ from force_tester_sim.core import (
 )
 from force_tester_sim.core import pull as pull_mod
 
-PKG = Path(__file__).resolve().parents[1] / 'src' / 'force_tester_sim' / 'force_tester_sim'
+PKG = Path(__file__).resolve().parents[2] / 'src' / 'force_tester_sim' / 'force_tester_sim'
 PROJECT_YAML = PKG / 'config' / 'nominal.yaml'
 
 
@@ -360,7 +360,8 @@ def test_halving_the_step_changes_peak_forces_by_less_than_0p1_percent(test_set)
     fine_rig = rig_from_dict({'daq': {'sample_rate_hz': 100_000.0}})
     truth = yaml.safe_load((Path(pull_mod.__file__).parents[1] / 'config' / 'truth_reference.yaml').read_text())
     for rigs in ((coarse_rig, fine_rig),
-                 (rig_from_dict(truth), rig_from_dict({**truth, 'daq': {**truth['daq'], 'sample_rate_hz': 100_000.0}}))):
+                 (rig_from_dict(truth),
+                  rig_from_dict({**truth, 'daq': {**truth['daq'], 'sample_rate_hz': 100_000.0}}))):
         spec = make_pull_specs(rigs[0], test_set, 1, seed=4)[0]
         coarse = simulate_pull(rigs[0], spec, noise=False)
         fine = simulate_pull(rigs[1], spec, noise=False)

@@ -31,13 +31,15 @@ nothing named gives `unexplained`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .errors import CorrectionError
+from force_tester_common.core.channels import REQUIRED_CHANNELS as REQUIRED
+from force_tester_sim.core.departures import CATALOG, MOUNT_BASE_MASS_FRACTION, fractional_delay
+
+from .errors import DiscoveryError
 
 MIN_REL_REDUCTION = 0.01      # held-out SSE must fall by at least 1 %
 MIN_T = 4.0                   # and consistently over held-out pulls
@@ -45,13 +47,7 @@ HUM_BAND_HZ = (45.0, 65.0)
 MOUNT_MAX_FRACTION = 0.7      # a free-decay mode below 0.7 x the cell mode is not the cell
 UNEXPLAINED_SHARE = 0.3       # residual variance in W above 1/(1-0.3) x the quiet-record floor: structured
 NONLIN_SHARE = 0.03           # a T^2 term removing > 3 % of the held-out force residual: not a linear sensor
-MOUNT_BASE_MASS_FRACTION = 0.25
-CATALOG_PARAMS = {
-    'effective_mass': ('mass_kg',), 'accel_delay': ('delay_s',), 'moving_cell_gain': ('gain',),
-    'mount_resonance': ('frequency_hz', 'damping_ratio'), 'ac_coupling': ('time_constant_s',),
-    'mains_hum': ('frequency_hz', 'amplitude_n'), 'coulomb_friction': ('force_n',),
-}
-REQUIRED = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'force_moving_n', 'force_stationary_n')
+CATALOG_PARAMS = {name: tuple(params) for name, (_kind, params, _meaning) in CATALOG.items()}
 
 
 # ------------------------------------------------------------------------------------------ per-pull prep
@@ -84,8 +80,10 @@ def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1:
     return _filtered(fs, dt) + _filtered(fs, dt, lambda w: -m1 * w ** 2 / (k1 + 1j * c1 * w))
 
 
-@dataclass
+@dataclass(frozen=True)
 class Pull:
+    """One prepared pull: filtered channels, derived signals and window indices (never changed)."""
+
     name: str
     t: np.ndarray
     dt: float
@@ -103,18 +101,17 @@ class Pull:
     load0: int
     brk: int
     peak: float
-    hum: Optional[np.ndarray] = None   # hum estimate on the whole record (set later)
 
 
 def prepare(meta: dict, ch: dict, rig) -> Pull:
     from scipy.signal import savgol_filter
     for k in REQUIRED:
         if k not in ch:
-            raise CorrectionError(f'pull {meta.get("file", "?")!r} has no {k!r} channel; expected {", ".join(REQUIRED)}')
+            raise DiscoveryError(f'pull {meta.get("file", "?")!r} has no {k!r} channel; expected {", ".join(REQUIRED)}')
     t = np.asarray(ch['time_s'], float)
     n = len(t)
     if n < 2000:
-        raise CorrectionError(f'pull {meta.get("file", "?")!r} has {n} samples; expected a full record (>= 2000)')
+        raise DiscoveryError(f'pull {meta.get("file", "?")!r} has {n} samples; expected a full record (>= 2000)')
     dt = float(t[1] - t[0])
     fc = rig.force_chain
     fs = np.asarray(ch['force_stationary_n'], float)
@@ -123,7 +120,7 @@ def prepare(meta: dict, ch: dict, rig) -> Pull:
     x = np.asarray(ch['encoder_position_m'], float)
     for k, v in (('force_stationary_n', fs), ('force_moving_n', fm), ('accel_axial_m_s2', a2), ('encoder', x)):
         if not np.all(np.isfinite(v)):
-            raise CorrectionError(f'pull {meta.get("file", "?")!r}: {k} has non-finite samples')
+            raise DiscoveryError(f'pull {meta.get("file", "?")!r}: {k} has non-finite samples')
     T = tension_from_stationary(fs, dt, fc.m1, fc.load_cell_stiffness_n_per_m, fc.c1)
     fm = _filtered(fm, dt)
     a2 = _filtered(a2, dt)
@@ -136,7 +133,7 @@ def prepare(meta: dict, ch: dict, rig) -> Pull:
     peak = float(np.max(fs))
     noise = float(np.std(fs[: max(10, n // 10)]))
     if not peak > max(20.0, 20 * noise):
-        raise CorrectionError(f'pull {meta.get("file", "?")!r}: stationary peak {peak:.3g} N is not a pull; '
+        raise DiscoveryError(f'pull {meta.get("file", "?")!r}: stationary peak {peak:.3g} N is not a pull; '
                               'expected a loaded record')
     idx = np.flatnonzero(fs > 0.1 * peak)
     load0 = int(idx[0])
@@ -195,26 +192,19 @@ def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
 TERMS = ('moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling')
 
 
-def lin_delay(x: np.ndarray, n_frac: float) -> np.ndarray:
-    """x delayed by n_frac samples with linear interpolation (how a DAQ path / the sim delays a channel)."""
-    if n_frac == 0.0:
-        return x
-    k = np.arange(len(x), dtype=float)
-    return np.interp(k - n_frac, k, x, left=x[0])
-
-
 class ForceModel:
     """F_move - hum = g T + M a2(t + d) - k C on W (C: running integral of F_move - hum over the whole record).
 
     The accelerometer delay is applied to the force side (F_move, T, C delayed by d with linear interpolation),
     so a linearly interpolated (low-passing) delay in the accelerometer path is matched exactly."""
 
-    def __init__(self, pulls: Sequence[Pull], m2: float):
+    def __init__(self, pulls: Sequence[Pull], m2: float, hums: Optional[Sequence] = None):
+        """hums: the mains-hum estimate per pull (whole record) to subtract from F_move, or None."""
         self.m2 = m2
         self.pulls = pulls
         self.full = []
-        for p in pulls:
-            y = p.fm - (p.hum if p.hum is not None else 0.0)
+        for p, h in zip(pulls, hums if hums is not None else [None] * len(pulls)):
+            y = p.fm - (h if h is not None else 0.0)
             self.full.append((y, p.T, np.cumsum(y) * p.dt))
         self.a2 = [p.a2[p.w0:p.w1] for p in pulls]
         self._cache: Dict[float, list] = {}
@@ -227,7 +217,7 @@ class ForceModel:
             out = []
             for p, arrs in zip(self.pulls, self.full):
                 m = min(p.w0, 16)   # d <= 200 us = 10 samples: a short lead-in is enough
-                out.append(tuple(lin_delay(a[p.w0 - m:p.w1], d / p.dt)[m:] for a in arrs))
+                out.append(tuple(fractional_delay(a[p.w0 - m:p.w1], d / p.dt)[m:] for a in arrs))
             self._cache[key] = out
         return self._cache[key]
 
@@ -242,17 +232,21 @@ class ForceModel:
             cols, names = [], []
             if 'moving_cell_gain' in terms:
                 if 'effective_mass' in terms:
-                    cols += [Tj, a2[j]]; names += ['g', 'M']
+                    cols += [Tj, a2[j]]
+                    names += ['g', 'M']
                 else:
-                    cols += [Tj + self.m2 * a2[j]]; names += ['g']
+                    cols += [Tj + self.m2 * a2[j]]
+                    names += ['g']
             else:
                 y = y - Tj
                 if 'effective_mass' in terms:
-                    cols += [a2[j]]; names += ['M']
+                    cols += [a2[j]]
+                    names += ['M']
                 else:
                     y = y - self.m2 * a2[j]
             if 'ac_coupling' in terms:
-                cols += [-Cj]; names += ['k']
+                cols += [-Cj]
+                names += ['k']
             ys.append(y)
             Xs.append(np.column_stack(cols) if cols else np.zeros((len(y), 0)))
         return ys, Xs, names
@@ -412,7 +406,8 @@ def friction_fit(pulls, idx, rig) -> Optional[float]:
         if cr is None:
             return None
         rho, sg = cr
-        mv.append(np.median(rho[sg == 1.0])); st.append(np.median(rho[sg == 0.0]))
+        mv.append(np.median(rho[sg == 1.0]))
+        st.append(np.median(rho[sg == 0.0]))
     return float(np.median(mv) - np.median(st))
 
 
@@ -445,128 +440,149 @@ def _split(pulls: Sequence[Pull]):
     return fit, held
 
 
-def analyse(campaign_pulls, rig) -> dict:
-    """All statistics (no files). campaign_pulls: [(meta, channels)]."""
-    if len(campaign_pulls) < 4:
-        raise CorrectionError(f'campaign has {len(campaign_pulls)} pulls; expected at least 4 '
-                              '(half are fitted, half held out)')
-    pulls = [prepare(m, c, rig) for m, c in campaign_pulls]
-    dts = {round(p.dt, 12) for p in pulls}
-    if len(dts) != 1:
-        raise CorrectionError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
-    fc = rig.force_chain
-    m2 = fc.m2
-    fit, held = _split(pulls)
-    res = {'fitted_pulls': [pulls[j].name for j in fit], 'held_out_pulls': [pulls[j].name for j in held],
-           'candidates': {}, 'notes': []}
-    cand = res['candidates']
+@dataclass(frozen=True)
+class Analysis:
+    """Everything the stages measured (no files, nothing decided yet)."""
 
-    # -- mains hum (pre-pull record)
+    pulls: tuple                 # Pull per campaign pull
+    fit: tuple                   # list positions of the fitted pulls
+    held: tuple                  # list positions of the held-out pulls
+    hums: Optional[tuple]        # mains-hum estimate per pull when the hum is significant, else None
+    candidates: dict             # catalog name -> {'parameters', 'evidence', 'channel', ...}
+    force: dict                  # the full force model: coef, delay_s, held-out SSE
+    ring: Optional[dict]         # free-decay segments and the observed mode, if any
+    notes: tuple = ()
+
+    @property
+    def fitted_pulls(self) -> list:
+        return [self.pulls[j].name for j in self.fit]
+
+    @property
+    def held_out_pulls(self) -> list:
+        return [self.pulls[j].name for j in self.held]
+
+
+FORCE_CHANNEL_TEXT = 'force_moving_n - (T + m2 a2), analysis window'
+
+
+def hum_stage(pulls, fit, held, m2) -> Tuple[dict, Optional[tuple]]:
+    """The mains-hum candidate and, when it is significant, the hum per pull.
+
+    Frequency from a few fitted pulls' pre-pull records; phase per pull from its own pre-pull record;
+    amplitude of the held-out pulls from the fitted pulls. Scored on W (disjoint from the pre-pull
+    record the phases came from), inside the full force model."""
     few = fit[::max(1, len(fit) // 12)][:12]
-    f_hum, hstat = fit_hum_frequency([pulls[j] for j in few], m2)
-    amps = []
+    f_hum, _power = fit_hum_frequency([pulls[j] for j in few], m2)
+    amps, hums = [], []
     for p in pulls:
         a, h = hum_per_pull(p, f_hum, m2)
-        p.hum = h
         amps.append(a)
+        hums.append(h)
     a_fit = float(np.mean([amps[k] for k in fit]))
-    for j in held:   # held-out pulls: phase from their pre-pull record, amplitude from the fitted pulls
-        pulls[j].hum = pulls[j].hum * (a_fit / max(amps[j], 1e-12))
-    # score on W (disjoint from the pre-pull record the phases came from), inside the full force model
-    fm_h = ForceModel(pulls, m2)
-    hums = [p.hum for p in pulls]
-    for p in pulls:
-        p.hum = None
-    fm_0 = ForceModel(pulls, m2)
+    hums = [h * (a_fit / max(amps[j], 1e-12)) if j in held else h for j, h in enumerate(hums)]
+    fm_h, fm_0 = ForceModel(pulls, m2, hums), ForceModel(pulls, m2)
     c_h, _, d_h = fm_h.fit_delay(set(TERMS), fit)
     c_0, _ = fm_0.fit(set(TERMS), fit, d_h)
     sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
     sig['rms_gain_alone'] = significance(fm_0.sse_per_pull(set(), {}, 0.0, held),
                                          fm_h.sse_per_pull(set(), {}, 0.0, held))['rms_gain']
-    for p, h in zip(pulls, hums):
-        p.hum = h
-    cand['mains_hum'] = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': float(np.mean([amps[k] for k in fit]))},
-                         'evidence': sig, 'channel': 'force_moving_n - (T + m2 a2), analysis window',
-                         'where': f'whole record; line at {f_hum:.2f} Hz'}
-    if not sig['significant']:
-        for p in pulls:
-            p.hum = None
+    cand = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': a_fit}, 'evidence': sig,
+            'channel': FORCE_CHANNEL_TEXT, 'where': f'whole record; line at {f_hum:.2f} Hz'}
+    return cand, (tuple(hums) if sig['significant'] else None)
 
-    # -- force channel: full model, then drop each term
-    fm_ = ForceModel(pulls, m2)
+
+def force_stage(pulls, hums, fit, held, m2) -> Tuple[dict, dict]:
+    """The force-channel candidates (each tested by dropping it from the full model) and the full model."""
+    fm_ = ForceModel(pulls, m2, hums)
     full = set(TERMS)
     coef_full, _, d_full = fm_.fit_delay(full, fit)
     sse_full = fm_.sse_per_pull(full, coef_full, d_full, held)
-    drops = {}
-    for term in TERMS:
-        terms = full - {term}
-        if term == 'accel_delay':
-            c, _ = fm_.fit(terms, fit, 0.0)
-            d = 0.0
-        else:
-            d = d_full
-            c, _ = fm_.fit(terms, fit, d)
-        drops[term] = (terms, c, d, fm_.sse_per_pull(terms, c, d, held))
     base_sse = fm_.sse_per_pull(set(), {}, 0.0, held)
     params_full = force_params(coef_full, d_full, m2)
+    cand = {}
     for term in TERMS:
-        sig = significance(drops[term][3], sse_full)
+        d = 0.0 if term == 'accel_delay' else d_full
+        c, _ = fm_.fit(full - {term}, fit, d)
+        sig = significance(fm_.sse_per_pull(full - {term}, c, d, held), sse_full)
         c1, _, d1 = (fm_.fit_delay({term}, fit) if term == 'accel_delay' else (*fm_.fit({term}, fit), 0.0))
-        alone = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held))
-        sig['rms_gain_alone'] = alone['rms_gain']
-        cand[term] = {'parameters': params_full[term], 'evidence': sig,
-                      'channel': 'force_moving_n - (T + m2 a2), analysis window'}
+        sig['rms_gain_alone'] = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held))['rms_gain']
+        cand[term] = {'parameters': params_full[term], 'evidence': sig, 'channel': FORCE_CHANNEL_TEXT}
     # non-linearity check for the gain: would T^2 explain more than a linear gain?
-    nl = _nonlinear_check(fm_, coef_full, d_full, fit, held)
-    cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = nl
-    res['force'] = {'coef': coef_full, 'delay_s': d_full, 'sse_base_held': base_sse.tolist(),
-                    'sse_full_held': sse_full.tolist()}
+    cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = _nonlinear_check(
+        fm_, coef_full, d_full, fit, held)
+    force = {'coef': coef_full, 'delay_s': d_full, 'sse_base_held': base_sse.tolist(),
+             'sse_full_held': sse_full.tolist()}
+    return cand, force
 
-    # -- ringing channel (mount resonance)
-    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / m2) / (2 * np.pi)
-    segs = [(j, ring_segment(pulls[j])) for j in range(len(pulls))]
-    segs = {j: s for j, s in segs if s is not None}
+
+def ring_stage(pulls, fit, held, fc) -> Tuple[Optional[dict], Optional[dict]]:
+    """The mount-resonance candidate from the free decay after the break (None, None without one)."""
+    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
+    segs = {j: s for j, s in ((j, ring_segment(p)) for j, p in enumerate(pulls)) if s is not None}
     modes = []
     for j in fit[::max(1, len(fit) // 12)][:12]:
         if j in segs:
-            mm = matrix_pencil(segs[j][:800], pulls[j].dt)
-            mm = [m for m in mm if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
+            mm = [m for m in matrix_pencil(segs[j][:800], pulls[j].dt) if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
             if mm:
                 modes.append(mm[0])
+    if not modes:
+        return None, None
     dt = pulls[0].dt
-    if modes:
-        fo = float(np.median([m[0] for m in modes]))
-        zo = float(np.median([m[1] for m in modes]))
-        ok = [j for j in held if j in segs]
-        b = np.array([ring_sse(segs[j], dt, [(f_cell, fc.load_cell_damping_ratio)]) for j in ok])
-        e = np.array([ring_sse(segs[j], dt, [(f_cell, fc.load_cell_damping_ratio), (fo, zo)]) for j in ok])
-        sig = significance(b, e) if len(ok) >= 2 else {'significant': False, 'rel_sse_reduction': 0.0, 't': 0.0,
-                                                       'rms_gain': 1.0}
-        sig['observed_frequency_hz'] = fo
-        sig['observed_damping_ratio'] = zo
-        sig['cell_mode_hz'] = f_cell
-        sig['frequency_rule'] = f'observed < {MOUNT_MAX_FRACTION} x cell mode ({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)'
-        if fo >= MOUNT_MAX_FRACTION * f_cell:
-            sig['significant'] = False
-        cand['mount_resonance'] = {'observed': (fo, zo), 'evidence': sig, 'parameters': None,
-                                   'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break'}
-        res['ring'] = {'segments': {j: segs[j] for j in ok[:3]}, 'fo': fo, 'zo': zo}
-    else:
-        res['notes'].append('no free decay after the break to analyse for a mount resonance')
+    fo = float(np.median([m[0] for m in modes]))
+    zo = float(np.median([m[1] for m in modes]))
+    ok = [j for j in held if j in segs]
+    cell = [(f_cell, fc.load_cell_damping_ratio)]
+    b = np.array([ring_sse(segs[j], dt, cell) for j in ok])
+    e = np.array([ring_sse(segs[j], dt, cell + [(fo, zo)]) for j in ok])
+    sig = significance(b, e) if len(ok) >= 2 else {'significant': False, 'rel_sse_reduction': 0.0, 't': 0.0,
+                                                   'rms_gain': 1.0}
+    sig.update(observed_frequency_hz=fo, observed_damping_ratio=zo, cell_mode_hz=f_cell,
+               frequency_rule=f'observed < {MOUNT_MAX_FRACTION} x cell mode ({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)')
+    if fo >= MOUNT_MAX_FRACTION * f_cell:
+        sig['significant'] = False
+    cand = {'observed': (fo, zo), 'evidence': sig, 'parameters': None,
+            'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break'}
+    return cand, {'segments': {j: segs[j] for j in ok[:3]}, 'fo': fo, 'zo': zo}
 
-    # -- current channel (coulomb friction)
+
+def current_stage(pulls, fit, held, rig) -> Optional[dict]:
+    """The coulomb-friction candidate from the motor current (None without a current channel)."""
     fcf = friction_fit(pulls, fit, rig)
     if fcf is None:
-        res['notes'].append('coulomb_friction not tested: the data has no motor_current_a channel')
+        return None
+    b = np.array([friction_sse(pulls[j], rig, 0.0) for j in held])
+    e = np.array([friction_sse(pulls[j], rig, fcf) for j in held])
+    return {'parameters': {'force_n': fcf}, 'evidence': significance(b, e),
+            'channel': 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)'}
+
+
+def analyse(campaign_pulls, rig) -> Analysis:
+    """All statistics (no files). campaign_pulls: [(meta, channels)]."""
+    if len(campaign_pulls) < 4:
+        raise DiscoveryError(f'campaign has {len(campaign_pulls)} pulls; expected at least 4 '
+                             '(half are fitted, half held out)')
+    pulls = tuple(prepare(m, c, rig) for m, c in campaign_pulls)
+    dts = {round(p.dt, 12) for p in pulls}
+    if len(dts) != 1:
+        raise DiscoveryError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
+    m2 = rig.force_chain.m2
+    fit, held = _split(pulls)
+    notes = []
+    hum, hums = hum_stage(pulls, fit, held, m2)
+    cand = {'mains_hum': hum}
+    force_cand, force = force_stage(pulls, hums, fit, held, m2)
+    cand.update(force_cand)
+    mount, ring = ring_stage(pulls, fit, held, rig.force_chain)
+    if mount is None:
+        notes.append('no free decay after the break to analyse for a mount resonance')
     else:
-        b = np.array([friction_sse(pulls[j], rig, 0.0) for j in held])
-        e = np.array([friction_sse(pulls[j], rig, fcf) for j in held])
-        sig = significance(b, e)
-        cand['coulomb_friction'] = {'parameters': {'force_n': fcf}, 'evidence': sig,
-                                    'channel': 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)'}
-    res['pulls'] = pulls
-    res['fit'], res['held'] = fit, held
-    return res
+        cand['mount_resonance'] = mount
+    friction = current_stage(pulls, fit, held, rig)
+    if friction is None:
+        notes.append('coulomb_friction not tested: the data has no motor_current_a channel')
+    else:
+        cand['coulomb_friction'] = friction
+    return Analysis(pulls, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes))
 
 
 def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:
@@ -582,41 +598,54 @@ def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:
     return float(1 - s1 / s0) if s0 > 0 else 0.0
 
 
-def decide(res: dict, rig) -> dict:
-    """Named causes (strongest first) with parameters, plus the leftover-structure check."""
-    cand = res['candidates']
+@dataclass(frozen=True)
+class Decision:
+    """The causes named (strongest first), those withheld and why, and what the decision adds."""
+
+    named: tuple
+    rejected: dict = field(default_factory=dict)          # name -> why it was withheld
+    notes: tuple = ()
+    mount_parameters: Optional[dict] = None               # the mount's (f, zeta) when it is named
+
+
+CAUSE_ORDER = ('mains_hum', 'moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling',
+               'mount_resonance', 'coulomb_friction')
+
+
+def _admissible(name: str, c: dict) -> bool:
+    if not c['evidence'].get('significant'):
+        return False
+    if name == 'coulomb_friction':
+        return c['parameters']['force_n'] > 0   # the catalog's dry friction opposes the motion
+    if name == 'ac_coupling':
+        tau = c['parameters']['time_constant_s']
+        return tau > 0 and math.isfinite(tau)
+    return True
+
+
+def decide(analysis: Analysis, rig) -> Decision:
+    """Named causes (strongest first) with the mount's parameters; the analysis is left as it is."""
+    cand = analysis.candidates
     fc = rig.force_chain
-    named = []
-    for name in ('mains_hum', 'moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling',
-                 'mount_resonance', 'coulomb_friction'):
-        c = cand.get(name)
-        if c is None or not c['evidence'].get('significant'):
-            continue
-        if name == 'coulomb_friction' and not c['parameters']['force_n'] > 0:
-            continue   # the catalog's dry friction opposes the motion (force_n >= 0)
-        if name == 'ac_coupling' and not (c['parameters']['time_constant_s'] > 0
-                                          and math.isfinite(c['parameters']['time_constant_s'])):
-            continue
-        named.append(name)
-    ev = cand['moving_cell_gain']['evidence']
-    if ev['t_squared_rel_reduction'] > NONLIN_SHARE:
-        withheld = [n for n in named if n in TERMS]
+    named = [n for n in CAUSE_ORDER if n in cand and _admissible(n, cand[n])]
+    rejected, notes = {}, []
+    nl = cand['moving_cell_gain']['evidence']['t_squared_rel_reduction']
+    if nl > NONLIN_SHARE:
+        for n in named:
+            if n in TERMS:
+                rejected[n] = ('withheld: the moving cell departs from T non-linearly (a T^2 term '
+                               f'removes {100 * nl:.0f} % of the held-out residual left by the linear force model)')
         named = [n for n in named if n not in TERMS]
-        for n in withheld:
-            cand[n]['evidence']['rejected'] = ('withheld: the moving cell departs from T non-linearly (a T^2 term '
-                                               f'removes {100 * ev["t_squared_rel_reduction"]:.0f} % of the held-out '
-                                               'residual left by the linear force model)')
-        res['notes'].append('the moving cell departs from T non-linearly (T^2 term significant); the force-channel '
-                            'catalog entries do not explain it')
-        res['nonlinear'] = True
-    m_eff = cand['effective_mass']['parameters']['mass_kg'] if 'effective_mass' in named else fc.m2
+        notes.append('the moving cell departs from T non-linearly (T^2 term significant); the force-channel '
+                     'catalog entries do not explain it')
+    mount = None
     if 'mount_resonance' in named:
+        m_eff = cand['effective_mass']['parameters']['mass_kg'] if 'effective_mass' in named else fc.m2
         fo, zo = cand['mount_resonance']['observed']
         f, z = mount_from_observed(fo, zo, m_eff, fc.load_cell_stiffness_n_per_m, fc.load_cell_damping_ratio)
-        cand['mount_resonance']['parameters'] = {'frequency_hz': f, 'damping_ratio': z}
-    strength = {n: cand[n]['evidence']['rel_sse_reduction'] for n in named}
-    named.sort(key=lambda n: -strength[n])
-    return named
+        mount = {'frequency_hz': f, 'damping_ratio': z}
+    named.sort(key=lambda n: -cand[n]['evidence']['rel_sse_reduction'])
+    return Decision(tuple(named), rejected, tuple(notes), mount)
 
 
 LEFTOVER_BAND_HZ = 4000.0   # the structure check looks below this (above it, sampling of the break's step aliases)
@@ -628,12 +657,13 @@ def _band(x: np.ndarray, dt: float) -> np.ndarray:
     return np.fft.irfft(X, len(x))
 
 
-def _leftover(res, named, rig) -> Optional[dict]:
+def leftover(analysis: Analysis, named, rig) -> Optional[dict]:
     """Structure left in the held-out force residual after the extension (W vs the quiet pre-pull record)."""
-    pulls, held = res['pulls'], res['held']
-    fm_ = ForceModel(pulls, rig.force_chain.m2)
+    pulls, held, hums = analysis.pulls, analysis.held, analysis.hums
+    fm_ = ForceModel(pulls, rig.force_chain.m2, hums)
     terms = set(n for n in named if n in TERMS)
-    coef, _, d = (fm_.fit_delay(terms, res['fit']) if 'accel_delay' in terms else (*fm_.fit(terms, res['fit']), 0.0))
+    coef, _, d = (fm_.fit_delay(terms, analysis.fit) if 'accel_delay' in terms
+                  else (*fm_.fit(terms, analysis.fit), 0.0))
     vw, vq, spec, corr = [], [], None, {}
     for j in held:
         p = pulls[j]
@@ -642,12 +672,13 @@ def _leftover(res, named, rig) -> Optional[dict]:
         g = int(3e-3 / p.dt)
         for i in (p.brk - p.w0, p.load0 - p.w0):
             keep[max(0, i - g):max(0, i + g)] = False
-        pre = (p.fm - (p.hum if p.hum is not None else 0) - p.T - rig.force_chain.m2 * p.a2)
+        pre = (p.fm - (hums[j] if hums is not None else 0) - p.T - rig.force_chain.m2 * p.a2)
         k = np.arange(len(pre))
         rest = (k > int(0.02 / p.dt)) & (k < p.pre1) & (np.abs(p.v3) < 1e-3)   # quiet floor: carriage at rest
         pre = pre[rest] if rest.sum() >= 2000 else pre[int(0.02 / p.dt):p.pre1]
         pre = _band(pre - np.mean(pre), p.dt)
-        vw.append(float(np.var(r[keep]))); vq.append(float(np.var(pre)))
+        vw.append(float(np.var(r[keep])))
+        vq.append(float(np.var(pre)))
         P = np.abs(np.fft.rfft((r - r.mean()) * np.hanning(len(r)), 2 ** 16)) ** 2
         spec = P if spec is None else spec + P
         for nm, x in (('tension T', p.T[p.w0:p.w1]), ('T^2', p.T[p.w0:p.w1] ** 2),
@@ -663,14 +694,3 @@ def _leftover(res, named, rig) -> Optional[dict]:
             'correlation': float(np.mean(corr[best])), 'structured': bool(share > UNEXPLAINED_SHARE),
             'rule': f'residual variance in the analysis window exceeds the quiet pre-pull floor by a share > '
                     f'{UNEXPLAINED_SHARE}'}
-
-
-def discover(campaign_pulls, rig, out_dir) -> dict:
-    """Analyse, decide, write DIR/report.json, report.md, extension.yaml (+ plots). Returns the report dict."""
-    from . import discovery_report
-    res = analyse(campaign_pulls, rig)
-    named = decide(res, rig)
-    left = _leftover(res, named, rig)
-    report = discovery_report.build_report(res, named, left, rig)
-    discovery_report.write_outputs(report, res, named, rig, Path(out_dir))
-    return report

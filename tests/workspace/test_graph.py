@@ -7,8 +7,11 @@ fresh correction + validator pair, which must reproduce the live scores.
 import subprocess
 import time
 
-import demo
 import pytest
+
+from ft_cli.commands import demo
+from ft_cli.graph import SCORE_KEYS, Graph, ScoreCollector
+from ft_cli.paths import executable
 
 pytestmark = pytest.mark.slow
 
@@ -93,8 +96,8 @@ def test_recorded_bag_is_complete(live):
 @pytest.mark.parametrize('layout', ['two_processes', 'composed_in_one_process'])
 def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
     out, live_scores = live
-    graph = demo.Graph(tmp_path / 'logs')
-    collector = demo.ScoreCollector()
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector()
     try:
         if layout == 'two_processes':
             graph.start('force_correction', 'correction_node')
@@ -112,7 +115,7 @@ def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
     assert ok, graph.tail('player')
     played = sorted(collector.scores, key=lambda s: s['pull_id'])
     for a, b in zip(live_scores, played):
-        for k in demo.SCORE_FIELDS:
+        for k in SCORE_KEYS:
             assert b[k] == pytest.approx(a[k], rel=1e-9, abs=1e-9), (k, a, b)
 
 
@@ -121,8 +124,8 @@ def test_offline_correct_reproduces_the_live_recording(live, tmp_path):
     corrected blocks and scores: offline and live share one core."""
     import numpy as np
 
-    from bag_tools.core.offline import correct
     from bag_tools.core.reader import open_bag
+    from force_correction.offline import correct
     demo = live[0] / 'bag'
     with open_bag(demo) as b:
         live_scores = [b.deserialize(m.cdr, m.type_name) for m in b.messages('/pull_score')]
@@ -130,7 +133,7 @@ def test_offline_correct_reproduces_the_live_recording(live, tmp_path):
         for m in b.messages('/force_corrected'):
             msg = b.deserialize(m.cdr, m.type_name)
             live_blocks[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = msg.filtered_n
-    res = correct(demo, tmp_path / 'out')
+    res = correct(demo, tmp_path / 'out').as_dict()
     by_id = {p['pull_id']: p for p in res['pulls']}
     for s in live_scores:
         for k in ('raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct', 'filtered_rms_n'):
@@ -154,7 +157,7 @@ def test_player_rejects_a_bad_bag_with_one_line(live, tmp_path, make_bad):
         (mcap,) = bad.glob('*.mcap')
         data = mcap.read_bytes()
         mcap.write_bytes(data[: len(data) // 2])
-    exe = demo.executable('bag_tools', 'player')
+    exe = executable('bag_tools', 'player')
     res = subprocess.run([str(exe), str(bad)], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()

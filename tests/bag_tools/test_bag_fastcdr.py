@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import zlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,20 +17,22 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 for _d in reversed([REPO / 'src' / p for p in ('bag_tools', 'force_tester_common',
                                                'force_correction', 'force_tester_sim')]):
     if str(_d) not in sys.path:
         sys.path.insert(0, str(_d))
 
 from bag_tools.core import BagWriter, make_typestore, open_bag  # noqa: E402
-from bag_tools.core import offline  # noqa: E402
 from bag_tools.core.convert import campaign_to_bag  # noqa: E402
 from bag_tools.core.daq import write_campaign  # noqa: E402
-from bag_tools.core.fastcdr import FastPathError, decode_blocks, encode_blocks  # noqa: E402
 from bag_tools.core.errors import BagError  # noqa: E402
+from bag_tools.core.fastcdr import FastPathError, decode_blocks, encode_blocks  # noqa: E402
 from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw  # noqa: E402
-from bag_tools.core.offline import correct  # noqa: E402
+from force_correction.offline import CorrectionSetup, correct  # noqa: E402
+from force_correction.offline.scorer import BlockStamps, PullScorer, block_sample_stamps  # noqa: E402
+from force_correction.offline.stream import segments  # noqa: E402
+from force_tester_common.core.clock import sample_stamps_ns  # noqa: E402
 
 MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
 BLOCK_TYPES = sorted(f'force_tester_msgs/msg/{p.stem}' for p in MSG_DIR.glob('*Block.msg'))
@@ -316,8 +319,7 @@ def test_encode_blocks_into_a_given_buffer(store, regular):
 def test_stride_runs_and_gathers_match_indexing(steps, counts, kind):
     """Runs cover every message once, each one stride and one count; gathers through them
     equal plain indexing for regular, irregular and overlapping layouts."""
-    from bag_tools.core.fastcdr import (_field, _gather_rows, gather_f64, gather_struct,
-                                        stride_runs)
+    from bag_tools.core.fastcdr import _field, _gather_rows, gather_f64, gather_struct, stride_runs
     offs = 64 + np.cumsum([0] + steps[:-1]).astype(np.int64) if steps else np.zeros(0, np.int64)
     offs = offs - min(0, int(offs.min(initial=0))) + 64
     m = offs.size
@@ -364,9 +366,7 @@ def test_segments_cover_the_run_and_cut_at_pull_starts(sizes, seg, wanted):
     ends = np.cumsum(n)
     m = n.size
     want = np.array(wanted, dtype=np.int64)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(offline, 'SEGMENT_SAMPLES', seg)
-        cuts = offline._segments(ends, 0, m, want)
+    cuts = segments(ends, 0, m, want, size=seg)
     assert cuts[0] == 0 and cuts[-1] == m and all(b > a for a, b in zip(cuts, cuts[1:]))
     size = [int(ends[b - 1] - (ends[a - 1] if a else 0)) for a, b in zip(cuts, cuts[1:])]
     assert all(s <= 2 * seg or b - a == 1 for s, a, b in zip(size, cuts, cuts[1:]))
@@ -381,7 +381,7 @@ def test_encode_blocks_absent_fields_and_errors(store):
     buf, st, ln = encode_blocks([T0, T0 + 1], 1000.0, [4, 5], flds,
                                 {'axial_m_s2': np.array([2, 0])},
                                 {'axial_m_s2': np.array([1.5, 2.5])}, 'acc')
-    for i, (n, vals) in enumerate(((2, [1.5, 2.5]), (0, []))):
+    for i, (_n, vals) in enumerate(((2, [1.5, 2.5]), (0, []))):
         msg = store.deserialize_cdr(buf[st[i]:st[i] + ln[i]], ACCEL)
         assert list(msg.axial_m_s2) == vals and len(msg.lateral_m_s2) == 0
         assert msg.seq == 4 + i and msg.header.frame_id == 'acc'
@@ -488,7 +488,7 @@ def test_read_topics_raw_equals_generic_reader(store, tmp_path):
         ref = [(t, s, c) for t, _ty, s, c in generic(bag, present)]
         assert got == ref, wanted
         # per topic as well
-        for j, t in enumerate(present):
+        for _j, t in enumerate(present):
             sel = np.flatnonzero(raw.channel == wanted.index(t))
             assert [(int(raw.log_ns[i]), raw.data(i)) for i in sel.tolist()] == \
                 [(s, c) for _t, _ty, s, c in generic(bag, [t])]
@@ -568,19 +568,19 @@ def test_extended_bag_is_input_plus_new_topics(store, tmp_path):
         assert topics[t].count == sum(m[0] == t for m in want)
     again = McapBag(tmp_path / 'out')  # the output suits the fast paths itself
     assert again.hashes['/corr'] == store.hash_rihs01(FORCE)
-    # metadata.yaml is the MCAP's rosbag2 metadata record under its root key, as yaml writes it
+    # metadata.yaml holds the MCAP's rosbag2 metadata record under its root key
     import yaml
     from mcap.reader import make_reader
     with open(mcap_out, 'rb') as f:
         (record,) = [m for m in make_reader(f).iter_metadata() if m.name == 'rosbag2']
     info = yaml.safe_load(record.metadata['serialized_metadata'])
-    assert (tmp_path / 'out' / 'metadata.yaml').read_text() == yaml.safe_dump(
-        {'rosbag2_bagfile_information': info}, default_flow_style=False)
+    assert info['message_count'] == count
+    assert yaml.safe_load((tmp_path / 'out' / 'metadata.yaml').read_text()) == {
+        'rosbag2_bagfile_information': info}
 
 
 def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
     rng = np.random.default_rng(12)
-    before = sys.getswitchinterval()
     src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
     with pytest.raises(RuntimeError):
         with ExtendedBag(McapBag(src), tmp_path / 'out') as out:
@@ -595,16 +595,6 @@ def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
     assert not (tmp_path / 'out').exists()
     with pytest.raises(BagError, match='exists already'):
         ExtendedBag(McapBag(src), src)
-    assert sys.getswitchinterval() == before  # set while the bag was open, then restored
-
-
-def test_extended_bag_sets_and_restores_the_switch_interval(store, tmp_path):
-    rng = np.random.default_rng(14)
-    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:20])
-    before = sys.getswitchinterval()
-    with ExtendedBag(McapBag(src), tmp_path / 'out'):
-        assert sys.getswitchinterval() == min(before, 5e-4)
-    assert sys.getswitchinterval() == before
 
 
 @pytest.mark.parametrize('damage', ['no_metadata', 'version_8', 'two_files', 'no_summary'])
@@ -751,28 +741,14 @@ def _msg_close(a, b, tol):
             assert x == y, f
 
 
-def _run(src, dst, mode, monkeypatch):
-    calls = {'read_fast_ok': 0}
-    real = offline._read_bag_fast
+PENDING = 50  # a small max_pending, so a late block in a short bag can exceed it
 
-    def spy(*a, **kw):
-        r = real(*a, **kw)
-        calls['read_fast_ok'] += 1
-        return r
 
-    def refuse(*a, **kw):
-        raise FastPathError('disabled by the test')
-
-    with monkeypatch.context() as mp:
-        if mode == 'generic':
-            mp.setattr(offline, '_read_bag_fast', refuse)
-        else:
-            mp.setattr(offline, '_read_bag_fast', spy)
-        if mode == 'no_write_fast':
-            mp.setattr(offline, '_extension_target', lambda *a: None)
-        warnings = []
-        res = correct(src, dst, warnings=warnings)
-    return res, calls['read_fast_ok']
+def _run(src, dst, mode):
+    """correct() by one path ('auto': fast where it applies; 'fast_read': the fast reader and the
+    generic writer; 'generic'); returns (result as a dict, 1 if the fast reader was used)."""
+    res = correct(src, dst, CorrectionSetup(max_pending=PENDING), path=mode)
+    return res.as_dict(), int(res.path == 'fast')
 
 
 CASES = {
@@ -783,20 +759,20 @@ CASES = {
     'drop_last_accel': (drop('/accel', -1), False),
     'out_of_order_force': (swap_log('/force', 30), False),
     'out_of_order_accel': (swap_log('/accel', 3), False),
-    'accel_late_40': (delay('/accel', 40), True),   # < max_pending: still paired
-    'accel_late_50': (delay('/accel', 50), True),   # = max_pending: still paired
-    'accel_late_51': (delay('/accel', 51), False),  # > max_pending: unmatched
+    'accel_late_40': (delay('/accel', PENDING - 10), True),   # < max_pending: still paired
+    'accel_late_50': (delay('/accel', PENDING), True),   # = max_pending: still paired
+    'accel_late_51': (delay('/accel', PENDING + 1), False),  # > max_pending: unmatched
     'force_late_55': (delay('/force', 55), False),
     'gap_without_seq_gap': (renumber_after_drop_both(17), True),
 }
 
 
 @pytest.mark.parametrize('case', sorted(CASES))
-def test_correct_fast_equals_generic(base_bag, tmp_path, monkeypatch, case):
+def test_correct_fast_equals_generic(base_bag, tmp_path, case):
     edit, fast_expected = CASES[case]
     src = base_bag if edit is None else rewrite(base_bag, tmp_path / 'src', edit)
-    fast, used = _run(src, tmp_path / 'fast', 'fast', monkeypatch)
-    gen, gused = _run(src, tmp_path / 'gen', 'generic', monkeypatch)
+    fast, used = _run(src, tmp_path / 'fast', 'auto')
+    gen, gused = _run(src, tmp_path / 'gen', 'generic')
     assert gused == 0
     assert fast['runs'] == gen['runs'] and fast['nan_samples'] == gen['nan_samples']
     assert len(fast['pulls']) == len(gen['pulls']) > 0
@@ -827,19 +803,19 @@ def test_correct_fast_equals_generic(base_bag, tmp_path, monkeypatch, case):
 
 
 @pytest.mark.parametrize('case', ['clean', 'gap_without_seq_gap'])
-def test_correct_write_fast_equals_encode_path(base_bag, tmp_path, monkeypatch, case):
+def test_correct_write_fast_equals_encode_path(base_bag, tmp_path, case):
     """The extended copy (ExtendedBag) vs the generic writer (both after the fast read):
     identical output messages and log times."""
     edit, _ = CASES[case]
     src = base_bag if edit is None else rewrite(base_bag, tmp_path / 'src', edit)
-    r1, u1 = _run(src, tmp_path / 'a', 'fast', monkeypatch)
-    r2, u2 = _run(src, tmp_path / 'b', 'no_write_fast', monkeypatch)
+    r1, u1 = _run(src, tmp_path / 'a', 'fast')
+    r2, u2 = _run(src, tmp_path / 'b', 'fast_read')
     assert u1 == u2 == 1
     assert r1 == r2
     assert generic(tmp_path / 'a') == generic(tmp_path / 'b')
 
 
-def test_correct_fast_path_segments_and_extension(base_bag, tmp_path, monkeypatch):
+def test_correct_fast_path_segments_and_extension(base_bag, tmp_path):
     """The fast path cuts runs into segments (prefilter and correction state carried across):
     tiny segments that split blocks' runs anywhere give the generic path's numbers, with and
     without an extension, and the same output bag."""
@@ -850,14 +826,12 @@ def test_correct_fast_path_segments_and_extension(base_bag, tmp_path, monkeypatc
     for extension in (None, ext):
         out = {}
         for mode, seg in (('generic', None), ('fast', 37), ('fast', 10**9)):
-            with monkeypatch.context() as mp:
-                if seg is not None:
-                    mp.setattr(offline, 'SEGMENT_SAMPLES', seg)
-                else:
-                    mp.setattr(offline, '_read_bag_fast', lambda *a: (_ for _ in ()).throw(
-                        FastPathError('disabled by the test')))
-                dst = tmp_path / f'{mode}-{seg}-{extension is not None}'
-                out[(mode, seg)] = (correct(base_bag, dst, extension=extension), generic(dst))
+            setup = CorrectionSetup.build(extension_file=extension)
+            if seg is not None:
+                setup = replace(setup, segment_samples=seg)
+            dst = tmp_path / f'{mode}-{seg}-{extension is not None}'
+            res = correct(base_bag, dst, setup, path=mode)
+            out[(mode, seg)] = (res.as_dict(), generic(dst))
         (ref, ref_bag), *others = out.values()
         assert ref['pulls'] and ref['runs'] >= 2
         for res, bag in others:
@@ -874,15 +848,15 @@ def test_correct_fast_path_segments_and_extension(base_bag, tmp_path, monkeypatc
        st.sampled_from([50_000.0, 1000.0, 48_000.0, 3.0, 44_100.0, 12_345.6]),
        st.lists(st.integers(-2_000_000, 200_000_000), max_size=20))
 def test_block_stamps_equal_the_sample_array(gaps, n, rate, probes):
-    """_BlockStamps (what the fast path hands the scorer) answers size, t[i], max() and
+    """BlockStamps (what the fast path hands the scorer) answers size, t[i], max() and
     searchsorted exactly as the per-sample stamp array would, for any rate."""
     span = int(np.ceil(n * 1e9 / rate))
     stamps = T0 + np.cumsum(np.array(gaps, dtype=np.int64) + span)
     m = stamps.size
-    t = offline._block_sample_stamps(stamps, np.full(m, n), np.full(m, rate))
-    ref = np.concatenate([offline._sample_stamps(np.full(n, s), np.arange(n), np.full(n, rate))
+    t = block_sample_stamps(stamps, np.full(m, n), np.full(m, rate))
+    ref = np.concatenate([sample_stamps_ns(np.full(n, s), np.arange(n), np.full(n, rate))
                           for s in stamps.tolist()])
-    assert isinstance(t, offline._BlockStamps)
+    assert isinstance(t, BlockStamps)
     np.testing.assert_array_equal(t.array(), ref)
     assert t.size == ref.size and t[-1] == ref[-1] == t.max() and t[0] == ref[0]
     v = np.concatenate([T0 + np.array(probes, dtype=np.int64), ref[::7], ref[::11] + 1])
@@ -892,7 +866,7 @@ def test_block_stamps_equal_the_sample_array(gaps, n, rate, probes):
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.integers(1, 400), min_size=1, max_size=12), st.integers(0, 2**31))
 def test_scorer_fed_in_pieces_equals_one_pass(cuts, seed):
-    """_Scorer fed a recording in arbitrary pieces scores every window (overlapping, empty,
+    """PullScorer fed a recording in arbitrary pieces scores every window (overlapping, empty,
     beyond the data, unscorable) exactly as when fed the whole recording at once."""
     rng = np.random.default_rng(seed)
     n = 1500
@@ -907,15 +881,13 @@ def test_scorer_fed_in_pieces_equals_one_pass(cuts, seed):
         windows.append((T0 + a * 20_000, T0 + b * 20_000, 1 + k % 3, k))
     windows.sort()
     drops = [int(T0 + rng.integers(0, n) * 20_000) for _ in range(5)]
-    whole = offline._Scorer(windows, drops, 0.1)
+    whole = PullScorer(windows, drops, 0.1)
     whole.add(seg)
-    w_warn: list = []
-    ref = whole.finish(w_warn)
-    pieces = offline._Scorer(windows, drops, 0.1)
+    ref = whole.finish()
+    pieces = PullScorer(windows, drops, 0.1)
     bounds = sorted({0, n, *[c % n for c in np.cumsum(cuts).tolist()]})
     for a, b in zip(bounds[:-1], bounds[1:]):
         pieces.add({k: v[a:b] for k, v in seg.items()})
-    p_warn: list = []
-    got = pieces.finish(p_warn)
-    assert got[0] == ref[0] and p_warn == w_warn
+    got = pieces.finish()
+    assert [p.as_dict() for p in got[0]] == [p.as_dict() for p in ref[0]] and got[2] == ref[2]
     assert got[1].sets() == ref[1].sets()

@@ -27,18 +27,13 @@ def _clean(x):
     return x
 
 
-def force_errors(res, named, rig):
+def force_errors(analysis: D.Analysis, named, rig) -> tuple:
     """Held-out force-channel residual per pull: baseline (model of record) and extended (named causes)."""
-    pulls, fit, held = res['pulls'], res['fit'], res['held']
+    pulls, fit, held = analysis.pulls, analysis.fit, analysis.held
     m2 = rig.force_chain.m2
-    hum = {j: pulls[j].hum for j in range(len(pulls))}
-    for p in pulls:
-        p.hum = None
     fm0 = D.ForceModel(pulls, m2)
     base = [fm0.resid(set(), {}, 0.0, j) for j in held]
-    for j, h in hum.items():
-        pulls[j].hum = h if 'mains_hum' in named else None
-    fm1 = D.ForceModel(pulls, m2)
+    fm1 = D.ForceModel(pulls, m2, analysis.hums if 'mains_hum' in named else None)
     terms = set(n for n in named if n in D.TERMS)
     if 'accel_delay' in terms:
         coef, _, d = fm1.fit_delay(terms, fit)
@@ -46,23 +41,25 @@ def force_errors(res, named, rig):
         coef, _ = fm1.fit(terms, fit, 0.0)
         d = 0.0
     ext = [fm1.resid(terms, coef, d, j) for j in held]
-    for j, h in hum.items():
-        pulls[j].hum = h
     return base, ext
 
 
 def _where(n, c):
     p = c['parameters']
     if n == 'mains_hum':
-        return f'a spectral line at {p["frequency_hz"]:.2f} Hz on the moving cell, on the whole record (also with no load)'
+        return (f'a spectral line at {p["frequency_hz"]:.2f} Hz on the moving cell, '
+                'on the whole record (also with no load)')
     if n == 'mount_resonance':
         ev = c['evidence']
-        return (f'accelerometer ringing at {ev["observed_frequency_hz"]:.0f} Hz (zeta {ev["observed_damping_ratio"]:.3f}) '
-                f'after the taut instant and the break; the model of record only has the {ev["cell_mode_hz"]:.0f} Hz cell mode')
+        return (f'accelerometer ringing at {ev["observed_frequency_hz"]:.0f} Hz '
+                f'(zeta {ev["observed_damping_ratio"]:.3f}) '
+                'after the taut instant and the break; '
+                f'the model of record only has the {ev["cell_mode_hz"]:.0f} Hz cell mode')
     if n == 'coulomb_friction':
         return 'motor current offset while the carriage moves (sign of v3)'
     if n == 'ac_coupling':
-        return 'moving cell undershoots after the load and decays with the time constant (correlates with the running integral of F_move)'
+        return ('moving cell undershoots after the load and decays with the time constant '
+                '(correlates with the running integral of F_move)')
     if n == 'moving_cell_gain':
         return 'moving cell off by a fixed fraction of the tension during the quasi-static load (coupon flow)'
     if n == 'effective_mass':
@@ -76,8 +73,23 @@ def _rms(rs):
     return float(math.sqrt(sum(float(r @ r) for r in rs) / sum(len(r) for r in rs)))
 
 
-def build_report(res, named, left, rig) -> dict:
-    cand = res['candidates']
+def candidates(analysis: D.Analysis, decision: D.Decision) -> dict:
+    """The analysis's candidates with the decision's verdicts and the mount's parameters filled in."""
+    out = {}
+    for n, c in analysis.candidates.items():
+        c = {**c, 'evidence': dict(c['evidence'])}
+        if n in decision.rejected:
+            c['evidence']['rejected'] = decision.rejected[n]
+        if n == 'mount_resonance' and decision.mount_parameters is not None:
+            c['parameters'] = decision.mount_parameters
+        out[n] = c
+    return out
+
+
+def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left, rig) -> dict:
+    """The report (JSON-ready). errors: force_errors() of the analysis and the named causes."""
+    named = decision.named
+    cand = candidates(analysis, decision)
     causes = []
     for n in named:
         c = cand[n]
@@ -85,7 +97,7 @@ def build_report(res, named, left, rig) -> dict:
         gain = ev.get('rms_gain')
         causes.append({'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
                        'evidence': ev, 'gain': gain, 'channel': c['channel'], 'where': _where(n, c)})
-    base, ext = res['force_errors'] = force_errors(res, named, rig)
+    base, ext = errors
     primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
     if primary == 'unexplained':
         causes.append({'name': 'unexplained', 'parameters': {
@@ -100,9 +112,9 @@ def build_report(res, named, left, rig) -> dict:
                   'modes fitted)' if primary == 'mount_resonance' else 'RMS on held-out pulls of the motor-current '
                   'residual (force balance), A')
         if primary == 'mount_resonance':
-            baseline_error, extended_error = _ring_rms(res, rig)
+            baseline_error, extended_error = _ring_rms(analysis, rig)
         else:
-            baseline_error, extended_error = _current_rms(res, rig, cand[primary]['parameters']['force_n'])
+            baseline_error, extended_error = _current_rms(analysis, rig, cand[primary]['parameters']['force_n'])
     else:
         baseline_error, extended_error = _rms(base), _rms(ext)
         metric = ('RMS (N) on the held-out pulls of the moving-cell prediction residual F_move - F_pred over the '
@@ -116,24 +128,25 @@ def build_report(res, named, left, rig) -> dict:
         'gain': baseline_error / extended_error if extended_error > 0 else None,
         'metric': metric,
         'force_channel': {'baseline_rms_n': _rms(base), 'extended_rms_n': _rms(ext)},
-        'fitted_pulls': res['fitted_pulls'],
-        'held_out_pulls': res['held_out_pulls'],
+        'fitted_pulls': analysis.fitted_pulls,
+        'held_out_pulls': analysis.held_out_pulls,
         'significance_rule': (f'a candidate is named when, on the held-out pulls, removing it from the extended '
                               f'model raises the summed squared residual of its channel by >= '
                               f'{100 * D.MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {D.MIN_T:g}; '
-                              f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; force-channel causes are '
-                              f'withheld when a T^2 term removes > {100 * D.NONLIN_SHARE:g} % of the held-out force residual left by them'),
+                              f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; '
+                              f'force-channel causes are withheld when a T^2 term removes > '
+                              f'{100 * D.NONLIN_SHARE:g} % of the held-out force residual left by them'),
         'candidates': {n: {'parameters': c.get('parameters'), 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
-        'notes': res['notes'],
+        'notes': [*analysis.notes, *decision.notes],
     }
     return _clean(report)
 
 
-def _ring_rms(res, rig):
-    ring = res.get('ring')
-    pulls, held = res['pulls'], res['held']
+def _ring_rms(analysis: D.Analysis, rig):
+    ring = analysis.ring
+    pulls, held = analysis.pulls, analysis.held
     fc = rig.force_chain
     f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
     b = e = n = 0.0
@@ -147,8 +160,8 @@ def _ring_rms(res, rig):
     return math.sqrt(b / n), math.sqrt(e / n)
 
 
-def _current_rms(res, rig, fcf):
-    pulls, held = res['pulls'], res['held']
+def _current_rms(analysis: D.Analysis, rig, fcf):
+    pulls, held = analysis.pulls, analysis.held
     b = sum(D.friction_sse(pulls[j], rig, 0.0) for j in held)
     e = sum(D.friction_sse(pulls[j], rig, fcf) for j in held)
     n = sum(len(pulls[j].t) for j in held)
@@ -167,16 +180,18 @@ def extension(report, rig) -> dict:
     return {'departures': deps, 'correction': corr}
 
 
-def write_outputs(report, res, named, rig, out: Path) -> None:
+def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path) -> None:
+    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots'])."""
     import yaml
     out.mkdir(parents=True, exist_ok=True)
     ext = extension(report, rig)
     head = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig YAML,\n'
             '# reproduces the behaviour with load_rig; the correction section is what the correction node can undo\n'
-            '# (the correction node and `./ft bag correct --extension` divide F_move by moving_cell_gain, undo the AC\n'
-            '# coupling, notch the hum, delay F_move by accel_delay_s to line it up with a2, then subtract mass_kg * a2).\n')
+            '# (the correction node and `./ft bag correct --extension` divide F_move by moving_cell_gain, undo the\n'
+            '# AC coupling, notch the hum, delay F_move by accel_delay_s to line it up with a2, then subtract\n'
+            '# mass_kg * a2).\n')
     (out / 'extension.yaml').write_text(head + yaml.safe_dump(_clean(ext), sort_keys=False))
-    plots = _plots(res, named, rig, out)
+    plots = _plots(analysis, errors, named, rig, out)
     report['plots'] = plots
     (out / 'report.json').write_text(json.dumps(report, indent=1))
     (out / 'report.md').write_text(markdown(report, plots))
@@ -188,10 +203,12 @@ def _fmt_params(p):
 
 def markdown(r, plots) -> str:
     L = ['# Discovery report', '',
-         f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, extended {r["extended_error"]:.4g}, '
+         f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, '
+         f'extended {r["extended_error"]:.4g}, '
          f'gain {r["gain"]:.3g}x' if r['gain'] else f'**Primary cause: `{r["cause"]}`.**', '',
          f'Metric: {r["metric"]}.', '',
-         f'Fitted on {len(r["fitted_pulls"])} pulls (every other pull: list positions 0, 2, 4, ...), scored on {len(r["held_out_pulls"])} held-out pulls.',
+         f'Fitted on {len(r["fitted_pulls"])} pulls (every other pull: list positions 0, 2, 4, ...), '
+         f'scored on {len(r["held_out_pulls"])} held-out pulls.',
          f'Moving-cell prediction residual (held-out, analysis window): {r["force_channel"]["baseline_rms_n"]:.3g} N '
          f'with the model of record, {r["force_channel"]["extended_rms_n"]:.3g} N with the extension.', '',
          '## What disagreed and the causes named (strongest first)', '']
@@ -235,34 +252,38 @@ def markdown(r, plots) -> str:
     return '\n'.join(L) + '\n'
 
 
-def _plots(res, named, rig, out: Path):
+def _plots(analysis: D.Analysis, errors: tuple, named, rig, out: Path):
     try:
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
     except ImportError:
         return []
-    base, ext = res['force_errors']
-    pulls, held = res['pulls'], res['held']
+    base, ext = errors
+    pulls, held = analysis.pulls, analysis.held
     p = pulls[held[0]]
     t = p.t[p.w0:p.w1]
     fig, ax = plt.subplots(2, 1, figsize=(8, 6))
     ax[0].plot(t, base[0], lw=0.6, label='model of record')
     ax[0].plot(t, ext[0], lw=0.6, label='extended')
-    ax[0].set_xlabel('time, s'); ax[0].set_ylabel('F_move residual, N'); ax[0].legend()
+    ax[0].set_xlabel('time, s')
+    ax[0].set_ylabel('F_move residual, N')
+    ax[0].legend()
     ax[0].set_title(f'held-out pull {p.name}')
     for lab, rs in (('model of record', base), ('extended', ext)):
         P = sum(np.abs(np.fft.rfft(r - r.mean(), 2 ** 15)) ** 2 for r in rs) / len(rs)
         f = np.fft.rfftfreq(2 ** 15, p.dt)
         ax[1].semilogy(f[1:], P[1:], lw=0.6, label=lab)
-    ax[1].set_xlabel('frequency, Hz'); ax[1].set_ylabel('residual power'); ax[1].legend()
+    ax[1].set_xlabel('frequency, Hz')
+    ax[1].set_ylabel('residual power')
+    ax[1].legend()
     ax[1].set_xlim(0, 10000)
     fig.tight_layout()
     path = out / 'residuals.png'
     fig.savefig(path, dpi=90)
     plt.close(fig)
     paths = [str(path)]
-    ring = res.get('ring')
+    ring = analysis.ring
     if ring and 'mount_resonance' in named:
         fc = rig.force_chain
         f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
@@ -277,7 +298,9 @@ def _plots(res, named, rig, out: Path):
             X = np.hstack([D.damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
             c, *_ = np.linalg.lstsq(X, seg, rcond=None)
             ax.plot(tt, seg - X @ c, lw=0.6, label=f'residual, {lab}')
-        ax.set_xlabel('ms after the break'); ax.set_ylabel('m/s^2'); ax.legend(fontsize=7)
+        ax.set_xlabel('ms after the break')
+        ax.set_ylabel('m/s^2')
+        ax.legend(fontsize=7)
         ax.set_title(f'held-out pull {pulls[j].name}: free decay')
         fig.tight_layout()
         p2 = out / 'ringing.png'

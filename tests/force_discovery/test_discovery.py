@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 import yaml
 
+from force_discovery.core.pipeline import discover
 from force_tester_sim.core.campaign import truth_pull_specs
 from force_tester_sim.core.params import load_rig
-from force_tester_sim.core.pull import simulate_pull
-from force_correction.core.discovery import discover
+from force_tester_sim.core.simulate import simulate_pull
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NOMINAL_YAML = ROOT / 'src' / 'force_tester_sim' / 'force_tester_sim' / 'config' / 'nominal.yaml'
 
 # Plausible ranges of each hidden effect (the generator draws uniformly inside them).
@@ -74,7 +74,7 @@ def out_of_catalog(kind: str, seed: int, sets=SETS, pulls=PULLS):
     """Effects outside the catalog, applied to the recorded moving cell of a nominal campaign."""
     rng = np.random.default_rng([seed, 99])
     camp = make_campaign(None, seed, sets, pulls)
-    for meta, ch in camp:
+    for _meta, ch in camp:
         fm = np.asarray(ch['force_moving_n'], float).copy()
         fs = np.asarray(ch['force_stationary_n'])
         t = np.asarray(ch['time_s'])
@@ -170,8 +170,9 @@ def test_two_effects_both_named(tmp_path):
 
 def test_cli_on_campaign_folder(tmp_path, capsys):
     import argparse
-    import discover_cmd
+
     from bag_tools.core.daq import write_campaign
+    from force_discovery import cli as discover_cmd
     write_campaign(tmp_path / 'camp', make_campaign({'accel_delay': {'delay_s': 5e-5}}, seed=9, sets=(3,), pulls=4))
     ap = argparse.ArgumentParser()
     discover_cmd.add_arguments(ap)
@@ -195,13 +196,13 @@ def test_without_motor_channels_friction_is_reported_untestable(tmp_path):
 
 
 def test_bad_input_raises_one_line(tmp_path):
-    from force_correction.core.errors import CorrectionError
+    from force_discovery.core.errors import DiscoveryError
     camp = make_campaign(None, seed=8, sets=(2,), pulls=4)
     del camp[0][1]['force_stationary_n']
-    with pytest.raises(CorrectionError) as e:
+    with pytest.raises(DiscoveryError) as e:
         run(camp, tmp_path)
     assert '\n' not in str(e.value)
-    with pytest.raises(CorrectionError):
+    with pytest.raises(DiscoveryError):
         run(camp[:2], tmp_path)
 
 
@@ -218,10 +219,10 @@ def test_more_trials(name, seed, tmp_path):
 def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
     """Issue result: on a (smaller) reference campaign, discover names the truth rig's departures and
     the correction with its extension.yaml beats thesis Tables 8 and 9 and stays below 3 % per set."""
-    from bag_tools.core.daq import write_campaign
-    from bag_tools.core.offline import correct
-    from force_tester_sim.core.campaign import generate_campaign
     import force_tester_sim.core as sim_core
+    from bag_tools.core.daq import write_campaign
+    from force_correction.offline import CorrectionSetup, correct
+    from force_tester_sim.core.campaign import generate_campaign
     truth_yaml = Path(sim_core.__file__).parents[1] / 'config' / 'truth_reference.yaml'
     truth = load_rig(truth_yaml)
     camp = generate_campaign(truth, pulls=4, seed=2013, workers=2)
@@ -231,7 +232,8 @@ def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
     named = {c['name'] for c in report['causes']}
     assert set(truth.departures.names) <= named, (truth.departures.names, named)
     assert report['gain'] > 1
-    res = correct(folder, tmp_path / 'corrected', to='campaign', extension=tmp_path / 'out' / 'extension.yaml')
+    setup = CorrectionSetup.build(extension_file=tmp_path / 'out' / 'extension.yaml')
+    res = correct(folder, tmp_path / 'corrected', setup, to='campaign').as_dict()
     table8 = {1: 1.5, 2: 12.8, 3: 5.4, 4: 11.1, 5: 32.0}
     table9 = {1: 2.5, 2: 5.3, 3: 3.8, 4: 22.2, 5: 16.3}
     for s in res['sets']:

@@ -8,15 +8,15 @@ from pathlib import Path
 import pytest
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / 'src' / 'bag_tools'))
-
-from bag_tools.core import BagError, BagWriter, bag_info, open_bag  # noqa: E402
-from bag_tools.core.split_writer import (  # noqa: E402
-    MESSAGE_OVERHEAD_BYTES, SplitBagWriter, open_bag_writer)
 
 import bag_msgs  # noqa: E402
 from bag_msgs import bag_typestore, header  # noqa: E402
+
+from bag_tools.core import BagError, BagWriter, bag_info, open_bag  # noqa: E402
+from bag_tools.core.split_writer import MESSAGE_OVERHEAD_BYTES, SplitBagWriter, open_bag_writer  # noqa: E402
+
 T0 = 1_700_000_000_000_000_000
 FORCE = 'force_tester_msgs/msg/ForceBlock'
 PULL = 'force_tester_msgs/msg/PullEvent'
@@ -209,7 +209,7 @@ def test_failed_close_leaves_nothing(tmp_path, store, monkeypatch):
     w.add_topic('/pull_event', PULL)
     for topic, _, stamp, cdr in msgs:
         w.write(topic, stamp, cdr)
-    monkeypatch.setattr(SplitBagWriter, '_metadata_text',
+    monkeypatch.setattr(SplitBagWriter, '_metadata',
                         lambda self: (_ for _ in ()).throw(OSError('disk full')))
     with pytest.raises(BagError) as err:
         w.close()

@@ -1,0 +1,73 @@
+"""rosbag2's metadata.yaml, read and written one way (ruamel, formatted as rosbags writes it).
+
+Our writers that do not go through rosbags (the split writer, ExtendedBag) write it here,
+last and atomically (a temporary file renamed), so a bag without metadata.yaml is unfinished.
+"""
+
+from __future__ import annotations
+
+import os
+from io import StringIO
+from pathlib import Path
+from typing import Any
+
+from ruamel.yaml import YAML
+
+from .errors import BagError, one_line
+
+#: rosbag2 metadata version written. Jazzy writes and reads version 9.
+METADATA_VERSION = 9
+METADATA_FILE = 'metadata.yaml'
+ROOT_KEY = 'rosbag2_bagfile_information'
+
+
+def _yaml() -> YAML:
+    y = YAML(typ='safe')
+    y.default_flow_style = False
+    return y
+
+
+def dump_info(info: dict[str, Any]) -> str:
+    """The bag information mapping as YAML (what rosbag2 also embeds in each MCAP file)."""
+    buf = StringIO()
+    _yaml().dump(info, buf)
+    return buf.getvalue()
+
+
+def write_metadata(bag_dir: str | Path, info: dict[str, Any]) -> None:
+    """Write bag_dir/metadata.yaml for the bag information mapping info (atomically)."""
+    bag_dir = Path(bag_dir)
+    buf = StringIO()
+    _yaml().dump({ROOT_KEY: info}, buf)
+    tmp = bag_dir / f'{METADATA_FILE}.tmp'
+    tmp.write_text(buf.getvalue(), encoding='utf-8')
+    os.replace(tmp, bag_dir / METADATA_FILE)
+
+
+def load_metadata(bag_dir: str | Path) -> dict[str, Any]:
+    """The bag information mapping of a rosbag2 directory; BagError (one line) for a missing
+    path, a file, a missing or invalid metadata.yaml or a missing storage file."""
+    path = Path(bag_dir)
+    if not path.exists():
+        raise BagError(f'bag {str(path)!r} does not exist; expected a rosbag2 directory')
+    if not path.is_dir():
+        raise BagError(f'bag {str(path)!r} is a file; expected a rosbag2 directory '
+                       f'containing {METADATA_FILE} and .mcap files')
+    meta = path / METADATA_FILE
+    if not meta.is_file():
+        hint = ' (unfinished recording? `ros2 bag reindex` may recover it)' \
+            if any(path.glob('*.mcap')) else ''
+        raise BagError(f'bag {str(path)!r} has no {METADATA_FILE}; expected a rosbag2 '
+                       f'directory{hint}')
+    try:
+        doc = _yaml().load(meta.read_text(encoding='utf-8'))
+    except Exception as exc:  # noqa: BLE001 - any parse failure is the same bad input
+        raise BagError(f'metadata {str(meta)!r} is not valid YAML: {one_line(exc)}') from None
+    info = doc.get(ROOT_KEY) if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        raise BagError(f'metadata {str(meta)!r} lacks {ROOT_KEY}; expected a rosbag2 {METADATA_FILE}')
+    for rel in info.get('relative_file_paths') or []:
+        if not (path / str(rel)).is_file():
+            raise BagError(f'bag {str(path)!r} lists storage file {str(rel)!r} in '
+                           f'{METADATA_FILE} but it is missing')
+    return info

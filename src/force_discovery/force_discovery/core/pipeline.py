@@ -1,0 +1,18 @@
+"""discover(): the stages in order -- analyse, decide, check what is left, report."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import report as R
+from .discovery import analyse, decide, leftover
+
+
+def discover(campaign_pulls, rig, out_dir) -> dict:
+    """Analyse, decide, write DIR/report.json, report.md, extension.yaml (+ plots). Returns the report dict."""
+    analysis = analyse(campaign_pulls, rig)
+    decision = decide(analysis, rig)
+    left = leftover(analysis, decision.named, rig)
+    errors = R.force_errors(analysis, decision.named, rig)
+    report = R.build_report(analysis, decision, errors, left, rig)
+    R.write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir))
+    return report
