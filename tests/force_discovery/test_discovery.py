@@ -239,3 +239,39 @@ def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
     for s in res['sets']:
         k = s['set_id']
         assert s['corrected_mean_pct'] < min(3.0, table8[k], table9[k]), s
+
+
+def test_stages_leave_their_inputs_unchanged(tmp_path):
+    """analyse -> decide -> leftover -> report: each stage returns a typed result and changes
+    neither the measured channels nor an earlier stage's result."""
+    import copy
+
+    from force_discovery.core import report as R
+    from force_discovery.core.discovery import Analysis, Decision, analyse, decide, leftover
+    camp = make_campaign({'mains_hum': {'frequency_hz': 50.0, 'amplitude_n': 3.0}}, seed=11, sets=(3,), pulls=4)
+    channels = [{k: np.array(v, copy=True) for k, v in ch.items()} for _, ch in camp]
+    rig = load_rig()
+    analysis = analyse(camp, rig)
+    assert isinstance(analysis, Analysis) and analysis.hums is not None
+    before = copy.deepcopy(analysis.candidates)
+    decision = decide(analysis, rig)
+    assert isinstance(decision, Decision) and 'mains_hum' in decision.named
+    left = leftover(analysis, decision.named, rig)
+    errors = R.force_errors(analysis, decision.named, rig)
+    R.build_report(analysis, decision, errors, left, rig)
+    assert repr(analysis.candidates) == repr(before)
+    for (_, ch), orig in zip(camp, channels):
+        for k, v in orig.items():
+            np.testing.assert_array_equal(np.asarray(ch[k]), v)
+    q = analysis.quality[0]
+    assert q.samples == len(camp[0][1]['time_s']) and q.usable and not any(q.nonfinite.values())
+
+
+def test_non_finite_samples_are_counted_and_quoted():
+    from force_discovery.core.discovery import check_quality
+    from force_discovery.core.errors import DiscoveryError
+    meta, ch = make_campaign(None, seed=8, sets=(2,), pulls=1)[0]
+    ch = dict(ch, accel_axial_m_s2=np.array(ch['accel_axial_m_s2'], float))
+    ch['accel_axial_m_s2'][[10, 20, 30]] = np.nan
+    with pytest.raises(DiscoveryError, match=r"'accel_axial_m_s2': 3"):
+        check_quality(meta, ch)

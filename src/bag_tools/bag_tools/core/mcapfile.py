@@ -1,9 +1,12 @@
 """MCAP at the record level: the summary of a file, batch reading of messages, batch writing,
 and ExtendedBag, a new bag that is an input bag plus new topics.
 
-Record layouts follow the MCAP specification (https://mcap.dev/spec). Everything here works on
-uncompressed, indexed files (what rosbags and `ros2 bag record` write by default); anything else
-raises FastPathError and callers use the generic rosbags path.
+The summary is read, and summary, metadata and footer records are written, with Foxglove's
+`mcap` library. Only the batch paths are hand-written, as numpy over the mapped file: message
+records, chunk headers and message indexes (`./ft bench bag` justifies them; the layouts follow
+https://mcap.dev/spec). Everything here works on uncompressed, indexed files (what rosbags and
+`ros2 bag record` write by default); anything else raises FastPathError and callers use the
+generic rosbags path.
 
 ExtendedBag copies the input file's data section byte for byte (os.copy_file_range, in a
 thread, while the caller computes), then appends the new topics' chunks, a new summary and

@@ -103,45 +103,77 @@ class Pull:
     peak: float
 
 
-def prepare(meta: dict, ch: dict, rig) -> Pull:
-    from scipy.signal import savgol_filter
+MIN_SAMPLES = 2000               # a pull record shorter than this is not a full record
+QUALITY_CHANNELS = ('force_stationary_n', 'force_moving_n', 'accel_axial_m_s2', 'encoder_position_m')
+
+
+@dataclass(frozen=True)
+class PullQuality:
+    """What the data-quality stage found in one pull's channels (before anything is fitted)."""
+
+    name: str
+    samples: int
+    dt: float
+    nonfinite: dict          # channel -> count of NaN/inf samples (the channels the analysis uses)
+    peak_n: float            # stationary-cell peak
+    noise_n: float           # stationary-cell standard deviation on the first tenth of the record
+    has_current: bool
+
+    @property
+    def usable(self) -> bool:
+        return not any(self.nonfinite.values()) and self.peak_n > max(20.0, 20 * self.noise_n)
+
+
+def check_quality(meta: dict, ch: dict) -> PullQuality:
+    """The data-quality stage for one pull; DiscoveryError (quoting the value) if it is unusable."""
+    name = str(meta.get('file', '?'))
     for k in REQUIRED:
         if k not in ch:
-            raise DiscoveryError(f'pull {meta.get("file", "?")!r} has no {k!r} channel; expected {", ".join(REQUIRED)}')
+            raise DiscoveryError(f'pull {name!r} has no {k!r} channel; expected {", ".join(REQUIRED)}')
     t = np.asarray(ch['time_s'], float)
     n = len(t)
-    if n < 2000:
-        raise DiscoveryError(f'pull {meta.get("file", "?")!r} has {n} samples; expected a full record (>= 2000)')
-    dt = float(t[1] - t[0])
+    if n < MIN_SAMPLES:
+        raise DiscoveryError(f'pull {name!r} has {n} samples; expected a full record (>= {MIN_SAMPLES})')
+    fs = np.asarray(ch['force_stationary_n'], float)
+    finite = np.isfinite(fs)
+    q = PullQuality(name, n, float(t[1] - t[0]),
+                    {k: int(np.count_nonzero(~np.isfinite(np.asarray(ch[k], float)))) for k in QUALITY_CHANNELS},
+                    float(np.max(fs[finite])) if finite.any() else float('nan'),
+                    float(np.std(fs[: max(10, n // 10)])), 'motor_current_a' in ch)
+    bad = {k: v for k, v in q.nonfinite.items() if v}
+    if bad:
+        raise DiscoveryError(f'pull {name!r}: non-finite samples {bad}; expected finite channels')
+    if not q.usable:
+        raise DiscoveryError(f'pull {name!r}: stationary peak {q.peak_n:.3g} N is not a pull; '
+                             'expected a loaded record')
+    return q
+
+
+def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None) -> Pull:
+    """The prepare stage: derived signals and windows of one pull that passed check_quality()."""
+    from scipy.signal import savgol_filter
+    q = check_quality(meta, ch) if q is None else q
+    t = np.asarray(ch['time_s'], float)
+    n, dt = q.samples, q.dt
     fc = rig.force_chain
     fs = np.asarray(ch['force_stationary_n'], float)
-    fm = np.asarray(ch['force_moving_n'], float)
-    a2 = np.asarray(ch['accel_axial_m_s2'], float)
     x = np.asarray(ch['encoder_position_m'], float)
-    for k, v in (('force_stationary_n', fs), ('force_moving_n', fm), ('accel_axial_m_s2', a2), ('encoder', x)):
-        if not np.all(np.isfinite(v)):
-            raise DiscoveryError(f'pull {meta.get("file", "?")!r}: {k} has non-finite samples')
     T = tension_from_stationary(fs, dt, fc.m1, fc.load_cell_stiffness_n_per_m, fc.c1)
-    fm = _filtered(fm, dt)
-    a2 = _filtered(a2, dt)
+    fm = _filtered(np.asarray(ch['force_moving_n'], float), dt)
+    a2 = _filtered(np.asarray(ch['accel_axial_m_s2'], float), dt)
     win = max(5, int(round(2e-3 / dt)) | 1)
     x3 = savgol_filter(x, win, 3)
     v3 = savgol_filter(x, win, 3, deriv=1, delta=dt)
     a3 = savgol_filter(x, win, 3, deriv=2, delta=dt)
     cur = ch.get('motor_current_a')
     cur = None if cur is None else np.asarray(cur, float)
-    peak = float(np.max(fs))
-    noise = float(np.std(fs[: max(10, n // 10)]))
-    if not peak > max(20.0, 20 * noise):
-        raise DiscoveryError(f'pull {meta.get("file", "?")!r}: stationary peak {peak:.3g} N is not a pull; '
-                              'expected a loaded record')
-    idx = np.flatnonzero(fs > 0.1 * peak)
-    load0 = int(idx[0])
+    peak = q.peak_n
+    load0 = int(np.flatnonzero(fs > 0.1 * peak)[0])
     brk = int(np.flatnonzero(T > 0.05 * peak)[-1])
     w0 = max(0, load0 - int(0.05 / dt))
     w1 = min(n, brk + int(0.15 / dt))
     pre1 = max(0, load0 - int(0.03 / dt))
-    return Pull(str(meta.get('file', '?')), t, dt, fm, fs, a2, T, x3, v3, a3, cur, w0, w1, pre1, load0, brk, peak)
+    return Pull(q.name, t, dt, fm, fs, a2, T, x3, v3, a3, cur, w0, w1, pre1, load0, brk, peak)
 
 
 # ------------------------------------------------------------------------------------------ mains hum
@@ -445,6 +477,7 @@ class Analysis:
     """Everything the stages measured (no files, nothing decided yet)."""
 
     pulls: tuple                 # Pull per campaign pull
+    quality: tuple               # PullQuality per campaign pull
     fit: tuple                   # list positions of the fitted pulls
     held: tuple                  # list positions of the held-out pulls
     hums: Optional[tuple]        # mains-hum estimate per pull when the hum is significant, else None
@@ -561,10 +594,11 @@ def analyse(campaign_pulls, rig) -> Analysis:
     if len(campaign_pulls) < 4:
         raise DiscoveryError(f'campaign has {len(campaign_pulls)} pulls; expected at least 4 '
                              '(half are fitted, half held out)')
-    pulls = tuple(prepare(m, c, rig) for m, c in campaign_pulls)
-    dts = {round(p.dt, 12) for p in pulls}
+    quality = tuple(check_quality(m, c) for m, c in campaign_pulls)
+    dts = {round(q.dt, 12) for q in quality}
     if len(dts) != 1:
         raise DiscoveryError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
+    pulls = tuple(prepare(m, c, rig, q) for (m, c), q in zip(campaign_pulls, quality))
     m2 = rig.force_chain.m2
     fit, held = _split(pulls)
     notes = []
@@ -582,7 +616,7 @@ def analyse(campaign_pulls, rig) -> Analysis:
         notes.append('coulomb_friction not tested: the data has no motor_current_a channel')
     else:
         cand['coulomb_friction'] = friction
-    return Analysis(pulls, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes))
+    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes))
 
 
 def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:

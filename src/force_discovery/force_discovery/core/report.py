@@ -139,6 +139,10 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         'candidates': {n: {'parameters': c.get('parameters'), 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
+        'data_quality': {'pulls': len(analysis.quality), 'sample_interval_s': analysis.quality[0].dt,
+                         'samples': [q.samples for q in analysis.quality],
+                         'stationary_peak_to_noise': [q.peak_n / max(q.noise_n, 1e-300) for q in analysis.quality],
+                         'with_motor_current': sum(q.has_current for q in analysis.quality)},
         'notes': [*analysis.notes, *decision.notes],
     }
     return _clean(report)
