@@ -25,6 +25,7 @@ from force_correction.core import (
     initial_state,
     score_pull,
 )
+from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.core.correction import MASS_KG, WINDOW
 
 ATOL = 1e-9
@@ -329,7 +330,7 @@ def test_aligner_dropped_block():
     assert al.pending_count('force') == 0 and al.pending_count('accel') == 0
 
 
-def test_aligner_max_pending_and_out_of_order():
+def test_aligner_max_pending():
     al = BlockAligner(('force', 'accel'), max_pending=5)
     events = []
     for b in blocks_for('force', 8):
@@ -337,11 +338,45 @@ def test_aligner_max_pending_and_out_of_order():
         events += e
     assert [e.seq for e in events if e.kind == 'unmatched'] == [0, 1, 2]
     assert al.pending_count('force') == 5
-    _, e = al.push('force', 10**18, 3, RATE, N, None)  # seq/stamp going backwards
-    assert [x.kind for x in e] == ['out_of_order']
     p, e = al.push(*blocks_for('accel', 8)[7])
     assert len(p) == 1 and p[0].seqs == {'force': 7, 'accel': 7}
     assert sorted(x.seq for x in e if x.kind == 'unmatched') == [3, 4, 5, 6]
+
+
+@pytest.mark.parametrize('how', ['replay', 'restart_seq_only', 'jump_forward'])
+def test_aligner_starts_a_new_run_and_never_pairs_across_it(how):
+    """A replayed bag (seq and stamps start over), a restarted source (seq starts over, stamps go
+    on) or a long jump forward is a new run: reported, the old run's pending blocks dropped, and
+    the new run paired from its first block on."""
+    al = BlockAligner(('force', 'accel'), new_run_gap_s=1.0)
+    first = [b for i in range(10) for b in (blocks_for('force', 10)[i], blocks_for('accel', 10)[i])]
+    for b in first[:-3]:   # the old run's last force block and accel blocks 8-9 never come
+        al.push(*b)
+    assert al.pending_count('force') == 1   # force 8 waits for its partner
+    t0 = {'replay': 10**18, 'restart_seq_only': 10**18 + 10 * DT_NS, 'jump_forward': 10**18 + 5 * NS_PER_S}[how]
+    seq0 = 10 if how == 'jump_forward' else 0
+    second = [(c, t, seq + seq0, r, n, (c, 'run 2', t)) for c, t, seq, r, n, _ in
+              (b for i in range(10) for b in (blocks_for('force', 10, t0)[i], blocks_for('accel', 10, t0)[i]))]
+    pairs, events = [], []
+    for b in second:
+        p, e = al.push(*b)
+        pairs += p
+        events += e
+    runs = [e for e in events if e.kind == 'new_run']
+    assert sorted(e.channel for e in runs) == ['accel', 'force'], events
+    assert len(pairs) == 10 and all(p['force'][1] == p['accel'][1] == 'run 2' for p in pairs)
+    assert pairs[0].continuous is False and all(p.continuous for p in pairs[1:])
+    assert not any(e.kind == 'dropped' for e in events)
+    if how != 'jump_forward':
+        assert 'pending block(s) of the old run discarded' in runs[0].detail
+
+
+def test_aligner_discards_a_duplicate_block():
+    al = BlockAligner(('force', 'accel'))
+    b = blocks_for('force', 1)[0]
+    al.push(*b)
+    p, e = al.push(*b)
+    assert p == [] and [x.kind for x in e] == ['duplicate'] and al.pending_count('force') == 1
 
 
 def test_aligner_rate_and_length_mismatch():

@@ -154,6 +154,74 @@ def test_a_dropped_block_is_reported_and_never_misaligns(ros):
             assert (to_array(m.raw_n) == k).all()
 
 
+BAD_BLOCKS = {  # name -> (force arrays, accel arrays, rate)
+    'rate_zero': ({'moving_n': np.ones(50), 'stationary_n': np.ones(50)}, {'axial_m_s2': np.ones(50)}, 0.0),
+    'rate_negative': ({'moving_n': np.ones(50), 'stationary_n': np.ones(50)}, {'axial_m_s2': np.ones(50)}, -5e4),
+    'rate_nan': ({'moving_n': np.ones(50), 'stationary_n': np.ones(50)}, {'axial_m_s2': np.ones(50)}, float('nan')),
+    'rate_inf': ({'moving_n': np.ones(50), 'stationary_n': np.ones(50)}, {'axial_m_s2': np.ones(50)}, float('inf')),
+    'ragged': ({'moving_n': np.ones(50), 'stationary_n': np.ones(49)}, {'axial_m_s2': np.ones(50)}, 5e4),
+    'empty': ({}, {}, 5e4),
+    'huge': ({'moving_n': np.ones(1_000_001)}, {'axial_m_s2': np.ones(1_000_001)}, 5e4),
+}
+
+
+def test_bad_blocks_are_counted_reported_and_dropped_and_the_node_lives(ros):
+    """Anything on a topic is input from outside: each bad block is dropped with a diagnostic
+    naming the problem; good blocks around them are corrected as if the bad ones never came."""
+    ex_node = correction_node()
+    with Loop(ex_node) as (ex, pub_f, pub_a, out, diags):
+        good = {'moving_n': np.full(50, 7.0), 'stationary_n': np.full(50, 7.0)}
+        stamp = 10**18
+        for k, (f, a, rate) in enumerate(BAD_BLOCKS.values()):  # earlier stamps: they never pair
+            pub_f.publish(fill_block(TOPICS['/force'].msg_type(), stamp - 10**10, rate, k, f))
+            pub_a.publish(fill_block(TOPICS['/accel'].msg_type(), stamp - 10**10, rate, k, a))
+        n_bad = 2 * len(BAD_BLOCKS) - 1   # the accel block of the ragged case is a good one
+        for k in range(3):
+            pub_f.publish(fill_block(TOPICS['/force'].msg_type(), stamp + k * 1_000_000, 5e4, k, good))
+            pub_a.publish(fill_block(TOPICS['/accel'].msg_type(), stamp + k * 1_000_000, 5e4, k,
+                                     {'axial_m_s2': np.zeros(50)}))
+        assert spin_until(ex, lambda: len(out) == 3 and ex_node.counts['bad_messages'] == n_bad, timeout=20)
+        messages = ' '.join(st.message for d in diags for st in d.status)
+        for word in ('sample_rate_hz 0.0', 'ragged', 'empty', 'at most'):
+            assert word in messages, (word, messages)
+        assert all((to_array(m.raw_n) == 7.0).all() for m in out)
+        assert ex_node.counts['pairs'] == 3
+
+
+def test_a_change_that_leaves_the_correction_as_it_was_does_not_restart_it(ros):
+    node = correction_node()
+    try:
+        before = node.corrector
+        for p in (Parameter('use_sim_time', value=False), Parameter('window', value=node.params.values['window'])):
+            (result,) = node.set_parameters([p])
+            assert result.successful, result.reason
+            assert node.corrector is before, p.name
+        node.set_parameters([Parameter('window', value=10)])
+        assert node.corrector is not before and node.corrector.params.window == 10
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize('package, name, args, quoted', [
+    ('force_correction', 'correction_node', ['-p', 'window:=0'], ['window', '0', '[1, 50000]']),
+    ('force_correction', 'correction_node', ['-p', 'mass_kg:=abc'], ['mass_kg', 'abc']),
+    ('force_correction', 'validator_node', ['-p', 'loaded_fraction:=1.5'], ['loaded_fraction', '1.5', '0.99']),
+    ('force_correction', 'correction_node', ['-p', 'extension_file:=/nonexistent/ext.yaml'], ['/nonexistent/ext.yaml']),
+])
+def test_an_invalid_parameter_at_startup_stops_the_node_with_one_line(ros_domain, package, name, args, quoted):
+    """As plain rclpy refuses to start: exit 2, one line naming the parameter, value and range."""
+    import subprocess
+
+    from ft_cli.paths import executable
+    res = subprocess.run([str(executable(package, name)), '--ros-args', *args], capture_output=True, text=True,
+                         timeout=120, stdin=subprocess.DEVNULL)
+    assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
+    lines = [ln for ln in res.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f'{name}: error: '), res.stderr
+    for text in quoted:
+        assert text in lines[0], lines[0]
+
+
 def test_extension_file_sets_the_mass_and_a_bad_one_is_refused(ros, tmp_path):
     good = tmp_path / 'extension.yaml'
     good.write_text('correction:\n  mass_kg: 1.3\n  accel_delay_s: 4.0e-5\n')

@@ -1,17 +1,27 @@
 """correction node: /force + /accel blocks -> /force_corrected (raw, m*a, corrected, filtered).
 
-Blocks of the two channels are paired by stamp (and checked by sequence number) before the
-ROS-free core corrects them; a dropped, unmatched or late block is reported on /diagnostics and
-the filter restarts after the gap, so the two channels are never silently misaligned.
+Every incoming block is checked (stamp, rate, array lengths) before use; a bad one is counted,
+reported on /diagnostics and dropped. Blocks of the two channels are paired by stamp (and checked
+by sequence number) before the ROS-free core corrects them; a dropped, unmatched or late block is
+reported on /diagnostics and the filter restarts after the gap, so the two channels are never
+silently misaligned. A restarted or replayed stream is a new run: reported, and corrected from its
+first block. Only a change of mass, window or extension restarts the filter.
 """
 from __future__ import annotations
 
 from rclpy.node import Node
 
-from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block, stamp_to_ns, to_array
+from force_tester_common.conversions import (
+    BLOCK_TOPICS,
+    CORRECTED_TOPIC,
+    fill_block,
+    message_problem,
+    stamp_to_ns,
+    to_array,
+)
 from force_tester_common.core import correction as C
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, main_for
+from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, main_for
 
 from .core.extension import Extension, ForcePrefilter
 from .core.pairing import BlockAligner
@@ -27,7 +37,11 @@ SPECS = [
                                     'accelerometer delay, AC coupling, mains hum) is undone before m*a ("" = none)'),
     ParamSpec('max_pending', C.MAX_PENDING, 'blocks a channel may wait for its partner before it is dropped',
               C.MAX_PENDING_RANGE, read_only=True),
+    ParamSpec('new_run_gap_s', C.NEW_RUN_GAP_S, 'a stamp jump forward by more than this starts a new run '
+                                                '(a jump back or a sequence restart always does)',
+              C.NEW_RUN_GAP_RANGE_S, read_only=True),
 ]
+USED_FIELDS = {'force': ('moving_n',), 'accel': ('axial_m_s2',)}
 
 TOPICS = {t.topic: t for t in BLOCK_TOPICS}
 
@@ -45,13 +59,14 @@ class CorrectionNode(Node):
         self.params = NodeParams(self, SPECS, config_from, on_change=self._reconfigure)
         self.corrector = self.extension = self.prefilters = None
         self._reconfigure(self.params.config)
-        self.aligner = BlockAligner(('force', 'accel'), max_pending=self.params.values['max_pending'])
+        self.aligner = BlockAligner(('force', 'accel'), max_pending=self.params.values['max_pending'],
+                                    new_run_gap_s=self.params.values['new_run_gap_s'])
         self.pub = self.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
-        force, accel = TOPICS['/force'], TOPICS['/accel']
-        self.create_subscription(force.msg_type, force.topic, lambda m: self._on_block('force', m), BLOCK_QOS)
-        self.create_subscription(accel.msg_type, accel.topic, lambda m: self._on_block('accel', m), BLOCK_QOS)
+        for channel, topic in (('force', TOPICS['/force']), ('accel', TOPICS['/accel'])):
+            self.create_subscription(topic.msg_type, topic.topic, guarded(
+                self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS)
         self.seq = 0
-        self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0}
+        self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0, 'bad_messages': 0, 'runs': 0}
         self.create_timer(1.0, self._heartbeat)
 
     def _reconfigure(self, config):
@@ -67,12 +82,21 @@ class CorrectionNode(Node):
             self.prefilters[rate_hz] = ForcePrefilter(self.extension, rate_hz)
         return self.prefilters[rate_hz]
 
-    def _on_block(self, channel: str, msg):
-        n = len(msg.moving_n) if channel == 'force' else len(msg.axial_m_s2)
+    def _on_block(self, channel: str, topic, msg):
+        problem = message_problem(msg, topic, USED_FIELDS[channel])
+        if problem:
+            self.counts['bad_messages'] += 1
+            self.diag.report(WARN, f'bad block on {topic.topic} dropped: {problem}',
+                             key=('bad', topic.topic, problem.split()[0]),
+                             topic=topic.topic, bad_messages=self.counts['bad_messages'])
+            return
+        n = len(getattr(msg, USED_FIELDS[channel][0]))
         pairs, events = self.aligner.push(channel, stamp_to_ns(msg.header.stamp), msg.seq,
                                           msg.sample_rate_hz, n, msg)
         for event in events:
             self.counts['events'] += 1
+            if event.kind == 'new_run':
+                self.counts['runs'] += 1
             self.diag.report(WARN, f'{event.kind} block on {event.channel}: {event.detail}',
                              key=(event.kind, event.channel), channel=event.channel, seq=event.seq,
                              stamp_ns=event.stamp_ns)

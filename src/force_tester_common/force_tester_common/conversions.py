@@ -13,6 +13,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 
 from .core import clock
+from .core.blocks import block_problem, stamp_problem
 from .core.channels import BLOCK_TYPES, CORRECTED_TYPE
 
 
@@ -81,3 +82,11 @@ def block_arrays(msg, topic: BlockTopic) -> dict:
 
 def block_length(msg, topic: BlockTopic) -> int:
     return max(len(getattr(msg, f)) for f in topic.fields)
+
+
+def message_problem(msg, topic: BlockTopic, required) -> str | None:
+    """Why a received block message cannot be used (stamp, rate, array lengths), or None.
+    required: the message fields the caller reads."""
+    stamp = msg.header.stamp
+    return stamp_problem(stamp.sec, stamp.nanosec) or block_problem(
+        msg.sample_rate_hz, {f: len(getattr(msg, f)) for f in topic.fields}, required)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 
@@ -11,6 +12,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .core.clock import seconds_to_ns
+from .node_params import ParameterError
 
 # 10 s of 1 ms blocks: a receiver may stall that long without a block being overwritten.
 BLOCK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -18,6 +20,9 @@ EVENT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE, histor
 # Scores are kept for late joiners (a monitor started after a pull still gets its score).
 SCORE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# A set summary is cumulative: a late joiner needs the current one only, not a backlog.
+SUMMARY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
@@ -78,7 +83,8 @@ def ros_init(args=None):
 
 
 def spin_nodes(*node_factories, args=None) -> int:
-    """Create the nodes in one process, add them to one executor and spin until shut down."""
+    """Create the nodes in one process, add them to one executor and spin until shut down.
+    An invalid parameter at start-up ends the process: one line on stderr, exit code 2."""
     try:
         with ros_init(args):
             executor = SingleThreadedExecutor()
@@ -95,6 +101,9 @@ def spin_nodes(*node_factories, args=None) -> int:
                     node.destroy_node()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except ParameterError as exc:
+        print(f'{os.path.basename(sys.argv[0])}: error: {exc}', file=sys.stderr)
+        return 2
     return 0
 
 
@@ -103,3 +112,15 @@ def main_for(node_factory):
     def main(args=None):
         sys.exit(spin_nodes(node_factory, args=args))
     return main
+
+
+def guarded(diag: Diagnostics, topic: str, callback):
+    """A subscription callback that never kills the node: an exception from ``callback`` (a
+    message no check foresaw) is reported on /diagnostics, throttled, and the message dropped."""
+    def run(msg):
+        try:
+            callback(msg)
+        except Exception as exc:  # noqa: BLE001 - anything on a topic is input from outside
+            diag.report(ERROR, f'message on {topic} dropped: {type(exc).__name__}: {exc}',
+                        key=('exception', topic), topic=topic)
+    return run

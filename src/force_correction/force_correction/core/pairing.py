@@ -6,7 +6,12 @@ channel holds a block with the same ``stamp_ns`` (exact int match), equal length
 rate. Anything that cannot be paired is discarded and reported as an :class:`AlignerEvent`:
 
 - ``dropped``: a channel's seq jumped (blocks lost upstream); detail quotes expected/got.
-- ``out_of_order``: a block's seq or stamp is not after the channel's previous one; discarded.
+- ``new_run``: a new stream on a channel: its seq or stamp went back (a restarted source, a bag
+  played again or looped) or its stamp jumped forward by more than ``new_run_gap_ns``. The
+  block is kept as the first of the new run; on a restart the channel's pending blocks (the old
+  run's) are discarded, so no pair mixes two runs. Callers that accumulate over time (the
+  validator) close what they hold.
+- ``duplicate``: the same seq and stamp as the channel's previous block; discarded.
 - ``unmatched``: a pending block was discarded because a later stamp was paired (it can never
   pair: channels are in order) or it waited more than ``max_pending`` blocks.
 - ``rate_mismatch`` / ``length_mismatch``: blocks with the same stamp disagree; all discarded.
@@ -29,13 +34,13 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple
 
 import numpy as np
 
-from force_tester_common.core.clock import NS_PER_S, end_stamp_ns
-from force_tester_common.core.correction import MAX_PENDING, MAX_PENDING_RANGE
+from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, seconds_to_ns
+from force_tester_common.core.correction import MAX_PENDING, MAX_PENDING_RANGE, NEW_RUN_GAP_RANGE_S, NEW_RUN_GAP_S
 
 from .errors import CorrectionError
 
 EVENT_KINDS = frozenset(
-    {'dropped', 'unmatched', 'rate_mismatch', 'length_mismatch', 'out_of_order',
+    {'dropped', 'unmatched', 'rate_mismatch', 'length_mismatch', 'new_run', 'duplicate',
      'discontinuity'})
 
 RATE_RTOL = 1e-9  # two blocks' rates are equal within this relative tolerance
@@ -144,6 +149,7 @@ class _Block:
 class _Channel:
     last_seq: Optional[int] = None
     last_stamp: Optional[int] = None
+    last_end: Optional[int] = None   # where the previous block's samples end (its end stamp)
     pending: "OrderedDict[int, _Block]" = field(default_factory=OrderedDict)
 
 
@@ -156,9 +162,11 @@ class BlockAligner:
 
     channels: names of the channels to pair (at least one, unique).
     max_pending: a channel holding more than this many unpaired blocks discards its oldest.
+    new_run_gap_s: a stamp this far past the end of the channel's previous block starts a new run.
     """
 
-    def __init__(self, channels: Iterable[str] = ('force', 'accel'), max_pending: int = MAX_PENDING):
+    def __init__(self, channels: Iterable[str] = ('force', 'accel'), max_pending: int = MAX_PENDING,
+                 new_run_gap_s: float = NEW_RUN_GAP_S):
         names = tuple(channels)
         if len(names) < 1 or len(set(names)) != len(names):
             raise CorrectionError(
@@ -168,8 +176,14 @@ class BlockAligner:
             raise CorrectionError(
                 f"max_pending {max_pending!r} is out of range; expected an integer in "
                 f"[{lo}, {hi}]")
+        lo, hi = NEW_RUN_GAP_RANGE_S
+        if isinstance(new_run_gap_s, bool) or not isinstance(new_run_gap_s, numbers.Real) \
+                or not lo <= new_run_gap_s <= hi:
+            raise CorrectionError(f"new_run_gap_s {new_run_gap_s!r} is out of range; expected seconds in "
+                                  f"[{lo}, {hi}]")
         self._names = names
         self._max_pending = int(max_pending)
+        self._new_run_gap_ns = seconds_to_ns(new_run_gap_s)
         self._ch: Dict[str, _Channel] = {c: _Channel() for c in names}
         self._last_pair: Optional[AlignedPair] = None
         self.pairs_emitted = 0
@@ -220,18 +234,28 @@ class BlockAligner:
         pairs: List[AlignedPair] = []
         events: List[AlignerEvent] = []
 
-        # 1. order within the channel
+        # 1. order within the channel: the same run, a duplicate, or a new run
         if ch.last_seq is not None:
-            if seq <= ch.last_seq or stamp_ns <= ch.last_stamp:
-                self._event(events, 'out_of_order', channel, seq, stamp_ns,
-                            f"seq {seq} stamp {stamp_ns} ns after seq {ch.last_seq} stamp "
-                            f"{ch.last_stamp} ns; block discarded")
+            if seq == ch.last_seq and stamp_ns == ch.last_stamp:
+                self._event(events, 'duplicate', channel, seq, stamp_ns,
+                            f"seq {seq} stamp {stamp_ns} ns received twice; block discarded")
                 return pairs, events
-            if seq != ch.last_seq + 1:
+            if seq <= ch.last_seq or stamp_ns <= ch.last_stamp:
+                old = len(ch.pending)
+                ch.pending.clear()
+                self._event(events, 'new_run', channel, seq, stamp_ns,
+                            f"seq {seq} stamp {stamp_ns} ns after seq {ch.last_seq} stamp {ch.last_stamp} ns: "
+                            f"the source restarted or replays; {old} pending block(s) of the old run discarded")
+            elif stamp_ns - ch.last_end > self._new_run_gap_ns:
+                self._event(events, 'new_run', channel, seq, stamp_ns,
+                            f"stamp {stamp_ns} ns is {(stamp_ns - ch.last_end) / NS_PER_S:.3f} s after the previous "
+                            f"block ended (new_run_gap_s {self._new_run_gap_ns / NS_PER_S:g})")
+            elif seq != ch.last_seq + 1:
                 self._event(events, 'dropped', channel, seq, stamp_ns,
                             f"expected seq {ch.last_seq + 1}, got {seq}: "
                             f"{seq - ch.last_seq - 1} block(s) missing")
         ch.last_seq, ch.last_stamp = seq, stamp_ns
+        ch.last_end = end_stamp_ns(stamp_ns, n_samples, rate)
         blk = _Block(stamp_ns, seq, rate, n_samples, payload)
 
         # 2. match against the other channels

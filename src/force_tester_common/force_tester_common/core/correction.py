@@ -8,5 +8,7 @@ WINDOW_RANGE = (1, 50_000)         # up to 1 s at 50 kHz
 MAX_PENDING = 500                  # blocks a channel may wait for its partner before it is dropped
 MAX_PENDING_RANGE = (1, 1_000_000)
 VALIDATOR_MAX_PENDING = 20_000     # the corrected stream lags the force stream: 20 s of 1 ms blocks
+NEW_RUN_GAP_S = 10.0               # a stamp jump forward by more than this starts a new run
+NEW_RUN_GAP_RANGE_S = (0.001, 86_400.0)
 LOADED_FRACTION = 0.1              # RMS window: stationary force above this share of its peak
 LOADED_FRACTION_RANGE = (0.01, 0.99)

@@ -1,0 +1,51 @@
+"""What makes an incoming sample block or pull event usable (pure Python: no ROS import).
+
+Anything on a topic is input from outside. A node checks every field it will use with these
+functions before it touches the message; a message with a problem is counted, reported and
+dropped, and the node goes on.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping, Optional, Sequence
+
+from .channels import PULL_END, PULL_START
+from .clock import NS_PER_S
+
+MAX_BLOCK_SAMPLES = 1_000_000       # 20 s at 50 kHz: a longer block is not a block
+MAX_SAMPLE_RATE_HZ = 100e6          # no DAQ here samples faster
+PULL_EVENT_CODES = (PULL_START, PULL_END)
+
+
+def stamp_problem(sec: int, nanosec: int) -> Optional[str]:
+    """Why a header stamp is not a time, or None."""
+    if sec < 0 or not 0 <= nanosec < NS_PER_S:
+        return f'stamp {sec} s {nanosec} ns is invalid; expected sec >= 0 and 0 <= nanosec < {NS_PER_S}'
+    return None
+
+
+def block_problem(rate_hz: float, lengths: Mapping[str, int], required: Sequence[str]) -> Optional[str]:
+    """Why a sample block cannot be used, or None.
+
+    lengths: the length of every array field of the block; required: the fields the caller
+    uses, which must be present (non-empty). Every non-empty field must have the same length.
+    """
+    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= MAX_SAMPLE_RATE_HZ):
+        return f'sample_rate_hz {rate_hz!r} is invalid; expected a finite rate in (0, {MAX_SAMPLE_RATE_HZ:g}] Hz'
+    empty = [f for f in required if not lengths.get(f)]
+    if empty:
+        return f'field(s) {", ".join(empty)} are empty; expected samples'
+    sizes = {f: n for f, n in lengths.items() if n}
+    if len(set(sizes.values())) > 1:
+        return f'ragged block: field lengths {sizes}; expected one length for every field'
+    n = next(iter(sizes.values()))
+    if n > MAX_BLOCK_SAMPLES:
+        return f'block of {n} samples; expected at most {MAX_BLOCK_SAMPLES}'
+    return None
+
+
+def event_problem(event: int) -> Optional[str]:
+    """Why a pull event cannot be used, or None."""
+    if event not in PULL_EVENT_CODES:
+        return f'pull event code {event} is unknown; expected one of {list(PULL_EVENT_CODES)} (START, END)'
+    return None

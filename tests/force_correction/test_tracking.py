@@ -1,0 +1,80 @@
+"""The validator's pull bookkeeping across restarts and replays (core/tracking.py, no ROS)."""
+import numpy as np
+import pytest
+
+from force_correction.core.pairing import BlockAligner
+from force_correction.core.tracking import PullTracker
+
+RATE, N, DT = 50_000.0, 50, 1_000_000
+T0 = 10**18
+
+
+def add(acc, pair):
+    stat, moving = pair['force'], pair['corrected']
+    acc.add_block(pair.stamp_ns, pair.sample_rate_hz, stat, moving, moving, moving)
+
+
+class Stream:
+    """Blocks of one run through a real BlockAligner into the tracker."""
+
+    def __init__(self, tracker):
+        self.aligner = BlockAligner(('corrected', 'force'))
+        self.tracker = tracker
+        self.ready, self.closed = [], []
+
+    def push(self, k, t0, seq0, peak):
+        t = np.arange(N) + k * N
+        force = peak * np.exp(-((t - 250) / 60.0) ** 2)   # a pull of 10 blocks, peak at sample 250
+        for channel, values in (('corrected', 1.1 * force), ('force', force)):
+            pairs, events = self.aligner.push(channel, t0 + k * DT, seq0 + k, RATE, N, values)
+            for e in events:
+                if e.kind == 'new_run':
+                    self.closed += self.tracker.new_run()
+            for p in pairs:
+                self.ready += self.tracker.pair(p)
+
+
+def run_pull(tracker, stream, t0, seq0, peak, start_first=True, blocks=10):
+    if start_first:
+        stream.closed += tracker.start(t0, 1, 3)
+    for k in range(blocks):
+        stream.push(k, t0, seq0, peak)
+        if k == 2 and not start_first:
+            stream.closed += tracker.start(t0, 1, 3)
+    if blocks == 10:
+        stream.ready += tracker.end(t0 + 10 * DT, 1)[1]
+
+
+def test_a_replay_is_scored_from_its_own_blocks_whichever_stream_starts_over_first():
+    for start_first in (True, False):
+        tracker = PullTracker(add)
+        s = Stream(tracker)
+        run_pull(tracker, s, T0, 0, 1000.0)
+        run_pull(tracker, s, T0, 0, 2000.0, start_first=start_first)  # same stamps, other data
+        assert [a.pull_id for a in s.ready] == [1, 1] and s.closed == []
+        peaks = [a.score(0.1).stationary_peak_n for a in s.ready]
+        assert np.allclose(peaks, [1000.0, 2000.0], rtol=1e-3), (start_first, peaks)
+        assert s.ready[1].n_samples == 10 * N
+
+
+@pytest.mark.parametrize('start_first', [True, False])
+def test_a_restart_mid_pull_closes_that_pull_unscored(start_first):
+    tracker = PullTracker(add)
+    s = Stream(tracker)
+    run_pull(tracker, s, T0, 0, 1000.0, blocks=5)        # the source dies half-way
+    run_pull(tracker, s, T0 + 60 * DT, 0, 1500.0, start_first=start_first)  # again: seq 0, later stamps
+    assert [c.pull_id for c in s.closed] == [1] and 'started over' in s.closed[0].reason
+    assert len(s.ready) == 1 and s.ready[0].n_samples == 10 * N
+
+
+def test_an_ended_pull_whose_data_stops_is_scored_after_the_timeout():
+    tracker = PullTracker(add, finish_timeout_s=1.0)
+    s = Stream(tracker)
+    tracker.start(T0, 1, 3)
+    for k in range(8):
+        s.push(k, T0, 0, 1000.0)
+    assert tracker.end(T0 + 10 * DT, 1) == (True, [])
+    assert tracker.tick(0.5) == []
+    (acc,) = tracker.tick(0.5)
+    assert acc.pull_id == 1 and acc.n_samples == 8 * N
+    assert tracker.end(T0, 99) == (False, [])

@@ -1,0 +1,119 @@
+"""Acceptance: the live pair (correction + validator, separate processes over Fast DDS) survives
+replays, a parameter change between them and malformed messages from outside.
+
+A bag of three short pulls is played into the pair three times by the player process: the second
+play must give the first play's scores again (a replay is a new run, not a stream to reject), and
+after `window` is set to 2000 over the parameter service the third play must give what offline
+`correct` computes with that window. Before the plays, malformed messages (rate 0, NaN, negative,
+ragged, empty, an unknown event code) go to every topic the pair reads: both nodes must live,
+report them on /diagnostics and score the plays as if they never came.
+"""
+import time
+
+import numpy as np
+import pytest
+from daq_data import T0, make_pulls
+
+from ft_cli.graph import SCORE_KEYS, Graph, ScoreCollector
+
+pytestmark = pytest.mark.slow
+
+PULLS = 3
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory):
+    from bag_tools.core.convert import campaign_to_bag
+    from bag_tools.core.daq import write_campaign
+    tmp = tmp_path_factory.mktemp('runs')
+    write_campaign(tmp / 'campaign', make_pulls(PULLS, start=T0))
+    return campaign_to_bag(tmp / 'campaign', tmp / 'bag')
+
+
+def publish_bad_messages(node, diags_seen):
+    """Publish one malformed message of each kind on /force, /accel, /force_corrected, /pull_event."""
+    from force_tester_msgs.msg import PullEvent
+
+    from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, fill_block
+    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
+    topics = {t.topic: t for t in BLOCK_TOPICS}
+    pubs = {name: node.create_publisher(t.msg_type, t.topic, BLOCK_QOS)
+            for name, t in (('force', topics['/force']), ('accel', topics['/accel']),
+                            ('corrected', CORRECTED_TOPIC))}
+    events = node.create_publisher(PullEvent, '/pull_event', EVENT_QOS)
+    ones = np.ones(50)
+    bad = [('force', topics['/force'], 0.0, {'moving_n': ones, 'stationary_n': ones}),
+           ('force', topics['/force'], 5e4, {'moving_n': ones, 'stationary_n': np.ones(49)}),
+           ('force', topics['/force'], 5e4, {}),
+           ('accel', topics['/accel'], float('nan'), {'axial_m_s2': ones}),
+           ('corrected', CORRECTED_TOPIC, -5e4, {'raw_n': ones, 'inertial_n': ones, 'corrected_n': ones,
+                                                 'filtered_n': ones})]
+    for name, topic, rate, arrays in bad:
+        pubs[name].publish(fill_block(topic.msg_type(), T0 - 10**10, rate, 0, arrays))
+    events.publish(PullEvent(event=7, pull_id=1, test_set=1))
+    return len(bad) + 1
+
+
+def bad_message_reports(collector) -> int:
+    return sum(1 for d in collector.diagnostics for st in d.status if 'dropped' in st.message
+               and 'bad' in st.message)
+
+
+def play(graph, bag, name):
+    graph.start('bag_tools', 'player', extra=[str(bag), '--topics', '/force', '/accel', '/pull_event',
+                                              '--wait-for-subscribers', '1'])
+    graph.procs[name] = graph.procs.pop('player')
+
+
+def test_replays_a_parameter_change_and_bad_messages(bag, tmp_path, ros_domain):
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from force_correction.offline import CorrectionSetup, correct
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector()
+    collector.diagnostics = []
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from force_tester_common.ros import EVENT_QOS
+    collector.node.create_subscription(DiagnosticArray, '/diagnostics', collector.diagnostics.append, EVENT_QOS)
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node')
+        assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=60)
+        sent = publish_bad_messages(collector.node, collector.diagnostics)
+        deadline = time.monotonic() + 30
+        while bad_message_reports(collector) < sent and time.monotonic() < deadline:
+            collector.executor.spin_once(timeout_sec=0.1)
+        assert bad_message_reports(collector) >= sent, [st.message for d in collector.diagnostics
+                                                         for st in d.status]
+        assert graph.dead() == []
+
+        for k, name in enumerate(('play1', 'play2')):
+            play(graph, bag, name)
+            assert collector.wait(PULLS * (k + 1), 120, alive=lambda: not graph.dead()), graph.tail(name)
+        first, second = collector.scores[:PULLS], collector.scores[PULLS:]
+        for a, b in zip(first, second):
+            for key in SCORE_KEYS:
+                assert b[key] == pytest.approx(a[key], rel=1e-9, abs=1e-9), (key, a, b)
+
+        client = AsyncParameterClient(collector.node, 'correction')
+        assert client.wait_for_services(timeout_sec=30)
+        future = client.set_parameters([Parameter('window', value=2000)])
+        collector.executor.spin_until_future_complete(future, timeout_sec=30)
+        assert future.done() and all(r.successful for r in future.result().results)
+        play(graph, bag, 'play3')
+        assert collector.wait(3 * PULLS, 120, alive=lambda: not graph.dead()), graph.tail('play3')
+        assert graph.dead() == []
+    finally:
+        codes = graph.stop()
+        collector.close()
+    assert codes['correction_node'] == 0 and codes['validator_node'] == 0, codes
+    offline = correct(bag, tmp_path / 'offline', CorrectionSetup.build(window=2000)).as_dict()['pulls']
+    third = collector.scores[2 * PULLS:]
+    assert [s['pull_id'] for s in third] == [p['pull_id'] for p in offline]
+    for live, off in zip(third, offline):
+        for key in ('raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct', 'filtered_rms_n'):
+            assert live[key] == pytest.approx(off[key], rel=1e-9, abs=1e-9), (key, live, off)
+    # the new window changed the filtered result: the third play is not the first again
+    assert any(abs(t['filtered_diff_pct'] - f['filtered_diff_pct']) > 1e-6 for t, f in zip(third, first))
