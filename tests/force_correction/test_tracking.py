@@ -74,7 +74,20 @@ def test_an_ended_pull_whose_data_stops_is_scored_after_the_timeout():
     for k in range(8):
         s.push(k, T0, 0, 1000.0)
     assert tracker.end(T0 + 10 * DT, 1) == (True, [])
-    assert tracker.tick(0.5) == []
-    (acc,) = tracker.tick(0.5)
-    assert acc.pull_id == 1 and acc.n_samples == 8 * N
+    assert tracker.tick(0.5) == ([], [])
+    (acc,), closed = tracker.tick(0.5)
+    assert acc.pull_id == 1 and acc.n_samples == 8 * N and closed == []
     assert tracker.end(T0, 99) == (False, [])
+
+
+def test_a_pull_whose_source_stops_before_its_end_is_aborted_after_the_timeout():
+    tracker = PullTracker(add, abort_timeout_s=2.0)
+    s = Stream(tracker)
+    tracker.start(T0, 1, 3)
+    for k in range(4):
+        s.push(k, T0, 0, 1000.0)
+    assert tracker.tick(1.5) == ([], [])
+    s.push(4, T0, 0, 1000.0)                 # data resets the clock
+    assert tracker.tick(1.5) == ([], [])
+    ready, (closed,) = tracker.tick(0.5)
+    assert ready == [] and closed.pull_id == 1 and 'aborted' in closed.reason and not tracker.open

@@ -59,6 +59,9 @@ SPECS = [
     ParamSpec('new_run_gap_s', C.NEW_RUN_GAP_S, 'a stamp jump forward by more than this starts a new run '
                                                 '(a jump back or a sequence restart always does)',
               C.NEW_RUN_GAP_RANGE_S, read_only=True),
+    ParamSpec('abort_timeout_s', C.ABORT_TIMEOUT_S, 'a started pull without data and without END for this long '
+                                                    'is closed as aborted (the source stopped mid-pull)',
+              C.ABORT_TIMEOUT_RANGE_S, read_only=True),
 ]
 
 
@@ -82,7 +85,7 @@ class ValidatorNode(Node):
         self.params = NodeParams(self, SPECS, check)
         self.aligner = BlockAligner(('corrected', 'force'), max_pending=self.params.values['max_pending'],
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
-        self.tracker = PullTracker(add_pair)
+        self.tracker = PullTracker(add_pair, abort_timeout_s=self.params.values['abort_timeout_s'])
         self.stats = SetStatistics()
         self.counts = {'bad_messages': 0, 'runs': 0, 'closed_unscored': 0}
         self.score_pub = self.create_publisher(PullScore, PULL_SCORE_TOPIC, SCORE_QOS)
@@ -146,7 +149,9 @@ class ValidatorNode(Node):
                 self._score(acc)
 
     def _tick(self):
-        for acc in self.tracker.tick(TICK_S):
+        ready, aborted = self.tracker.tick(TICK_S)
+        self._closed(aborted)
+        for acc in ready:
             self.diag.report(WARN, f'pull {acc.pull_id}: data stopped before its END; scoring what arrived')
             self._score(acc)
 

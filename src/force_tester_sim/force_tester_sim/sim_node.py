@@ -38,12 +38,14 @@ SPECS = [
                              'channels from the model); false: the prescribed motion profile'),
     ParamSpec('coupons', 'rated', "'rated': coupons break at their rating; 'measured': at thesis Table 7's "
                                   "measured levels, yielding first (the reference campaign's coupons)"),
-    ParamSpec('wait_for_subscribers', 0, 'wait until /force has this many subscribers before publishing',
+    ParamSpec('wait_for_subscribers', 1, 'before publishing, wait until /force and /pull_event each have this '
+                                         'many matched subscribers, and no more match for SETTLE_S (0: at once)',
               (0, 100)),
     ParamSpec('exit_when_done', False, 'shut the node down after the last pull (once the '
               'subscribers have acknowledged every block, at most ACK_TIMEOUT_S)'),
 ]
 ACK_TIMEOUT_S = 30.0  # exit_when_done: how long to wait for lagging subscribers
+SETTLE_S = 1.0        # wait_for_subscribers: no new subscriber for this long, so none misses the first START
 CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise', 'coupons', 'drive')
 
 
@@ -78,12 +80,25 @@ class SimNode(Node):
         except Exception as exc:  # keep the node alive and say what went wrong
             self.diag.report(ERROR, f'simulation stopped: {exc}')
 
-    def _publish_all(self):
-        want = self.params.values['wait_for_subscribers']
-        while want and self.count_subscribers('/force') < want:
+    def _wait_for_subscribers(self, want: int) -> bool:
+        """Wait until the block and event publishers have ``want`` matched subscribers each and
+        the counts have not changed for SETTLE_S (readers discovered together all match; a pull
+        event sent before a reader matched would be lost to it). False if the node stops."""
+        if not want:
+            return True
+        pubs = [self.event_pub] + [p for t, p in self.block_pubs if t.topic == '/force']
+        counts, since = None, time.monotonic()
+        while True:
+            now = [p.get_subscription_count() for p in pubs]
+            if now != counts:
+                counts, since = now, time.monotonic()
+            if min(now) >= want and time.monotonic() - since >= SETTLE_S:
+                return True
             if self._stop.wait(0.05):
-                return
-        if want and self._stop.wait(0.5):  # let the matched readers settle before the first block
+                return False
+
+    def _publish_all(self):
+        if not self._wait_for_subscribers(self.params.values['wait_for_subscribers']):
             return
         config = self.params.config
         pulls = list(self._schedule(config))

@@ -88,7 +88,7 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         collector.wait_for_graph({'/force_corrected': 2, '/force': 3, PULL_EVENT_TOPIC: 2}, timeout=30)
         graph.start('force_tester_sim', 'sim_node', {
             'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
-            'rate': float(rate), 'wait_for_subscribers': 3, 'exit_when_done': True, **rig_params(rig)})
+            'rate': float(rate), 'wait_for_subscribers': 2, 'exit_when_done': True, **rig_params(rig)})
         say(f'demo: {expected} pull(s) of 2 s at 50 kHz, sets {list(sets)}, {rig} rig; logs in {graph.log_dir}')
         ok = collector.wait(expected, timeout, alive=lambda: not graph.dead(),
                             progress=lambda sc: say(f"demo: scored pull {sc['pull_id'] + 1}/{expected} "

@@ -15,6 +15,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
+from force_tester_common.core.correction import ABORT_TIMEOUT_S
+
 from .pairing import AlignedPair
 from .scoring import PullAccumulator
 
@@ -36,6 +38,7 @@ class _Open:
     acc: PullAccumulator
     epoch: int                        # the block epoch whose pairs this pull takes
     idle_s: Optional[float] = None    # seconds since END without data reaching it (None before END)
+    quiet_s: float = 0.0              # seconds without data (before END)
 
 
 class PullTracker:
@@ -43,8 +46,10 @@ class PullTracker:
     pulls ready to score and those closed unscored. ``add(acc, pair)`` puts a pair's samples into
     an accumulator (the caller knows the payload types)."""
 
-    def __init__(self, add, recent_pairs: int = RECENT_PAIRS, finish_timeout_s: float = FINISH_TIMEOUT_S):
+    def __init__(self, add, abort_timeout_s: float = ABORT_TIMEOUT_S, recent_pairs: int = RECENT_PAIRS,
+                 finish_timeout_s: float = FINISH_TIMEOUT_S):
         self._add = add
+        self._abort_s = abort_timeout_s
         self.recent: deque = deque(maxlen=recent_pairs)
         self.open: Dict[int, _Open] = {}
         self.epoch = 0
@@ -110,6 +115,7 @@ class PullTracker:
             if o.epoch != self.epoch:
                 continue
             self._add(o.acc, pair)
+            o.quiet_s = 0.0
             if o.idle_s is not None:
                 o.idle_s = 0.0  # data is still coming
             if o.acc.finished and pair.end_stamp_ns >= o.acc.end_ns:
@@ -117,15 +123,20 @@ class PullTracker:
         return ready
 
     # -- time ----------------------------------------------------------------------------
-    def tick(self, dt_s: float) -> List[PullAccumulator]:
-        """Time passed: ended pulls whose data stopped coming for the timeout are ready."""
+    def tick(self, dt_s: float) -> Tuple[List[PullAccumulator], List[Closed]]:
+        """Time passed: (ended pulls whose data stopped coming for the finish timeout: ready to
+        score, pulls without END and without data for the abort timeout: closed as aborted)."""
         ready = []
         for pull_id, o in list(self.open.items()):
             if o.idle_s is not None:
                 o.idle_s += dt_s
                 if o.idle_s >= self._timeout_s:
                     ready.append(self._pop(pull_id))
-        return ready
+            else:
+                o.quiet_s += dt_s
+        closed = self._close(lambda o: o.idle_s is None and o.quiet_s >= self._abort_s,
+                             f'aborted: no data and no END for {self._abort_s:g} s (the source stopped mid-pull)')
+        return ready, closed
 
     def _pop(self, pull_id: int) -> PullAccumulator:
         return self.open.pop(pull_id).acc

@@ -10,5 +10,7 @@ MAX_PENDING_RANGE = (1, 1_000_000)
 VALIDATOR_MAX_PENDING = 20_000     # the corrected stream lags the force stream: 20 s of 1 ms blocks
 NEW_RUN_GAP_S = 10.0               # a stamp jump forward by more than this starts a new run
 NEW_RUN_GAP_RANGE_S = (0.001, 86_400.0)
+ABORT_TIMEOUT_S = 10.0             # validator: a pull without data and without END for this long is aborted
+ABORT_TIMEOUT_RANGE_S = (0.1, 3600.0)
 LOADED_FRACTION = 0.1              # RMS window: stationary force above this share of its peak
 LOADED_FRACTION_RANGE = (0.01, 0.99)
