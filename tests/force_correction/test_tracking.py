@@ -51,10 +51,11 @@ def test_a_replay_is_scored_from_its_own_blocks_whichever_stream_starts_over_fir
         s = Stream(tracker)
         run_pull(tracker, s, T0, 0, 1000.0)
         run_pull(tracker, s, T0, 0, 2000.0, start_first=start_first)  # same stamps, other data
-        assert [a.pull_id for a in s.ready] == [1, 1] and s.closed == []
-        peaks = [a.score(0.1).stationary_peak_n for a in s.ready]
+        assert [f.pull_id for f in s.ready] == [1, 1] and s.closed == []
+        assert all(f.notes == () and not f.aborted for f in s.ready)
+        peaks = [f.acc.score(0.1).stationary_peak_n for f in s.ready]
         assert np.allclose(peaks, [1000.0, 2000.0], rtol=1e-3), (start_first, peaks)
-        assert s.ready[1].n_samples == 10 * N
+        assert s.ready[1].acc.n_samples == 10 * N
 
 
 @pytest.mark.parametrize('start_first', [True, False])
@@ -63,8 +64,9 @@ def test_a_restart_mid_pull_closes_that_pull_unscored(start_first):
     s = Stream(tracker)
     run_pull(tracker, s, T0, 0, 1000.0, blocks=5)        # the source dies half-way
     run_pull(tracker, s, T0 + 60 * DT, 0, 1500.0, start_first=start_first)  # again: seq 0, later stamps
-    assert [c.pull_id for c in s.closed] == [1] and 'started over' in s.closed[0].reason
-    assert len(s.ready) == 1 and s.ready[0].n_samples == 10 * N
+    assert [c.pull_id for c in s.closed] == [1] and 'started over' in s.closed[0].aborted
+    assert s.closed[0].acc.n_samples == 5 * N                 # scored as aborted on what arrived
+    assert len(s.ready) == 1 and s.ready[0].acc.n_samples == 10 * N and not s.ready[0].aborted
 
 
 def test_an_ended_pull_whose_data_stops_is_scored_after_the_timeout():
@@ -74,9 +76,10 @@ def test_an_ended_pull_whose_data_stops_is_scored_after_the_timeout():
     for k in range(8):
         s.push(k, T0, 0, 1000.0)
     assert tracker.end(T0 + 10 * DT, 1) == (True, [])
-    assert tracker.tick(0.5) == ([], [])
-    (acc,), closed = tracker.tick(0.5)
-    assert acc.pull_id == 1 and acc.n_samples == 8 * N and closed == []
+    assert tracker.tick(0.5) == []
+    (f,) = tracker.tick(0.5)
+    assert f.pull_id == 1 and f.acc.n_samples == 8 * N and not f.aborted
+    assert f.notes[0][0] == 'incomplete' and 'before the END' in f.notes[0][1]
     assert tracker.end(T0, 99) == (False, [])
 
 
@@ -86,8 +89,24 @@ def test_a_pull_whose_source_stops_before_its_end_is_aborted_after_the_timeout()
     tracker.start(T0, 1, 3)
     for k in range(4):
         s.push(k, T0, 0, 1000.0)
-    assert tracker.tick(1.5) == ([], [])
+    assert tracker.tick(1.5) == []
     s.push(4, T0, 0, 1000.0)                 # data resets the clock
-    assert tracker.tick(1.5) == ([], [])
-    ready, (closed,) = tracker.tick(0.5)
-    assert ready == [] and closed.pull_id == 1 and 'aborted' in closed.reason and not tracker.open
+    assert tracker.tick(1.5) == []
+    (f,) = tracker.tick(0.5)
+    assert f.pull_id == 1 and 'no data and no END' in f.aborted and not tracker.open
+
+
+def test_a_correction_restart_leaves_a_gap_and_a_reconfiguration_is_noted():
+    tracker = PullTracker(add)
+    s = Stream(tracker)
+    tracker.start(T0, 1, 3)
+    for k in range(4):
+        s.push(k, T0, 0, 1000.0)
+    tracker.reconfigured('window changed')
+    tracker.correction_restarted()               # blocks 4-5 never corrected
+    for k in range(6, 10):
+        s.push(k, T0, 0, 1000.0)
+    (f,) = tracker.end(T0 + 10 * DT, 1)[1]
+    kinds = dict(f.notes)
+    assert kinds['reconfigured'] == 'window changed'
+    assert '2.0 ms from stamp' in kinds['incomplete'], f.notes

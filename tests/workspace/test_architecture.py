@@ -203,6 +203,13 @@ def test_pull_event_codes_match_the_message_definition():
         {k: int(v) for k, v in codes.items()}
 
 
+def test_pull_score_status_codes_match_the_message_definition():
+    from force_tester_common.core import scores
+    text = (SRC / 'force_tester_msgs' / 'msg' / 'PullScore.msg').read_text()
+    codes = {k: int(v) for k, v in re.findall(r'^uint8 ([A-Z]+)=(\d+)', text, re.M)}
+    assert codes == {name: code for code, name in scores.PULL_STATUS_NAMES.items()}
+
+
 def test_ruff():
     ruff = shutil.which('ruff') or str(Path(sys.executable).with_name('ruff'))
     if not Path(ruff).exists():

@@ -139,3 +139,50 @@ def test_the_by_hand_recipe_scores_every_pull(tmp_path, ros_domain, attempt):
         collector.close()
     assert [s['pull_id'] for s in collector.scores] == [0, 1]
     assert 'without its START' not in (tmp_path / 'logs' / 'validator_node.log').read_text()
+
+
+def kill(graph, name):
+    import signal
+    p = graph.procs.pop(name)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+
+
+def test_faults_mid_pull_are_scored_with_their_status(tmp_path, ros_domain):
+    """The window changed mid-pull: RECONFIGURED. The correction node SIGKILLed mid-pull and
+    restarted: the corrected stream resumes and the pull is INCOMPLETE, with the gap. The sim SIGKILLed
+    mid-pull: the validator closes that pull as ABORTED after abort_timeout_s. The others are OK."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from force_tester_common.core.scores import PULL_ABORTED, PULL_INCOMPLETE, PULL_OK, PULL_RECONFIGURED
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector()
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node', {'abort_timeout_s': 3.0})
+        assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=60)
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 5, 'rate': 0.5})
+        alive = lambda: not graph.dead()  # noqa: E731
+        assert collector.wait(1, 120, alive=alive), graph.tail('validator_node')   # pull 1 runs now
+        client = AsyncParameterClient(collector.node, 'correction')
+        assert client.wait_for_services(timeout_sec=30)
+        future = client.set_parameters([Parameter('window', value=200)])
+        collector.executor.spin_until_future_complete(future, timeout_sec=30)
+        assert future.done() and all(r.successful for r in future.result().results)
+        assert collector.wait(2, 120, alive=alive), graph.tail('validator_node')   # pull 2 runs now
+        kill(graph, 'correction_node')
+        graph.start('force_correction', 'correction_node', {'window': 200})
+        assert collector.wait(3, 120, alive=alive), graph.tail('validator_node')   # pull 3 runs now
+        assert collector.wait(4, 120, alive=alive), graph.tail('validator_node')   # pull 4 runs now
+        kill(graph, 'sim_node')
+        assert collector.wait(5, 120, alive=alive), graph.tail('validator_node')
+    finally:
+        graph.stop()
+        collector.close()
+    status = {s['pull_id']: (s['status'], s['detail']) for s in collector.scores}
+    assert status[0] == (PULL_OK, ''), status
+    assert status[1][0] == PULL_RECONFIGURED and 'window' in status[1][1], status
+    assert status[2][0] == PULL_INCOMPLETE and 'the correction restarted' in status[2][1], status
+    assert status[3] == (PULL_OK, ''), status
+    assert status[4][0] == PULL_ABORTED and 'no data and no END' in status[4][1], status

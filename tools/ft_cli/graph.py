@@ -13,6 +13,7 @@ from force_tester_common.core.scores import PULL_SCORE_FIELDS
 from .paths import executable
 
 SCORE_KEYS = ('pull_id', 'test_set', *PULL_SCORE_FIELDS, 'dropped_blocks')
+STATUS_KEYS = ('status', 'detail')  # how far to trust a score, and why
 
 
 def ros_param_args(params: dict) -> list:
@@ -93,7 +94,7 @@ class ScoreCollector:
         return False
 
     def _on_score(self, msg):
-        self.scores.append({k: getattr(msg, k) for k in SCORE_KEYS})
+        self.scores.append({k: getattr(msg, k) for k in (*SCORE_KEYS, *STATUS_KEYS)})
 
     def _on_diagnostics(self, msg):
         for status in msg.status:

@@ -42,6 +42,7 @@ SPECS = [
               C.NEW_RUN_GAP_RANGE_S, read_only=True),
 ]
 USED_FIELDS = {'force': ('moving_n',), 'accel': ('axial_m_s2',)}
+RESTARTING_PARAMETERS = ('mass_kg', 'window', 'extension_file')   # a change of these restarts the filter
 
 TOPICS = {t.topic: t for t in BLOCK_TOPICS}
 

@@ -6,13 +6,19 @@ RMS error over the loaded window) and /set_summary (per-set mean and standard de
 thesis Tables 8 and 9; latched with depth 1, so a late joiner gets the current summary).
 
 Every incoming message is checked before use; a bad one is counted, reported on /diagnostics and
-dropped. A restarted or replayed stream (blocks or pull events) is a new run: pulls that straddle
-it are closed unscored and reported, so no pull is scored from a mix of two runs
-(core/tracking.py).
+dropped. Each score has a status (PullScore.msg): a restarted or replayed source is a new run, and
+a pull that straddles it is ABORTED, as is one whose source stops mid-pull (abort_timeout_s); a
+restart of the correction alone leaves a gap and the pull is INCOMPLETE (so are pulls with lost
+blocks); a change of the correction's parameters mid-pull (seen on /parameter_events) makes it
+RECONFIGURED. No pull is scored from a mix of two runs (core/tracking.py). /set_summary covers
+the OK pulls only.
 """
 from __future__ import annotations
 
+import math
+
 from force_tester_msgs.msg import PullEvent, PullScore, SetSummary
+from rcl_interfaces.msg import ParameterEvent
 from rclpy.node import Node
 
 from force_tester_common.conversions import (
@@ -26,7 +32,14 @@ from force_tester_common.conversions import (
 from force_tester_common.core import correction as C
 from force_tester_common.core.blocks import event_problem, stamp_problem
 from force_tester_common.core.channels import PULL_EVENT_TOPIC, PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC
-from force_tester_common.core.scores import PULL_SCORE_FIELDS, SET_SUMMARY_FIELDS
+from force_tester_common.core.scores import (
+    PULL_ABORTED,
+    PULL_OK,
+    PULL_SCORE_FIELDS,
+    PULL_STATUS_NAMES,
+    SET_SUMMARY_FIELDS,
+    pull_status,
+)
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import (
     BLOCK_QOS,
@@ -44,7 +57,8 @@ from force_tester_common.ros import (
 from .core.errors import CorrectionError
 from .core.pairing import BlockAligner
 from .core.scoring import PullAccumulator, SetStatistics
-from .core.tracking import PullTracker
+from .core.tracking import Finished, PullTracker
+from .correction_node import RESTARTING_PARAMETERS
 
 FORCE = next(t for t in BLOCK_TOPICS if t.topic == '/force')
 USED_FIELDS = {'corrected': ('raw_n', 'corrected_n', 'filtered_n'), 'force': ('stationary_n',)}
@@ -62,6 +76,8 @@ SPECS = [
     ParamSpec('abort_timeout_s', C.ABORT_TIMEOUT_S, 'a started pull without data and without END for this long '
                                                     'is closed as aborted (the source stopped mid-pull)',
               C.ABORT_TIMEOUT_RANGE_S, read_only=True),
+    ParamSpec('correction_node', '/correction', 'fully qualified name of the correction node whose parameter '
+                                                'changes mark the pulls in progress RECONFIGURED', read_only=True),
 ]
 
 
@@ -87,7 +103,8 @@ class ValidatorNode(Node):
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
         self.tracker = PullTracker(add_pair, abort_timeout_s=self.params.values['abort_timeout_s'])
         self.stats = SetStatistics()
-        self.counts = {'bad_messages': 0, 'runs': 0, 'closed_unscored': 0}
+        self.counts = {'bad_messages': 0, 'runs': 0, 'aborted': 0}
+        self._source_restarted = False   # a /force new run whose /force_corrected new run is still to come
         self.score_pub = self.create_publisher(PullScore, PULL_SCORE_TOPIC, SCORE_QOS)
         self.summary_pub = self.create_publisher(SetSummary, SET_SUMMARY_TOPIC, SUMMARY_QOS)
         for channel, topic in (('corrected', CORRECTED_TOPIC), ('force', FORCE)):
@@ -95,6 +112,8 @@ class ValidatorNode(Node):
                 self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS)
         self.create_subscription(PullEvent, PULL_EVENT_TOPIC, guarded(self.diag, PULL_EVENT_TOPIC, self._on_event),
                                  EVENT_QOS)
+        self.create_subscription(ParameterEvent, '/parameter_events',
+                                 guarded(self.diag, '/parameter_events', self._on_parameters), EVENT_QOS)
         self.create_timer(TICK_S, self._tick)
 
     def _bad(self, topic: str, problem: str) -> None:
@@ -103,11 +122,17 @@ class ValidatorNode(Node):
                          topic=topic,
                          bad_messages=self.counts['bad_messages'])
 
-    def _closed(self, closed) -> None:
-        for c in closed:
-            self.counts['closed_unscored'] += 1
-            self.diag.report(WARN, f'pull {c.pull_id} of set {c.set_id} closed unscored: {c.reason}',
-                             pull_id=c.pull_id)
+    def _finish(self, over) -> None:
+        for f in over:
+            self._score(f)
+
+    def _on_parameters(self, msg: ParameterEvent):
+        if msg.node != self.params.values['correction_node']:
+            return
+        changed = [p for p in (*msg.new_parameters, *msg.changed_parameters) if p.name in RESTARTING_PARAMETERS]
+        if changed:
+            self.tracker.reconfigured('the correction was reconfigured mid-pull (' + ', '.join(
+                p.name for p in changed) + ')')
 
     def _on_event(self, msg: PullEvent):
         problem = stamp_problem(msg.header.stamp.sec, msg.header.stamp.nanosec) or event_problem(msg.event)
@@ -116,7 +141,7 @@ class ValidatorNode(Node):
             return
         stamp = stamp_to_ns(msg.header.stamp)
         if msg.event == PullEvent.START:
-            self._closed(self.tracker.start(stamp, int(msg.pull_id), int(msg.test_set)))
+            self._finish(self.tracker.start(stamp, int(msg.pull_id), int(msg.test_set)))
             return
         try:
             known, ready = self.tracker.end(stamp, int(msg.pull_id))
@@ -126,48 +151,63 @@ class ValidatorNode(Node):
         if not known:
             self.diag.report(WARN, f'END of pull {msg.pull_id} without its START; pull not scored',
                              key='end_without_start')
-        for acc in ready:
-            self._score(acc)
+        self._finish(ready)
 
     def _on_block(self, channel: str, topic, msg):
         problem = message_problem(msg, topic, USED_FIELDS[channel])
         if problem:
             self._bad(topic.topic, problem)
             return
+        if channel == 'force':
+            self.tracker.source_heard()
         pairs, events = self.aligner.push(channel, stamp_to_ns(msg.header.stamp), msg.seq,
                                           msg.sample_rate_hz, len(getattr(msg, USED_FIELDS[channel][0])), msg)
         for event in events:
             self.diag.report(WARN, f'{event.kind} block on {event.channel}: {event.detail}',
                              key=(event.kind, event.channel))
-            if event.kind == 'new_run':
+            if event.kind == 'new_run' and event.channel == 'force':   # the source started over
                 self.counts['runs'] += 1
-                self._closed(self.tracker.new_run())
+                self._source_restarted = True
+                self._finish(self.tracker.new_run())
+            elif event.kind == 'new_run':    # the corrected stream: part of that, or the correction alone
+                if self._source_restarted:
+                    self._source_restarted = False
+                else:
+                    self.tracker.correction_restarted()
             elif event.kind in ('dropped', 'unmatched'):
                 self.tracker.dropped()
         for pair in pairs:
-            for acc in self.tracker.pair(pair):
-                self._score(acc)
+            self._finish(self.tracker.pair(pair))
 
     def _tick(self):
-        ready, aborted = self.tracker.tick(TICK_S)
-        self._closed(aborted)
-        for acc in ready:
-            self.diag.report(WARN, f'pull {acc.pull_id}: data stopped before its END; scoring what arrived')
-            self._score(acc)
+        self._finish(self.tracker.tick(TICK_S))
 
-    def _score(self, acc: PullAccumulator):
+    def _score(self, f: Finished):
+        acc = f.acc
         try:
             s = acc.score(self.params.values['loaded_fraction'])
+            values = {k: float(getattr(s, k)) for k in PULL_SCORE_FIELDS}
         except CorrectionError as exc:
-            self.diag.report(ERROR, f'pull {acc.pull_id} of set {acc.set_id} not scored: {exc}')
-            return
-        self.stats.add(acc.set_id, s)
-        msg = PullScore(pull_id=acc.pull_id, test_set=acc.set_id, dropped_blocks=s.dropped_blocks,
-                        **{k: float(getattr(s, k)) for k in PULL_SCORE_FIELDS})
+            if not f.aborted:
+                self.diag.report(ERROR, f'pull {acc.pull_id} of set {acc.set_id} not scored: {exc}')
+                return
+            s, values = None, {k: math.nan for k in PULL_SCORE_FIELDS}   # aborted before any usable data
+        notes = f.notes + ((('aborted', f.aborted),) if f.aborted else ())
+        status, detail = pull_status(acc.dropped_blocks, notes, aborted=bool(f.aborted))
+        msg = PullScore(pull_id=acc.pull_id, test_set=acc.set_id, dropped_blocks=acc.dropped_blocks,
+                        status=status, detail=detail, **values)
         msg.header.stamp = ns_to_stamp(acc.start_ns)
         self.score_pub.publish(msg)
-        self.diag.report(OK, f'pull {acc.pull_id} (set {acc.set_id}): peak difference raw {s.raw_diff_pct:.1f} %, '
-                             f'm*a {s.corrected_diff_pct:.1f} %, filtered {s.filtered_diff_pct:.1f} %')
+        if status == PULL_ABORTED:
+            self.counts['aborted'] += 1
+        level = OK if status == PULL_OK else WARN
+        text = (f'peak difference raw {s.raw_diff_pct:.1f} %, m*a {s.corrected_diff_pct:.1f} %, filtered '
+                f'{s.filtered_diff_pct:.1f} %' if s is not None else 'no usable data')
+        self.diag.report(level, f'pull {acc.pull_id} (set {acc.set_id}) {PULL_STATUS_NAMES[status]}: {text}'
+                                + (f' ({detail})' if detail else ''), pull_id=acc.pull_id, status=status)
+        if status != PULL_OK:
+            return
+        self.stats.add(acc.set_id, s)
         summary = self.stats.summary(acc.set_id)
         out = SetSummary(test_set=acc.set_id, **{f: getattr(summary, k) for f, k in SET_SUMMARY_FIELDS.items()})
         out.header.stamp = msg.header.stamp

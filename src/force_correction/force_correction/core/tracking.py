@@ -6,13 +6,17 @@ aligner's ``new_run`` event; the events by a START that is not after the previou
 that reuses the id of an open pull). Either may come first. :class:`PullTracker` keeps a block
 *epoch* (incremented at every new run of the blocks) and gives each open pull the epoch whose
 blocks it takes, so a pull is never scored from a mix of two runs: pulls that straddle a
-restart are closed unscored, with the reason.
+restart are closed as aborted, with the reason.
+
+A restart of the correction alone (its output starts over while the source goes on) is not a new
+run: the open pulls note the gap in the corrected stream and are scored as incomplete. A change
+of the correction's parameters mid-pull is noted as well (reconfigured).
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 from force_tester_common.core.correction import ABORT_TIMEOUT_S
@@ -25,12 +29,17 @@ FINISH_TIMEOUT_S = 5.0   # after END, score what arrived once no new data has co
 
 
 @dataclass(frozen=True)
-class Closed:
-    """A pull closed without a score, and why."""
+class Finished:
+    """A pull that is over: its samples, what was noted on the way ((kind, text) pairs, kind
+    'incomplete' or 'reconfigured') and, if it never ended properly, why (aborted)."""
 
-    pull_id: int
-    set_id: int
-    reason: str
+    acc: PullAccumulator
+    notes: tuple = ()
+    aborted: str = ''
+
+    @property
+    def pull_id(self) -> int:
+        return self.acc.pull_id
 
 
 @dataclass
@@ -38,12 +47,13 @@ class _Open:
     acc: PullAccumulator
     epoch: int                        # the block epoch whose pairs this pull takes
     idle_s: Optional[float] = None    # seconds since END without data reaching it (None before END)
-    quiet_s: float = 0.0              # seconds without data (before END)
+    quiet_s: float = 0.0              # seconds without a block of the source (before END)
+    notes: list = field(default_factory=list)
 
 
 class PullTracker:
     """Open pulls, recent pairs and the run epochs. Feed it events and pairs; it returns the
-    pulls ready to score and those closed unscored. ``add(acc, pair)`` puts a pair's samples into
+    pulls that are over (:class:`Finished`). ``add(acc, pair)`` puts a pair's samples into
     an accumulator (the caller knows the payload types)."""
 
     def __init__(self, add, abort_timeout_s: float = ABORT_TIMEOUT_S, recent_pairs: int = RECENT_PAIRS,
@@ -56,11 +66,12 @@ class PullTracker:
         self._epoch_at_start = 0
         self._last_start_ns: Optional[int] = None
         self._timeout_s = finish_timeout_s
+        self._gap_from: Optional[int] = None   # end of the last pair before the correction restarted
 
     # -- pull events ---------------------------------------------------------------------
-    def start(self, stamp_ns: int, pull_id: int, set_id: int) -> List[Closed]:
-        """A START event. Returns the pulls it closed (when the events started over)."""
-        closed: List[Closed] = []
+    def start(self, stamp_ns: int, pull_id: int, set_id: int) -> List[Finished]:
+        """A START event. Returns the pulls it aborted (when the events started over)."""
+        closed: List[Finished] = []
         epoch = self.epoch
         if (self._last_start_ns is not None and stamp_ns <= self._last_start_ns) or pull_id in self.open:
             closed = self._close(lambda o: True, 'the pull events started over (a restarted source or a '
@@ -79,7 +90,7 @@ class PullTracker:
         self.open[pull_id] = o
         return closed
 
-    def end(self, stamp_ns: int, pull_id: int) -> Tuple[bool, List[PullAccumulator]]:
+    def end(self, stamp_ns: int, pull_id: int) -> Tuple[bool, List[Finished]]:
         """An END event: (known pull?, pulls ready to score)."""
         o = self.open.get(pull_id)
         if o is None:
@@ -91,29 +102,50 @@ class PullTracker:
         return True, []
 
     # -- blocks --------------------------------------------------------------------------
-    def new_run(self) -> List[Closed]:
-        """The blocks started over. Pulls holding data of the old run are closed; pulls without
+    def new_run(self) -> List[Finished]:
+        """The blocks started over. Pulls holding data of the old run are aborted; pulls without
         data yet move to the new run."""
         self.epoch += 1
         self.recent.clear()
+        self._gap_from = None
         closed = self._close(lambda o: o.epoch < self.epoch and o.acc.n_samples > 0,
                              'the blocks started over (a restarted source or a replay) mid-pull')
         for o in self.open.values():
             o.epoch = max(o.epoch, self.epoch) if o.acc.n_samples == 0 else o.epoch
         return closed
 
+    def correction_restarted(self) -> None:
+        """The corrected stream started over while the source went on: the open pulls will note
+        the gap (its span is known at the next pair)."""
+        if self.recent and self._gap_from is None:
+            self._gap_from = self.recent[-1].end_stamp_ns
+
+    def source_heard(self) -> None:
+        """A block of the source arrived (paired or not): the source is alive, nothing is aborted."""
+        for o in self.open.values():
+            o.quiet_s = 0.0
+
+    def reconfigured(self, what: str) -> None:
+        """The correction's parameters changed: every open pull notes it."""
+        for o in self.open.values():
+            o.notes.append(('reconfigured', what))
+
     def dropped(self) -> None:
         """Blocks were lost: every open pull notes it."""
         for o in self.open.values():
             o.acc.note_dropped()
 
-    def pair(self, pair: AlignedPair) -> List[PullAccumulator]:
+    def pair(self, pair: AlignedPair) -> List[Finished]:
         """An aligned pair: added to the open pulls of this epoch; returns the pulls it completes."""
         self.recent.append(pair)
+        gap, self._gap_from = self._gap_from, None
         ready = []
         for pull_id, o in list(self.open.items()):
             if o.epoch != self.epoch:
                 continue
+            if gap is not None:
+                o.notes.append(('incomplete', f'the correction restarted: no corrected samples for '
+                                              f'{(pair.stamp_ns - gap) / 1e6:.1f} ms from stamp {gap} ns'))
             self._add(o.acc, pair)
             o.quiet_s = 0.0
             if o.idle_s is not None:
@@ -123,26 +155,27 @@ class PullTracker:
         return ready
 
     # -- time ----------------------------------------------------------------------------
-    def tick(self, dt_s: float) -> Tuple[List[PullAccumulator], List[Closed]]:
-        """Time passed: (ended pulls whose data stopped coming for the finish timeout: ready to
-        score, pulls without END and without data for the abort timeout: closed as aborted)."""
-        ready = []
+    def tick(self, dt_s: float) -> List[Finished]:
+        """Time passed. Ended pulls whose data stopped coming for the finish timeout are over
+        (incomplete: their data stopped before the END); pulls without END and without data for
+        the abort timeout are aborted."""
+        over = []
         for pull_id, o in list(self.open.items()):
             if o.idle_s is not None:
                 o.idle_s += dt_s
                 if o.idle_s >= self._timeout_s:
-                    ready.append(self._pop(pull_id))
+                    o.notes.append(('incomplete', f'the data stopped before the END (no block for '
+                                                  f'{self._timeout_s:g} s)'))
+                    over.append(self._pop(pull_id))
             else:
                 o.quiet_s += dt_s
-        closed = self._close(lambda o: o.idle_s is None and o.quiet_s >= self._abort_s,
-                             f'aborted: no data and no END for {self._abort_s:g} s (the source stopped mid-pull)')
-        return ready, closed
+        return over + self._close(lambda o: o.idle_s is None and o.quiet_s >= self._abort_s,
+                                  f'no data and no END for {self._abort_s:g} s (the source stopped mid-pull)')
 
-    def _pop(self, pull_id: int) -> PullAccumulator:
-        return self.open.pop(pull_id).acc
+    def _pop(self, pull_id: int) -> Finished:
+        o = self.open.pop(pull_id)
+        return Finished(o.acc, tuple(o.notes))
 
-    def _close(self, which, reason: str) -> List[Closed]:
-        closed = [Closed(pid, o.acc.set_id, reason) for pid, o in self.open.items() if which(o)]
-        for c in closed:
-            del self.open[c.pull_id]
-        return closed
+    def _close(self, which, reason: str) -> List[Finished]:
+        ids = [pid for pid, o in self.open.items() if which(o)]
+        return [Finished(o.acc, tuple(o.notes), reason) for o in (self.open.pop(pid) for pid in ids)]

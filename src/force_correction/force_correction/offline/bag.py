@@ -41,7 +41,7 @@ from force_tester_common.core.channels import (
 )
 from force_tester_common.core.clock import record_stamps_ns, sample_stamps_ns
 from force_tester_common.core.correction import MAX_PENDING
-from force_tester_common.core.scores import PULL_SCORE_FIELDS, SET_SUMMARY_FIELDS
+from force_tester_common.core.scores import PULL_SCORE_FIELDS, SET_SUMMARY_FIELDS, pull_status
 
 from ..core.errors import CorrectionError
 from ..core.pairing import BlockAligner, BlockHeaders, clean_pairing, follows
@@ -270,8 +270,10 @@ def result_messages(store, pulls, running) -> list:
     T = store.types
     out = []
     for p, summ in zip(pulls, running):
+        status, detail = pull_status(p.score.dropped_blocks)
         msg = T[PULL_SCORE_TYPE](header=header(store, p.start_ns), pull_id=p.pull_id,
                                  test_set=p.test_set, dropped_blocks=p.score.dropped_blocks,
+                                 status=status, detail=detail,
                                  **{f: float(getattr(p.score, f)) for f in PULL_SCORE_FIELDS})
         out.append((p.end_ns, 1, PULL_SCORE_TOPIC, PULL_SCORE_TYPE,
                     bytes(store.serialize_cdr(msg, PULL_SCORE_TYPE))))

@@ -1,4 +1,5 @@
-"""Which score field goes where: the correction core's results <-> PullScore / SetSummary messages.
+"""Which score field goes where: the correction core's results <-> PullScore / SetSummary messages,
+and the PullScore status codes (PullScore.msg defines them; a test checks these against it).
 
 PullScore carries the core's PullScoreResult fields under the same names; SetSummary renames the
 core's SetSummary fields (``SET_SUMMARY_FIELDS``: message field -> core attribute).
@@ -15,3 +16,25 @@ SET_SUMMARY_FIELDS = {
     'corrected_diff_mean_pct': 'corrected_mean_pct', 'corrected_diff_std_pct': 'corrected_std_pct',
     'filtered_diff_mean_pct': 'filtered_mean_pct', 'filtered_diff_std_pct': 'filtered_std_pct',
 }
+
+PULL_OK, PULL_INCOMPLETE, PULL_RECONFIGURED, PULL_ABORTED = 0, 1, 2, 3
+PULL_STATUS_NAMES = {PULL_OK: 'OK', PULL_INCOMPLETE: 'INCOMPLETE', PULL_RECONFIGURED: 'RECONFIGURED',
+                     PULL_ABORTED: 'ABORTED'}
+
+
+def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
+    """(status code, detail) of a pull: ABORTED over INCOMPLETE over RECONFIGURED over OK.
+    notes: (kind, text) pairs with kind 'incomplete' or 'reconfigured'."""
+    kinds = {k for k, _ in notes}
+    texts = [t for _, t in notes]
+    if dropped_blocks:
+        texts.insert(0, f'{dropped_blocks} block(s) missing')
+    if aborted:
+        code = PULL_ABORTED
+    elif dropped_blocks or 'incomplete' in kinds:
+        code = PULL_INCOMPLETE
+    elif 'reconfigured' in kinds:
+        code = PULL_RECONFIGURED
+    else:
+        code = PULL_OK
+    return code, '; '.join(texts)
