@@ -188,6 +188,18 @@ def test_bad_blocks_are_counted_reported_and_dropped_and_the_node_lives(ros):
         assert ex_node.counts['pairs'] == 3
 
 
+def test_a_best_effort_publisher_on_a_reliable_topic_is_reported(ros):
+    """DDS delivers nothing from a best-effort writer to a reliable reader, silently; the node
+    says so on /diagnostics (the incompatible-QoS event)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    with Loop(correction_node()) as (ex, pub_f, pub_a, out, diags):
+        probe = ex.get_nodes()[1] if ex.get_nodes()[0].get_name() == 'correction' else ex.get_nodes()[0]
+        probe.create_publisher(TOPICS['/force'].msg_type, '/force',
+                               QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        assert spin_until(ex, lambda: any('incompatible' in st.message and 'RELIABILITY' in st.message
+                                          for d in diags for st in d.status), timeout=30)
+
+
 def test_a_change_that_leaves_the_correction_as_it_was_does_not_restart_it(ros):
     node = correction_node()
     try:

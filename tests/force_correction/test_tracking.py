@@ -110,3 +110,19 @@ def test_a_correction_restart_leaves_a_gap_and_a_reconfiguration_is_noted():
     kinds = dict(f.notes)
     assert kinds['reconfigured'] == 'window changed'
     assert '2.0 ms from stamp' in kinds['incomplete'], f.notes
+
+
+def test_the_score_log_round_trips_and_skips_a_line_cut_short(tmp_path):
+    from force_correction.core.score_log import LoggedScore, ScoreLog
+    tracker = PullTracker(add)
+    s = Stream(tracker)
+    run_pull(tracker, s, T0, 0, 1000.0)
+    result = s.ready[0].acc.score(0.1)
+    log = ScoreLog(tmp_path / 'state' / 'scores.jsonl')
+    assert log.load() == ([], 0)
+    written = [LoggedScore(1, 3, T0, 0, '', result), LoggedScore(2, 3, T0 + 10**9, 1, '2 block(s) missing', result)]
+    for w in written:
+        log.append(w)
+    with log.path.open('a') as fh:
+        fh.write('{"pull_id": 3, "set_id"')          # a crash mid-write
+    assert log.load() == (written, 1)

@@ -186,3 +186,44 @@ def test_faults_mid_pull_are_scored_with_their_status(tmp_path, ros_domain):
     assert status[2][0] == PULL_INCOMPLETE and 'the correction restarted' in status[2][1], status
     assert status[3] == (PULL_OK, ''), status
     assert status[4][0] == PULL_ABORTED and 'no data and no END' in status[4][1], status
+
+
+def test_a_restarted_validator_keeps_its_scores(tmp_path, ros_domain):
+    """With state_file, a validator killed and started again republishes the scores it had, and
+    its set summaries count them."""
+    from force_tester_msgs.msg import SetSummary
+
+    from force_tester_common.core.scores import PULL_OK
+    from force_tester_common.ros import SUMMARY_QOS
+    state = tmp_path / 'scores.jsonl'
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector()
+    summaries = []
+    collector.node.create_subscription(SetSummary, '/set_summary', summaries.append, SUMMARY_QOS)
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node', {'state_file': str(state)})
+        assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=60)
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 5, 'rate': 0.5})
+        alive = lambda: not graph.dead()  # noqa: E731
+        assert collector.wait(1, 120, alive=alive), graph.tail('validator_node')
+        kill(graph, 'validator_node')   # while pull 1 runs: the new one misses its START
+        before = len(collector.scores)
+        graph.start('force_correction', 'validator_node', {'state_file': str(state)})
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and alive() and 4 not in [s['pull_id'] for s in collector.scores[before:]]:
+            collector.executor.spin_once(timeout_sec=0.1)
+        deadline = time.monotonic() + 10   # the summary of the last score follows it
+        ok_now = lambda: {s['pull_id'] for s in collector.scores[before:] if s['status'] == PULL_OK}  # noqa: E731
+        while time.monotonic() < deadline and not (summaries and summaries[-1].pulls == len(ok_now())):
+            collector.executor.spin_once(timeout_sec=0.1)
+    finally:
+        graph.stop()
+        collector.close()
+    after = collector.scores[before:]
+    assert after and after[0]['pull_id'] == 0, (collector.scores[:before], after)   # the restored score first
+    assert after[0]['filtered_diff_pct'] == collector.scores[0]['filtered_diff_pct']
+    assert 4 in [s['pull_id'] for s in after], after
+    ok = {s['pull_id'] for s in after if s['status'] == PULL_OK}
+    assert summaries and summaries[-1].pulls == len(ok), (summaries[-1], ok)
+    assert len(state.read_text().splitlines()) == len({s['pull_id'] for s in collector.scores})

@@ -35,7 +35,7 @@ class Graph:
 
     def start(self, package: str, name: str, params: dict | None = None, extra: list | None = None):
         exe = executable(package, name)
-        log = open(self.log_dir / f'{name}.log', 'w')
+        log = open(self.log_dir / f'{name}.log', 'a')  # a restarted node's log follows the first one's
         cmd = [str(exe), *(extra or []), *ros_param_args(params or {})]
         self.procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         return self.procs[name]

@@ -21,7 +21,7 @@ from force_tester_common.conversions import (
 )
 from force_tester_common.core import correction as C
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, main_for
+from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, main_for, qos_watch
 
 from .core.extension import Extension, ForcePrefilter
 from .core.pairing import BlockAligner
@@ -65,7 +65,8 @@ class CorrectionNode(Node):
         self.pub = self.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
         for channel, topic in (('force', TOPICS['/force']), ('accel', TOPICS['/accel'])):
             self.create_subscription(topic.msg_type, topic.topic, guarded(
-                self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS)
+                self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS,
+                event_callbacks=qos_watch(self.diag, topic.topic))
         self.seq = 0
         self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0, 'bad_messages': 0, 'runs': 0}
         self.create_timer(1.0, self._heartbeat)

@@ -52,10 +52,12 @@ from force_tester_common.ros import (
     Diagnostics,
     guarded,
     main_for,
+    qos_watch,
 )
 
 from .core.errors import CorrectionError
 from .core.pairing import BlockAligner
+from .core.score_log import LoggedScore, ScoreLog
 from .core.scoring import PullAccumulator, SetStatistics
 from .core.tracking import Finished, PullTracker
 from .correction_node import RESTARTING_PARAMETERS
@@ -76,6 +78,8 @@ SPECS = [
     ParamSpec('abort_timeout_s', C.ABORT_TIMEOUT_S, 'a started pull without data and without END for this long '
                                                     'is closed as aborted (the source stopped mid-pull)',
               C.ABORT_TIMEOUT_RANGE_S, read_only=True),
+    ParamSpec('state_file', '', 'JSON-lines file the scores are appended to; a restarted validator republishes '
+                                'them and its set summaries go on from them ("" = keep nothing)', read_only=True),
     ParamSpec('correction_node', '/correction', 'fully qualified name of the correction node whose parameter '
                                                 'changes mark the pulls in progress RECONFIGURED', read_only=True),
 ]
@@ -109,12 +113,27 @@ class ValidatorNode(Node):
         self.summary_pub = self.create_publisher(SetSummary, SET_SUMMARY_TOPIC, SUMMARY_QOS)
         for channel, topic in (('corrected', CORRECTED_TOPIC), ('force', FORCE)):
             self.create_subscription(topic.msg_type, topic.topic, guarded(
-                self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS)
+                self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS,
+                event_callbacks=qos_watch(self.diag, topic.topic))
         self.create_subscription(PullEvent, PULL_EVENT_TOPIC, guarded(self.diag, PULL_EVENT_TOPIC, self._on_event),
-                                 EVENT_QOS)
+                                 EVENT_QOS, event_callbacks=qos_watch(self.diag, PULL_EVENT_TOPIC))
         self.create_subscription(ParameterEvent, '/parameter_events',
                                  guarded(self.diag, '/parameter_events', self._on_parameters), EVENT_QOS)
         self.create_timer(TICK_S, self._tick)
+        self.log = ScoreLog(self.params.values['state_file']) if self.params.values['state_file'] else None
+        if self.log is not None:
+            self._restore()
+
+    def _restore(self):
+        try:
+            scores, bad = self.log.load()
+        except CorrectionError as exc:
+            self.diag.report(ERROR, f'{exc}; starting without earlier scores')
+            return
+        for logged in scores:
+            self._publish(logged, save=False)
+        skipped = f'; {bad} unreadable line(s) skipped' if bad else ''
+        self.diag.report(WARN if bad else OK, f'{len(scores)} earlier score(s) restored from {self.log.path}{skipped}')
 
     def _bad(self, topic: str, problem: str) -> None:
         self.counts['bad_messages'] += 1
@@ -186,30 +205,50 @@ class ValidatorNode(Node):
         acc = f.acc
         try:
             s = acc.score(self.params.values['loaded_fraction'])
-            values = {k: float(getattr(s, k)) for k in PULL_SCORE_FIELDS}
         except CorrectionError as exc:
             if not f.aborted:
                 self.diag.report(ERROR, f'pull {acc.pull_id} of set {acc.set_id} not scored: {exc}')
                 return
-            s, values = None, {k: math.nan for k in PULL_SCORE_FIELDS}   # aborted before any usable data
+            s = None   # aborted before any usable data
         notes = f.notes + ((('aborted', f.aborted),) if f.aborted else ())
         status, detail = pull_status(acc.dropped_blocks, notes, aborted=bool(f.aborted))
-        msg = PullScore(pull_id=acc.pull_id, test_set=acc.set_id, dropped_blocks=acc.dropped_blocks,
-                        status=status, detail=detail, **values)
-        msg.header.stamp = ns_to_stamp(acc.start_ns)
-        self.score_pub.publish(msg)
-        if status == PULL_ABORTED:
+        if s is None:
+            msg = PullScore(pull_id=acc.pull_id, test_set=acc.set_id, dropped_blocks=acc.dropped_blocks,
+                            status=status, detail=detail, **{k: math.nan for k in PULL_SCORE_FIELDS})
+            msg.header.stamp = ns_to_stamp(acc.start_ns)
+            self.score_pub.publish(msg)
             self.counts['aborted'] += 1
-        level = OK if status == PULL_OK else WARN
-        text = (f'peak difference raw {s.raw_diff_pct:.1f} %, m*a {s.corrected_diff_pct:.1f} %, filtered '
-                f'{s.filtered_diff_pct:.1f} %' if s is not None else 'no usable data')
-        self.diag.report(level, f'pull {acc.pull_id} (set {acc.set_id}) {PULL_STATUS_NAMES[status]}: {text}'
-                                + (f' ({detail})' if detail else ''), pull_id=acc.pull_id, status=status)
+            self.diag.report(WARN, f'pull {acc.pull_id} (set {acc.set_id}) ABORTED: no usable data ({detail})',
+                             pull_id=acc.pull_id, status=status)
+            return
+        self._publish(LoggedScore(acc.pull_id, acc.set_id, acc.start_ns, status, detail, s), save=True)
+
+    def _publish(self, logged: LoggedScore, save: bool):
+        """Append one score to the log (save), then publish it (and, for an OK pull, its set's new summary)."""
+        s, status = logged.result, logged.status
+        msg = PullScore(pull_id=logged.pull_id, test_set=logged.set_id, dropped_blocks=s.dropped_blocks,
+                        status=status, detail=logged.detail, **{k: float(getattr(s, k)) for k in PULL_SCORE_FIELDS})
+        msg.header.stamp = ns_to_stamp(logged.start_ns)
+        if save and self.log is not None:   # saved before it is announced: a kill cannot lose a published score
+            try:
+                self.log.append(logged)
+            except OSError as exc:
+                self.diag.report(ERROR, f'score of pull {logged.pull_id} not saved to {self.log.path}: {exc}',
+                                 key='log')
+        self.score_pub.publish(msg)
+        if save:
+            if status == PULL_ABORTED:
+                self.counts['aborted'] += 1
+            self.diag.report(OK if status == PULL_OK else WARN,
+                             f'pull {logged.pull_id} (set {logged.set_id}) {PULL_STATUS_NAMES[status]}: peak '
+                             f'difference raw {s.raw_diff_pct:.1f} %, m*a {s.corrected_diff_pct:.1f} %, filtered '
+                             f'{s.filtered_diff_pct:.1f} %' + (f' ({logged.detail})' if logged.detail else ''),
+                             pull_id=logged.pull_id, status=status)
         if status != PULL_OK:
             return
-        self.stats.add(acc.set_id, s)
-        summary = self.stats.summary(acc.set_id)
-        out = SetSummary(test_set=acc.set_id, **{f: getattr(summary, k) for f, k in SET_SUMMARY_FIELDS.items()})
+        self.stats.add(logged.set_id, s)
+        summary = self.stats.summary(logged.set_id)
+        out = SetSummary(test_set=logged.set_id, **{f: getattr(summary, k) for f, k in SET_SUMMARY_FIELDS.items()})
         out.header.stamp = msg.header.stamp
         self.summary_pub.publish(out)
 

@@ -8,6 +8,7 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -124,3 +125,19 @@ def guarded(diag: Diagnostics, topic: str, callback):
             diag.report(ERROR, f'message on {topic} dropped: {type(exc).__name__}: {exc}',
                         key=('exception', topic), topic=topic)
     return run
+
+
+def qos_watch(diag: Diagnostics, topic: str) -> SubscriptionEventCallbacks:
+    """Subscription event callbacks that report a publisher whose QoS cannot match ours (for
+    example best effort on a reliable topic: DDS then delivers nothing from it) or whose type
+    differs, instead of the silence DDS gives."""
+    def incompatible_qos(info):
+        diag.report(ERROR, f'a publisher on {topic} offers a QoS incompatible with this subscription '
+                           f'(policy {info.last_policy_kind.name}, {info.total_count} so far); its messages are '
+                           f'not received: publish with the QoS of the workspace (RELIABLE, KEEP_LAST)',
+                    key=('qos', topic), topic=topic, policy=info.last_policy_kind.name)
+
+    def incompatible_type(info):
+        diag.report(ERROR, f'a publisher on {topic} has another message type ({info.total_count} so far); '
+                           'its messages are not received', key=('type', topic), topic=topic)
+    return SubscriptionEventCallbacks(incompatible_qos=incompatible_qos, incompatible_type=incompatible_type)
