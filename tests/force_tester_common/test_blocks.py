@@ -39,3 +39,19 @@ def test_events_and_stamps():
     assert stamp_problem(1, 999_999_999) is None
     assert '1000000000' in stamp_problem(1, 1_000_000_000)
     assert stamp_problem(-1, 0) is not None
+
+
+def test_pull_status_precedence_and_detail():
+    from force_tester_common.core.scores import (
+        PULL_ABORTED,
+        PULL_INCOMPLETE,
+        PULL_OK,
+        PULL_RECONFIGURED,
+        pull_status,
+    )
+    assert pull_status(0) == (PULL_OK, '')
+    assert pull_status(3) == (PULL_INCOMPLETE, '3 block(s) missing')
+    assert pull_status(0, [('reconfigured', 'window')]) == (PULL_RECONFIGURED, 'window')
+    code, detail = pull_status(2, [('reconfigured', 'window'), ('incomplete', 'gap')])
+    assert code == PULL_INCOMPLETE and detail == '2 block(s) missing; window; gap'
+    assert pull_status(0, [('aborted', 'stopped')], aborted=True) == (PULL_ABORTED, 'stopped')
