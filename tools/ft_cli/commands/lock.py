@@ -1,0 +1,97 @@
+"""./ft lock: requirements.lock, every package ./ft installs pinned to one version with its hashes.
+
+requirements.txt says what the workspace needs; requirements.lock (made by `uv pip compile
+--generate-hashes` for CPython 3.11 on x86_64 Linux) says exactly what gets installed, and ./ft
+installs with `pip --require-hashes` from it, so a new release somewhere cannot change a fresh
+machine. The lock's first line records the SHA-256 of the requirements.txt it was made from;
+`./ft lock --check` (and a test) fail when they differ or a requirement is not pinned.
+"""
+from __future__ import annotations
+
+import hashlib
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from ..paths import ROOT
+
+NAME = 'lock'
+HELP = 'update requirements.lock from requirements.txt (--check: say whether it is up to date)'
+REQUIREMENTS = ROOT / 'requirements.txt'
+LOCK = ROOT / 'requirements.lock'
+STAMP = '# made from requirements.txt sha256 '
+UV_ENV = ROOT / '.ft' / 'uv'
+PLATFORM = ('--python-version', '3.11', '--python-platform', 'x86_64-unknown-linux-gnu')
+
+
+def _name(spec: str) -> str:
+    """The normalised project name of a requirement line (PEP 503)."""
+    return re.sub(r'[-_.]+', '-', re.split(r'[\s<>=!~;\[@]', spec.strip(), maxsplit=1)[0]).lower()
+
+
+def requirement_names(text: str) -> list:
+    return [_name(line) for line in text.splitlines() if line.strip() and not line.lstrip().startswith('#')]
+
+
+def lock_problems(requirements: Path = REQUIREMENTS, lock: Path = LOCK) -> list:
+    """Why the lock does not match the requirements (empty when it does)."""
+    if not lock.is_file():
+        return [f'{lock.name} is missing; run ./ft lock']
+    req_text, lock_text = requirements.read_text(), lock.read_text()
+    problems = []
+    digest = hashlib.sha256(requirements.read_bytes()).hexdigest()
+    if not lock_text.startswith(STAMP + digest):
+        problems.append(f'{lock.name} was not made from this {requirements.name} (its SHA-256 {digest[:12]}... '
+                        'is not the one the lock records); run ./ft lock')
+    pinned = {_name(m) for m in re.findall(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==', lock_text, re.M)}
+    missing = [n for n in requirement_names(req_text) if n not in pinned]
+    if missing:
+        problems.append(f'not pinned in {lock.name}: {", ".join(missing)}; run ./ft lock')
+    if re.search(r'^\S+==\S+$', lock_text, re.M):   # a pin line ends in ' \' when hashes follow
+        problems.append(f'{lock.name} has a pin without hashes; run ./ft lock')
+    return problems
+
+
+def _uv() -> str:
+    found = shutil.which('uv')
+    if found:
+        return found
+    uv = UV_ENV / 'bin' / 'uv'
+    if not uv.exists():
+        print(f'ft lock: installing uv into {UV_ENV} (once)', file=sys.stderr)
+        subprocess.run([sys.executable, '-m', 'venv', str(UV_ENV)], check=True)
+        subprocess.run([str(UV_ENV / 'bin' / 'pip'), 'install', '--quiet', '--disable-pip-version-check', 'uv'],
+                       check=True)
+    return str(uv)
+
+
+def add_arguments(p):
+    p.add_argument('--check', action='store_true', help='exit 1 with one line if the lock does not match')
+
+
+def run(args) -> int:
+    if args.check:
+        problems = lock_problems()
+        if problems:
+            print(f'ft lock: error: {problems[0]}', file=sys.stderr)
+            return 1
+        print(f'ft lock: {LOCK.name} matches {REQUIREMENTS.name}')
+        return 0
+    print(f'ft lock: resolving {REQUIREMENTS.name} for CPython 3.11 on x86_64 Linux (uv pip compile)',
+          file=sys.stderr)
+    out = LOCK.with_suffix('.lock.tmp')
+    res = subprocess.run([_uv(), 'pip', 'compile', '--quiet', '--generate-hashes', '--no-header', *PLATFORM,
+                          str(REQUIREMENTS), '-o', str(out)], cwd=ROOT)
+    if res.returncode:
+        out.unlink(missing_ok=True)
+        print('ft lock: error: uv could not resolve requirements.txt (see above)', file=sys.stderr)
+        return 1
+    digest = hashlib.sha256(REQUIREMENTS.read_bytes()).hexdigest()
+    body = out.read_text()
+    out.unlink()
+    Path(LOCK).write_text(f'{STAMP}{digest}\n# by ./ft lock (uv pip compile --generate-hashes); '
+                          'do not edit: change requirements.txt and run ./ft lock\n' + body)
+    print(f'ft lock: wrote {LOCK.name} ({body.count("==")} pinned packages)', file=sys.stderr)
+    return 0
