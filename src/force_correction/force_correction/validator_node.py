@@ -148,7 +148,9 @@ class ValidatorNode(Node):
     def _on_parameters(self, msg: ParameterEvent):
         if msg.node != self.params.values['correction_node']:
             return
-        changed = [p for p in (*msg.new_parameters, *msg.changed_parameters) if p.name in RESTARTING_PARAMETERS]
+        # changed only: a restarted correction declares its parameters anew (new_parameters), which
+        # is a restart (the gap makes those pulls INCOMPLETE), not a change of configuration
+        changed = [p for p in msg.changed_parameters if p.name in RESTARTING_PARAMETERS]
         if changed:
             self.tracker.reconfigured('the correction was reconfigured mid-pull (' + ', '.join(
                 p.name for p in changed) + ')')
@@ -203,24 +205,21 @@ class ValidatorNode(Node):
 
     def _score(self, f: Finished):
         acc = f.acc
+        notes = f.notes + ((('aborted', f.aborted),) if f.aborted else ())
         try:
             s = acc.score(self.params.values['loaded_fraction'])
-        except CorrectionError as exc:
-            if not f.aborted:
-                self.diag.report(ERROR, f'pull {acc.pull_id} of set {acc.set_id} not scored: {exc}')
-                return
-            s = None   # aborted before any usable data
-        notes = f.notes + ((('aborted', f.aborted),) if f.aborted else ())
-        status, detail = pull_status(acc.dropped_blocks, notes, aborted=bool(f.aborted))
-        if s is None:
+        except CorrectionError as exc:   # no usable data: every pull still gets its message, with NaN
+            status, detail = pull_status(acc.dropped_blocks, (*notes, ('incomplete', f'not scored: {exc}')),
+                                         aborted=bool(f.aborted))
             msg = PullScore(pull_id=acc.pull_id, test_set=acc.set_id, dropped_blocks=acc.dropped_blocks,
                             status=status, detail=detail, **{k: math.nan for k in PULL_SCORE_FIELDS})
             msg.header.stamp = ns_to_stamp(acc.start_ns)
             self.score_pub.publish(msg)
-            self.counts['aborted'] += 1
-            self.diag.report(WARN, f'pull {acc.pull_id} (set {acc.set_id}) ABORTED: no usable data ({detail})',
-                             pull_id=acc.pull_id, status=status)
+            self.counts['aborted'] += status == PULL_ABORTED
+            self.diag.report(ERROR, f'pull {acc.pull_id} (set {acc.set_id}) {PULL_STATUS_NAMES[status]}: '
+                                    f'no usable data ({detail})', pull_id=acc.pull_id, status=status)
             return
+        status, detail = pull_status(acc.dropped_blocks, notes, aborted=bool(f.aborted))
         self._publish(LoggedScore(acc.pull_id, acc.set_id, acc.start_ns, status, detail, s), save=True)
 
     def _publish(self, logged: LoggedScore, save: bool):
