@@ -209,7 +209,10 @@ def test_faults_mid_pull_are_scored_with_their_status(tmp_path, ros_domain):
     assert sorted(status) == [0, 1, 2, 3, 4, 5], status
     assert status[0] == (PULL_OK, ''), status
     assert any('reconfigured mid-pull (window)' in status[k][1] for k in (1, 2)), status
-    assert status[3][0] == PULL_INCOMPLETE and 'the correction restarted' in status[3][1], status
+    # the gap: seen when corrected blocks resume, or (when the restart outlasts the finish timeout,
+    # as next to CPU hogs) as data that stopped before the END
+    assert status[3][0] == PULL_INCOMPLETE and ('the correction restarted' in status[3][1]
+                                                 or 'the data stopped before the END' in status[3][1]), status
     assert status[5][0] == PULL_ABORTED and 'no data and no END' in status[5][1], status
 
 

@@ -22,5 +22,5 @@ def test_the_check_fails_on_a_pin_without_hashes(tmp_path):
 
 
 def test_requirement_names_are_normalised():
-    assert lock.requirement_names('# c\nros-jazzy-rclpy\nnpTDMS>=1.0\nPyYAML ; python_version>"3"\n') == [
-        'ros-jazzy-rclpy', 'nptdms', 'pyyaml']
+    text = '# c\n-r other.txt\nros-jazzy-rclpy\nnpTDMS>=1.0  # TDMS\nPyYAML ; python_version>"3"\n'
+    assert lock.requirement_names(text) == ['ros-jazzy-rclpy', 'nptdms', 'pyyaml']

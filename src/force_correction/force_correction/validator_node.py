@@ -138,8 +138,7 @@ class ValidatorNode(Node):
     def _bad(self, topic: str, problem: str) -> None:
         self.counts['bad_messages'] += 1
         self.diag.report(WARN, f'bad message on {topic} dropped: {problem}', key=('bad', topic, problem.split()[0]),
-                         topic=topic,
-                         bad_messages=self.counts['bad_messages'])
+                         topic=topic, bad_messages=self.counts['bad_messages'])
 
     def _finish(self, over) -> None:
         for f in over:

@@ -4,7 +4,9 @@ requirements.txt says what the workspace needs; requirements.lock (made by `uv p
 --generate-hashes` for CPython 3.11 on x86_64 Linux) says exactly what gets installed, and ./ft
 installs with `pip --require-hashes` from it, so a new release somewhere cannot change a fresh
 machine. The lock's first line records the SHA-256 of the requirements.txt it was made from;
-`./ft lock --check` (and a test) fail when they differ or a requirement is not pinned.
+`./ft lock --check` (and a test) fail when they differ, a requirement is not pinned or a pin has
+no hashes. `./ft lock` keeps the versions already pinned where requirements.txt still allows them
+(uv prefers the pins of the file it writes); `./ft lock --upgrade` takes the newest of everything.
 """
 from __future__ import annotations
 
@@ -32,25 +34,26 @@ def _name(spec: str) -> str:
 
 
 def requirement_names(text: str) -> list:
-    return [_name(line) for line in text.splitlines() if line.strip() and not line.lstrip().startswith('#')]
+    """The names requirements.txt asks for; comments, blank lines and options (-r, --index-url) are skipped."""
+    return [_name(line) for line in text.splitlines() if line.strip() and line.lstrip()[0] not in '#-']
 
 
 def lock_problems(requirements: Path = REQUIREMENTS, lock: Path = LOCK) -> list:
-    """Why the lock does not match the requirements (empty when it does)."""
+    """Why the lock does not match the requirements (empty when it does), most telling first."""
     if not lock.is_file():
-        return [f'{lock.name} is missing; run ./ft lock']
+        return [f'{lock.name} is missing']
     req_text, lock_text = requirements.read_text(), lock.read_text()
     problems = []
-    digest = hashlib.sha256(requirements.read_bytes()).hexdigest()
-    if not lock_text.startswith(STAMP + digest):
-        problems.append(f'{lock.name} was not made from this {requirements.name} (its SHA-256 {digest[:12]}... '
-                        'is not the one the lock records); run ./ft lock')
     pinned = {_name(m) for m in re.findall(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==', lock_text, re.M)}
     missing = [n for n in requirement_names(req_text) if n not in pinned]
     if missing:
-        problems.append(f'not pinned in {lock.name}: {", ".join(missing)}; run ./ft lock')
+        problems.append(f'not pinned in {lock.name}: {", ".join(missing)}')
+    digest = hashlib.sha256(requirements.read_bytes()).hexdigest()
+    if not lock_text.startswith(STAMP + digest):
+        problems.append(f'{lock.name} was not made from this {requirements.name} (its SHA-256 {digest[:12]}... '
+                        'is not the one the lock records)')
     if re.search(r'^\S+==\S+$', lock_text, re.M):   # a pin line ends in ' \' when hashes follow
-        problems.append(f'{lock.name} has a pin without hashes; run ./ft lock')
+        problems.append(f'{lock.name} has a pin without hashes')
     return problems
 
 
@@ -61,28 +64,42 @@ def _uv() -> str:
     uv = UV_ENV / 'bin' / 'uv'
     if not uv.exists():
         print(f'ft lock: installing uv into {UV_ENV} (once)', file=sys.stderr)
-        subprocess.run([sys.executable, '-m', 'venv', str(UV_ENV)], check=True)
-        subprocess.run([str(UV_ENV / 'bin' / 'pip'), 'install', '--quiet', '--disable-pip-version-check', 'uv'],
-                       check=True)
+        if subprocess.run([sys.executable, '-m', 'venv', str(UV_ENV)]).returncode or subprocess.run(
+                [str(UV_ENV / 'bin' / 'pip'), 'install', '--quiet', '--disable-pip-version-check', 'uv']).returncode:
+            return ''
     return str(uv)
 
 
 def add_arguments(p):
-    p.add_argument('--check', action='store_true', help='exit 1 with one line if the lock does not match')
+    p.description = ('Write requirements.lock: every package requirements.txt pulls in, at one version with its '
+                     'hashes, for CPython 3.11 on x86_64 Linux (uv pip compile; uv is installed into .ft/uv on '
+                     'first use). Versions already pinned are kept where requirements.txt allows them.')
+    p.add_argument('--check', action='store_true',
+                   help='only check: exit 1 with one line if the lock does not match requirements.txt')
+    p.add_argument('--upgrade', action='store_true', help='take the newest allowed version of every package')
 
 
 def run(args) -> int:
     if args.check:
         problems = lock_problems()
         if problems:
-            print(f'ft lock: error: {problems[0]}', file=sys.stderr)
+            print(f'ft lock: error: {"; ".join(problems)}; run ./ft lock', file=sys.stderr)
             return 1
         print(f'ft lock: {LOCK.name} matches {REQUIREMENTS.name}')
         return 0
-    print(f'ft lock: resolving {REQUIREMENTS.name} for CPython 3.11 on x86_64 Linux (uv pip compile)',
-          file=sys.stderr)
+    keep = LOCK.is_file() and not args.upgrade
+    print(f'ft lock: resolving {REQUIREMENTS.name} for CPython 3.11 on x86_64 Linux (uv pip compile'
+          f'{", keeping the current pins" if keep else ", newest versions"})', file=sys.stderr)
+    uv = _uv()
+    if not uv:
+        print('ft lock: error: could not install uv from PyPI (see above)', file=sys.stderr)
+        return 1
     out = LOCK.with_suffix('.lock.tmp')
-    res = subprocess.run([_uv(), 'pip', 'compile', '--quiet', '--generate-hashes', '--no-header', *PLATFORM,
+    # uv prefers the versions pinned in the file it writes over; seeded without hashes, it takes those
+    # afresh from PyPI instead of copying them from the old lock
+    pins = re.findall(r'^\S+==\S+', LOCK.read_text(), re.M) if keep else []
+    out.write_text(''.join(f'{pin}\n' for pin in pins))
+    res = subprocess.run([uv, 'pip', 'compile', '--quiet', '--generate-hashes', '--no-header', *PLATFORM,
                           str(REQUIREMENTS), '-o', str(out)], cwd=ROOT)
     if res.returncode:
         out.unlink(missing_ok=True)
