@@ -20,7 +20,7 @@ for sub in ('src/force_tester_sim', 'src/force_correction', 'src/force_discovery
             'src/bag_tools', 'tools', 'tests', 'tests/force_discovery'):
     sys.path.insert(0, str(ROOT / sub))
 
-import test_discovery as G  # noqa: E402  (the generator)
+import generator as G  # noqa: E402  (the generator)
 
 from force_discovery.core.pipeline import discover  # noqa: E402
 from force_tester_sim.core.params import load_rig  # noqa: E402

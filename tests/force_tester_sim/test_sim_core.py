@@ -66,7 +66,7 @@ def test_packaged_yaml_is_the_projects_copy():
 def test_defaults_equal_nominal_yaml(params):
     data = yaml.safe_load(PROJECT_YAML.read_text())
     rig = RigParams() if params == 'defaults' else load_rig()
-    for section in ('daq', 'drive', 'force_chain', 'sensors'):
+    for section in ('daq', 'drive', 'force_chain', 'sensors', 'tolerances'):
         obj = getattr(rig, section)
         names = {f.name for f in dataclasses.fields(obj)}
         assert names == set(data[section]), section
@@ -79,7 +79,7 @@ def test_defaults_equal_nominal_yaml(params):
     assert len(rig.test_sets) == len(data['test_sets'])
     for ts, raw in zip(rig.test_sets, data['test_sets']):
         assert dataclasses.asdict(ts) == raw
-    assert set(data) == {'daq', 'drive', 'force_chain', 'sensors', 'test_sets'}
+    assert set(data) == {'daq', 'drive', 'force_chain', 'sensors', 'test_sets', 'tolerances'}
 
 
 def test_test_set_si_properties(rig):

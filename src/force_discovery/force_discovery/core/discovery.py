@@ -37,9 +37,11 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from force_tester_common.core.channels import REQUIRED_CHANNELS as REQUIRED
-from force_tester_sim.core.departures import CATALOG, MOUNT_BASE_MASS_FRACTION, fractional_delay
+from force_tester_sim.core.departures import CATALOG, fractional_delay
+from force_tester_sim.core.tolerances import BAND_PARAMETER, band
 
 from .errors import DiscoveryError
+from .uncertainty import NAMED, bootstrap_ci, jackknife_ci, verdict
 
 MIN_REL_REDUCTION = 0.01      # held-out SSE must fall by at least 1 %
 MIN_T = 4.0                   # and consistently over held-out pulls
@@ -213,6 +215,19 @@ def fit_hum_frequency(pulls: Sequence[Pull], m2: float) -> Tuple[float, dict]:
     return f, {'peak_power': float(-res.fun), 'median_power': float(np.median(pw))}
 
 
+def hum_frequency_per_pull(p: Pull, f0: float, m2: float) -> float:
+    """One pull's own least-squares hum frequency near f0 (its pre-pull record only)."""
+    from scipy.optimize import minimize_scalar
+    t, r = _pre_resid(p, m2)
+
+    def neg_power(f):
+        A = _hum_design(t, f)
+        c, *_ = np.linalg.lstsq(A, r, rcond=None)
+        return -float(np.sum((A[:, :2] @ c[:2]) ** 2))
+    return float(minimize_scalar(neg_power, bounds=(f0 - 0.3, f0 + 0.3), method='bounded',
+                                 options={'xatol': 1e-3}).x)
+
+
 def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
     """(amplitude, hum over the whole record) with the phase/amplitude fitted on the pre-pull record only."""
     t, r = _pre_resid(p, m2)
@@ -307,6 +322,40 @@ class ForceModel:
         coef, s = self.fit(terms, idx, d)
         return coef, s, d
 
+    def delay_grid(self, d_max=200e-6) -> np.ndarray:
+        return np.arange(0.0, d_max + 1e-12, self.pulls[0].dt / 2)
+
+    def loo_fits(self, terms, idx) -> List[Tuple[dict, float]]:
+        """Leave-one-pull-out refits over idx: [(coef, delay)], the delay refitted on the grid when it is a term.
+
+        Per-pull normal equations (X'X, X'y, y'y) at each grid delay are summed once; dropping pull k subtracts
+        its share. The refined delay's coefficients interpolate linearly between the two nearest grid delays."""
+        grid = self.delay_grid() if 'accel_delay' in terms else np.zeros(1)
+        names, G, b, s = None, [], [], []
+        for d in grid:
+            ys, Xs, names = self.design(terms, d, idx)
+            G.append(np.array([X.T @ X for X in Xs]))
+            b.append(np.array([X.T @ y for X, y in zip(Xs, ys)]))
+            s.append(np.array([y @ y for y in ys]))
+        G, b, s = np.array(G), np.array(b), np.array(s)          # (grid, pulls, p, p), (grid, pulls, p), (grid, pulls)
+        Gs, bs, ss = G.sum(1), b.sum(1), s.sum(1)
+        out = []
+        for k in range(len(idx)):
+            c = np.array([_solve(Gs[i] - G[i, k], bs[i] - b[i, k]) for i in range(len(grid))])
+            sse = ss - s[:, k] - np.einsum('ip,ip->i', bs - b[:, k], c)
+            i = int(np.argmin(sse))
+            d, ci = float(grid[i]), c[i]
+            if 0 < i < len(grid) - 1:
+                y0, y1, y2 = sse[i - 1], sse[i], sse[i + 1]
+                den = y0 - 2 * y1 + y2
+                if den > 0:
+                    off = 0.5 * (y0 - y2) / den          # in grid steps, within (-1, 1)
+                    d = float(d + off * (grid[1] - grid[0]))
+                    j = i + (1 if off > 0 else -1)
+                    ci = c[i] + abs(off) * (c[j] - c[i])
+            out.append((dict(zip(names, ci)), d))
+        return out
+
     def sse_per_pull(self, terms, coef, d, idx) -> np.ndarray:
         ys, Xs, names = self.design(terms, d, idx)
         c = np.array([coef[n] for n in names]) if names else np.zeros(0)
@@ -316,6 +365,30 @@ class ForceModel:
         ys, Xs, names = self.design(terms, d, [j])
         c = np.array([coef[n] for n in names]) if names else np.zeros(0)
         return ys[0] - Xs[0] @ c
+
+
+def _solve(G: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Normal equations G c = b, columns scaled to unit diagonal first."""
+    if len(b) == 0:
+        return np.zeros(0)
+    D = np.sqrt(np.diag(G))
+    D[D == 0] = 1.0
+    return np.linalg.solve(G / np.outer(D, D), b / D) / D
+
+
+def force_params_ci(loo: Sequence[Tuple[dict, float]], coef: dict, d: float, m2: float) -> dict:
+    """name -> {parameter: [lo, hi]} from leave-one-pull-out refits (jackknife). The AC coupling's interval
+    comes from the rate k = 1/tau that the regression fits, inverted (k <= 0 is tau = inf: DC)."""
+    full = force_params(coef, d, m2)
+    per = [force_params(c, dk, m2) for c, dk in loo]
+    out = {}
+    for name, params in full.items():
+        if name == 'ac_coupling':
+            lo, hi = jackknife_ci(coef['k'], [c['k'] for c, _ in loo])
+            out[name] = {'time_constant_s': [1.0 / hi if hi > 0 else math.inf, 1.0 / lo if lo > 0 else math.inf]}
+        else:
+            out[name] = {k: list(jackknife_ci(v, [p[name][k] for p in per])) for k, v in params.items()}
+    return out
 
 
 def force_params(coef: dict, d: float, m2: float) -> dict:
@@ -395,10 +468,22 @@ def ring_sse(seg: np.ndarray, dt: float, modes: Sequence[Tuple[float, float]]) -
     return float(r @ r)
 
 
-def mount_from_observed(f_obs: float, zeta_obs: float, m2: float, k_cell: float, zeta_cell: float):
-    """Mount (frequency_hz, damping_ratio) whose carriage-mount-base-cell-m2 chain has the observed lowest pole."""
+def ring_to_noise(p: Pull, seg: np.ndarray, cell: Sequence[Tuple[float, float]], mode: Tuple[float, float]) -> float:
+    """RMS of the fitted mode's ringing in seg over the noise rms of a2 - a3 on the quiet pre-pull record."""
+    X = np.hstack([damped_basis(len(seg), p.dt, f, z) for f, z in cell] + [np.ones((len(seg), 1)),
+                                                                          damped_basis(len(seg), p.dt, *mode)])
+    c, *_ = np.linalg.lstsq(X, seg, rcond=None)
+    ring = X[:, -2:] @ c[-2:]
+    q = (p.a2 - p.a3)[int(0.02 / p.dt):p.pre1]
+    noise = float(np.std(q - np.polyval(np.polyfit(np.arange(len(q)), q, 1), np.arange(len(q))))) if len(q) > 100 \
+        else 0.0
+    return float(np.sqrt(np.mean(ring ** 2)) / max(noise, 1e-12))
+
+
+def mount_from_observed(f_obs: float, zeta_obs: float, m2: float, k_cell: float, zeta_cell: float, mb: float):
+    """Mount (frequency_hz, damping_ratio) whose carriage-mount-base(mb)-cell-m2 chain has the observed lowest pole
+    (the sim's mount_resonance parameters, departures.py)."""
     from scipy.optimize import fsolve
-    mb = MOUNT_BASE_MASS_FRACTION * m2
     c2 = 2 * zeta_cell * math.sqrt(k_cell * m2)
     M = np.diag([mb, m2])
 
@@ -431,16 +516,20 @@ def current_resid(p: Pull, rig) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     return rho, np.where(moving, 1.0, np.where(still, 0.0, np.nan))
 
 
-def friction_fit(pulls, idx, rig) -> Optional[float]:
-    mv, st = [], []
+def _friction_stat(rows: np.ndarray) -> float:
+    return float(np.median(rows[:, 0]) - np.median(rows[:, 1]))
+
+
+def friction_offsets(pulls, idx, rig) -> Optional[np.ndarray]:
+    """Per pull: the median force-balance residual while moving and at rest (None without a current channel)."""
+    rows = []
     for j in idx:
         cr = current_resid(pulls[j], rig)
         if cr is None:
             return None
         rho, sg = cr
-        mv.append(np.median(rho[sg == 1.0]))
-        st.append(np.median(rho[sg == 0.0]))
-    return float(np.median(mv) - np.median(st))
+        rows.append((np.median(rho[sg == 1.0]), np.median(rho[sg == 0.0])))
+    return np.array(rows)
 
 
 def friction_sse(p: Pull, rig, fc: float) -> float:
@@ -519,7 +608,10 @@ def hum_stage(pulls, fit, held, m2) -> Tuple[dict, Optional[tuple]]:
     sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
     sig['rms_gain_alone'] = significance(fm_0.sse_per_pull(set(), {}, 0.0, held),
                                          fm_h.sse_per_pull(set(), {}, 0.0, held))['rms_gain']
-    cand = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': a_fit}, 'evidence': sig,
+    ci = {'frequency_hz': list(bootstrap_ci([hum_frequency_per_pull(pulls[j], f_hum, m2) for j in few], np.mean)),
+          'amplitude_n': list(bootstrap_ci([amps[k] for k in fit], np.mean))}
+    cand = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': a_fit}, 'parameters_ci95': ci, 'ci_pulls': len(fit),
+            'evidence': sig,
             'channel': FORCE_CHANNEL_TEXT, 'where': f'whole record; line at {f_hum:.2f} Hz'}
     return cand, (tuple(hums) if sig['significant'] else None)
 
@@ -532,6 +624,7 @@ def force_stage(pulls, hums, fit, held, m2) -> Tuple[dict, dict]:
     sse_full = fm_.sse_per_pull(full, coef_full, d_full, held)
     base_sse = fm_.sse_per_pull(set(), {}, 0.0, held)
     params_full = force_params(coef_full, d_full, m2)
+    ci = force_params_ci(fm_.loo_fits(full, fit), coef_full, d_full, m2)
     cand = {}
     for term in TERMS:
         d = 0.0 if term == 'accel_delay' else d_full
@@ -539,7 +632,8 @@ def force_stage(pulls, hums, fit, held, m2) -> Tuple[dict, dict]:
         sig = significance(fm_.sse_per_pull(full - {term}, c, d, held), sse_full)
         c1, _, d1 = (fm_.fit_delay({term}, fit) if term == 'accel_delay' else (*fm_.fit({term}, fit), 0.0))
         sig['rms_gain_alone'] = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held))['rms_gain']
-        cand[term] = {'parameters': params_full[term], 'evidence': sig, 'channel': FORCE_CHANNEL_TEXT}
+        cand[term] = {'parameters': params_full[term], 'parameters_ci95': ci[term], 'ci_pulls': len(fit),
+                      'evidence': sig, 'channel': FORCE_CHANNEL_TEXT}
     # non-linearity check for the gain: would T^2 explain more than a linear gain?
     cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = _nonlinear_check(
         fm_, coef_full, d_full, fit, held)
@@ -567,25 +661,34 @@ def ring_stage(pulls, fit, held, fc) -> Tuple[Optional[dict], Optional[dict]]:
     cell = [(f_cell, fc.load_cell_damping_ratio)]
     b = np.array([ring_sse(segs[j], dt, cell) for j in ok])
     e = np.array([ring_sse(segs[j], dt, cell + [(fo, zo)]) for j in ok])
+    r2n = np.array([ring_to_noise(pulls[j], segs[j], cell, (fo, zo)) for j in ok])
     sig = significance(b, e) if len(ok) >= 2 else {'significant': False, 'rel_sse_reduction': 0.0, 't': 0.0,
                                                    'rms_gain': 1.0}
     sig.update(observed_frequency_hz=fo, observed_damping_ratio=zo, cell_mode_hz=f_cell,
                frequency_rule=f'observed < {MOUNT_MAX_FRACTION} x cell mode ({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)')
     if fo >= MOUNT_MAX_FRACTION * f_cell:
         sig['significant'] = False
-    cand = {'observed': (fo, zo), 'evidence': sig, 'parameters': None,
-            'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break'}
+    ci = {'frequency_hz': list(bootstrap_ci([m[0] for m in modes])),
+          'damping_ratio': list(bootstrap_ci([m[1] for m in modes]))}
+    sig['ring_to_noise'] = float(np.median(r2n)) if len(r2n) else 0.0
+    sig['ring_to_noise_ci95'] = list(bootstrap_ci(r2n)) if len(r2n) else [0.0, math.inf]
+    cand = {'parameters': {'frequency_hz': fo, 'damping_ratio': zo}, 'parameters_ci95': ci, 'ci_pulls': len(ok),
+            'evidence': sig,
+            'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break',
+            'identified': 'the mode as it appears in the measured channels (extension.yaml maps it to the mount)'}
     return cand, {'segments': {j: segs[j] for j in ok[:3]}, 'fo': fo, 'zo': zo}
 
 
 def current_stage(pulls, fit, held, rig) -> Optional[dict]:
     """The coulomb-friction candidate from the motor current (None without a current channel)."""
-    fcf = friction_fit(pulls, fit, rig)
-    if fcf is None:
+    rows = friction_offsets(pulls, fit, rig)
+    if rows is None:
         return None
+    fcf = _friction_stat(rows)
     b = np.array([friction_sse(pulls[j], rig, 0.0) for j in held])
     e = np.array([friction_sse(pulls[j], rig, fcf) for j in held])
-    return {'parameters': {'force_n': fcf}, 'evidence': significance(b, e),
+    return {'parameters': {'force_n': fcf}, 'parameters_ci95': {'force_n': list(bootstrap_ci(rows, _friction_stat))},
+            'ci_pulls': len(fit), 'evidence': significance(b, e),
             'channel': 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)'}
 
 
@@ -634,12 +737,15 @@ def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:
 
 @dataclass(frozen=True)
 class Decision:
-    """The causes named (strongest first), those withheld and why, and what the decision adds."""
+    """The causes named (strongest first), every candidate's practical-significance verdict, and those withheld."""
 
     named: tuple
+    verdicts: dict = field(default_factory=dict)          # name -> uncertainty.verdict() of each candidate
     rejected: dict = field(default_factory=dict)          # name -> why it was withheld
     notes: tuple = ()
-    mount_parameters: Optional[dict] = None               # the mount's (f, zeta) when it is named
+
+    def with_verdict(self, kind: str) -> list:
+        return [n for n, v in self.verdicts.items() if v['verdict'] == kind]
 
 
 CAUSE_ORDER = ('mains_hum', 'moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling',
@@ -657,11 +763,24 @@ def _admissible(name: str, c: dict) -> bool:
     return True
 
 
+def tolerance_input(name: str, c: dict) -> Tuple[float, Tuple[float, float]]:
+    """(estimate, 95 % interval) of the quantity the cause's tolerance band applies to."""
+    par = BAND_PARAMETER[name][0]
+    if par in c['parameters']:
+        return c['parameters'][par], tuple(c['parameters_ci95'][par])
+    return c['evidence'][par], tuple(c['evidence'][par + '_ci95'])
+
+
 def decide(analysis: Analysis, rig) -> Decision:
-    """Named causes (strongest first) with the mount's parameters; the analysis is left as it is."""
+    """Named causes (strongest first): significant on held-out pulls AND outside their tolerance band."""
     cand = analysis.candidates
-    fc = rig.force_chain
-    named = [n for n in CAUSE_ORDER if n in cand and _admissible(n, cand[n])]
+    verdicts = {}
+    for n in CAUSE_ORDER:
+        if n in cand:
+            est, ci = tolerance_input(n, cand[n])
+            verdicts[n] = verdict(est, ci, band(n, rig.tolerances, rig.force_chain.m2), _admissible(n, cand[n]),
+                                  cand[n]['ci_pulls'])
+    named = [n for n, v in verdicts.items() if v['verdict'] == NAMED]
     rejected, notes = {}, []
     nl = cand['moving_cell_gain']['evidence']['t_squared_rel_reduction']
     if nl > NONLIN_SHARE:
@@ -672,14 +791,8 @@ def decide(analysis: Analysis, rig) -> Decision:
         named = [n for n in named if n not in TERMS]
         notes.append('the moving cell departs from T non-linearly (T^2 term significant); the force-channel '
                      'catalog entries do not explain it')
-    mount = None
-    if 'mount_resonance' in named:
-        m_eff = cand['effective_mass']['parameters']['mass_kg'] if 'effective_mass' in named else fc.m2
-        fo, zo = cand['mount_resonance']['observed']
-        f, z = mount_from_observed(fo, zo, m_eff, fc.load_cell_stiffness_n_per_m, fc.load_cell_damping_ratio)
-        mount = {'frequency_hz': f, 'damping_ratio': z}
     named.sort(key=lambda n: -cand[n]['evidence']['rel_sse_reduction'])
-    return Decision(tuple(named), rejected, tuple(notes), mount)
+    return Decision(tuple(named), verdicts, rejected, tuple(notes))
 
 
 LEFTOVER_BAND_HZ = 4000.0   # the structure check looks below this (above it, sampling of the break's step aliases)

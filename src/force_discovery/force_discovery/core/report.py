@@ -1,13 +1,17 @@
 """Report, extension YAML and plots of the discovery (see discovery.py). ROS-free."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
+
 from . import discovery as D
+from .uncertainty import INCONCLUSIVE, WITHIN
 
 FORCE_CHANNEL = ('mains_hum',) + D.TERMS
 
@@ -74,16 +78,22 @@ def _rms(rs):
 
 
 def candidates(analysis: D.Analysis, decision: D.Decision) -> dict:
-    """The analysis's candidates with the decision's verdicts and the mount's parameters filled in."""
+    """The analysis's candidates with the decision's verdicts filled in."""
     out = {}
     for n, c in analysis.candidates.items():
         c = {**c, 'evidence': dict(c['evidence'])}
         if n in decision.rejected:
             c['evidence']['rejected'] = decision.rejected[n]
-        if n == 'mount_resonance' and decision.mount_parameters is not None:
-            c['parameters'] = decision.mount_parameters
+        c['tolerance'] = decision.verdicts.get(n)
         out[n] = c
     return out
+
+
+def _entry(n: str, c: dict) -> dict:
+    """A candidate as listed in report.json: parameters, their 95 % intervals, the tolerance verdict."""
+    return {'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
+            'parameters_ci95': {k: [float(v) for v in c['parameters_ci95'][k]] for k in D.CATALOG_PARAMS[n]},
+            'tolerance': c['tolerance']}
 
 
 def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left, rig) -> dict:
@@ -94,9 +104,8 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
     for n in named:
         c = cand[n]
         ev = dict(c['evidence'])
-        gain = ev.get('rms_gain')
-        causes.append({'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
-                       'evidence': ev, 'gain': gain, 'channel': c['channel'], 'where': _where(n, c)})
+        causes.append({**_entry(n, c), 'evidence': ev, 'gain': ev.get('rms_gain'), 'channel': c['channel'],
+                       'where': _where(n, c)})
     base, ext = errors
     primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
     if primary == 'unexplained':
@@ -128,15 +137,25 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         'gain': baseline_error / extended_error if extended_error > 0 else None,
         'metric': metric,
         'force_channel': {'baseline_rms_n': _rms(base), 'extended_rms_n': _rms(ext)},
+        'within_tolerance': [{**_entry(n, cand[n]), 'evidence': cand[n]['evidence']}
+                             for n in decision.with_verdict(WITHIN)],
+        'inconclusive': [{**_entry(n, cand[n]), 'evidence': cand[n]['evidence'],
+                          'pulls_to_settle': cand[n]['tolerance'].get('pulls_to_settle')}
+                         for n in decision.with_verdict(INCONCLUSIVE)],
+        'tolerances': dataclasses.asdict(rig.tolerances),
         'fitted_pulls': analysis.fitted_pulls,
         'held_out_pulls': analysis.held_out_pulls,
         'significance_rule': (f'a candidate is named when, on the held-out pulls, removing it from the extended '
                               f'model raises the summed squared residual of its channel by >= '
-                              f'{100 * D.MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {D.MIN_T:g}; '
+                              f'{100 * D.MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {D.MIN_T:g}, '
+                              f'AND its 95 % interval (jackknife or bootstrap over pulls) lies wholly outside '
+                              f'its tolerance band (rig tolerances:); inside the band it is within_tolerance, '
+                              f'across an edge inconclusive; '
                               f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; '
                               f'force-channel causes are withheld when a T^2 term removes > '
                               f'{100 * D.NONLIN_SHARE:g} % of the held-out force residual left by them'),
-        'candidates': {n: {'parameters': c.get('parameters'), 'evidence': c['evidence'], 'channel': c['channel']}
+        'candidates': {n: {'parameters': c['parameters'], 'parameters_ci95': c['parameters_ci95'],
+                           'tolerance': c['tolerance'], 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
         'data_quality': {'pulls': len(analysis.quality), 'sample_interval_s': analysis.quality[0].dt,
@@ -173,32 +192,72 @@ def _current_rms(analysis: D.Analysis, rig, fcf):
 
 
 def extension(report, rig) -> dict:
-    deps = {c['name']: c['parameters'] for c in report['causes'] if c['name'] in D.CATALOG_PARAMS}
-    corr = {'mass_kg': float(deps.get('effective_mass', {}).get('mass_kg', rig.force_chain.m2)),
+    """departures: the named causes as the sim's catalog takes them; correction: what correction_node undoes.
+
+    The mount is identified as the mode seen in the measured channels; the sim's mount_resonance parameters
+    are the mount's own, mapped from it through the carriage-mount-bracket-cell-m2 chain with an assumed
+    bracket mass (stated in extension.yaml, key assumptions)."""
+    deps = {c['name']: dict(c['parameters']) for c in report['causes'] if c['name'] in D.CATALOG_PARAMS}
+    fc = rig.force_chain
+    m2 = float(deps.get('effective_mass', {}).get('mass_kg', fc.m2))
+    assumptions = {}
+    if 'mount_resonance' in deps:
+        obs = deps['mount_resonance']
+        mb = MOUNT_BASE_MASS_FRACTION * m2
+        f, z = D.mount_from_observed(obs['frequency_hz'], obs['damping_ratio'], m2, fc.load_cell_stiffness_n_per_m,
+                                     fc.load_cell_damping_ratio, mb)
+        deps['mount_resonance'] = {'frequency_hz': f, 'damping_ratio': z, 'base_mass_kg': mb}
+        assumptions['mount_resonance'] = (
+            f'observed mode {obs["frequency_hz"]:.2f} Hz, zeta {obs["damping_ratio"]:.4f} (the identified '
+            f'quantities) mapped to the mount through the carriage-mount-bracket-cell-m2 chain with an assumed '
+            f'bracket mass base_mass_kg = {MOUNT_BASE_MASS_FRACTION} x m2 = {mb:.4f} kg (not identifiable from '
+            f'these channels); another bracket mass gives other mount parameters and the same observed mode')
+    corr = {'mass_kg': m2,
             'accel_delay_s': float(deps.get('accel_delay', {}).get('delay_s', 0.0)),
             'moving_cell_gain': float(deps.get('moving_cell_gain', {}).get('gain', 1.0))}
     if 'ac_coupling' in deps:
         corr['ac_coupling_time_constant_s'] = deps['ac_coupling']['time_constant_s']
     if 'mains_hum' in deps:
         corr['mains_hum_hz'] = deps['mains_hum']['frequency_hz']
-    return {'departures': deps, 'correction': corr}
+    out = {'departures': deps, 'correction': corr}
+    if assumptions:
+        out['assumptions'] = assumptions
+    return out
 
 
 def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path) -> None:
-    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots'])."""
+    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']).
+
+    Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
+    leaves a half-written report."""
+    import shutil
+    import tempfile
+
     import yaml
     out.mkdir(parents=True, exist_ok=True)
-    ext = extension(report, rig)
-    head = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig YAML,\n'
-            '# reproduces the behaviour with load_rig; the correction section is what the correction node can undo\n'
-            '# (the correction node and `./ft bag correct --extension` divide F_move by moving_cell_gain, undo the\n'
-            '# AC coupling, notch the hum, delay F_move by accel_delay_s to line it up with a2, then subtract\n'
-            '# mass_kg * a2).\n')
-    (out / 'extension.yaml').write_text(head + yaml.safe_dump(_clean(ext), sort_keys=False))
-    plots = _plots(analysis, errors, named, rig, out)
-    report['plots'] = plots
-    (out / 'report.json').write_text(json.dumps(report, indent=1))
-    (out / 'report.md').write_text(markdown(report, plots))
+    stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
+    try:
+        ext = extension(report, rig)
+        head = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig '
+                'YAML,\n# reproduces the behaviour with load_rig; the correction section is what the correction node '
+                'can undo\n# (the correction node and `./ft bag correct --extension` divide F_move by '
+                'moving_cell_gain, undo the\n# AC coupling, notch the hum, delay F_move by accel_delay_s to line it '
+                'up with a2, then subtract\n# mass_kg * a2). assumptions: what a mapping to the sim needed that the '
+                'data do not identify.\n')
+        (stage / 'extension.yaml').write_text(head + yaml.safe_dump(_clean(ext), sort_keys=False))
+        plots = _plots(analysis, errors, named, rig, stage)
+        report['plots'] = [str(out / Path(q).name) for q in plots]
+        (stage / 'report.json').write_text(json.dumps(report, indent=1))
+        (stage / 'report.md').write_text(markdown(report, report['plots']))
+        for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):   # report.json last
+            f.replace(out / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _num(v) -> str:
+    """A report number (None: the JSON form of an infinite bound)."""
+    return 'inf' if v is None else f'{v:.5g}'
 
 
 def _fmt_params(p):
@@ -220,14 +279,27 @@ def markdown(r, plots) -> str:
         L.append('Nothing significant: the model of record explains the data to the noise floor.')
     for c in r['causes']:
         ev = c['evidence']
-        L.append(f'- **{c["name"]}**: {_fmt_params(c["parameters"])}; channel: {c.get("channel", "force_moving_n")}; '
+        ci = '; '.join(f'{k} in [{_num(lo)}, {_num(hi)}]' for k, (lo, hi) in c.get('parameters_ci95', {}).items())
+        L.append(f'- **{c["name"]}**: {_fmt_params(c["parameters"])}' + (f' (95 %: {ci})' if ci else '')
+                 + f'; channel: {c.get("channel", "force_moving_n")}; '
                  + (f'held-out SSE reduction {100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f} '
                     f'({ev["threshold"]}); gain {c["gain"]:.3g}x (held-out RMS without / with it). '
                     f'Where: {c.get("where", "")}' if 'rel_sse_reduction' in ev
                     else f'{ev["statistic"]}: {ev["value"]:.2f} (threshold {ev["threshold"]})'))
+    L += ['', '## Departures within tolerance, and inconclusive ones', '']
+    for kind, rows in (('within tolerance', r['within_tolerance']), ('inconclusive', r['inconclusive'])):
+        for c in rows:
+            v = c['tolerance']
+            more = (f'; about {c["pulls_to_settle"]} pulls would settle it' if c.get('pulls_to_settle')
+                    else '')
+            L.append(f'- {c["name"]} ({kind}): {v["band"]["parameter"]} = {_num(v["estimate"])}, 95 % interval '
+                     f'[{_num(v["ci95"][0])}, {_num(v["ci95"][1])}] against the band [{_num(v["band"]["lo"])}, '
+                     f'{_num(v["band"]["hi"])}]{more}')
+    if not (r['within_tolerance'] or r['inconclusive']):
+        L.append('(none)')
     L += ['', '## Candidates ruled out', '']
     n_out = len(L)
-    names = {c['name'] for c in r['causes']}
+    names = {c['name'] for c in r['causes'] + r['within_tolerance'] + r['inconclusive']}
     for n, c in r['candidates'].items():
         if n in names:
             continue

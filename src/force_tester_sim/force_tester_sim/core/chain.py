@@ -102,7 +102,7 @@ class ChainParams:
         mb = km = cm = 0.0
         mr = deps.get('mount_resonance')
         if mr is not None:
-            mb = MOUNT_BASE_MASS_FRACTION * fc.m2        # base mass: documented choice (departures.py)
+            mb = mr.get('base_mass_kg', MOUNT_BASE_MASS_FRACTION * fc.m2)   # the bracket (departures.py)
             carried = mb + fc.m2                         # the stiff cell makes base + m2 move as one on the mount
             km = (2.0 * math.pi * mr['frequency_hz']) ** 2 * carried
             cm = 2.0 * mr['damping_ratio'] * math.sqrt(km * carried)

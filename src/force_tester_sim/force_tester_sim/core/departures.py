@@ -22,9 +22,10 @@ import numpy as np
 
 from .errors import SimError
 
-# mount_resonance: the base mass between the mount and the moving cell's sensing element, as a fraction of the
-# true m2 (the cell's carriage-side half and its adapter plate: light next to m2, which carries the lanyard
-# clevis, the accelerometer block and the cell's own upper half). k_mount = (2 pi f)^2 (base + m2).
+# mount_resonance: the base mass between the mount and the moving cell's sensing element (the bracket: the
+# cell's carriage-side half and its adapter plate), by default as a fraction of the true m2 (light next to m2,
+# which carries the lanyard clevis, the accelerometer block and the cell's own upper half); the optional
+# parameter base_mass_kg sets it. k_mount = (2 pi f)^2 (base + m2).
 MOUNT_BASE_MASS_FRACTION = 0.25
 
 # name -> (kind, {parameter: (lower bound, upper bound, inclusive lower)}, meaning)
@@ -37,13 +38,19 @@ CATALOG: Dict[str, Tuple[str, Dict[str, tuple], str]] = {
                          'moving-cell channel = gain * true F_move'),
     'mount_resonance': ('physical', {'frequency_hz': (0.0, 20000.0, False), 'damping_ratio': (0.0, 1.0, False)},
                         'lightly damped mode between moving cell and carriage: carriage - mount k/c - base mass '
-                        '(MOUNT_BASE_MASS_FRACTION * m2) - moving cell - m2; k_mount = (2 pi f)^2 (base mass + m2)'),
+                        '(base_mass_kg, default MOUNT_BASE_MASS_FRACTION * m2) - moving cell - m2; '
+                        'k_mount = (2 pi f)^2 (base mass + m2)'),
     'ac_coupling': ('sensor', {'time_constant_s': (0.0, 1.0e6, False)},
                     'moving-cell channel first-order high-pass filtered (piezo discharge)'),
     'mains_hum': ('sensor', {'frequency_hz': (0.0, 25000.0, False), 'amplitude_n': (0.0, 1.0e5, True)},
                   'sinusoid (random phase per pull, seeded) added to the moving-cell channel'),
     'coulomb_friction': ('physical', {'force_n': (0.0, 1.0e5, True)},
                          'dry friction F_c sign(v3) in the drive force balance (shows in motor_current_a)'),
+}
+
+# Optional parameters: name -> {parameter: (lower bound, upper bound, inclusive lower)}; absent = the default above.
+OPTIONAL_PARAMS: Dict[str, Dict[str, tuple]] = {
+    'mount_resonance': {'base_mass_kg': (0.0, 1.0e3, False)},
 }
 
 
@@ -54,6 +61,9 @@ class Departure:
 
     def __getitem__(self, key: str) -> float:
         return dict(self.params)[key]
+
+    def get(self, key: str, default: Optional[float] = None) -> Optional[float]:
+        return dict(self.params).get(key, default)
 
     @property
     def kind(self) -> str:
@@ -106,12 +116,15 @@ def _entry(name: Any, params: Mapping, where: str) -> Departure:
     if name not in CATALOG:
         raise SimError(f'{where}: departure {name!r} is unknown; expected one of {sorted(CATALOG)}')
     spec = CATALOG[name][1]
+    optional = OPTIONAL_PARAMS.get(name, {})
     if not isinstance(params, Mapping):
         raise SimError(f'{where} is {params!r}; expected a mapping of {sorted(spec)}')
-    if set(params) != set(spec):
-        raise SimError(f'{where} has parameters {sorted(params)}; expected exactly {sorted(spec)}')
+    if not set(spec) <= set(params) <= set(spec) | set(optional):
+        extra = f' (optional: {sorted(optional)})' if optional else ''
+        raise SimError(f'{where} has parameters {sorted(params)}; expected exactly {sorted(spec)}{extra}')
+    spec = {**spec, **optional}
     out = []
-    for k in sorted(spec):
+    for k in sorted(set(params)):
         v = params[k]
         lo, hi, incl = spec[k]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):

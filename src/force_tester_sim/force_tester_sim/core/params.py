@@ -13,6 +13,7 @@ from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
 from .departures import NO_DEPARTURES, Departures, departures_from_data
 from .errors import SimError
+from .tolerances import Tolerances, tolerances_from_data
 
 NOMINAL_YAML = Path(__file__).resolve().parent.parent / 'config' / 'nominal.yaml'
 #: the truth reference rig: the datasheet rig plus documented departures (the sim README)
@@ -163,6 +164,7 @@ class RigParams:
     sensors: SensorParams = field(default_factory=SensorParams)
     test_sets: tuple = NOMINAL_TEST_SETS
     departures: Departures = NO_DEPARTURES   # empty = the nominal rig (str() gives 'none')
+    tolerances: Tolerances = field(default_factory=Tolerances)   # practical significance (core/tolerances.py)
 
     def test_set(self, n: int) -> TestSet:
         for ts in self.test_sets:
@@ -215,10 +217,10 @@ def rig_from_dict(data: Mapping) -> RigParams:
         raise SimError(f'rig description is {type(data).__name__}; expected a mapping')
     sections = {'daq': DaqParams, 'drive': DriveParams, 'force_chain': ForceChainParams,
                 'sensors': SensorParams}
-    unknown = sorted(set(data) - set(sections) - {'test_sets', 'departures'})
+    unknown = sorted(set(data) - set(sections) - {'test_sets', 'departures', 'tolerances'})
     if unknown:
         raise SimError(f'rig description has unknown section(s) {unknown}; '
-                       f'expected only {sorted(sections) + ["departures", "test_sets"]}')
+                       f'expected only {sorted(sections) + ["departures", "test_sets", "tolerances"]}')
     kwargs = {name: _build(cls, data[name], name) for name, cls in sections.items() if name in data}
     if 'test_sets' in data:
         raw = data['test_sets']
@@ -231,6 +233,8 @@ def rig_from_dict(data: Mapping) -> RigParams:
         kwargs['test_sets'] = sets
     if 'departures' in data:
         kwargs['departures'] = departures_from_data(data['departures'])
+    if 'tolerances' in data:
+        kwargs['tolerances'] = tolerances_from_data(data['tolerances'])
     rig = RigParams(**kwargs)
     validate_rig(rig)
     return rig

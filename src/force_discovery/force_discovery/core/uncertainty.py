@@ -1,0 +1,86 @@
+"""Uncertainty of fitted parameters from the pull-to-pull spread, and the practical-significance verdict.
+
+- Pooled fits (the force model's gain, mass, delay, AC coupling) get a delete-one-pull jackknife over the
+  fitted pulls: se^2 = (n - 1)/n sum (theta_(-k) - mean)^2, interval theta +/- t(0.975, n - 1) se.
+- Statistics of per-pull estimates (a median mode frequency, a median friction offset, a mean hum amplitude)
+  get a seeded percentile bootstrap over pulls (BOOTSTRAP_RESAMPLES resamples).
+
+A cause is acted on only when it is statistically significant on held-out pulls AND its 95 % interval lies
+wholly outside its tolerance band (force_tester_sim.core.tolerances). Otherwise it is reported as
+`within_tolerance` (interval inside the band, significant or not), `inconclusive` (significant, interval
+straddles a band edge; with the number of pulls that would settle it, from the interval shrinking as
+1/sqrt(n)) or `not_significant`.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional, Sequence, Tuple
+
+import numpy as np
+
+from force_tester_sim.core.tolerances import Band
+
+CONFIDENCE = 0.95
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 20130           # fixed: the same data give the same report
+
+NAMED, WITHIN, INCONCLUSIVE, NOT_SIGNIFICANT = 'named', 'within_tolerance', 'inconclusive', 'not_significant'
+
+
+def t_quantile(n: int) -> float:
+    """Two-sided CONFIDENCE quantile of Student's t with n - 1 degrees of freedom (normal for n < 2)."""
+    from scipy.stats import norm, t
+    q = 0.5 + CONFIDENCE / 2
+    return float(t.ppf(q, n - 1)) if n >= 2 else float(norm.ppf(q))
+
+
+def jackknife_ci(estimate: float, leave_one_out: Sequence[float]) -> Tuple[float, float]:
+    """CONFIDENCE interval of a pooled estimate from its delete-one-pull refits."""
+    loo = np.asarray(leave_one_out, float)
+    n = len(loo)
+    if n < 2 or not np.all(np.isfinite(loo)):
+        return -math.inf, math.inf
+    se = math.sqrt((n - 1) / n * float(np.sum((loo - loo.mean()) ** 2)))
+    h = t_quantile(n) * se
+    return float(estimate - h), float(estimate + h)
+
+
+def bootstrap_ci(values: Sequence, statistic: Callable[[np.ndarray], float] = np.median) -> Tuple[float, float]:
+    """CONFIDENCE percentile-bootstrap interval of statistic(values) over pulls (values: one row per pull)."""
+    v = np.asarray(values, float)
+    n = len(v)
+    if n < 2:
+        return -math.inf, math.inf
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    idx = rng.integers(0, n, size=(BOOTSTRAP_RESAMPLES, n))
+    stats = np.array([statistic(v[i]) for i in idx])
+    a = (1 - CONFIDENCE) / 2
+    return float(np.quantile(stats, a)), float(np.quantile(stats, 1 - a))
+
+
+def pulls_to_settle(estimate: float, ci: Tuple[float, float], band: Band, n: int) -> Optional[int]:
+    """Pulls needed for the interval (shrinking as 1/sqrt(n)) to clear the nearer band edge; None if never."""
+    lo, hi = ci
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None
+    half = 0.5 * (hi - lo)
+    dist = band.distance(estimate)
+    if dist <= 0 or half <= 0:
+        return None
+    return int(math.ceil(n * (half / dist) ** 2))
+
+
+def verdict(estimate: float, ci: Tuple[float, float], band: Band, significant: bool, n: int) -> dict:
+    """The practical-significance verdict of one candidate (see the module doc)."""
+    lo, hi = ci
+    out = {'band': band.as_dict(), 'estimate': float(estimate), 'ci95': [float(lo), float(hi)], 'pulls': int(n)}
+    if band.contains(lo, hi):
+        out['verdict'] = WITHIN            # significant or not: whatever it is, it does not matter
+    elif not significant:
+        out['verdict'] = NOT_SIGNIFICANT
+    elif band.excludes(lo, hi):
+        out['verdict'] = NAMED
+    else:
+        out['verdict'] = INCONCLUSIVE
+        out['pulls_to_settle'] = pulls_to_settle(estimate, ci, band, n)
+    return out
