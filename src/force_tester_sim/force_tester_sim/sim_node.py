@@ -131,7 +131,8 @@ class SimNode(Node):
                         seqs[k] += 1
                 index += n
                 self._event(PullEvent.END, sample_stamp_ns(t0_ns, index, rate_hz), pull_id, rig, spec)
-        self.diag.report(OK, f'done: {len(pulls)} pull(s), {index} samples per channel')
+        self.diag.report(OK, f'done: {len(pulls)} pull(s), {index} samples per channel, {seqs[0]} blocks per topic',
+                         blocks_per_topic=seqs[0])
         if self.params.values['exit_when_done']:
             # a reliable reader that lags (a recorder on a busy machine) has not acknowledged
             # the last blocks yet; they would be lost with this process
