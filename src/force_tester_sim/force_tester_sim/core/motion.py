@@ -164,6 +164,56 @@ class PrescribedMotion:
                            f'{usable_track_m} m')
 
 
+@dataclass(frozen=True, eq=False)
+class SampledMotion:
+    """Carriage kinematics given as samples (e.g. a measured record): x, v, a linearly interpolated between the
+    samples (the integrator's first-order hold assumes the same), the first sample held before ``t[0]`` and the
+    last after ``t[-1]``. ``t`` strictly increasing; a uniform grid takes a fast path for scalar times."""
+    t: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    command_scale: float = 1.0
+
+    def __post_init__(self):
+        arrs = [np.asarray(getattr(self, k), dtype=float) for k in ('t', 'x', 'v', 'a')]
+        n = len(arrs[0])
+        if n < 2 or any(arr.shape != (n,) for arr in arrs):
+            raise SimError(f'sampled motion has shapes {[arr.shape for arr in arrs]}; expected four equal 1-D '
+                           'arrays of at least 2 samples')
+        if not all(np.all(np.isfinite(arr)) for arr in arrs):
+            raise SimError('sampled motion has non-finite samples; expected finite t, x, v, a')
+        steps = np.diff(arrs[0])
+        if not np.all(steps > 0):
+            raise SimError(f'sampled motion times step by {steps.min()!r} s at the least; expected strictly '
+                           'increasing times')
+        for k, arr in zip(('t', 'x', 'v', 'a'), arrs):
+            object.__setattr__(self, k, arr)
+        h = float(steps.mean())
+        object.__setattr__(self, '_h', h if np.ptp(steps) <= 1e-9 * h else None)
+
+    def kinematics(self, t):
+        t = np.asarray(t, dtype=float)
+        return tuple(np.interp(t, self.t, y) for y in (self.x, self.v, self.a))
+
+    def kinematics_scalar(self, t: float):
+        h = self._h
+        if h is None:
+            return tuple(float(y) for y in self.kinematics(float(t)))
+        s = (t - self.t[0]) / h
+        n = len(self.t)
+        if s <= 0.0:
+            return float(self.x[0]), float(self.v[0]), float(self.a[0])
+        if s >= n - 1:
+            return float(self.x[-1]), float(self.v[-1]), float(self.a[-1])
+        i = int(s)
+        f = s - i
+        return tuple(float(y[i] + f * (y[i + 1] - y[i])) for y in (self.x, self.v, self.a))
+
+    def command_velocity(self, t):
+        return self.kinematics(t)[1] * self.command_scale
+
+
 def hold_time_s(coupon_break_n: float, velocity_m_s: float, series_stiffness_n_per_m: float,
                 break_duration_s: float) -> float:
     """Time from taut to braking: >= MIN_HOLD_S and 3x the expected time to load the coupon to break."""
@@ -188,5 +238,5 @@ def nominal_slack_m(velocity_m_s: float, decel_m_s2: float, hold_s: float, usabl
     return float(slack)
 
 
-__all__ = ['MotionSource', 'AccelStep', 'PrescribedMotion', 'hold_time_s', 'nominal_slack_m',
+__all__ = ['MotionSource', 'AccelStep', 'PrescribedMotion', 'SampledMotion', 'hold_time_s', 'nominal_slack_m',
            'PRE_TRIGGER_S', 'ACCEL_PEAK_M_S2', 'BRAKE_M_S2']

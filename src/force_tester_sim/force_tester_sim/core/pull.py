@@ -13,7 +13,7 @@ from .chain import ChainParams, force_move, force_stat, tension
 from .departures import apply_sensor_departures
 from .errors import SimError
 from .integrate import ChainTrajectory, integrate_chain
-from .motion import PrescribedMotion, hold_time_s, nominal_slack_m
+from .motion import MotionSource, PrescribedMotion, hold_time_s, nominal_slack_m
 from .params import RigParams
 
 CHANNELS = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2',
@@ -146,7 +146,7 @@ def sample_stamps_ns(rig: RigParams, start_ns: int) -> np.ndarray:
 class PullResult:
     channels: Dict[str, np.ndarray]          # the DAQ export columns (CHANNELS)
     spec: PullSpec
-    motion: PrescribedMotion
+    motion: MotionSource                     # PrescribedMotion unless run_pull_with_motion
     taut_index: Optional[int]                # first sample with lanyard tension > 0
     break_index: Optional[int]               # first sample at/after the break start
     break_end_index: Optional[int]           # first sample with beta == 0
@@ -214,9 +214,16 @@ def events_and_truth(t, traj, p, kin, T, fm, fs):
 
 
 def run_pull(rig: RigParams, spec: PullSpec, noise: bool = True) -> PullResult:
+    return run_pull_with_motion(rig, spec, motion_for(rig, spec), noise)
+
+
+def run_pull_with_motion(rig: RigParams, spec: PullSpec, motion: MotionSource, noise: bool = True,
+                         t: Optional[np.ndarray] = None) -> PullResult:
+    """``run_pull`` driven by a given carriage motion (e.g. a SampledMotion of a measured record) on the sample
+    times ``t`` (default: the rig's record). The spec supplies the per-pull chain quantities (slack, lanyard
+    stiffness, coupon break force/duration, optional yield); its speed and deceleration are not used."""
     p = chain_params(rig, spec)
-    motion = motion_for(rig, spec)
-    t = sample_times_s(rig)
+    t = sample_times_s(rig) if t is None else np.asarray(t, dtype=float)
     x3, v3, a3 = kin = motion.kinematics(t)
     traj: ChainTrajectory = integrate_chain(p, motion, t, kinematics=kin)
     X = traj.x
