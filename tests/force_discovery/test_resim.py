@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from generator import make_campaign, observed_mount_mode, rig_with
+from generator import draw_nuisance, make_campaign, observed_mount_mode, rig_with
 
 from force_discovery.core.discovery import _filtered, prepare
 from force_discovery.core.resim import fit_pull_quantities, resimulate, simulation_check
@@ -23,9 +23,9 @@ from force_tester_sim.core.pull import nominal_pull_spec, run_pull, run_pull_wit
 FORCES = ('force_moving_n', 'force_stationary_n')
 
 
-def prepared(departures, seed, sets, pulls=1):
+def prepared(departures, seed, sets, pulls=1, nuisance=None):
     rig = load_rig()
-    camp = make_campaign(departures, seed=seed, sets=sets, pulls=pulls)
+    camp = make_campaign(departures, seed=seed, sets=sets, pulls=pulls, nuisance=nuisance)
     return rig, [prepare(meta, ch, rig) for meta, ch in camp]
 
 
@@ -152,3 +152,19 @@ def test_mount_resonance_extension_rings_at_the_measured_frequency(mount):
     assert ring['measured_hz'] == pytest.approx(f_obs, rel=0.02), (ring, f_obs)   # the measurement sees the mode
     assert abs(ring['extended_sim_hz'] / ring['measured_hz'] - 1) < 0.02, ring
     assert chk.time_s > 0
+
+
+def test_extension_gain_survives_model_form_nuisances():
+    """Cells and lanyard damped 2-4x the assumed ratios, an anti-alias filter, 1/f noise and 16-bit samples: the
+    check measures the cells' damping on the pulls' free decay, and the true extension still wins clearly."""
+    truth = {'effective_mass': {'mass_kg': 1.45}}
+    nuisance = draw_nuisance(26)
+    rig, pulls = prepared(truth, seed=26, sets=(3, 5), nuisance=nuisance)
+    chk = simulation_check(pulls, [0, 1], rig, departures_from_data(truth))
+    zeta = rig.force_chain.load_cell_damping_ratio * nuisance['cell_damping_factor']
+    assert chk.cell_damping['pulls'] == 2
+    assert chk.cell_damping['used'] == pytest.approx(zeta, rel=0.03), (chk.cell_damping, zeta)
+    g = channel_gains(chk)
+    assert g['force_moving_n'] > 3 and g['accel_axial_m_s2'] > 3, g
+    uncal = channel_gains(simulation_check(pulls, [0, 1], rig, departures_from_data(truth), calibrate=False))
+    assert uncal['force_moving_n'] < g['force_moving_n'] / 2, (uncal, g)   # the calibration is what rescues it

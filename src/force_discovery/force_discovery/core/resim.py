@@ -32,7 +32,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Dict, Optional, Sequence
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -52,9 +52,12 @@ FIT_TAIL_S = 3e-3          # ... and ends this long after the break
 STILL_M_S = 1e-4           # |v3| below this: the carriage is at rest (no dry friction; as discovery's current stage)
 MIN_BREAK_S = 1e-6         # break durations are fitted down to this (a sample is 20 us: below it they hardly show)
 YIELD_KNEE = 0.3           # the tension rate falling below this fraction of the elastic rate marks a yield
+BREAK_MARGIN_N = 0.05      # the calibrated break force stays this far off an F_stat peak (_break_force)
 DYNAMIC_PASSES = 2         # defect-correction passes of the per-pull fit (fit_pull_quantities)
 RING_SAMPLES = 400         # free-decay samples for the ring frequency (8 ms; a longer matrix pencil is slow)
 RING_PULLS = 6             # ring frequencies compared on at most this many pulls (matrix pencils are slow)
+CAL_PULLS = 8              # pulls whose stationary-cell free decay calibrates the cells' damping ratio
+CAL_RING_TO_NOISE = 10.0   # ... when its rms stands this many times above the quiet record's noise
 RING_TOLERANCE = 0.02      # the extended sim rings at the measured frequency within 2 %
 
 
@@ -168,15 +171,24 @@ def _unbroken_run(pull: Pull, rig, i0: int, i1: int, q: 'PullQuantities') -> Dic
 
 
 def _break_force(t: np.ndarray, fs: np.ndarray, tb: float) -> float:
-    """The break force that makes the sim's coupon break at tb, from its unbroken F_stat on the samples t: F_stat at
-    tb, or its running maximum if F_stat is falling there (the sim breaks the first time F_stat reaches it)."""
+    """The break force that makes the sim's coupon break nearest to tb, from its unbroken F_stat on the samples t.
+
+    The sim breaks the first time F_stat reaches the break force, and F_stat rings (the cell mode), so a level
+    just under the running maximum M at tb breaks at the peak that set M, and a level just over M at the next
+    time F_stat exceeds M: whichever of the two is nearer tb (a rising F_stat at tb is both). The margin keeps the
+    crossing off the peak, where the sim could miss a tangential crossing."""
     if not t[0] < tb < t[-1]:
         raise DiscoveryError(f'break at {tb!r} s is outside the fit window {t[0]!r}..{t[-1]!r} s; expected inside')
-    # F_stat between the samples (a cubic through them: the cell's response is smooth) up to tb, its maximum
-    k = int(np.searchsorted(t, tb))
-    a = max(0, k - 4)
-    fine = np.linspace(t[a], tb, 81)
-    return float(max(np.max(CubicSpline(t[a:k + 3], fs[a:k + 3])(fine)), np.max(fs[:a + 1])))
+    fine = np.linspace(t[0], t[-1], (len(t) - 1) * 16 + 1)
+    spline = CubicSpline(t, fs)             # F_stat between the samples (the cell's response is smooth)
+    f = spline(fine)
+    top = max(float(np.max(f[fine <= tb])), float(spline(tb)))
+    best = None
+    for level in (top - BREAK_MARGIN_N, top + BREAK_MARGIN_N):
+        hit = np.flatnonzero(f >= level)
+        if len(hit) and (best is None or abs(fine[hit[0]] - tb) < best[0]):
+            best = (abs(fine[hit[0]] - tb), level)
+    return float(best[1]) if best is not None else top
 
 
 def fit_pull_quantities(pull: Pull, rig, passes: int = DYNAMIC_PASSES) -> PullQuantities:
@@ -301,6 +313,30 @@ def ring_mode(pull: Pull, a2: np.ndarray, f_max: float) -> Optional[tuple]:
     return (modes[0][0], modes[0][1]) if modes else None
 
 
+def cell_damping_ratio(pulls: Sequence[Pull], idx: Sequence[int], rig) -> Optional[Tuple[float, int]]:
+    """(damping ratio, pulls used) of the load cells from the stationary cell's free decay after the break (lanyard
+    slack: m1 alone on its cell, one mode near sqrt(K_LC1/m1)), the median over up to CAL_PULLS of the pulls idx
+    whose ring stands CAL_RING_TO_NOISE x above the record's quiet noise; None if none does."""
+    fc = rig.force_chain
+    f1 = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m1) / (2 * np.pi)
+    zetas = []
+    for j in idx:
+        if len(zetas) >= CAL_PULLS:
+            break
+        p = pulls[j]
+        i0 = p.brk + int(round(2e-4 / p.dt))
+        seg = p.fs[i0:i0 + RING_SAMPLES]
+        if len(seg) < RING_SAMPLES // 2:
+            continue
+        seg = seg - np.mean(seg)
+        noise = float(np.std(p.fs[:max(10, p.pre1 // 4)]))
+        for f, z, e in matrix_pencil(seg, p.dt):
+            if abs(f / f1 - 1.0) < 0.3 and 0.0 < z < 0.5 and math.sqrt(e / len(seg)) > CAL_RING_TO_NOISE * noise:
+                zetas.append(z)
+                break
+    return (float(np.median(zetas)), len(zetas)) if zetas else None
+
+
 @dataclass(frozen=True)
 class SimulationCheck:
     """Measured vs re-simulated channels over held-out pulls (baseline: model of record; extended: + extension)."""
@@ -311,24 +347,34 @@ class SimulationCheck:
     ring: Optional[dict]    # mount resonance only: measured vs extended-sim ring frequency
     trace: dict             # one pull: t and, per channel, measured / baseline / extended (low-passed, window)
     time_s: float
+    cell_damping: dict = dataclasses.field(default_factory=dict)   # the cells' damping ratio: rig's and used
 
     def as_dict(self) -> dict:
         return {ch: dict(v) for ch, v in self.channels.items()}
 
     def details(self) -> dict:
         return {'pulls': list(self.pulls), 'ring': self.ring, 'time_s': self.time_s,
-                'quantities': [dict(q) for q in self.quantities]}
+                'cell_damping': dict(self.cell_damping), 'quantities': [dict(q) for q in self.quantities]}
 
 
 def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures: Departures,
-                     trace_pull: Optional[int] = None) -> SimulationCheck:
+                     trace_pull: Optional[int] = None, calibrate: bool = True) -> SimulationCheck:
     """Re-simulate pulls[idx] twice (model of record; plus ``departures``) and compare with the measurements.
 
     RMS per channel over each pull's analysis window w0:w1 after the discovery low-pass (7-9 kHz, zero phase),
-    pooled over the pulls. ``trace_pull``: list position of the pull whose traces are kept (default idx[0])."""
+    pooled over the pulls. ``trace_pull``: list position of the pull whose traces are kept (default idx[0]).
+    ``calibrate``: both runs use the cells' damping ratio measured on these pulls (cell_damping_ratio) instead of
+    the rig's assumed one: the cells ring after every fast break, and a wrong decay rate of that ringing would
+    swamp what the extension changes."""
     t_start = time.perf_counter()
     if not len(idx):
         raise DiscoveryError('simulation check has no pulls; expected at least one held-out pull')
+    fc = rig.force_chain
+    damping = {'rig': fc.load_cell_damping_ratio, 'used': fc.load_cell_damping_ratio, 'pulls': 0}
+    cal = cell_damping_ratio(pulls, idx, rig) if calibrate else None
+    if cal is not None:
+        damping.update(used=cal[0], pulls=cal[1])
+        rig = dataclasses.replace(rig, force_chain=dataclasses.replace(fc, load_cell_damping_ratio=cal[0]))
     base_rig = rig
     ext_rig = with_departures(rig, departures)
     f_cell = math.sqrt(rig.force_chain.load_cell_stiffness_n_per_m / rig.force_chain.m2) / (2 * np.pi)
@@ -385,8 +431,9 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
         else:
             ring = {'measured_hz': None, 'extended_sim_hz': None, 'rel_error': None, 'max_pull_rel_error': None,
                     'tolerance': RING_TOLERANCE, 'within_tolerance': False, 'pulls': 0}
-    return SimulationCheck(channels, tuple(names), tuple(quants), ring, trace, time.perf_counter() - t_start)
+    return SimulationCheck(channels, tuple(names), tuple(quants), ring, trace, time.perf_counter() - t_start,
+                           damping)
 
 
-__all__ = ['PullQuantities', 'SimulationCheck', 'SIM_CHANNELS', 'fit_pull_quantities', 'quasi_static_tension',
-           'resimulate', 'sample_beta', 'ring_mode', 'simulation_check', 'with_departures']
+__all__ = ['PullQuantities', 'SimulationCheck', 'SIM_CHANNELS', 'cell_damping_ratio', 'fit_pull_quantities',
+           'quasi_static_tension', 'resimulate', 'ring_mode', 'sample_beta', 'simulation_check', 'with_departures']
