@@ -125,12 +125,13 @@ SPIKE_Z = 12.0                   # candidates: |r| > 12 sigma_r (Gaussian noise:
 #                                  spike must also depart > 12 sigma from the signal interpolated across it
 SPIKE_CONTEXT_SAMPLES = 25       # 0.5 ms each side of a candidate group: its context
 SPIKE_CONTEXT_RATIO = 8.0        # the group's peak |r| >= 8 x the context's robust |r| (on each side)
-SPIKE_RESIDUAL_SHARE = 0.05      # removing the excursion leaves < 5 % of the group's peak |r|: a compact
+SPIKE_RESIDUAL_SHARE = 0.025     # removing the excursion leaves < 2.5 % of the group's peak |r|: a compact
 #                                  excursion explains it (a 200-500 N spike: < 0.015; the rig's sharp events
-#                                  forming a short group on clean sets 1-5: >= 0.10)
-SPIKE_RETURN_RATIO = 1.0         # the excursion's peak > the change of the repaired signal across the group:
-#                                  it returns to the trend (a step or a kink changes the trend itself; on clean
-#                                  sets 1-5 the rig's sharp events that pass the tests before give <= 0.6)
+#                                  forming a short group on 155 clean pulls: >= 0.038, and < 0.1 only for
+#                                  steps, which the return test rejects)
+SPIKE_RETURN_RATIO = 1.0         # the excursion's peak > the level change across it beyond the local slopes:
+#                                  it returns to the trend (the excursion smoothing a step is < 0.97 of the
+#                                  step for up to 8 samples; a step's group has 4)
 SPIKE_COINCIDENCE_S = 0.3e-3     # a glitch is in ONE channel; the pull's sharp events (elastic rise, break,
 SPIKE_COINCIDENCE_Z = 6.0        # ringing onset) are in both cells and the accelerometer within ~0.1 ms (the
 #                                  accelerometer's delay <= 0.1 ms): a group with |r| > 6 sigma_r in another of
@@ -310,9 +311,9 @@ def _spikes(x: np.ndarray, r: np.ndarray, sigma_r: float, others: Sequence[_Even
     2. Its peak |r| >= SPIKE_CONTEXT_RATIO x the robust |r| of the SPIKE_CONTEXT_SAMPLES before AND after it
        (an isolated event, not a burst of ringing).
     3. A compact excursion p on the group's inner samples explains it: removing p (least squares, see
-       _excursion) leaves < SPIKE_RESIDUAL_SHARE of the peak or < SPIKE_RESIDUAL_CONTEXT x the context's |r|,
-       and the excursion returns to the trend: its peak exceeds SPIKE_RETURN_RATIO x the change of x - p
-       across the group (a step or a kink is smoothed by p but changes the level or slope of what is left).
+       _excursion) leaves < SPIKE_RESIDUAL_SHARE of the peak |r| (a kink or a short step leaves more), and
+       the excursion returns to the trend: its peak exceeds SPIKE_RETURN_RATIO x the level change across it
+       beyond the local slopes (_level_change; a step keeps its height there, p only smooths it).
     4. No other of the pull's channels (both cells, the axial accelerometer) has sharp content within
        SPIKE_COINCIDENCE_S: the rig's events show in all of them, a glitch in one.
     The spike's samples are those of p above SPIKE_Z sigma and a quarter of its peak; they must span
