@@ -16,6 +16,7 @@ import yaml
 from generator import OUT_OF_CATALOG, PLAUSIBLE, check_identified, draw, make_campaign, out_of_catalog, rig_with
 
 from force_discovery.core.pipeline import discover
+from force_tester_common.core.correction import MASS_KG
 from force_tester_sim.core.params import load_rig
 
 
@@ -176,12 +177,10 @@ def test_stages_leave_their_inputs_unchanged(tmp_path):
 
 def test_non_finite_samples_are_counted_and_quoted():
     from force_discovery.core.discovery import check_quality
-    from force_discovery.core.errors import DiscoveryError
     meta, ch = make_campaign(None, seed=8, sets=(2,), pulls=1)[0]
     ch = dict(ch, accel_axial_m_s2=np.array(ch['accel_axial_m_s2'], float))
     ch['accel_axial_m_s2'][[10, 20, 30]] = np.nan
-    with pytest.raises(DiscoveryError, match=r"'accel_axial_m_s2': 3"):
-        check_quality(meta, ch)
+    assert check_quality(meta, ch).nonfinite['accel_axial_m_s2'] == 3
 
 
 # ------------------------------------------------------------------ issue 12: practical significance, uncertainty
@@ -215,7 +214,7 @@ def test_verdict_follows_the_tolerance_band():
 def test_departure_inside_the_tolerance_is_reported_not_named(tmp_path):
     """A 0.2 % gain and a 0.6 % heavier m2: statistically clear, practically nothing. Reported as within
     tolerance, with estimate and interval; the cause is none."""
-    truth = {'moving_cell_gain': {'gain': 1.002}, 'effective_mass': {'mass_kg': 1.152 * 1.006}}
+    truth = {'moving_cell_gain': {'gain': 1.002}, 'effective_mass': {'mass_kg': MASS_KG * 1.006}}
     report = run(make_campaign(truth, seed=22), tmp_path)
     assert report['cause'] == 'none', report['causes']
     within = {c['name']: c for c in report['within_tolerance']}
@@ -235,7 +234,7 @@ def test_mount_is_reported_as_the_observed_mode_whatever_the_bracket(base_fracti
     extension.yaml maps it to the sim's mount with a stated bracket-mass assumption, and the sim with that
     extension has the observed mode (within 2 %)."""
     from generator import observed_mount_mode
-    truth = {'frequency_hz': 1100.0, 'damping_ratio': 0.02, 'base_mass_kg': base_fraction * 1.152}
+    truth = {'frequency_hz': 1100.0, 'damping_ratio': 0.02, 'base_mass_kg': base_fraction * MASS_KG}
     report = run(make_campaign({'mount_resonance': truth}, seed=23, sets=(3, 4), pulls=3), tmp_path)
     assert report['cause'] == 'mount_resonance', report['causes']
     f_obs, z_obs = observed_mount_mode(rig_with({'mount_resonance': truth}))
@@ -268,3 +267,68 @@ def test_malformed_tolerances_exit_2_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'tolerances.moving_cell_gain_rel' in err[0] and '-0.01' in err[0]
     assert not (tmp_path / 'o' / 'report.json').exists()
+
+
+# ------------------------------------------------------------------ issue 12: data quality before physics
+def test_data_defects_never_yield_a_catalog_name(tmp_path):
+    """Under-runs (every channel held 1-5 ms), 200-500 N spikes on the moving cell, a clipped moving cell and a
+    few NaNs: each found and listed in data_quality, masked, and none of them named as a cause."""
+    from defects import add_clipping, add_nonfinite, real_world_defects
+    clean = make_campaign(None, seed=31)
+    camp, injected = real_world_defects(clean, seed=31)
+    meta, ch = clean[1]                      # one pull saturates and has NaNs instead
+    ch, _ = add_clipping(ch, 0.9 * float(np.max(ch['force_moving_n'])))
+    ch, _ = add_nonfinite(ch, np.random.default_rng(1))
+    camp[1] = (meta, ch)
+    del injected[meta['file']]
+    report = run(camp, tmp_path)
+    assert report['cause'] == 'none', report['causes']
+    kinds = {(d['pull'], d['kind']) for d in report['data_quality']}
+    for name, inj in injected.items():
+        assert {(name, i.kind) for i in inj} <= kinds, (name, inj)
+    assert {(meta['file'], 'nonfinite'), (meta['file'], 'clipping')} <= kinds
+    assert '## Data quality' in (tmp_path / 'report.md').read_text()
+
+
+def test_a_real_effect_is_still_found_through_data_defects(tmp_path):
+    from defects import real_world_defects
+    truth = {'mass_kg': 1.4}
+    camp, _ = real_world_defects(make_campaign({'effective_mass': truth}, seed=32), seed=32)
+    report = run(camp, tmp_path)
+    assert check_identified(report, 'effective_mass', truth) == []
+
+
+def test_too_few_usable_pulls_is_unexplained_with_the_reason(tmp_path):
+    from defects import add_stuck
+    camp = make_campaign(None, seed=33, sets=(2,), pulls=4)
+    camp = [(m, add_stuck(ch, 'force_moving_n')[0]) for m, ch in camp]
+    report = run(camp, tmp_path)
+    assert report['cause'] == 'unexplained'
+    assert sum(d['kind'] == 'excluded' for d in report['data_quality']) == 4
+    assert json.loads((tmp_path / 'report.json').read_text())['cause'] == 'unexplained'
+
+
+# ------------------------------------------------------------------ issue 12: model-form nuisances
+# Known gap (issue 12 stays open): with the cells 2-4x more damped than the model of record, the free ringing at the
+# cell mode (~3.9 kHz) leaves structure in the force residual that the leftover check calls `unexplained`, and the
+# effective-mass estimate moves by ~3-4 %. Strict xfail: these start failing the day they pass, to be unmarked.
+NUISANCE_GAP = pytest.mark.xfail(strict=True, reason='cell damping 2-4x nominal: leftover at the cell mode')
+
+
+@NUISANCE_GAP
+@pytest.mark.parametrize('seed', [41, 42])
+def test_model_form_nuisances_give_none(seed, tmp_path):
+    """Cell and lanyard damping 2-4x, a common anti-alias filter, 1/f noise, 16-bit samples and departures well
+    inside the tolerances: nothing to act on."""
+    from generator import draw_nuisance
+    report = run(make_campaign(None, seed=seed, nuisance=draw_nuisance(seed)), tmp_path)
+    assert report['cause'] == 'none', [(c['name'], c.get('parameters')) for c in report['causes']]
+
+
+@pytest.mark.parametrize('name', ['mount_resonance', 'coulomb_friction',
+                                  pytest.param('effective_mass', marks=NUISANCE_GAP)])
+def test_effects_are_found_through_the_nuisances(name, tmp_path):
+    from generator import draw_nuisance
+    truth = draw(name, seed=43)
+    report = run(make_campaign({name: truth}, seed=43, nuisance=draw_nuisance(43, within_tolerance=False)), tmp_path)
+    assert check_identified(report, name, truth) == []

@@ -56,8 +56,16 @@ def main(args) -> int:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     names = ', '.join(c['name'] for c in report['causes']) or 'none'
-    print(f'cause: {report["cause"]} (named: {names}); error {report["baseline_error"]:.4g} -> '
-          f'{report["extended_error"]:.4g}, gain {report["gain"]:.3g}x')
+    if report['gain'] is None:
+        print(f'cause: {report["cause"]} (named: {names}); {report["notes"][0] if report["notes"] else ""}')
+    else:
+        print(f'cause: {report["cause"]} (named: {names}); error {report["baseline_error"]:.4g} -> '
+              f'{report["extended_error"]:.4g}, gain {report["gain"]:.3g}x')
+    if report['within_tolerance'] or report['inconclusive']:
+        print('within tolerance: ' + (', '.join(c['name'] for c in report['within_tolerance']) or '-')
+              + '; inconclusive: ' + (', '.join(c['name'] for c in report['inconclusive']) or '-'))
+    if report['data_quality']:
+        print(f'data quality: {len(report["data_quality"])} defects or exclusions (report.md, Data quality)')
     print(f'report: {Path(args.out) / "report.md"}')
     return 0
 

@@ -41,8 +41,10 @@ from force_tester_sim.core.departures import CATALOG, fractional_delay
 from force_tester_sim.core.tolerances import BAND_PARAMETER, band
 
 from .errors import DiscoveryError
+from .quality import repair, screen_pull
 from .uncertainty import NAMED, bootstrap_ci, jackknife_ci, verdict
 
+MIN_PULLS = 4                 # half are fitted, half held out
 MIN_REL_REDUCTION = 0.01      # held-out SSE must fall by at least 1 %
 MIN_T = 4.0                   # and consistently over held-out pulls
 HUM_BAND_HZ = (45.0, 65.0)
@@ -103,8 +105,14 @@ class Pull:
     load0: int
     brk: int
     peak: float
+    ok: Optional[np.ndarray] = None   # usable samples (the data-quality screen's mask, grown by MASK_GROW_S); None: all
+
+    def usable(self, i0: int = 0, i1: Optional[int] = None) -> np.ndarray:
+        i1 = len(self.t) if i1 is None else i1
+        return np.ones(i1 - i0, bool) if self.ok is None else self.ok[i0:i1]
 
 
+MASK_GROW_S = 0.5e-3             # masked spans grow by this much: the low-pass and the 2 ms Savitzky-Golay spread
 MIN_SAMPLES = 2000               # a pull record shorter than this is not a full record
 QUALITY_CHANNELS = ('force_stationary_n', 'force_moving_n', 'accel_axial_m_s2', 'encoder_position_m')
 
@@ -123,7 +131,7 @@ class PullQuality:
 
     @property
     def usable(self) -> bool:
-        return not any(self.nonfinite.values()) and self.peak_n > max(20.0, 20 * self.noise_n)
+        return self.peak_n > max(20.0, 20 * self.noise_n)
 
 
 def check_quality(meta: dict, ch: dict) -> PullQuality:
@@ -138,23 +146,26 @@ def check_quality(meta: dict, ch: dict) -> PullQuality:
         raise DiscoveryError(f'pull {name!r} has {n} samples; expected a full record (>= {MIN_SAMPLES})')
     fs = np.asarray(ch['force_stationary_n'], float)
     finite = np.isfinite(fs)
-    q = PullQuality(name, n, float(t[1] - t[0]),
+    head = fs[: max(10, n // 10)]
+    q = PullQuality(name, n, float(np.nanmedian(np.diff(t))),
                     {k: int(np.count_nonzero(~np.isfinite(np.asarray(ch[k], float)))) for k in QUALITY_CHANNELS},
                     float(np.max(fs[finite])) if finite.any() else float('nan'),
-                    float(np.std(fs[: max(10, n // 10)])), 'motor_current_a' in ch)
-    bad = {k: v for k, v in q.nonfinite.items() if v}
-    if bad:
-        raise DiscoveryError(f'pull {name!r}: non-finite samples {bad}; expected finite channels')
+                    float(np.nanstd(head)) if np.isfinite(head).any() else float('nan'), 'motor_current_a' in ch)
     if not q.usable:
         raise DiscoveryError(f'pull {name!r}: stationary peak {q.peak_n:.3g} N is not a pull; '
                              'expected a loaded record')
     return q
 
 
-def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None) -> Pull:
-    """The prepare stage: derived signals and windows of one pull that passed check_quality()."""
+def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None, screen=None) -> Pull:
+    """The prepare stage: derived signals and windows of one pull that passed check_quality(); with a data-quality
+    screen (quality.screen_pull), its defects are repaired (interpolated) first and masked out of every fit."""
     from scipy.signal import savgol_filter
     q = check_quality(meta, ch) if q is None else q
+    ok = None
+    if screen is not None and screen.spans:
+        ch = repair(ch, screen)
+        ok = screen.combined(grow_s=MASK_GROW_S)
     t = np.asarray(ch['time_s'], float)
     n, dt = q.samples, q.dt
     fc = rig.force_chain
@@ -175,7 +186,7 @@ def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None) -> Pull:
     w0 = max(0, load0 - int(0.05 / dt))
     w1 = min(n, brk + int(0.15 / dt))
     pre1 = max(0, load0 - int(0.03 / dt))
-    return Pull(q.name, t, dt, fm, fs, a2, T, x3, v3, a3, cur, w0, w1, pre1, load0, brk, peak)
+    return Pull(q.name, t, dt, fm, fs, a2, T, x3, v3, a3, cur, w0, w1, pre1, load0, brk, peak, ok)
 
 
 # ------------------------------------------------------------------------------------------ mains hum
@@ -184,8 +195,9 @@ def _hum_design(t, f):
 
 
 def _pre_resid(p: Pull, m2: float) -> Tuple[np.ndarray, np.ndarray]:
-    s = slice(int(0.02 / p.dt), p.pre1)
-    return p.t[s], (p.fm - p.T - m2 * p.a2)[s]
+    i0 = int(0.02 / p.dt)
+    ok = p.usable(i0, p.pre1)
+    return p.t[i0:p.pre1][ok], (p.fm - p.T - m2 * p.a2)[i0:p.pre1][ok]
 
 
 def fit_hum_frequency(pulls: Sequence[Pull], m2: float) -> Tuple[float, dict]:
@@ -268,8 +280,9 @@ class ForceModel:
             self._cache[key] = out
         return self._cache[key]
 
-    def design(self, terms, d, idx):
-        """(y adjusted for fixed terms, regressor matrix, column names) stacked over pulls idx."""
+    def design(self, terms, d, idx, masked=True):
+        """(y adjusted for fixed terms, regressor matrix, column names) per pull of idx, on W: the usable samples
+        only (masked=True), or all of W."""
         sig = self.at(d if 'accel_delay' in terms else 0.0)
         a2 = self.a2
         ys, Xs = [], []
@@ -294,8 +307,9 @@ class ForceModel:
             if 'ac_coupling' in terms:
                 cols += [-Cj]
                 names += ['k']
-            ys.append(y)
-            Xs.append(np.column_stack(cols) if cols else np.zeros((len(y), 0)))
+            ok = self.pulls[j].usable(self.pulls[j].w0, self.pulls[j].w1) if masked else slice(None)
+            ys.append(y[ok])
+            Xs.append(np.column_stack(cols)[ok] if cols else np.zeros((len(ys[-1]), 0)))
         return ys, Xs, names
 
     def fit(self, terms, idx, d=0.0):
@@ -362,7 +376,8 @@ class ForceModel:
         return np.array([float(np.sum((y - X @ c) ** 2)) for y, X in zip(ys, Xs)])
 
     def resid(self, terms, coef, d, j) -> np.ndarray:
-        ys, Xs, names = self.design(terms, d, [j])
+        """Pull j's residual on all of W (masked samples included: their values are repaired, not measured)."""
+        ys, Xs, names = self.design(terms, d, [j], masked=False)
         c = np.array([coef[n] for n in names]) if names else np.zeros(0)
         return ys[0] - Xs[0] @ c
 
@@ -444,7 +459,7 @@ def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float,
 def ring_segment(p: Pull, length_s: float = 0.03) -> Optional[np.ndarray]:
     i0 = p.brk + int(2e-4 / p.dt)
     i1 = min(len(p.t), i0 + int(length_s / p.dt))
-    if i1 - i0 < 200:
+    if i1 - i0 < 200 or not p.usable(i0, i1).all():
         return None
     y = (p.a2 - p.a3)[i0:i1]
     return y - np.mean(y)
@@ -513,7 +528,7 @@ def current_resid(p: Pull, rig) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     rho = p.current * d.force_per_amp_n_per_a - d.reflected_mass_kg * p.a3 - d.viscous_damping_n_s_per_m * p.v3 - p.fm
     moving = p.v3 > 0.05
     still = np.abs(p.v3) < 1e-4
-    return rho, np.where(moving, 1.0, np.where(still, 0.0, np.nan))
+    return rho, np.where(p.usable(), np.where(moving, 1.0, np.where(still, 0.0, np.nan)), np.nan)
 
 
 def _friction_stat(rows: np.ndarray) -> float:
@@ -574,6 +589,8 @@ class Analysis:
     force: dict                  # the full force model: coef, delay_s, held-out SSE
     ring: Optional[dict]         # free-decay segments and the observed mode, if any
     notes: tuple = ()
+    screens: tuple = ()          # quality.PullScreen per campaign pull (the data-quality stage)
+    excluded: dict = field(default_factory=dict)   # pull name -> why the data-quality stage left it out
 
     @property
     def fitted_pulls(self) -> list:
@@ -694,14 +711,25 @@ def current_stage(pulls, fit, held, rig) -> Optional[dict]:
 
 def analyse(campaign_pulls, rig) -> Analysis:
     """All statistics (no files). campaign_pulls: [(meta, channels)]."""
-    if len(campaign_pulls) < 4:
-        raise DiscoveryError(f'campaign has {len(campaign_pulls)} pulls; expected at least 4 '
+    if len(campaign_pulls) < MIN_PULLS:
+        raise DiscoveryError(f'campaign has {len(campaign_pulls)} pulls; expected at least {MIN_PULLS} '
                              '(half are fitted, half held out)')
     quality = tuple(check_quality(m, c) for m, c in campaign_pulls)
     dts = {round(q.dt, 12) for q in quality}
     if len(dts) != 1:
         raise DiscoveryError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
-    pulls = tuple(prepare(m, c, rig, q) for (m, c), q in zip(campaign_pulls, quality))
+    screens = tuple(screen_pull(q.name, c) for q, (_m, c) in zip(quality, campaign_pulls))
+    prepared = [prepare(m, c, rig, q, sc) for (m, c), q, sc in zip(campaign_pulls, quality, screens)]
+    excluded = {}
+    for p, sc in zip(prepared, screens):
+        why = sc.exclusion(p.w0, p.w1)
+        if why:
+            excluded[p.name] = why
+    pulls = tuple(p for p, sc in zip(prepared, screens) if sc.exclusion(p.w0, p.w1) is None)
+    if len(pulls) < MIN_PULLS:
+        return Analysis((), quality, (), (), None, {}, {}, None,
+                        (f'{len(pulls)} of {len(prepared)} pulls are usable after the data-quality screen; '
+                         f'at least {MIN_PULLS} are needed',), screens, excluded)
     m2 = rig.force_chain.m2
     fit, held = _split(pulls)
     notes = []
@@ -719,19 +747,23 @@ def analyse(campaign_pulls, rig) -> Analysis:
         notes.append('coulomb_friction not tested: the data has no motor_current_a channel')
     else:
         cand['coulomb_friction'] = friction
-    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes))
+    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens, excluded)
 
 
 def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:
     """Relative held-out SSE reduction when T^2 is added to the full model."""
-    ys, Xs, names = fm_.design(set(TERMS), d, fit)
     sig = fm_.at(d)
-    X = np.vstack([np.column_stack([Xk, sig[j][1] ** 2]) for Xk, j in zip(Xs, fit)])
+
+    def t2(j):   # T^2 on W, on the usable samples as design() takes them
+        p = fm_.pulls[j]
+        return sig[j][1][p.usable(p.w0, p.w1)] ** 2
+    ys, Xs, names = fm_.design(set(TERMS), d, fit)
+    X = np.vstack([np.column_stack([Xk, t2(j)]) for Xk, j in zip(Xs, fit)])
     c, *_ = np.linalg.lstsq(X, np.concatenate(ys), rcond=None)
     ys2, Xs2, _ = fm_.design(set(TERMS), d, held)
     c0 = np.array([coef[n] for n in names])
     s0 = sum(float(np.sum((y - Xk @ c0) ** 2)) for y, Xk in zip(ys2, Xs2))
-    s1 = sum(float(np.sum((y - np.column_stack([Xk, sig[j][1] ** 2]) @ c) ** 2)) for y, Xk, j in zip(ys2, Xs2, held))
+    s1 = sum(float(np.sum((y - np.column_stack([Xk, t2(j)]) @ c) ** 2)) for y, Xk, j in zip(ys2, Xs2, held))
     return float(1 - s1 / s0) if s0 > 0 else 0.0
 
 
@@ -774,6 +806,8 @@ def tolerance_input(name: str, c: dict) -> Tuple[float, Tuple[float, float]]:
 def decide(analysis: Analysis, rig) -> Decision:
     """Named causes (strongest first): significant on held-out pulls AND outside their tolerance band."""
     cand = analysis.candidates
+    if not analysis.pulls:
+        return Decision((), notes=('no decision: too few usable pulls',))
     verdicts = {}
     for n in CAUSE_ORDER:
         if n in cand:
@@ -819,6 +853,7 @@ def leftover(analysis: Analysis, named, rig) -> Optional[dict]:
         g = int(3e-3 / p.dt)
         for i in (p.brk - p.w0, p.load0 - p.w0):
             keep[max(0, i - g):max(0, i + g)] = False
+        keep &= p.usable(p.w0, p.w1)
         pre = (p.fm - (hums[j] if hums is not None else 0) - p.T - rig.force_chain.m2 * p.a2)
         k = np.arange(len(pre))
         rest = (k > int(0.02 / p.dt)) & (k < p.pre1) & (np.abs(p.v3) < 1e-3)   # quiet floor: carriage at rest

@@ -11,6 +11,10 @@ def discover(campaign_pulls, rig, out_dir) -> dict:
     """Analyse, decide, write DIR/report.json, report.md, extension.yaml (+ plots). Returns the report dict."""
     analysis = analyse(campaign_pulls, rig)
     decision = decide(analysis, rig)
+    if not analysis.pulls:   # the data-quality stage left too few pulls: say so, name nothing
+        report = R.unusable_report(analysis, rig)
+        R.write_outputs(report, analysis, ([], []), (), rig, Path(out_dir))
+        return report
     # structure no catalog entry explains: what is left after every force-channel entry, named or not (a departure
     # too small to name, or within tolerance, is still explained by the catalog)
     left = leftover(analysis, tuple(dict.fromkeys(decision.named + TERMS)), rig)

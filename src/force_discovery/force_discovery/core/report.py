@@ -11,6 +11,7 @@ import numpy as np
 from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
 
 from . import discovery as D
+from . import quality as Q
 from .uncertainty import INCONCLUSIVE, WITHIN
 
 FORCE_CHANNEL = ('mains_hum',) + D.TERMS
@@ -45,6 +46,9 @@ def force_errors(analysis: D.Analysis, named, rig) -> tuple:
         coef, _ = fm1.fit(terms, fit, 0.0)
         d = 0.0
     ext = [fm1.resid(terms, coef, d, j) for j in held]
+    for j, b, e in zip(held, base, ext):   # masked (repaired) samples are no evidence: zero residual
+        bad = ~pulls[j].usable(pulls[j].w0, pulls[j].w1)
+        b[bad] = e[bad] = 0.0
     return base, ext
 
 
@@ -158,13 +162,35 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
                            'tolerance': c['tolerance'], 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
-        'data_quality': {'pulls': len(analysis.quality), 'sample_interval_s': analysis.quality[0].dt,
-                         'samples': [q.samples for q in analysis.quality],
-                         'stationary_peak_to_noise': [q.peak_n / max(q.noise_n, 1e-300) for q in analysis.quality],
-                         'with_motor_current': sum(q.has_current for q in analysis.quality)},
+        'data_quality': quality_section(analysis),
         'notes': [*analysis.notes, *decision.notes],
     }
     return _clean(report)
+
+
+def quality_section(analysis: D.Analysis) -> list:
+    """report.json data_quality: every defect found, {pull, channel, kind, t_start_s, t_end_s, detail}, and one
+    entry (kind 'excluded') per pull the screen left out."""
+    rows = Q.defect_dicts(analysis.screens)
+    for name, why in analysis.excluded.items():
+        q = next(q for q in analysis.quality if q.name == name)
+        rows.append({'pull': name, 'channel': Q.ALL, 'kind': 'excluded', 't_start_s': 0.0,
+                     't_end_s': q.samples * q.dt, 'detail': why})
+    return rows
+
+
+def unusable_report(analysis: D.Analysis, rig) -> dict:
+    """The report when the data-quality stage leaves too few pulls: unexplained, data_quality says why."""
+    return _clean({
+        'cause': 'unexplained',
+        'causes': [{'name': 'unexplained', 'parameters': {}, 'gain': None,
+                    'evidence': {'statistic': 'pulls usable after the data-quality screen',
+                                 'value': len(analysis.quality) - len(analysis.excluded), 'threshold': D.MIN_PULLS,
+                                 'rule': 'defects leave too few pulls to fit and hold out; see data_quality'}}],
+        'baseline_error': None, 'extended_error': None, 'gain': None, 'metric': 'none: no pulls to score',
+        'within_tolerance': [], 'inconclusive': [], 'candidates': {}, 'leftover': None,
+        'tolerances': dataclasses.asdict(rig.tolerances), 'fitted_pulls': [], 'held_out_pulls': [],
+        'data_quality': quality_section(analysis), 'notes': list(analysis.notes)})
 
 
 def _ring_rms(analysis: D.Analysis, rig):
@@ -248,7 +274,7 @@ def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: 
         plots = _plots(analysis, errors, named, rig, stage)
         report['plots'] = [str(out / Path(q).name) for q in plots]
         (stage / 'report.json').write_text(json.dumps(report, indent=1))
-        (stage / 'report.md').write_text(markdown(report, report['plots']))
+        (stage / 'report.md').write_text(markdown(report, report['plots'], analysis.screens, analysis.excluded))
         for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):   # report.json last
             f.replace(out / f.name)
     finally:
@@ -264,7 +290,10 @@ def _fmt_params(p):
     return ', '.join(f'{k} = {v:.4g}' if isinstance(v, (int, float)) else f'{k} = {v}' for k, v in p.items())
 
 
-def markdown(r, plots) -> str:
+def markdown(r, plots, screens=(), excluded=None) -> str:
+    if r['gain'] is None and not r['fitted_pulls']:
+        return '\n'.join(['# Discovery report', '', f'**Primary cause: `{r["cause"]}`.** {r["notes"][0]}.', '']
+                         + Q.markdown_lines(screens, excluded)) + '\n'
     L = ['# Discovery report', '',
          f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, '
          f'extended {r["extended_error"]:.4g}, '
@@ -314,7 +343,8 @@ def markdown(r, plots) -> str:
         L.append('(none: every candidate passed)')
     for note in r['notes']:
         L.append(f'- note: {note}')
-    L += ['', '## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
+    L += [''] + Q.markdown_lines(screens, excluded)
+    L += ['## Method', '', D.__doc__.strip(), '', f'Significance rule: {r.get("significance_rule", "")}.', '']
     if r.get('leftover'):
         lo = r['leftover']
         L += ['## Residual left after the extension', '',
@@ -337,6 +367,8 @@ def _plots(analysis: D.Analysis, errors: tuple, named, rig, out: Path):
         return []
     base, ext = errors
     pulls, held = analysis.pulls, analysis.held
+    if not held:
+        return []
     p = pulls[held[0]]
     t = p.t[p.w0:p.w1]
     fig, ax = plt.subplots(2, 1, figsize=(8, 6))
