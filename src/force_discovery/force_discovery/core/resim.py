@@ -7,24 +7,31 @@ Per pull, from that pull's own measured channels only:
 - the carriage motion: the encoder's x3, v3, a3 (the Pull's Savitzky-Golay estimates) drive the force chain
   through a ``SampledMotion`` (no motion model, no commanded speed);
 - the per-pull quantities (``PullQuantities``): lanyard slack and stiffness, coupon yield and hardening (when the
-  tension shows a plastic flow), break force and break duration, fitted by least squares to the measured lanyard
+  tension shows a plastic flow), break instant and duration, fitted by least squares to the measured lanyard
   tension T (stationary cell + m1 a1, discovery.prepare) with a quasi-static chain: in the taut pieces the cells
   (and a mount, when the model has one) are springs in series with the lanyard,
       T_el   = (K_L (x3 - slack) + c_L v3) / (1 + K_L C),        C = 1/K_LC1 + 1/K_LC2 (+ 1/k_mount)
       T_flow = (k_p (x3 - slack + F_y/H) + c_p v3) / (1 + k_p C), k_p = K_L H/(K_L + H), c_p = c_L H/(K_L + H)
-      T = beta(t) max(0, min(T_el, T_flow)),   beta falling linearly over the break duration from the instant
-      T first reaches the break force,
-  passed through the same 7-9 kHz zero-phase low-pass as the measured T. The model of record's chain is quasi-
-  static well below its 3.9 kHz cell modes, which is where this fit looks (the low-pass removes the rest). Each
-  model (baseline, extended) fits its own per-pull quantities (a mount adds compliance in series);
+      T = beta(t) [max(0, min(T_el, T_flow)) + D(t)],  beta falling linearly from the break instant over the break
+      duration (averaged over each sample interval, so a break shorter than a sample still has a position),
+  passed through the same 7-9 kHz zero-phase low-pass as the measured T. D is the chain's dynamic part (the cell
+  and mount modes the quasi-static chain leaves out): an unbroken sim of the model over the fit window minus its
+  quasi-static tension, refitted DYNAMIC_PASSES times (defect correction). The break force is then calibrated on
+  that sim: the sim breaks when F_stat first reaches it, and F_stat rings, so it is set where the sim's F_stat
+  crosses it nearest the fitted break instant. Each model (baseline, extended) fits its own quantities;
 - the mains-hum phase (random per pull) when the extension has a hum: fitted on the pull's pre-pull record.
 
+Once per check, from the pulls checked: the cells' damping ratio, from the stationary cell's free decay after the
+break (m1 alone on its cell); both models use it (``calibrate``), since the cells ring after every fast break and a
+wrong decay rate would swamp what an extension changes.
+
 ``resimulate`` runs the sim core (``run_pull_with_motion``, noise off) and records the channels as the sim does:
-sensor departures through ``apply_sensor_departures``, the motor current from the drive's force balance with the
-measured motion, i kf = m_c a3 + b v3 + F_move (+ F_c sign(v3) with coulomb_friction). ``simulation_check`` compares
-measured and simulated channels on the held-out pulls: RMS over each pull's analysis window after the discovery
-low-pass, per channel, for the baseline and the extended model; gain = baseline RMS / extended RMS. For a mount
-resonance it also compares the free-decay ring frequency of the extended sim with the measured one.
+sensor departures through ``apply_sensor_departures``, the force channels saturating at the cells' range, the motor
+current from the drive's force balance with the measured motion, i kf = m_c a3 + b v3 + F_move (+ F_c sign(v3)
+with coulomb_friction). ``simulation_check`` compares measured and simulated channels on the held-out pulls: RMS
+over each pull's analysis window after the discovery low-pass, per channel, pooled over the pulls, for the baseline
+and the extended model; gain = baseline RMS / extended RMS. For a mount resonance it also compares the free-decay
+ring frequency (a2 - a3 after the break, matrix pencil) of the extended sim with the measured one.
 """
 from __future__ import annotations
 
@@ -38,8 +45,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 
+from force_tester_common.core.units import LBF_N
 from force_tester_sim.core.chain import ChainParams
 from force_tester_sim.core.departures import Departures, apply_sensor_departures
+from force_tester_sim.core.errors import SimError
 from force_tester_sim.core.motion import SampledMotion
 from force_tester_sim.core.pull import PullSpec, run_pull_with_motion
 
@@ -67,7 +76,7 @@ class PullQuantities:
 
     slack_m: float
     lanyard_stiffness_n_per_m: float
-    coupon_break_n: float
+    coupon_break_n: float                               # F_stat at which the model's sim breaks at break_time_s
     break_duration_s: float
     coupon_yield_n: Optional[float] = None             # None: elastic to the break
     coupon_hardening_n_per_m: Optional[float] = None
@@ -131,7 +140,9 @@ def _initial(p: Pull, s: slice, C: float):
     ipk = int(np.argmax(T))
     tpk = float(T[ipk])
     rate = np.gradient(T, dt)
-    ir = int(np.argmax(rate[:ipk + 1]))
+    # the elastic rise: the steepest rate before T first reaches half its peak (the break's edge, later, is steeper)
+    half_up = int(np.flatnonzero(T >= 0.5 * tpk)[0])
+    ir = int(np.argmax(rate[:half_up + 3]))
     v = max(float(v3[ir]), 1e-3)
     k_app = rate[ir] / v                                      # apparent (series) stiffness
     kl = k_app / max(1e-3, 1.0 - k_app * C)
@@ -269,15 +280,18 @@ def _physics(pull: Pull, rig, q: PullQuantities) -> Dict[str, np.ndarray]:
 
 
 def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) -> Dict[str, np.ndarray]:
-    """What the DAQ records of the clean signals: the rig's sensor departures, the drive's current."""
+    """What the DAQ records of the clean signals: the rig's sensor departures, the cells' range (the force channels
+    saturate there), the drive's current."""
     deps = rig.departures
     fm = truth['force_moving_n']
     fm_rec, a2_rec = apply_sensor_departures(deps.without('mains_hum'), pull.t, fm, truth['a2_m_s2'], 0)
     hum = _hum(pull, deps, m2_nominal)
     if hum is not None:
         fm_rec = fm_rec + hum
-    out = {'force_moving_n': fm_rec, 'force_stationary_n': truth['force_stationary_n'], 'accel_axial_m_s2': a2_rec,
-           'tension_n': truth['tension_n']}
+    fs_range = rig.sensors.load_cell_range_lbf * LBF_N     # the cells' range: a DAQ records no more than that
+    out = {'force_moving_n': np.clip(fm_rec, -fs_range, fs_range),
+           'force_stationary_n': np.clip(truth['force_stationary_n'], -fs_range, fs_range),
+           'accel_axial_m_s2': a2_rec, 'tension_n': truth['tension_n']}
     if pull.current is not None:
         d = rig.drive
         f = d.reflected_mass_kg * pull.a3 + d.viscous_damping_n_s_per_m * pull.v3 + fm
@@ -348,13 +362,15 @@ class SimulationCheck:
     trace: dict             # one pull: t and, per channel, measured / baseline / extended (low-passed, window)
     time_s: float
     cell_damping: dict = dataclasses.field(default_factory=dict)   # the cells' damping ratio: rig's and used
+    skipped: dict = dataclasses.field(default_factory=dict)        # pull name -> why it was not re-simulated
 
     def as_dict(self) -> dict:
         return {ch: dict(v) for ch, v in self.channels.items()}
 
     def details(self) -> dict:
         return {'pulls': list(self.pulls), 'ring': self.ring, 'time_s': self.time_s,
-                'cell_damping': dict(self.cell_damping), 'quantities': [dict(q) for q in self.quantities]}
+                'cell_damping': dict(self.cell_damping), 'skipped': dict(self.skipped),
+                'quantities': [dict(q) for q in self.quantities]}
 
 
 def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures: Departures,
@@ -362,7 +378,8 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
     """Re-simulate pulls[idx] twice (model of record; plus ``departures``) and compare with the measurements.
 
     RMS per channel over each pull's analysis window w0:w1 after the discovery low-pass (7-9 kHz, zero phase),
-    pooled over the pulls. ``trace_pull``: list position of the pull whose traces are kept (default idx[0]).
+    pooled over the pulls. ``trace_pull``: list position of the pull whose traces are kept (default: the first
+    pull re-simulated). A pull whose fit or sim fails is skipped (``skipped`` says why).
     ``calibrate``: both runs use the cells' damping ratio measured on these pulls (cell_damping_ratio) instead of
     the rig's assumed one: the cells ring after every fast break, and a wrong decay rate of that ringing would
     swamp what the extension changes."""
@@ -382,18 +399,25 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
     sse = {}
     names, quants, rings = [], [], []
     trace = {}
-    keep = idx[0] if trace_pull is None else trace_pull
+    keep = trace_pull
     same_chain = _chain(base_rig) == _chain(ext_rig)   # sensor-side extension: one fit and one sim serve both
     m2 = rig.force_chain.m2
+    skipped = {}
     for j in idx:
         p = pulls[j]
-        qb = fit_pull_quantities(p, base_rig)
-        qe = qb if same_chain else fit_pull_quantities(p, ext_rig)
-        clean_b = _physics(p, base_rig, qb)
-        clean_e = clean_b if same_chain else _physics(p, ext_rig, qe)
+        try:
+            qb = fit_pull_quantities(p, base_rig)
+            qe = qb if same_chain else fit_pull_quantities(p, ext_rig)
+            clean_b = _physics(p, base_rig, qb)
+            clean_e = clean_b if same_chain else _physics(p, ext_rig, qe)
+        except (DiscoveryError, SimError) as exc:   # one pull the sim cannot reproduce does not end the check
+            skipped[p.name] = str(exc)
+            continue
         sims = {'baseline': _record(p, base_rig, clean_b, m2), 'extended': _record(p, ext_rig, clean_e, m2)}
         meas = _measured(p)
         w = slice(p.w0, p.w1)
+        if keep is None:
+            keep = j
         if j == keep:
             trace = {'pull': p.name, 't': p.t[w].copy(),
                      'focus_s': (float(p.t[max(p.w0, p.load0 - int(5e-3 / p.dt))]),
@@ -414,6 +438,8 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
             re_ = ring_mode(p, a2e, MOUNT_MAX_FRACTION * f_cell)
             if rm is not None and re_ is not None:
                 rings.append((rm[0], re_[0]))
+    if not names:
+        raise DiscoveryError(f'simulation check: no pull could be re-simulated ({skipped}); expected at least one')
     channels = {}
     for ch, acc in sse.items():
         b = math.sqrt(acc['baseline'] / acc['n'])
@@ -432,7 +458,7 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
             ring = {'measured_hz': None, 'extended_sim_hz': None, 'rel_error': None, 'max_pull_rel_error': None,
                     'tolerance': RING_TOLERANCE, 'within_tolerance': False, 'pulls': 0}
     return SimulationCheck(channels, tuple(names), tuple(quants), ring, trace, time.perf_counter() - t_start,
-                           damping)
+                           damping, skipped)
 
 
 __all__ = ['PullQuantities', 'SimulationCheck', 'SIM_CHANNELS', 'cell_damping_ratio', 'fit_pull_quantities',
