@@ -26,12 +26,12 @@ break (m1 alone on its cell); both models use it (``calibrate``), since the cell
 wrong decay rate would swamp what an extension changes.
 
 ``resimulate`` runs the sim core (``run_pull_with_motion``, noise off) and records the channels as the sim does:
-sensor departures through ``apply_sensor_departures``, the force channels saturating at the cells' range, the motor
-current from the drive's force balance with the measured motion, i kf = m_c a3 + b v3 + F_move (+ F_c sign(v3)
-with coulomb_friction). ``simulation_check`` compares measured and simulated channels on the held-out pulls: RMS
-over each pull's analysis window after the discovery low-pass, per channel, pooled over the pulls, for the baseline
-and the extended model; gain = baseline RMS / extended RMS. For a mount resonance it also compares the free-decay
-ring frequency (a2 - a3 after the break, matrix pencil) of the extended sim with the measured one.
+sensor departures through ``apply_sensor_departures``, the motor current from the drive's force balance with the
+measured motion, i kf = m_c a3 + b v3 + F_move (+ F_c sign(v3) with coulomb_friction). ``simulation_check`` compares
+measured and simulated channels on the held-out pulls: RMS over each pull's analysis window after the discovery
+low-pass, per channel, pooled over the pulls (force samples where the measured cell is at its range left out), for
+the baseline and the extended model; gain = baseline RMS / extended RMS. For a mount resonance it also compares the
+free-decay ring frequency (a2 - a3 after the break, matrix pencil) of the extended sim with the measured one.
 """
 from __future__ import annotations
 
@@ -56,6 +56,7 @@ from .discovery import MOUNT_MAX_FRACTION, Pull, _filtered, hum_per_pull, matrix
 from .errors import DiscoveryError
 
 SIM_CHANNELS = ('force_moving_n', 'force_stationary_n', 'accel_axial_m_s2', 'motor_current_a')
+FORCE_CHANNELS = SIM_CHANNELS[:2]
 FIT_LEAD_S = 3e-3          # the tension fit starts this long before the loaded start (lanyard still slack) ...
 FIT_TAIL_S = 3e-3          # ... and ends this long after the break
 STILL_M_S = 1e-4           # |v3| below this: the carriage is at rest (no dry friction; as discovery's current stage)
@@ -67,6 +68,7 @@ RING_SAMPLES = 400         # free-decay samples for the ring frequency (8 ms; a 
 RING_PULLS = 6             # ring frequencies compared on at most this many pulls (matrix pencils are slow)
 CAL_PULLS = 8              # pulls whose stationary-cell free decay calibrates the cells' damping ratio
 CAL_RING_TO_NOISE = 10.0   # ... when its rms stands this many times above the quiet record's noise
+SATURATION_SHARE = 0.98    # measured force samples beyond this share of the cells' range are not compared
 RING_TOLERANCE = 0.02      # the extended sim rings at the measured frequency within 2 %
 
 
@@ -280,18 +282,15 @@ def _physics(pull: Pull, rig, q: PullQuantities) -> Dict[str, np.ndarray]:
 
 
 def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) -> Dict[str, np.ndarray]:
-    """What the DAQ records of the clean signals: the rig's sensor departures, the cells' range (the force channels
-    saturate there), the drive's current."""
+    """What the DAQ records of the clean signals: the rig's sensor departures, the drive's current."""
     deps = rig.departures
     fm = truth['force_moving_n']
     fm_rec, a2_rec = apply_sensor_departures(deps.without('mains_hum'), pull.t, fm, truth['a2_m_s2'], 0)
     hum = _hum(pull, deps, m2_nominal)
     if hum is not None:
         fm_rec = fm_rec + hum
-    fs_range = rig.sensors.load_cell_range_lbf * LBF_N     # the cells' range: a DAQ records no more than that
-    out = {'force_moving_n': np.clip(fm_rec, -fs_range, fs_range),
-           'force_stationary_n': np.clip(truth['force_stationary_n'], -fs_range, fs_range),
-           'accel_axial_m_s2': a2_rec, 'tension_n': truth['tension_n']}
+    out = {'force_moving_n': fm_rec, 'force_stationary_n': truth['force_stationary_n'], 'accel_axial_m_s2': a2_rec,
+           'tension_n': truth['tension_n']}
     if pull.current is not None:
         d = rig.drive
         f = d.reflected_mass_kg * pull.a3 + d.viscous_damping_n_s_per_m * pull.v3 + fm
@@ -363,6 +362,7 @@ class SimulationCheck:
     time_s: float
     cell_damping: dict = dataclasses.field(default_factory=dict)   # the cells' damping ratio: rig's and used
     skipped: dict = dataclasses.field(default_factory=dict)        # pull name -> why it was not re-simulated
+    saturated: dict = dataclasses.field(default_factory=dict)      # channel -> samples left out (at the range)
 
     def as_dict(self) -> dict:
         return {ch: dict(v) for ch, v in self.channels.items()}
@@ -370,6 +370,7 @@ class SimulationCheck:
     def details(self) -> dict:
         return {'pulls': list(self.pulls), 'ring': self.ring, 'time_s': self.time_s,
                 'cell_damping': dict(self.cell_damping), 'skipped': dict(self.skipped),
+                'saturated_samples': dict(self.saturated),
                 'quantities': [dict(q) for q in self.quantities]}
 
 
@@ -379,7 +380,8 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
 
     RMS per channel over each pull's analysis window w0:w1 after the discovery low-pass (7-9 kHz, zero phase),
     pooled over the pulls. ``trace_pull``: list position of the pull whose traces are kept (default: the first
-    pull re-simulated). A pull whose fit or sim fails is skipped (``skipped`` says why).
+    pull re-simulated). A pull whose fit or sim fails is skipped (``skipped`` says why). Force samples where the
+    measured channel is at the cells' range (SATURATION_SHARE of it) are left out: a DAQ clips there.
     ``calibrate``: both runs use the cells' damping ratio measured on these pulls (cell_damping_ratio) instead of
     the rig's assumed one: the cells ring after every fast break, and a wrong decay rate of that ringing would
     swamp what the extension changes."""
@@ -402,6 +404,7 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
     keep = trace_pull
     same_chain = _chain(base_rig) == _chain(ext_rig)   # sensor-side extension: one fit and one sim serve both
     m2 = rig.force_chain.m2
+    cell_range = rig.sensors.load_cell_range_lbf * LBF_N
     skipped = {}
     for j in idx:
         p = pulls[j]
@@ -423,11 +426,13 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
                      'focus_s': (float(p.t[max(p.w0, p.load0 - int(5e-3 / p.dt))]),
                                  float(p.t[min(p.w1 - 1, p.brk + int(30e-3 / p.dt))]))}
         for ch, m in meas.items():
-            acc = sse.setdefault(ch, {'baseline': 0.0, 'extended': 0.0, 'n': 0})
-            acc['n'] += p.w1 - p.w0
+            acc = sse.setdefault(ch, {'baseline': 0.0, 'extended': 0.0, 'n': 0, 'saturated': 0})
+            ok = np.abs(m[w]) < SATURATION_SHARE * cell_range if ch in FORCE_CHANNELS else np.ones(p.w1 - p.w0, bool)
+            acc['n'] += int(np.count_nonzero(ok))
+            acc['saturated'] += int(np.count_nonzero(~ok))
             for kind, sim in sims.items():
                 y = _filtered(sim[ch], p.dt)
-                acc[kind] += float(np.sum((y[w] - m[w]) ** 2))
+                acc[kind] += float(np.sum((y[w] - m[w])[ok] ** 2))
                 if j == keep:
                     trace.setdefault(ch, {'measured': m[w].copy()})[kind] = y[w]
         names.append(p.name)
@@ -440,11 +445,13 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
                 rings.append((rm[0], re_[0]))
     if not names:
         raise DiscoveryError(f'simulation check: no pull could be re-simulated ({skipped}); expected at least one')
-    channels = {}
+    channels, saturated = {}, {}
     for ch, acc in sse.items():
         b = math.sqrt(acc['baseline'] / acc['n'])
         e = math.sqrt(acc['extended'] / acc['n'])
         channels[ch] = {'baseline_rms': b, 'extended_rms': e, 'gain': b / e if e > 0 else math.inf}
+        if acc['saturated']:
+            saturated[ch] = acc['saturated']
     ring = None
     if mount:
         if rings:
@@ -458,7 +465,7 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
             ring = {'measured_hz': None, 'extended_sim_hz': None, 'rel_error': None, 'max_pull_rel_error': None,
                     'tolerance': RING_TOLERANCE, 'within_tolerance': False, 'pulls': 0}
     return SimulationCheck(channels, tuple(names), tuple(quants), ring, trace, time.perf_counter() - t_start,
-                           damping, skipped)
+                           damping, skipped, saturated)
 
 
 __all__ = ['PullQuantities', 'SimulationCheck', 'SIM_CHANNELS', 'cell_damping_ratio', 'fit_pull_quantities',
