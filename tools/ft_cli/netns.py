@@ -45,6 +45,7 @@ SUBNET = '10.231.0'       # a private /24 that exists only inside the namespaces
 DEV = 'ft0'               # the veth end in each namespace
 TAP = 'ft0delay'          # the delay line's tap device
 MARK = 0x2d1a1            # SO_MARK of frames the delay line sends back out (they pass the filter)
+TAP_QUEUE = 10_000        # frames the tap holds for the delay line (netem's queue: 1000; a repair comes in bursts)
 
 # classic BPF (linux/filter.h): opcodes, ancillary loads and tc verdicts
 _LD_W_ABS, _JEQ_K, _JGT_K, _JGE_K, _RET_K = 0x20, 0x15, 0x25, 0x35, 0x06
@@ -292,6 +293,21 @@ class TwoHosts:
             _run('ip', '-n', h.netns, 'addr', 'add', f'{h.address}/24', 'dev', DEV)
             _run('ip', '-n', h.netns, 'link', 'set', DEV, 'up')
             self._shape(h)
+        self._wait_up()
+
+    def _wait_up(self, timeout: float = 10.0) -> None:
+        """Wait until both ends have carrier (operstate UP: the kernel sets it up to a second after
+        `link set up`). A DDS participant made before that sees loopback only, announces 127.0.0.1
+        as its address and is never reached from the other host."""
+        deadline = time.monotonic() + timeout
+        while True:
+            states = [json.loads(_run('ip', '-n', h.netns, '-j', 'link', 'show', 'dev', DEV).stdout)[0]
+                      .get('operstate') for h in self.hosts]
+            if all(s == 'UP' for s in states):
+                return
+            if time.monotonic() > deadline:
+                raise NetnsError(f'the veth ends are {states} after {timeout:g} s; expected UP')
+            time.sleep(0.02)
 
     def _shape(self, h: Host) -> None:
         tc = [*h.prefix(), 'tc']
@@ -313,7 +329,7 @@ class TwoHosts:
             _run(*_filter(tc, ['ingress'], 1, loss_program(imp.loss_pct)))
         if line:  # the delay line must hold the tap open before packets are sent to it
             _run('ip', '-n', h.netns, 'tuntap', 'add', 'dev', TAP, 'mode', 'tap')
-            _run('ip', '-n', h.netns, 'link', 'set', TAP, 'up')
+            _run('ip', '-n', h.netns, 'link', 'set', TAP, 'txqueuelen', str(TAP_QUEUE), 'up')
             proc = self.start(h, f'delay_line_{h.name}', [sys.executable, str(Path(__file__).resolve()),
                                                           'delay-line', TAP, DEV, str(imp.delay_ms / 1000.0)])
             if proc.stdout.readline().strip() != b'ready':
@@ -381,8 +397,13 @@ def delay_line(tap: str, dev: str, delay_s: float) -> None:
     out = socket.socket(socket.AF_PACKET, socket.SOCK_RAW)
     out.setsockopt(socket.SOL_SOCKET, _SO_MARK, MARK)
     out.bind((dev, 0))
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     held = collections.deque()   # (due, frame): one delay for all, so first in is first out
+    stats = {'frames': 0, 'most_held': 0, 'send_errors': 0}
+
+    def stop(*_):
+        print(json.dumps(stats), file=sys.stderr, flush=True)
+        sys.exit(0)
+    signal.signal(signal.SIGTERM, stop)
     print('ready', flush=True)
     while True:
         timeout = max(0.0, held[0][0] - time.monotonic()) if held else None
@@ -394,11 +415,15 @@ def delay_line(tap: str, dev: str, delay_s: float) -> None:
                     held.append((due, os.read(fd, 65536)))
                 except BlockingIOError:
                     break
+            stats['most_held'] = max(stats['most_held'], len(held))
         now = time.monotonic()
         while held and held[0][0] <= now:
             frame = held.popleft()[1]
-            with contextlib.suppress(OSError):  # a full queue on dev: that frame is lost, as on a wire
+            stats['frames'] += 1
+            try:
                 out.send(frame)
+            except OSError:  # a full queue on dev: that frame is lost, as on a wire
+                stats['send_errors'] += 1
 
 
 if __name__ == '__main__':

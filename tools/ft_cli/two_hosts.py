@@ -215,11 +215,8 @@ def run_two_hosts(out: Path, impairment: Impairment | None = None, discovery: st
                 b.start(package, name, {'bag_path': str(bag)} if name == 'recorder_node' else None)
             watcher = _Lines(b.start_cmd('watcher', [sys.executable, '-m', 'ft_cli.two_hosts', 'watch'],
                                          stdout=subprocess.PIPE).stdout)
-            sim = a.start('force_tester_sim', 'sim_node', {
-                'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
-                'rate': float(rate), 'wait_for_subscribers': READERS, 'exit_when_done': True})
             deadline = t0 + timeout
-            sent = {}
+            sent, sim = {}, None
             while time.monotonic() < deadline:
                 item = watcher.get(timeout=0.2)
                 if item is not None:
@@ -228,11 +225,16 @@ def run_two_hosts(out: Path, impairment: Impairment | None = None, discovery: st
                         say(f"two hosts: pull {item['score']['pull_id']} scored {item['score']['status']}")
                     recorded = item.get('recorder', recorded)
                     readers = item.get('readers', readers)
+                if sim is None and min(readers.get(t, 0) for t in ('/force', PULL_EVENT_TOPIC)) >= READERS:
+                    # host B's graph is up (as the demo waits for its local graph): the sim may start
+                    sim = a.start('force_tester_sim', 'sim_node', {
+                        'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls,
+                        'seed': seed, 'rate': float(rate), 'wait_for_subscribers': READERS, 'exit_when_done': True})
                 dead = [n for n, p in {**a.procs, **b.procs}.items() if p.poll() not in (None, 0)]
                 if dead or b.procs['watcher'].poll() is not None:
                     problem = f'{(dead or ["watcher"])[0]} stopped'
                     break
-                if sim.poll() == 0 and not sent:
+                if sim is not None and sim.poll() == 0 and not sent:
                     sent = sent_by_sim(a.log_dir / 'sim_node.log')
                     if not sent:
                         problem = 'the sim exited without its done: line'
@@ -242,7 +244,8 @@ def run_two_hosts(out: Path, impairment: Impairment | None = None, discovery: st
                     break
             else:
                 problem = (f'timed out after {timeout:g} s: {len(scores)} of {expected} pulls scored; '
-                           f'sent {sent or "(sim still running)"}, recorder reports {recorded}')
+                           f'sent {sent or ("(sim still running)" if sim else "(sim not started: no readers in B)")}, '
+                           f'recorder reports {recorded}')
         finally:
             codes = {**b.stop(), **a.stop()}
         counters = net.counters()
