@@ -3,6 +3,9 @@
     ft_cli/main.py          the parser: one subcommand per module of commands/
     ft_cli/paths.py         where the workspace and its built nodes are
     ft_cli/graph.py         starting node processes and collecting what they publish
+    ft_cli/netns.py         two hosts: network namespaces joined by veth, loss and delay (ROS-free)
+    ft_cli/rtps_sniff.py    what a host sends: RTPS submessages, retransmissions (ROS-free)
+    ft_cli/two_hosts.py     the live graph across the two hosts (./ft bench two_hosts, its test)
     ft_cli/commands/
         demo.py             ./ft demo       the live graph on the five test sets
         thesis.py           ./ft thesis     the thesis's predictions and Tables 7-9 beside ours

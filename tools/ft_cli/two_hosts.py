@@ -9,9 +9,11 @@ Discovery is configured as a lab would, in one of two ways (``DISCOVERY``):
   built-in transports and both hosts as initial peers, with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT``
   so the rmw leaves the profile's discovery alone.
 
-Both turn Fast DDS's shared-memory transport off. It would otherwise carry the data between
-processes of one machine through /dev/shm, which the namespaces share, and never touch the link.
-The veth counters show that the data crossed it.
+Both turn Fast DDS's shared-memory transport off. Fast DDS uses it between participants it takes
+to be on one host (the same host id, which it derives from the interface addresses); /dev/shm is
+shared by the namespaces, so the data could then bypass the link. (With it left on, our runs still
+crossed the veth, the two namespaces having different addresses; off, it cannot happen.) The veth
+counters and the RTPS packet counter show that the data crossed the link.
 
 ``python -m ft_cli.two_hosts watch`` is the watcher: run in host B, it prints every score, the
 recorder's progress and the readers of the topics that cross the link as JSON lines.
