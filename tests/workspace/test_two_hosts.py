@@ -16,17 +16,17 @@ from ft_cli.two_hosts import BLOCK_TOPIC_NAMES, LINK_TOPICS, run_two_hosts
 
 pytestmark = pytest.mark.slow
 
-SUPPORT = probe()
 RUNS = {'clean': (Impairment(), 'static_peers'), 'lossy': (Impairment(loss_pct=2.0, delay_ms=5.0), 'xml')}
 
 
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
-    if not SUPPORT.netns:
-        pytest.skip(f'two hosts need network namespaces: {SUPPORT.reason}')
+    support = probe()   # tries, in throwaway namespaces, what this machine can do
+    if not support.netns:
+        pytest.skip(f'two hosts need network namespaces: {support.reason}')
     out = {}
     for name, (impairment, discovery) in RUNS.items():
-        if impairment.loss_pct and not SUPPORT.bpf:
+        if impairment.loss_pct and not support.bpf:
             continue  # the lossy run's tests skip with the reason
         out[name] = run_two_hosts(tmp_path_factory.mktemp(name), impairment, discovery, sets=(1,), pulls=2,
                                   rate=1.0, timeout=300, say=lambda _m: None)

@@ -136,13 +136,12 @@ def _filter(tc: list, where: list, pref: int, program: list, *action: str, direc
 
 
 def _pid_alive(pid: int) -> bool:
+    """True for a running process (a zombie, killed but not yet reaped, is not)."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        stat = Path(f'/proc/{pid}/stat').read_text()
+    except OSError:
         return False
-    except PermissionError:
-        return True
-    return True
+    return stat.rpartition(')')[2].split()[0] != 'Z'
 
 
 def namespaces() -> list:
