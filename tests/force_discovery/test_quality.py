@@ -19,7 +19,7 @@ from defects import (
     loaded_window,
     real_world_defects,
 )
-from test_discovery import make_campaign
+from generator import make_campaign
 
 import force_tester_sim.core as sim_core
 from force_discovery.core import quality as Q

@@ -322,17 +322,11 @@ class ForceModel:
         r = y - X @ c
         return dict(zip(names, c)), float(r @ r)
 
-    def fit_delay(self, terms, idx, d_max=200e-6):
-        dt = self.pulls[0].dt
-        grid = np.arange(0.0, d_max + 1e-12, dt / 2)
+    def fit_delay(self, terms, idx):
+        grid = self.delay_grid()
         sse = np.array([self.fit(terms, idx, d)[1] for d in grid])
         k = int(np.argmin(sse))
-        d = float(grid[k])
-        if 0 < k < len(grid) - 1:   # parabolic refinement
-            y0, y1, y2 = sse[k - 1], sse[k], sse[k + 1]
-            den = y0 - 2 * y1 + y2
-            if den > 0:
-                d = float(d + 0.5 * (y0 - y2) / den * (grid[1] - grid[0]))
+        d = float(grid[k] + _parabolic_offset(sse, k) * (grid[1] - grid[0]))
         coef, s = self.fit(terms, idx, d)
         return coef, s, d
 
@@ -358,16 +352,9 @@ class ForceModel:
             c = np.array([_solve(Gs[i] - G[i, k], bs[i] - b[i, k]) for i in range(len(grid))])
             sse = ss - s[:, k] - np.einsum('ip,ip->i', bs - b[:, k], c)
             i = int(np.argmin(sse))
-            d, ci = float(grid[i]), c[i]
-            if 0 < i < len(grid) - 1:
-                y0, y1, y2 = sse[i - 1], sse[i], sse[i + 1]
-                den = y0 - 2 * y1 + y2
-                if den > 0:
-                    off = 0.5 * (y0 - y2) / den          # in grid steps, within (-1, 1)
-                    d = float(d + off * (grid[1] - grid[0]))
-                    j = i + (1 if off > 0 else -1)
-                    ci = c[i] + abs(off) * (c[j] - c[i])
-            out.append((dict(zip(names, ci)), d))
+            off = _parabolic_offset(sse, i)
+            ci = c[i] if off == 0 else c[i] + abs(off) * (c[i + (1 if off > 0 else -1)] - c[i])
+            out.append((dict(zip(names, ci)), float(grid[i] + off * (grid[1] - grid[0]))))
         return out
 
     def sse_per_pull(self, terms, coef, d, idx) -> np.ndarray:
@@ -380,6 +367,14 @@ class ForceModel:
         ys, Xs, names = self.design(terms, d, [j], masked=False)
         c = np.array([coef[n] for n in names]) if names else np.zeros(0)
         return ys[0] - Xs[0] @ c
+
+
+def _parabolic_offset(y: np.ndarray, k: int) -> float:
+    """Offset (in grid steps, within (-1, 1)) of the vertex of the parabola through y[k-1:k+2]; 0 at an end."""
+    if not 0 < k < len(y) - 1:
+        return 0.0
+    den = y[k - 1] - 2 * y[k] + y[k + 1]
+    return float(0.5 * (y[k - 1] - y[k + 1]) / den) if den > 0 else 0.0
 
 
 def _solve(G: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -521,13 +516,22 @@ def mount_from_observed(f_obs: float, zeta_obs: float, m2: float, k_cell: float,
 
 
 # ------------------------------------------------------------------------------------------ current channel
+STILL_M_S = 1e-4     # |v3| below this: the carriage is at rest (no dry friction)
+MOVING_M_S = 0.05    # v3 above this: moving forward (dry friction at its full value)
+
+
+def drive_force_balance(p: Pull, drive, fm: np.ndarray) -> np.ndarray:
+    """The drive force the model of record needs for the pull's measured motion: m_c a3 + b v3 + F_move."""
+    return drive.reflected_mass_kg * p.a3 + drive.viscous_damping_n_s_per_m * p.v3 + fm
+
+
 def current_resid(p: Pull, rig) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     if p.current is None:
         return None
     d = rig.drive
-    rho = p.current * d.force_per_amp_n_per_a - d.reflected_mass_kg * p.a3 - d.viscous_damping_n_s_per_m * p.v3 - p.fm
-    moving = p.v3 > 0.05
-    still = np.abs(p.v3) < 1e-4
+    rho = p.current * d.force_per_amp_n_per_a - drive_force_balance(p, d, p.fm)
+    moving = p.v3 > MOVING_M_S
+    still = np.abs(p.v3) < STILL_M_S
     return rho, np.where(p.usable(), np.where(moving, 1.0, np.where(still, 0.0, np.nan)), np.nan)
 
 
@@ -720,12 +724,9 @@ def analyse(campaign_pulls, rig) -> Analysis:
         raise DiscoveryError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
     screens = tuple(screen_pull(q.name, c) for q, (_m, c) in zip(quality, campaign_pulls))
     prepared = [prepare(m, c, rig, q, sc) for (m, c), q, sc in zip(campaign_pulls, quality, screens)]
-    excluded = {}
-    for p, sc in zip(prepared, screens):
-        why = sc.exclusion(p.w0, p.w1)
-        if why:
-            excluded[p.name] = why
-    pulls = tuple(p for p, sc in zip(prepared, screens) if sc.exclusion(p.w0, p.w1) is None)
+    why = [sc.exclusion(p.w0, p.w1) for p, sc in zip(prepared, screens)]
+    excluded = {p.name: w for p, w in zip(prepared, why) if w}
+    pulls = tuple(p for p, w in zip(prepared, why) if not w)
     if len(pulls) < MIN_PULLS:
         return Analysis((), quality, (), (), None, {}, {}, None,
                         (f'{len(pulls)} of {len(prepared)} pulls are usable after the data-quality screen; '

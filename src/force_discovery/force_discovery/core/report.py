@@ -77,8 +77,14 @@ def _where(n, c):
     return ''
 
 
-def _rms(rs):
-    return float(math.sqrt(sum(float(r @ r) for r in rs) / sum(len(r) for r in rs)))
+def _rms(rs, n=None):
+    """RMS over the residuals rs; n: the number of samples they stand for (masked ones are zero and left out)."""
+    n = sum(len(r) for r in rs) if n is None else n
+    return float(math.sqrt(sum(float(r @ r) for r in rs) / n))
+
+
+def _usable_samples(analysis: D.Analysis) -> int:
+    return sum(int(analysis.pulls[j].usable(analysis.pulls[j].w0, analysis.pulls[j].w1).sum()) for j in analysis.held)
 
 
 def candidates(analysis: D.Analysis, decision: D.Decision) -> dict:
@@ -111,6 +117,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         causes.append({**_entry(n, c), 'evidence': ev, 'gain': ev.get('rms_gain'), 'channel': c['channel'],
                        'where': _where(n, c)})
     base, ext = errors
+    n_ok = _usable_samples(analysis)
     primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
     if primary == 'unexplained':
         causes.append({'name': 'unexplained', 'parameters': {
@@ -129,7 +136,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         else:
             baseline_error, extended_error = _current_rms(analysis, rig, cand[primary]['parameters']['force_n'])
     else:
-        baseline_error, extended_error = _rms(base), _rms(ext)
+        baseline_error, extended_error = _rms(base, n_ok), _rms(ext, n_ok)
         metric = ('RMS (N) on the held-out pulls of the moving-cell prediction residual F_move - F_pred over the '
                   'analysis window (50 ms before the load to 150 ms after the break); baseline F_pred = T + m2 a2 '
                   '(eq 21, T = F_stat + m1 a1, nominal m2, ideal sensors), extended: all named force-channel causes')
@@ -140,7 +147,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         'extended_error': extended_error,
         'gain': baseline_error / extended_error if extended_error > 0 else None,
         'metric': metric,
-        'force_channel': {'baseline_rms_n': _rms(base), 'extended_rms_n': _rms(ext)},
+        'force_channel': {'baseline_rms_n': _rms(base, n_ok), 'extended_rms_n': _rms(ext, n_ok)},
         'within_tolerance': [{**_entry(n, cand[n]), 'evidence': cand[n]['evidence']}
                              for n in decision.with_verdict(WITHIN)],
         'inconclusive': [{**_entry(n, cand[n]), 'evidence': cand[n]['evidence'],
@@ -344,7 +351,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
     for note in r['notes']:
         L.append(f'- note: {note}')
     L += [''] + Q.markdown_lines(screens, excluded)
-    L += ['## Method', '', D.__doc__.strip(), '', f'Significance rule: {r.get("significance_rule", "")}.', '']
+    L += ['## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
     if r.get('leftover'):
         lo = r['leftover']
         L += ['## Residual left after the extension', '',

@@ -52,14 +52,22 @@ from force_tester_sim.core.errors import SimError
 from force_tester_sim.core.motion import SampledMotion
 from force_tester_sim.core.pull import PullSpec, run_pull_with_motion
 
-from .discovery import MOUNT_MAX_FRACTION, Pull, _filtered, hum_per_pull, matrix_pencil, ring_segment
+from .discovery import (
+    MOUNT_MAX_FRACTION,
+    STILL_M_S,
+    Pull,
+    _filtered,
+    drive_force_balance,
+    hum_per_pull,
+    matrix_pencil,
+    ring_segment,
+)
 from .errors import DiscoveryError
 
 SIM_CHANNELS = ('force_moving_n', 'force_stationary_n', 'accel_axial_m_s2', 'motor_current_a')
 FORCE_CHANNELS = SIM_CHANNELS[:2]
 FIT_LEAD_S = 3e-3          # the tension fit starts this long before the loaded start (lanyard still slack) ...
 FIT_TAIL_S = 3e-3          # ... and ends this long after the break
-STILL_M_S = 1e-4           # |v3| below this: the carriage is at rest (no dry friction; as discovery's current stage)
 MIN_BREAK_S = 1e-6         # break durations are fitted down to this (a sample is 20 us: below it they hardly show)
 YIELD_KNEE = 0.3           # the tension rate falling below this fraction of the elastic rate marks a yield
 BREAK_MARGIN_N = 0.05      # the calibrated break force stays this far off an F_stat peak (_break_force)
@@ -293,7 +301,7 @@ def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) ->
            'tension_n': truth['tension_n']}
     if pull.current is not None:
         d = rig.drive
-        f = d.reflected_mass_kg * pull.a3 + d.viscous_damping_n_s_per_m * pull.v3 + fm
+        f = drive_force_balance(pull, d, fm)
         cf = deps.get('coulomb_friction')
         if cf is not None:
             f = f + cf['force_n'] * np.where(np.abs(pull.v3) > STILL_M_S, np.sign(pull.v3), 0.0)
