@@ -92,6 +92,8 @@ class SimNode(Node):
             now = [p.get_subscription_count() for p in pubs]
             if now != counts:
                 counts, since = now, time.monotonic()
+                self.get_logger().info(f'matched subscribers: {PULL_EVENT_TOPIC} {now[0]}, /force {now[1]} '
+                                       f'(waiting for {want} each)')
             if min(now) >= want and time.monotonic() - since >= SETTLE_S:
                 return True
             if self._stop.wait(0.05):
