@@ -44,3 +44,11 @@ DIAGNOSTICS_TOPIC = '/diagnostics'
 #: every topic of the live graph but /diagnostics (what the recorder records by default)
 GRAPH_TOPICS = (*(topic for topic, _fields in BLOCK_TYPES.values()), PULL_EVENT_TOPIC,
                 CORRECTED_TYPE[1][0], PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC)
+
+# The monitor's derived topics (force_tester_monitor; display units lbf, see the .msg files)
+MONITOR_FORCE_TYPE = 'force_tester_msgs/msg/MonitorForce'
+MONITOR_FORCE_TOPIC = '/monitor/force'
+PULL_TRACE_TYPE = 'force_tester_msgs/msg/PullTrace'
+PULL_TRACE_TOPIC = '/monitor/pull_trace'
+MONITOR_HEALTH_TYPE = 'force_tester_msgs/msg/MonitorHealth'
+MONITOR_HEALTH_TOPIC = '/monitor/health'
