@@ -78,7 +78,7 @@ PROGRESS_S = 0.5  # period of the recorder's progress report on /diagnostics
 class RecorderNode(Node):
     def __init__(self, **kwargs):
         super().__init__('recorder', **kwargs)
-        self.diag = Diagnostics(self, 'bag recorder')
+        self.diag = Diagnostics(self, 'bag recorder', counters=self._progress, period_s=PROGRESS_S)
         self.params = NodeParams(self, SPECS, check)
         self.lock = threading.Lock()
         self.writer = open_bag_writer(self.params.values['bag_path'], default_typestore(),
@@ -88,7 +88,6 @@ class RecorderNode(Node):
         self.counts = {}  # topic -> messages written
         self._discover()
         self.create_timer(0.1, self._discover)
-        self.create_timer(PROGRESS_S, self._progress)
         split = split_description(self.params.values['max_bag_size_mb'],
                                   self.params.values['max_bag_duration_s'])
         self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")
@@ -114,13 +113,11 @@ class RecorderNode(Node):
             self.subscribed[topic] = self.create_subscription(
                 cls, topic, lambda data, t=topic: self._write(t, data), BLOCK_QOS, raw=True)
 
-    def _progress(self):
-        """How many messages are in the bag so far, in all and per topic (on /diagnostics, not
-        in the log): a monitor can see the recording advance, and tell when it has caught up."""
+    def _progress(self) -> dict:
+        """How many messages are in the bag so far, in all and per topic (the heartbeat's values on
+        /diagnostics): a monitor can see the recording advance, and tell when it has caught up."""
         with self.lock:
-            if self.writer is not None:
-                self.diag.report(OK, f'recorded {self.count} messages', log=False,
-                                 messages=self.count, **self.counts)
+            return {'messages': self.count, **self.counts}
 
     def _write(self, topic: str, data: bytes):
         with self.lock:

@@ -56,7 +56,7 @@ def config_from(values: dict):
 class CorrectionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('correction', **kwargs)
-        self.diag = Diagnostics(self, 'inertial correction')
+        self.diag = Diagnostics(self, 'inertial correction', counters=lambda: self.counts)
         self.params = NodeParams(self, SPECS, config_from, on_change=self._reconfigure)
         self.corrector = self.extension = self.prefilters = None
         self._reconfigure(self.params.config)
@@ -69,7 +69,6 @@ class CorrectionNode(Node):
                 event_callbacks=qos_watch(self.diag, topic.topic))
         self.seq = 0
         self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0, 'bad_messages': 0, 'runs': 0}
-        self.create_timer(1.0, self._heartbeat)
 
     def _reconfigure(self, config):
         params, ext = config
@@ -124,10 +123,6 @@ class CorrectionNode(Node):
         self.pub.publish(msg)
         self.seq += 1
         self.counts['pairs'] += 1
-
-    def _heartbeat(self):
-        if self.counts['pairs']:
-            self.diag.report(OK, 'correcting', log=False, **self.counts)
 
 
 main = main_for(CorrectionNode)

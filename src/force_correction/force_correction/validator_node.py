@@ -101,13 +101,13 @@ def add_pair(acc: PullAccumulator, pair) -> None:
 class ValidatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__('validator', **kwargs)
-        self.diag = Diagnostics(self, 'validator')
+        self.diag = Diagnostics(self, 'validator', counters=lambda: self.counts)
         self.params = NodeParams(self, SPECS, check)
         self.aligner = BlockAligner(('corrected', 'force'), max_pending=self.params.values['max_pending'],
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
         self.tracker = PullTracker(add_pair, abort_timeout_s=self.params.values['abort_timeout_s'])
         self.stats = SetStatistics()
-        self.counts = {'bad_messages': 0, 'runs': 0, 'aborted': 0}
+        self.counts = {'scores': 0, 'bad_messages': 0, 'runs': 0, 'aborted': 0}
         self._source_restarted = False   # a /force new run whose /force_corrected new run is still to come
         self.score_pub = self.create_publisher(PullScore, PULL_SCORE_TOPIC, SCORE_QOS)
         self.summary_pub = self.create_publisher(SetSummary, SET_SUMMARY_TOPIC, SUMMARY_QOS)
@@ -214,6 +214,7 @@ class ValidatorNode(Node):
                             status=status, detail=detail, **{k: math.nan for k in PULL_SCORE_FIELDS})
             msg.header.stamp = ns_to_stamp(acc.start_ns)
             self.score_pub.publish(msg)
+            self.counts['scores'] += 1
             self.counts['aborted'] += status == PULL_ABORTED
             self.diag.report(ERROR, f'pull {acc.pull_id} (set {acc.set_id}) {PULL_STATUS_NAMES[status]}: '
                                     f'no usable data ({detail})', pull_id=acc.pull_id, status=status)
@@ -234,6 +235,7 @@ class ValidatorNode(Node):
                 self.diag.report(ERROR, f'score of pull {logged.pull_id} not saved to {self.log.path}: {exc}',
                                  key='log')
         self.score_pub.publish(msg)
+        self.counts['scores'] += 1
         if save:
             if status == PULL_ABORTED:
                 self.counts['aborted'] += 1

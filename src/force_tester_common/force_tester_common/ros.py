@@ -12,7 +12,9 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from .core.channels import DIAGNOSTICS_TOPIC
 from .core.clock import seconds_to_ns
+from .core.health import HEARTBEAT_S, HOLD_S
 from .node_params import ParameterError
 
 # 10 s of 1 ms blocks: a receiver may stall that long without a block being overwritten.
@@ -31,20 +33,35 @@ OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.E
 class Diagnostics:
     """Publishes diagnostic_msgs/DiagnosticArray on /diagnostics and mirrors it to the node's log.
 
+    Status name ``"<node>: <what>"``, hardware_id the node's fully qualified name (diagnostic_msgs
+    conventions: one name per component, hardware_id what it runs on). Besides the reports a node
+    makes on events, a heartbeat every ``period_s`` (HEARTBEAT_S, 1 Hz; the recorder 2 Hz) repeats
+    the node's state with ``counters()`` as key/values, so a viewer never marks a healthy node STALE.
+    The heartbeat's level is the worst report of the last HOLD_S seconds (OK when there was none),
+    or, for good, that of a report made with ``latch=True`` (a condition that lasts, like a stopped
+    simulation). Its message is that report's, else the last OK report's.
+
     Reports given a ``key`` are throttled to one per ``interval_s`` per key; the next one that
     goes out says how many were held back, so a flood of bad blocks cannot stall the node.
     """
 
-    def __init__(self, node, name: str, interval_s: float = 1.0):
+    def __init__(self, node, name: str, interval_s: float = 1.0, counters=None, period_s: float = HEARTBEAT_S):
         self._node = node
         self._name = f'{node.get_name()}: {name}'
-        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', EVENT_QOS)
+        self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, EVENT_QOS)
         self._interval_ns = seconds_to_ns(interval_s)
+        self._hold_ns = seconds_to_ns(HOLD_S)
         self._last = {}  # key -> (last report ns, reports held back since)
+        self._counters = counters
+        self._state = 'running'       # message of the last OK report
+        self._problem = None          # (level, message, monotonic ns) of the worst recent report
+        self._latched = None          # (level, message) of a lasting condition
+        node.create_timer(period_s, self.heartbeat)
 
-    def report(self, level: int, message: str, log: bool = True, key=None, **values) -> None:
+    def report(self, level: int, message: str, log: bool = True, key=None, latch: bool = False,
+               **values) -> None:
+        now = time.monotonic_ns()
         if key is not None:
-            now = time.monotonic_ns()
             last, held = self._last.get(key, (None, 0))
             if last is not None and now - last < self._interval_ns:
                 self._last[key] = (last, held + 1)
@@ -53,6 +70,13 @@ class Diagnostics:
             if held:
                 message = f'{message} ({held} similar report(s) held back in the last second)'
                 values['held_back'] = held
+        if level == OK:
+            self._state = message
+        elif latch:
+            if self._latched is None or level >= self._latched[0]:
+                self._latched = (level, message)
+        elif self._problem is None or level >= self._problem[0] or now - self._problem[2] >= self._hold_ns:
+            self._problem = (level, message, now)
         if log:
             logger = self._node.get_logger()  # rclpy wants one severity per call site
             if level == OK:
@@ -61,9 +85,21 @@ class Diagnostics:
                 logger.warning(message)
             else:
                 logger.error(message)
+        self._publish(level, message, values)
+
+    def heartbeat(self) -> None:
+        """Publish the node's current state with its counters (the timer calls this)."""
+        level, message = OK, self._state
+        if self._problem is not None and time.monotonic_ns() - self._problem[2] < self._hold_ns:
+            level, message = self._problem[:2]
+        if self._latched is not None and self._latched[0] >= level:
+            level, message = self._latched
+        self._publish(level, message, dict(self._counters()) if self._counters is not None else {})
+
+    def _publish(self, level: int, message: str, values: dict) -> None:
         status = DiagnosticStatus(level=level, name=self._name, message=message,
                                   hardware_id=self._node.get_fully_qualified_name(),
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+                                  values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self._node.get_clock().now().to_msg()
         self._pub.publish(arr)

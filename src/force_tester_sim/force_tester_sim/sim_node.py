@@ -58,7 +58,8 @@ class SimNode(Node):
     def __init__(self, **kwargs):
         super().__init__('sim', **kwargs)
         self.params = NodeParams(self, SPECS, config_from)
-        self.diag = Diagnostics(self, 'simulator')
+        self.progress = {'pulls': 0, 'blocks_per_topic': 0}   # published so far: the heartbeat's counters
+        self.diag = Diagnostics(self, 'simulator', counters=lambda: self.progress)
         self.block_pubs = [(t, self.create_publisher(t.msg_type, t.topic, BLOCK_QOS)) for t in BLOCK_TOPICS]
         self.event_pub = self.create_publisher(PullEvent, PULL_EVENT_TOPIC, EVENT_QOS)
         self._stop = threading.Event()
@@ -78,7 +79,7 @@ class SimNode(Node):
         try:
             self._publish_all()
         except Exception as exc:  # keep the node alive and say what went wrong
-            self.diag.report(ERROR, f'simulation stopped: {exc}')
+            self.diag.report(ERROR, f'simulation stopped: {exc}', latch=True)
 
     def _wait_for_subscribers(self, want: int) -> bool:
         """Wait until the block and event publishers have ``want`` matched subscribers each and
@@ -131,8 +132,10 @@ class SimNode(Node):
                     for k, (topic, pub) in enumerate(self.block_pubs):
                         pub.publish(block_message(topic, channels, start, stop, stamp, rate_hz, seqs[k]))
                         seqs[k] += 1
+                    self.progress['blocks_per_topic'] = seqs[0]
                 index += n
                 self._event(PullEvent.END, sample_stamp_ns(t0_ns, index, rate_hz), pull_id, rig, spec)
+                self.progress['pulls'] += 1
         self.diag.report(OK, f'done: {len(pulls)} pull(s), {index} samples per channel, {seqs[0]} blocks per topic',
                          blocks_per_topic=seqs[0])
         if self.params.values['exit_when_done']:
