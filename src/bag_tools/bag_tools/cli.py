@@ -1,9 +1,10 @@
 """./ft bag COMMAND: record, play, inspect, convert and correct bags and DAQ campaigns.
 
 bag_tools holds the I/O commands; `correct` and `plot` come from force_correction (see
-build_parser). Every failure ends with one line on stderr, `./ft bag CMD: error: ...`, and a
-non-zero exit code (2 for bad input, 1 for an I/O failure or an internal error, 130 for
-Ctrl-C); never a traceback.
+build_parser). Every failure ends with one line on stderr, `./ft bag CMD: error: ...`, of at
+most MAX_LINE characters (`./ft bag --verbose CMD ...` prints it whole), and a non-zero exit
+code (2 for bad input, 1 for an I/O failure or an internal error, 130 for Ctrl-C); never a
+traceback.
 """
 from __future__ import annotations
 
@@ -17,6 +18,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .core.errors import BagError, one_line
+
+#: Longest error or warning line printed without --verbose.
+MAX_LINE = 200
+_verbose = False
+
+
+def shorten(text: object, prefix: str = '') -> str:
+    """prefix + text on one line, cut to MAX_LINE characters unless --verbose was given."""
+    line = prefix + one_line(text)
+    if _verbose or len(line) <= MAX_LINE:
+        return line
+    tail = ' ... (--verbose: whole message)'
+    return line[:MAX_LINE - len(tail)] + tail
 
 
 @dataclass(frozen=True)
@@ -71,7 +85,7 @@ class Progress:
 
 def warn(cmd: str, warnings) -> None:
     for w in warnings:
-        print(f'./ft bag {cmd}: warning: {one_line(w)}', file=sys.stderr)
+        print(shorten(w, f'./ft bag {cmd}: warning: '), file=sys.stderr)
 
 
 # --------------------------------------------------------------------------- commands
@@ -82,8 +96,8 @@ def cmd_info(args) -> int:
 
 
 def cmd_play(args) -> int:
-    from .player import main as play_main
-    return play_main(args.player_args)
+    from .player import run
+    return run(args, args.ros_args, prog='./ft bag play')
 
 
 def cmd_record(args) -> int:
@@ -170,16 +184,22 @@ def positive_float(name):
 def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     """The ./ft bag parser: bag_tools' own commands plus ``extra`` ones from the packages above
     it (force_correction adds correct and plot), which bag_tools itself does not import."""
+    from .core.playback import PLAY_DESCRIPTION, add_play_arguments
     p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
-                'rosbag2 MCAP bags and DAQ campaign folders (see src/bag_tools/README.md).')
+                'rosbag2 bags (MCAP or sqlite3) and DAQ campaign folders (see '
+                'src/bag_tools/README.md).')
+    p.add_argument('-v', '--verbose', action='store_true',
+                   help=f'print error and warning lines whole (default: cut at {MAX_LINE} '
+                   'characters)')
     sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND',
                            parser_class=_Parser)
     i = sub.add_parser('info', help='topics, types, counts, duration, sample rate, dropped blocks, pulls')
     i.add_argument('bag')
     i.set_defaults(func=cmd_info)
-    pl = sub.add_parser('play', help='republish a bag with its original timing (./ft bag play -h)',
-                        add_help=False)
-    pl.add_argument('player_args', nargs=argparse.REMAINDER)
+    pl = sub.add_parser('play', help='republish a bag with its original timing; topics of types '
+                        'not installed are skipped (./ft bag play --help)',
+                        description=PLAY_DESCRIPTION)
+    add_play_arguments(pl)
     pl.set_defaults(func=cmd_play)
     r = sub.add_parser('record', help='record topics to a new MCAP bag until Ctrl-C')
     r.add_argument('-o', '--output', required=True, help='bag directory to create')
@@ -227,24 +247,35 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
 
 def main(argv=None, extra: Sequence[Command] = ()) -> int:
     """Run one command. Bad input (BagError, or an extra command's own error type) exits 2, an
-    I/O failure (disk full, permission) 1, Ctrl-C 130; each with one line on stderr."""
-    args = build_parser(extra).parse_args(argv)
+    I/O failure (disk full, permission) 1, Ctrl-C 130; each with one line on stderr.
+    ROS arguments (`play BAG --ros-args -r ...`) go last and only to play."""
+    global _verbose
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list = []
+    if '--ros-args' in argv:
+        cut = argv.index('--ros-args')
+        argv, ros_args = argv[:cut], argv[cut:]
+    parser = build_parser(extra)
+    args = parser.parse_args(argv)
+    if ros_args and args.command != 'play':
+        parser.error(f'--ros-args applies to play, not to {args.command}')
+    args.ros_args = ros_args
+    _verbose = args.verbose
     input_errors = (BagError, *(e for c in extra for e in c.errors))
+    prefix = f'./ft bag {args.command}: error: '
     try:
         return args.func(args)
     except input_errors as exc:
-        print(f'./ft bag {args.command}: error: {one_line(exc)}', file=sys.stderr)
+        print(shorten(exc, prefix), file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f'./ft bag {args.command}: error: I/O failure: {one_line(exc)}', file=sys.stderr)
+        print(shorten(exc, prefix + 'I/O failure: '), file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f'./ft bag {args.command}: error: interrupted; no partial output is left',
-              file=sys.stderr)
+        print(f'{prefix}interrupted; no partial output is left', file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - one line, never a traceback
-        print(f'./ft bag {args.command}: error: internal error {type(exc).__name__}: '
-              f'{one_line(exc)}', file=sys.stderr)
+        print(shorten(exc, f'{prefix}internal error {type(exc).__name__}: '), file=sys.stderr)
         return 1
 
 

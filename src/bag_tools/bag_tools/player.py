@@ -1,16 +1,22 @@
-"""player: republish a rosbag2 (MCAP) bag with its original timing.
+"""player: republish a rosbag2 bag (MCAP or sqlite3) with its original timing.
 
     player BAG [--rate R] [--topics T ...] [--loop] [--start-offset S] [--stop-offset S]
-               [--remap FROM:=TO ...] [--wait-for-subscribers N]
+               [--remap FROM:=TO ...] [--wait-for-subscribers N] [--ros-args ...]
 
 Messages go out as recorded (serialized CDR, no re-encoding) at their recorded receive times,
-scaled by --rate. A missing, empty or corrupt bag ends with one line on stderr and exit code 2.
+scaled by --rate. Like `ros2 bag play`, a topic whose message type is not installed (no Python
+package) is skipped with a warning and the rest play; old 'pkg/Type' names are accepted. An
+empty bag has nothing to play (exit 0). A missing or corrupt bag ends with one line on stderr
+and exit code 2; Ctrl-C stops cleanly with exit code 130.
 """
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import time
+from collections import Counter
+from dataclasses import dataclass, field
 
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -18,27 +24,17 @@ from rclpy.node import Node
 from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.ros import BLOCK_QOS, ros_init
 
-from .core.errors import BagError
-from .core.playback import schedule
-from .core.reader import open_bag
-from .recorder_node import message_class
+from .core.errors import BagError, one_line
+from .core.playback import PLAY_DESCRIPTION, add_play_arguments, schedule
+from .core.reader import brief, open_bag
+from .core.typestore import normalize_type
+
+EXIT_INTERRUPTED = 130
 
 
 def build_parser(prog: str = 'player') -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description='Republish a rosbag2 MCAP bag with its original timing.')
-    p.add_argument('bag', help='bag directory (with metadata.yaml)')
-    p.add_argument('--rate', type=float, default=1.0, help='time scale: 2.0 plays twice as fast (default 1.0)')
-    p.add_argument('--topics', nargs='+', metavar='TOPIC', help='play only these topics (default: all)')
-    p.add_argument('--loop', action='store_true', help='play again from the start when done (Ctrl-C ends)')
-    p.add_argument('--start-offset', type=float, default=0.0, metavar='S',
-                   help='skip the first S seconds of the bag')
-    p.add_argument('--stop-offset', type=float, default=None, metavar='S',
-                   help='stop S seconds after the start of the bag')
-    p.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO', help='publish topic FROM as TO')
-    p.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
-                   help='before playing, wait until every played topic has N subscribers')
-    p.add_argument('--wait-timeout', type=float, default=30.0, metavar='S',
-                   help='give up waiting for subscribers after S seconds (default 30)')
+    p = argparse.ArgumentParser(prog=prog, description=PLAY_DESCRIPTION)
+    add_play_arguments(p)
     return p
 
 
@@ -52,26 +48,88 @@ def parse_remaps(items: list) -> dict:
     return remaps
 
 
-def load(args):
-    """Read the selected messages and their playback offsets (all validation happens here)."""
-    remaps = parse_remaps(args.remap)
-    bag = open_bag(args.bag)
+def message_class(type_name: str):
+    """(class, None) for an installed 'pkg/msg/Type' (or old 'pkg/Type'), else (None, why)."""
+    name = normalize_type(type_name)
+    parts = name.split('/')
+    if len(parts) != 3 or not all(parts):
+        return None, f"type name {type_name!r} is malformed; expected 'pkg/msg/Type'"
+    pkg, kind, cls = parts
     try:
-        msgs = list(bag.messages(args.topics))
-        types = {m.topic: m.type_name for m in msgs}
-    finally:
-        bag.close()
+        module = importlib.import_module(f'{pkg}.{kind}')
+    except ImportError:
+        return None, f"type {name} is not installed (no Python package '{pkg}')"
+    except Exception as exc:  # noqa: BLE001 - a broken package is skipped like a missing one
+        return None, f'package {pkg} does not load: {brief(exc)}'
+    if not hasattr(module, cls):
+        return None, f'type {name} is not installed ({pkg}.{kind} has no {cls})'
+    return getattr(module, cls), None
+
+
+@dataclass
+class Plan:
+    """What load() found: messages to play with their offsets, publishers' classes, skipped
+    topics with the reason, and notes (count differences) to show."""
+
+    msgs: list = field(default_factory=list)
+    offsets_ns: list = field(default_factory=list)
+    classes: dict = field(default_factory=dict)
+    remaps: dict = field(default_factory=dict)
+    skipped: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    empty: bool = False
+
+
+def load(args) -> Plan:
+    """Read the selected playable messages and their playback offsets (all validation and
+    every skip decision happens here, before ROS starts)."""
+    plan = Plan(remaps=parse_remaps(args.remap))
+    with open_bag(args.bag, allow_empty=True) as bag:
+        topics = bag.topics()
+        if args.topics:
+            missing = [t for t in args.topics if t not in topics]
+            if missing:
+                raise BagError(f'topic {missing[0]!r} not in bag {args.bag!r}; expected one '
+                               f'of {sorted(topics)[:8]!r}')
+        selected = list(args.topics or topics)
+        if bag.message_count == 0:
+            plan.empty = True
+            return plan
+        for t in selected:
+            cls, why = message_class(topics[t].type_name)
+            if cls is None:
+                plan.skipped[t] = why
+            else:
+                plan.classes[t] = cls
+        playable = [t for t in selected if t in plan.classes]
+        msgs = list(bag.messages(playable)) if playable else []
+        read = Counter(m.topic for m in msgs)
+        meta = {d.topic: d.metadata_count for d in bag.count_differences()}
+        for t in playable:
+            if t in meta:
+                said = 'does not list it' if meta[t] is None else f'says {meta[t]}'
+                plan.notes.append(f'{t}: {read[t]} messages read, metadata.yaml {said}')
     if not msgs:
-        raise BagError(f'bag {args.bag!r} has no messages on the selected topics; nothing to play')
-    plan = schedule([m.stamp_ns for m in msgs], args.rate, args.start_offset, args.stop_offset)
-    return msgs[plan.start_index:plan.stop_index], plan.offsets_ns, types, remaps
+        if plan.skipped and not playable:
+            raise BagError(f'bag {args.bag!r}: none of the selected topics can be played '
+                           f'({len(plan.skipped)} skipped: {skipped_summary(plan.skipped)})')
+        plan.empty = True
+        return plan
+    sched = schedule([m.stamp_ns for m in msgs], args.rate, args.start_offset, args.stop_offset)
+    plan.msgs = msgs[sched.start_index:sched.stop_index]
+    plan.offsets_ns = sched.offsets_ns
+    return plan
+
+
+def skipped_summary(skipped: dict) -> str:
+    return '; '.join(f'{t}: {why}' for t, why in skipped.items())
 
 
 class PlayerNode(Node):
-    def __init__(self, types: dict, remaps: dict):
+    def __init__(self, classes: dict, remaps: dict):
         super().__init__('player')
-        self.pubs = {t: self.create_publisher(message_class(ty), remaps.get(t, t), BLOCK_QOS)
-                     for t, ty in types.items()}
+        self.pubs = {t: self.create_publisher(cls, remaps.get(t, t), BLOCK_QOS)
+                     for t, cls in classes.items()}
 
     def wait_for_subscribers(self, n: int, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -87,37 +145,75 @@ class PlayerNode(Node):
             delay = (t0 + offset - time.monotonic_ns()) / NS_PER_S
             if delay > 0:
                 time.sleep(delay)
-            self.pubs[msg.topic].publish(msg.cdr)
+            try:
+                self.pubs[msg.topic].publish(msg.cdr)
+            except Exception:
+                # Ctrl-C: rclpy's signal handler shuts the context down before Python raises
+                # KeyboardInterrupt, so publish fails first (RCLError). That is the interrupt.
+                if not self.context.ok():
+                    raise KeyboardInterrupt from None
+                raise
         return len(msgs)
 
 
+def run(args, ros_args=(), prog: str = 'player') -> int:
+    """Play as the parsed options say. BagError for bad input; 0 when done (or nothing to
+    play), 2 when subscribers never came, 130 on Ctrl-C."""
+    def say(kind: str, text: str) -> None:
+        print(f'{prog}: {kind}{one_line(text)}', file=sys.stderr)
+
+    try:
+        plan = load(args)
+    except KeyboardInterrupt:
+        say('', 'interrupted while reading the bag; nothing played')
+        return EXIT_INTERRUPTED
+    for topic, why in plan.skipped.items():
+        say('warning: ', f'skipping {topic}: {why}')
+    for note in plan.notes:
+        say('warning: ', f'message count differs: {note}')
+    if plan.empty:
+        say('', f'bag {args.bag} has no messages on the selected topics; nothing to play')
+        return 0
+    played = 0
+    try:
+        with ros_init([prog, *ros_args]):
+            node = PlayerNode(plan.classes, plan.remaps)
+            try:
+                if args.wait_for_subscribers and not node.wait_for_subscribers(
+                        args.wait_for_subscribers, args.wait_timeout):
+                    say('error: ', f'fewer than {args.wait_for_subscribers} subscriber(s) after '
+                        f'{args.wait_timeout} s')
+                    return 2
+                while True:
+                    played += node.play(plan.msgs, plan.offsets_ns)
+                    skipped = f'; skipped {len(plan.skipped)} topic(s): ' \
+                        f'{", ".join(plan.skipped)}' if plan.skipped else ''
+                    say('', f'played {len(plan.msgs)} messages on {len(plan.classes)} topic(s) '
+                        f'from {args.bag}{skipped}')
+                    if not args.loop:
+                        break
+                time.sleep(0.5)  # let reliable QoS deliver the tail before the node goes away
+            finally:
+                try:
+                    node.destroy_node()
+                except Exception:  # after Ctrl-C the context is gone already
+                    if node.context.ok():
+                        raise
+    except (KeyboardInterrupt, ExternalShutdownException):
+        say('', f'interrupted; stopped after {played} messages')
+        return EXIT_INTERRUPTED
+    return 0
+
+
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = sys.argv[1:] if argv is None else list(argv)
     args_end = argv.index('--ros-args') if '--ros-args' in argv else len(argv)
     args = build_parser().parse_args(argv[:args_end])
     try:
-        msgs, offsets, types, remaps = load(args)
+        return run(args, argv[args_end:])
     except BagError as exc:
         print(f'player: error: {exc}', file=sys.stderr)
         return 2
-    try:
-        with ros_init(['player', *argv[args_end:]]):
-            node = PlayerNode(types, remaps)
-            if args.wait_for_subscribers and not node.wait_for_subscribers(args.wait_for_subscribers,
-                                                                           args.wait_timeout):
-                print(f'player: error: fewer than {args.wait_for_subscribers} subscriber(s) after '
-                      f'{args.wait_timeout} s', file=sys.stderr)
-                return 2
-            while True:
-                n = node.play(msgs, offsets)
-                print(f'player: played {n} messages from {args.bag}', file=sys.stderr)
-                if not args.loop:
-                    break
-            time.sleep(0.5)  # let reliable QoS deliver the tail before the node goes away
-            node.destroy_node()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 130
-    return 0
 
 
 if __name__ == '__main__':

@@ -12,15 +12,20 @@ from force_tester_common.core.channels import PULL_EVENT_TYPE, PULL_START
 from force_tester_common.core.clock import NS_PER_S
 
 from .errors import BagError
-from .reader import open_bag
+from .reader import BagReaderHandle, open_bag
+from .typestore import MSG_PACKAGE
 
 
 def _iso(ns: int) -> str:
     return datetime.fromtimestamp(ns / NS_PER_S, tz=timezone.utc).isoformat(timespec='milliseconds')
 
 
-def _is_block_type(store: Typestore, type_name: str) -> bool:
-    cls = store.types.get(type_name)
+def _is_block_type(bag: BagReaderHandle, type_name: str) -> bool:
+    """A block message (fields seq and sample_rate_hz) of ours. Only force_tester_msgs types
+    are built to find out: a foreign type info cannot decode is listed, never built."""
+    if not type_name.startswith(f'{MSG_PACKAGE}/'):
+        return False
+    cls = bag.type_class(type_name)
     fields = getattr(cls, '__dataclass_fields__', {})
     return 'seq' in fields and 'sample_rate_hz' in fields
 
@@ -35,9 +40,13 @@ def _first_array_len(msg: Any) -> int:
 
 
 def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, Any]:
-    """Inspect a bag. Raises BagError for anything that is not a readable, non-empty bag.
+    """Inspect a bag. Raises BagError for anything that is not a readable bag (an empty but
+    valid bag has 0 messages).
 
-    Returns {'path', 'storage_files', 'message_count', 'start_ns', 'end_ns', 'start',
+    Returns {'path', 'storage_files' (metadata.yaml's relative_file_paths), 'storage'
+    (identifier and compression), 'message_count' (read from the storage),
+    'metadata_message_count', 'count_differences' ([(topic, metadata.yaml count or None,
+    storage count)], empty when they agree), 'start_ns', 'end_ns', 'start',
     'end' (ISO UTC), 'duration_s', 'topics': {name: {'type', 'count', and for block
     messages (fields seq + sample_rate_hz): 'sample_rate_hz' (single rate or None),
     'sample_rates_hz' (distinct), 'samples', 'seq_first', 'seq_last', 'seq_gaps'
@@ -45,13 +54,14 @@ def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, 
     'pull_ids', 'ends'}}.
     """
     path = Path(path)
-    with open_bag(path, typestore) as bag:
-        store = bag.typestore
+    with open_bag(path, typestore, allow_empty=True) as bag:
         topics: dict[str, dict[str, Any]] = {
             name: {'type': t.type_name, 'count': t.count} for name, t in bag.topics().items()
         }
-        block_topics = [n for n, t in topics.items() if _is_block_type(store, t['type'])]
-        pull_topics = [n for n, t in topics.items() if t['type'] == PULL_EVENT_TYPE]
+        block_topics = [n for n, t in topics.items()
+                        if t['count'] and _is_block_type(bag, t['type'])]
+        pull_topics = [n for n, t in topics.items()
+                       if t['count'] and t['type'] == PULL_EVENT_TYPE]
         state: dict[str, dict[str, Any]] = {
             n: {'rates': set(), 'samples': 0, 'first': None, 'last': None, 'gaps': 0,
                 'resets': 0} for n in block_topics}
@@ -94,10 +104,17 @@ def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, 
             })
         pulls['test_sets'] = sorted(pulls['per_test_set'])
         pulls['per_test_set'] = dict(sorted(pulls['per_test_set'].items()))
+        meta = bag.metadata
+        compression = ' '.join(str(meta.get(k) or '') for k in ('compression_format',
+                                                                'compression_mode')).strip()
         return {
             'path': str(path),
-            'storage_files': sorted(p.name for p in path.glob('*.mcap')),
+            'storage_files': [str(f) for f in meta.get('relative_file_paths') or []],
+            'storage': str(meta.get('storage_identifier', '')) +
+            (f' ({compression} compression)' if compression else ''),
             'message_count': bag.message_count,
+            'metadata_message_count': bag.metadata_message_count,
+            'count_differences': [tuple(d) for d in bag.count_differences()],
             'start_ns': bag.start_ns,
             'end_ns': bag.end_ns,
             'start': _iso(bag.start_ns),
@@ -108,15 +125,34 @@ def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, 
         }
 
 
+def count_lines(info: dict[str, Any]) -> list[str]:
+    """What differs between metadata.yaml's counts and the storage's, for format_info: one
+    answer (the storage's, which every command reads) and the difference, never two."""
+    diffs = info.get('count_differences') or []
+    meta_total = info.get('metadata_message_count', info['message_count'])
+    if not diffs and meta_total == info['message_count']:
+        return []
+    out = [f"  (read from the storage; metadata.yaml says {meta_total})"]
+    for topic, meta, stored in diffs[:10]:
+        said = 'does not list it' if meta is None else f'says {meta}'
+        out.append(f'  {topic}: storage holds {stored}, metadata.yaml {said}')
+    if len(diffs) > 10:
+        out.append(f'  ... and {len(diffs) - 10} more topics differ')
+    return out
+
+
 def format_info(info: dict[str, Any]) -> str:
     """Human-readable table of a bag_info() result."""
     try:
+        empty = not info['message_count']
         lines = [
             f"Bag:       {info['path']}",
             f"Files:     {', '.join(info.get('storage_files', [])) or '-'}",
+            *([f"Storage:   {info['storage']}"] if info.get('storage') else []),
             f"Messages:  {info['message_count']}",
-            f"Start:     {info['start']}  ({info['start_ns']} ns)",
-            f"End:       {info['end']}  ({info['end_ns']} ns)",
+            *count_lines(info),
+            f"Start:     {'-' if empty else info['start']}  ({info['start_ns']} ns)",
+            f"End:       {'-' if empty else info['end']}  ({info['end_ns']} ns)",
             f"Duration:  {info['duration_s']:.3f} s",
             '',
         ]

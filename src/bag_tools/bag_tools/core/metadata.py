@@ -18,6 +18,8 @@ from .errors import BagError, one_line
 #: rosbag2 metadata version written. Jazzy writes and reads version 9.
 METADATA_VERSION = 9
 METADATA_FILE = 'metadata.yaml'
+#: The ROS distribution our bags are written for (metadata.yaml's ros_distro).
+ROS_DISTRO = 'jazzy'
 ROOT_KEY = 'rosbag2_bagfile_information'
 
 

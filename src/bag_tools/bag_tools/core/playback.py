@@ -1,7 +1,9 @@
-"""Pure playback scheduling: bag stamps -> wall-clock offsets. No clock access."""
+"""Pure playback scheduling: bag stamps -> wall-clock offsets. No clock access. Also the
+player's command-line options, shared by the `player` executable and `./ft bag play`."""
 
 from __future__ import annotations
 
+import argparse
 import math
 import operator
 from bisect import bisect_left, bisect_right
@@ -71,3 +73,30 @@ def schedule(stamps_ns: Sequence[int], rate: float = 1.0, start_offset_s: float 
     else:
         offsets = [round((s - base) / rate) for s in stamps[lo:hi]]
     return Schedule(lo, hi, offsets)
+
+
+PLAY_DESCRIPTION = ('Republish a rosbag2 bag (MCAP or sqlite3) with its original timing. Topics '
+                    'whose message type is not installed are skipped with a warning; the rest '
+                    'play. Options may come before or after the bag; ROS arguments go last, '
+                    'after --ros-args.')
+
+
+def add_play_arguments(p: argparse.ArgumentParser) -> None:
+    """The player's options (ROS-free, so `./ft bag --help` needs no rclpy)."""
+    p.add_argument('bag', help='bag directory (with metadata.yaml)')
+    p.add_argument('--rate', type=float, default=1.0,
+                   help='time scale: 2.0 plays twice as fast (default 1.0)')
+    p.add_argument('--topics', nargs='+', metavar='TOPIC',
+                   help='play only these topics (default: all)')
+    p.add_argument('--loop', action='store_true',
+                   help='play again from the start when done (Ctrl-C ends)')
+    p.add_argument('--start-offset', type=float, default=0.0, metavar='S',
+                   help='skip the first S seconds of the bag')
+    p.add_argument('--stop-offset', type=float, default=None, metavar='S',
+                   help='stop S seconds after the start of the bag')
+    p.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO',
+                   help='publish topic FROM as TO')
+    p.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
+                   help='before playing, wait until every played topic has N subscribers')
+    p.add_argument('--wait-timeout', type=float, default=30.0, metavar='S',
+                   help='give up waiting for subscribers after S seconds (default 30)')

@@ -26,7 +26,7 @@ from rosbags.interfaces import Qos
 from rosbags.typesys.store import Typestore
 
 from .errors import BagError, one_line
-from .metadata import METADATA_VERSION, load_metadata, write_metadata
+from .metadata import METADATA_VERSION, ROS_DISTRO, load_metadata, write_metadata
 from .writer import STORAGE_ID, BagWriter, check_new_bag_path
 
 #: Approximate MCAP bytes per message besides its payload (message record + chunk index).
@@ -273,7 +273,7 @@ def combined_metadata(files: Sequence[dict[str, Any]]) -> dict[str, Any]:
         'compression_mode': first.get('compression_mode', ''),
         'files': entries,
         'custom_data': first.get('custom_data'),
-        'ros_distro': first.get('ros_distro', 'rosbags'),
+        'ros_distro': first.get('ros_distro', ROS_DISTRO),
     }
 
 

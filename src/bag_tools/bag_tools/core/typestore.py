@@ -16,6 +16,46 @@ from rosbags.typesys.store import Typestore
 from .errors import BagError, one_line
 
 MSG_PACKAGE = 'force_tester_msgs'
+#: rosbag2's separator between a definition and each dependency it embeds ('MSG: pkg/msg/Dep').
+_DEP_SEPARATOR = '=' * 80
+SERVICE_EVENT_SUFFIX = '_Event'
+
+
+def normalize_type(type_name: str) -> str:
+    """A full 'pkg/msg/Type' name; old bags name types 'pkg/Type' (rosbag2 accepts both)."""
+    parts = str(type_name).split('/')
+    if len(parts) == 2 and all(parts):
+        return f'{parts[0]}/msg/{parts[1]}'
+    return str(type_name)
+
+
+def types_from_definition(type_name: str, text: str) -> dict:
+    """The rosbags type definitions of type_name from the definition a bag embeds for it.
+
+    A service event ('pkg/srv/Name_Event') comes as rosbag2 writes it: the srv text (request
+    '---' response) rather than the event's own fields. It is built as the event message
+    rosidl generates (service_msgs/ServiceEventInfo info, Request[<=1] request, Response[<=1]
+    response); rosbags names parsed types 'pkg/msg/...', so the request and response are
+    registered as 'pkg/msg/Name_Request' / '_Response'. Raises whatever rosbags' parser raises.
+    """
+    parts = type_name.split('/')
+    main, sep, deps = text.partition(_DEP_SEPARATOR)
+    lines = main.splitlines()
+    if len(parts) == 3 and parts[1] == 'srv' and parts[2].endswith(SERVICE_EVENT_SUFFIX) \
+            and '---' in (line.strip() for line in lines):
+        pkg, base = parts[0], parts[2][:-len(SERVICE_EVENT_SUFFIX)]
+        cut = [line.strip() for line in lines].index('---')
+        tail = sep + deps
+        types = get_types_from_msg('\n'.join(lines[:cut]) + '\n' + tail,
+                                   f'{pkg}/msg/{base}_Request')
+        types.update(get_types_from_msg('\n'.join(lines[cut + 1:]) + '\n' + tail,
+                                        f'{pkg}/msg/{base}_Response'))
+        event = get_types_from_msg(
+            f'service_msgs/msg/ServiceEventInfo info\n{pkg}/msg/{base}_Request[<=1] request\n'
+            f'{pkg}/msg/{base}_Response[<=1] response\n', f'{pkg}/msg/{base}_Event')
+        types[type_name] = event.pop(f'{pkg}/msg/{base}_Event')
+        return types
+    return get_types_from_msg(text, type_name)
 
 
 def _msg_files(path: Path) -> list[tuple[str, Path]]:

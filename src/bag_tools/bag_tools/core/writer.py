@@ -13,7 +13,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys.store import Typestore
 
 from .errors import BagError, one_line
-from .metadata import METADATA_VERSION
+from .metadata import METADATA_VERSION, ROS_DISTRO, load_metadata, write_metadata
 
 STORAGE_ID = 'mcap'
 _MAX_STAMP = 2**63 - 1
@@ -27,6 +27,17 @@ def check_new_bag_path(path: Path) -> None:
         raise BagError(f'bag output path {str(path)!r} exists already; expected a new directory name')
     if not path.parent.is_dir():
         raise BagError(f'parent directory {str(path.parent)!r} of bag output does not exist')
+
+
+def _record_distro(writer: Writer) -> None:
+    """Make the copy of the bag information that rosbags embeds in the MCAP file (its
+    'rosbag2' metadata record) name ROS_DISTRO instead of 'rosbags'."""
+    storage = writer.storage
+    close = storage.close
+
+    def close_with_distro(version: int, metadata: str) -> None:
+        close(version, metadata.replace('ros_distro: rosbags', f'ros_distro: {ROS_DISTRO}'))
+    storage.close = close_with_distro
 
 
 class BagWriter:
@@ -57,6 +68,7 @@ class BagWriter:
             # A mapping, not null: rosbag2 (yaml-cpp) decodes custom_data as a string map.
             writer.set_custom_data('writer', 'bag_tools.core')
             writer.open()
+            _record_distro(writer)
         except Exception as exc:  # noqa: BLE001
             if not isinstance(exc, FileExistsError) and 'exists already' not in str(exc):
                 self._remove()
@@ -140,6 +152,10 @@ class BagWriter:
         self._closed = True
         try:
             writer.close()
+            # rosbags writes ros_distro 'rosbags' into metadata.yaml; ours are Jazzy bags
+            info = load_metadata(self.path)
+            info['ros_distro'] = ROS_DISTRO
+            write_metadata(self.path, info)
         except Exception as exc:  # noqa: BLE001
             self._remove()
             raise BagError(f'cannot finalise bag {str(self.path)!r} (removed): '
