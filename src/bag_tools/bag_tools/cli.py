@@ -119,6 +119,13 @@ def cmd_record(args) -> int:
     return spin_nodes(RecorderNode, args=['recorder', *ros_args])
 
 
+def cmd_reindex(args) -> int:
+    """Finish a bag an interrupted recording left (no metadata.yaml, no MCAP summary)."""
+    from .core.reindex import format_report, reindex
+    print(format_report(reindex(args.bag)))
+    return 0
+
+
 def cmd_export(args) -> int:
     from .core.convert import bag_to_campaign
     warnings: list = []
@@ -211,6 +218,12 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
                    '0 = no split (default)')
     r.add_argument('topics', nargs='*', help='topics (default: every force tester topic)')
     r.set_defaults(func=cmd_record)
+    ri = sub.add_parser('reindex', help='rebuild the MCAP summary and metadata.yaml of a bag an '
+                        'interrupted recording left', description='Like `ros2 bag reindex`: '
+                        'every message whose chunk reached the disk is kept; the torn tail is '
+                        'cut off, the summary, footer and metadata.yaml are written.')
+    ri.add_argument('bag', help='rosbag2 directory')
+    ri.set_defaults(func=cmd_reindex)
 
     e = sub.add_parser('export', help='bag -> DAQ campaign folder (CSV per pull + campaign.yaml)',
                        description='Cut the bag into pulls at its PullEvent START/END and write '

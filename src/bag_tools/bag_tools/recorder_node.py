@@ -3,9 +3,16 @@
 Topics are subscribed as soon as they appear on the graph (their type is taken from it); the
 bag is closed, metadata.yaml written, when the node shuts down (Ctrl-C included), so the bag is
 playable by `ros2 bag play` on a full ROS 2 install and by `./ft bag play` here.
+
+The chunk in progress is written every FLUSH_S (and once it holds CHUNK_BYTES), so a killed
+recorder loses at most that much (`./ft bag reindex` recovers the rest). When the disk fills,
+the recorder stops recording, finishes the bag with what reached the disk, says so on
+/diagnostics (a latched ERROR) and in its log, and stays up until it is stopped
+(core/recording.py).
 """
 from __future__ import annotations
 
+import errno
 import importlib
 import os
 import sys
@@ -19,7 +26,7 @@ from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, main_for
 
 from .core.errors import BagError
-from .core.split_writer import open_bag_writer
+from .core.recording import FLUSH_S, Recording
 from .core.typestore import default_typestore
 
 DEFAULT_TOPICS = list(GRAPH_TOPICS)
@@ -81,13 +88,14 @@ class RecorderNode(Node):
         self.diag = Diagnostics(self, 'bag recorder', counters=self._progress, period_s=PROGRESS_S)
         self.params = NodeParams(self, SPECS, check)
         self.lock = threading.Lock()
-        self.writer = open_bag_writer(self.params.values['bag_path'], default_typestore(),
-                                      **split_limits(self.params.values)).open()
+        self.writer = Recording(self.params.values['bag_path'], default_typestore(),
+                                **split_limits(self.params.values)).open()
         self.wanted = list(self.params.values['topics'])
         self.subscribed = {}
         self.counts = {}  # topic -> messages written
         self._discover()
         self.create_timer(0.1, self._discover)
+        self.create_timer(FLUSH_S, self._flush)
         split = split_description(self.params.values['max_bag_size_mb'],
                                   self.params.values['max_bag_duration_s'])
         self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")
@@ -98,6 +106,8 @@ class RecorderNode(Node):
         return sum(self.counts.values())
 
     def _discover(self):
+        if self.writer is None:
+            return
         graph = dict(self.get_topic_names_and_types())
         for topic in self.wanted:
             if topic in self.subscribed or topic not in graph:
@@ -125,14 +135,53 @@ class RecorderNode(Node):
                 try:
                     self.writer.write(topic, self.get_clock().now().nanoseconds, data)
                 except BagError as exc:
-                    self.diag.report(ERROR, f'cannot record a {topic} message: {exc}')
+                    if self.writer.failed is not None:
+                        self._stop_on_io_failure(self.writer.failed)
+                    else:
+                        self.diag.report(ERROR, f'cannot record a {topic} message: {exc}')
+                    return
+                except OSError as exc:
+                    self._stop_on_io_failure(exc)
                     return
                 self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def _flush(self):
+        """Write the chunk in progress: what a killed recorder would lose is bounded by this."""
+        with self.lock:
+            if self.writer is not None:
+                try:
+                    self.writer.flush()
+                except OSError as exc:
+                    self._stop_on_io_failure(exc)
+
+    def _stop_on_io_failure(self, exc: OSError):
+        """The disk failed a write (full, most likely): stop recording and finish the bag with
+        what reached the disk. Called with the lock held."""
+        writer, self.writer = self.writer, None
+        for topic, sub in self.subscribed.items():
+            if sub is not None:
+                self.destroy_subscription(sub)
+                self.subscribed[topic] = None
+        report = writer.salvage()
+        what = 'disk full' if getattr(exc, 'errno', None) == errno.ENOSPC else 'I/O failure'
+        if report is not None:
+            kept = (f'bag {writer.path} finished with the {report.message_count} messages that '
+                    'reached the disk (metadata.yaml written)')
+        else:
+            kept = (f'bag {writer.path} could not be finished (no metadata.yaml); free space '
+                    f'and run ./ft bag reindex {writer.path}')
+        self.diag.report(ERROR, f'{what}: recording stopped after {self.count} messages '
+                         f'({exc.strerror or exc}); {kept}', latch=True,
+                         messages=self.count, kept=report.message_count if report else -1)
 
     def close(self):
         with self.lock:
             if self.writer is not None:
-                path = self.writer.close()
+                try:
+                    path = self.writer.close()
+                except OSError as exc:
+                    self._stop_on_io_failure(exc)
+                    return
                 self.writer = None
                 print(f'recorder: bag closed: {path} ({self.count} messages)', file=sys.stderr)
 

@@ -51,10 +51,13 @@ def load_metadata(bag_dir: str | Path) -> dict[str, Any]:
                        f'containing {METADATA_FILE} and .mcap files')
     meta = path / METADATA_FILE
     if not meta.is_file():
-        hint = ' (unfinished recording? `ros2 bag reindex` may recover it)' \
-            if any(path.glob('*.mcap')) else ''
+        if any(path.glob('*.mcap')) or any(path.parent.glob(f'.{path.name}.*.splits')):
+            # what a killed recorder leaves (a split recorder's first file is in .splits)
+            raise BagError(f'bag {str(path)!r} needs a reindex: run ./ft bag reindex on it '
+                           '(an interrupted recording left .mcap data but no '
+                           f'{METADATA_FILE})')
         raise BagError(f'bag {str(path)!r} has no {METADATA_FILE}; expected a rosbag2 '
-                       f'directory{hint}')
+                       'directory')
     try:
         doc = yaml.load(meta.read_text(encoding='utf-8'), Loader=_LOADER)
     except Exception as exc:  # noqa: BLE001 - any parse failure is the same bad input
