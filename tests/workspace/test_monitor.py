@@ -64,7 +64,8 @@ def test_pilot_shows_pulls_sets_health_and_nodes_from_real_messages():
               now - 10 * NS_PER_S))   # its last report long ago: STALE
     health = MonitorHealth(window_s=2.0, recorder_messages=12345, recorder_report_age_s=0.3, clients=1, topics=[
         TopicHealth(topic='/force', received=4000, rate_hz=1000.0, seq_gaps=2, nan_samples=5,
-                    latency_p50_ms=1.25, latency_p99_ms=4.5, recorded=3999)])
+                    latency_p50_ms=1.25, latency_p99_ms=4.5, recorded=3999),
+        TopicHealth(topic='/diagnostics', received=9, rate_hz=5.0, latency_p50_ms=1.0, latency_p99_ms=1.0)])
     feed.put(('health', health, time.time_ns() + 60 * NS_PER_S))   # fresh for the whole test
 
     def check(app):
@@ -84,7 +85,7 @@ def test_pilot_shows_pulls_sets_health_and_nodes_from_real_messages():
         assert sets[1][:2] == ['3', '1'] and sets[1][3] == '54.0 +/- 0.0'
         health_text = str(app.query_one('#health').render())
         assert 'monitor node' in health_text and '/force 1000/s gaps 2 NaN 5 latency 1.2/4.5 ms' in health_text
-        assert 'recorder 12345 msgs' in health_text
+        assert 'recorder 12345 msgs' in health_text and '/diagnostics' not in health_text   # block topics only
         nodes = {r[0]: r[1] for r in cells(app.query_one('#nodes'))}
         assert nodes == {'sim: simulator': 'OK', 'validator: validator': 'WARN',
                          'correction: inertial correction': 'STALE'}

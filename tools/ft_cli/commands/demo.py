@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import shutil
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -20,7 +22,7 @@ from force_tester_common.core.correction import WINDOW
 from force_tester_common.core.units import LBF_N
 
 from ..graph import Graph, ScoreCollector
-from ..paths import RUNS
+from ..paths import RUNS, executable
 
 NAME = 'demo'
 HELP = 'run sim + correction + validator over DDS on the test sets, record a bag, print per-set scores'
@@ -39,6 +41,9 @@ def add_arguments(p):
     p.add_argument('--out', default=str(RUNS / 'demo'),
                    help='output folder: bag/, scores.json, logs/ (default runs/demo; replaced)')
     p.add_argument('--timeout', type=float, default=120.0, help='give up after this many seconds')
+    p.add_argument('--monitor', action='store_true',
+                   help='watch it live: also run the monitor node (Foxglove WebSocket on ws://127.0.0.1:8765, '
+                        '/monitor/* topics) and show the terminal scoreboard (./ft monitor) while the demo runs')
 
 
 def format_table(scores: list) -> str:
@@ -71,9 +76,19 @@ def rig_params(rig: str) -> dict:
     return {'rig_file': str(Path(rig).resolve()), 'coupons': 'measured'}
 
 
+def monitor_node_available() -> bool:
+    """Whether the monitor node (package force_tester_monitor) is built."""
+    try:
+        executable('force_tester_monitor', 'monitor_node')
+    except SystemExit:
+        return False
+    return True
+
+
 def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float, say=print,
-             rig: str = 'truth') -> list:
-    """Run the graph, record out/bag, return the validator's scores (raises RuntimeError on failure)."""
+             rig: str = 'truth', monitor: bool = False) -> list:
+    """Run the graph, record out/bag, return the validator's scores (raises RuntimeError on failure).
+    monitor: also run the monitor node (when it is built), first, so it sees every pull."""
     bag = out / 'bag'
     if bag.exists():
         shutil.rmtree(bag)
@@ -82,6 +97,8 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
     collector = ScoreCollector()
     expected = len(sets) * pulls
     try:
+        if monitor and monitor_node_available():
+            graph.start('force_tester_monitor', 'monitor_node')
         graph.start('force_correction', 'correction_node')
         graph.start('force_correction', 'validator_node')
         graph.start('bag_tools', 'recorder_node', {'bag_path': str(bag)})
@@ -107,12 +124,49 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
     return sorted(collector.scores, key=lambda sc: sc['pull_id'])
 
 
+def run_with_scoreboard(args, out: Path) -> list:
+    """The demo on a worker thread, the scoreboard (./ft monitor's app) in the foreground until the
+    demo is done; what the demo says is shown on the scoreboard's last line, then printed."""
+    from .monitor import MonitorModel, RosFeed, make_app
+    said, result = [], {}
+
+    def work():
+        try:
+            result['scores'] = run_live(out, args.sets, args.pulls, args.seed, args.rate, args.timeout,
+                                        say=said.append, rig=args.rig, monitor=True)
+        except Exception as exc:  # noqa: BLE001 - reported after the scoreboard closes
+            result['error'] = exc
+    feed = queue.SimpleQueue()
+    ros = RosFeed(feed)   # first, on the main thread (rclpy's signal handlers)
+    worker = threading.Thread(target=work, name='ft-demo', daemon=True)
+    worker.start()
+    try:
+        make_app()(MonitorModel(), feed, status=lambda: said[-1] if said else 'demo: starting the graph',
+                   done=lambda: not worker.is_alive()).run()
+    finally:
+        ros.close()
+    worker.join()
+    for line in said:
+        print(line, file=sys.stderr)
+    if 'error' in result:
+        raise result['error']
+    return result['scores']
+
+
 def run(args) -> int:
     out = Path(args.out)
     t0 = time.monotonic()
+    say = lambda m: print(m, file=sys.stderr)  # noqa: E731
+    if args.monitor and not monitor_node_available():
+        say('demo: the monitor node (force_tester_monitor) is not built: the scoreboard only, no Foxglove')
     try:
-        scores = run_live(out, args.sets, args.pulls, args.seed, args.rate, args.timeout,
-                          say=lambda m: print(m, file=sys.stderr), rig=args.rig)
+        if args.monitor and sys.stdout.isatty() and sys.stdin.isatty():
+            scores = run_with_scoreboard(args, out)
+        else:
+            if args.monitor:
+                say('demo: not a terminal, so no scoreboard here: run ./ft monitor in a terminal to watch')
+            scores = run_live(out, args.sets, args.pulls, args.seed, args.rate, args.timeout, say=say,
+                              rig=args.rig, monitor=args.monitor)
     except RuntimeError as exc:
         print(f'ft demo: error: {exc}', file=sys.stderr)
         return 1

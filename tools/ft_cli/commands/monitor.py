@@ -29,7 +29,15 @@ from force_correction.core.scoreboard import (
     fmt,
     grade,
 )
-from force_tester_common.core.channels import DIAGNOSTICS_TOPIC, MONITOR_HEALTH_TOPIC, PULL_SCORE_TOPIC
+from force_tester_common.core.channels import (
+    ACCEL_TYPE,
+    BLOCK_TYPES,
+    CORRECTED_TYPE,
+    DIAGNOSTICS_TOPIC,
+    FORCE_TYPE,
+    MONITOR_HEALTH_TOPIC,
+    PULL_SCORE_TOPIC,
+)
 from force_tester_common.core.clock import NS_PER_S, stamp_to_ns
 from force_tester_common.core.health import LEVEL_ERROR, LEVEL_NAMES, LEVEL_OK, LEVEL_STALE, LEVEL_WARN, NodeStates
 from force_tester_common.core.units import n_to_lbf
@@ -44,6 +52,8 @@ LEVEL_COLOURS = {LEVEL_OK: 'green', LEVEL_WARN: 'yellow', LEVEL_ERROR: 'bold red
 PULL_COLUMNS = ('pull', 'set', 'status', 'stat lbf', 'raw lbf', 'm*a lbf', 'MA lbf', 'raw %', 'm*a %', 'MA %')
 SET_COLUMNS = ('set', 'OK pulls', 'stat lbf', 'raw % mean+/-std', 'm*a % mean+/-std', 'MA % mean+/-std')
 NODE_COLUMNS = ('node', 'state', 'message', 'age s')
+# the health line shows the sample-block topics the correction reads and writes (the others are quiet)
+HEALTH_TOPICS = (BLOCK_TYPES[FORCE_TYPE][0], BLOCK_TYPES[ACCEL_TYPE][0], CORRECTED_TYPE[1][0])
 
 
 def add_arguments(p):
@@ -107,7 +117,9 @@ class MonitorModel:
         if self.health is not None and now_ns - self.health[0] < 3 * NS_PER_S:
             h = self.health[1]
             parts = []
-            for t in h.topics:
+            shown = sorted((t for t in h.topics if t.topic in HEALTH_TOPICS),
+                           key=lambda t: HEALTH_TOPICS.index(t.topic))
+            for t in shown:
                 lat = ('latency n/a' if math.isnan(t.latency_p50_ms) else
                        f'latency {fmt(t.latency_p50_ms)}/{fmt(t.latency_p99_ms)} ms')
                 rec = f', rec {t.recorded}' if t.recorded >= 0 else ''
@@ -152,11 +164,16 @@ def make_app():
                '.title { text-style: bold; } #health { height: auto; }')
         BINDINGS = [('q', 'quit', 'quit')]
 
-        def __init__(self, model: MonitorModel, feed: queue.SimpleQueue, exit_after: float | None = None):
+        def __init__(self, model: MonitorModel, feed: queue.SimpleQueue, exit_after: float | None = None,
+                     status=None, done=None, linger_s: float = 3.0):
+            """status() -> a line to show (what a driving command is doing); done() -> True once it
+            has finished: the app then quits linger_s later."""
             super().__init__()
             self.model = model
             self.feed = feed
             self.exit_after = exit_after
+            self.status, self.done, self.linger_s = status, done, linger_s
+            self._quitting = False
 
         def compose(self) -> ComposeResult:
             yield Static(f'force tester scoreboard: % difference |F_stat - F| / F_stat at the peaks; green <= '
@@ -167,6 +184,7 @@ def make_app():
             yield DataTable(id='sets', show_cursor=False)
             yield Static('health: waiting for the graph', id='health')
             yield DataTable(id='nodes', show_cursor=False)
+            yield Static('', id='status')
 
         def on_mount(self) -> None:
             for tid, cols in (('#pulls', PULL_COLUMNS), ('#sets', SET_COLUMNS), ('#nodes', NODE_COLUMNS)):
@@ -189,6 +207,11 @@ def make_app():
 
         def refresh_view(self) -> None:
             self.drain()
+            if self.status is not None:
+                self.query_one('#status', Static).update(self.status())
+            if self.done is not None and not self._quitting and self.done():
+                self._quitting = True
+                self.set_timer(self.linger_s, self.exit)
             now = time.time_ns()
             board = self.model.board
             pulls = self.query_one('#pulls', DataTable)
