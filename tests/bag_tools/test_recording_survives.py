@@ -94,6 +94,29 @@ def test_killed_recording_loses_at_most_the_chunk_in_progress(tmp_path):
         assert n - bound <= got <= n, (snap.name, n, got, bound)
 
 
+def test_killed_split_recording_is_reindexed_with_its_file_in_progress(tmp_path):
+    """A split recording killed mid-file: its finished files are in the bag, the one in
+    progress in the hidden .splits directory beside it; reindex takes it in."""
+    store = bag_typestore()
+    rec = Recording(tmp_path / 'bag', store, max_bytes=400_000).open()
+    rec.add_topic('/force', FORCE)
+    for k in range(1200):
+        rec.write('/force', T0 + k, force(store, T0 + k, k, n=50))
+    # the process is gone here: nothing more is written or closed (the files are as it left them)
+    assert len(list((tmp_path / 'bag').glob('*.mcap'))) == 2
+    assert needs_reindex(tmp_path / 'bag')
+    report = reindex(tmp_path / 'bag')
+    assert report.moved == ['bag_2.mcap']
+    got = assert_readable_prefix(tmp_path / 'bag')
+    bound = CHUNK_BYTES // (len(force(store, T0, 0, n=50)) + RECORD_OVERHEAD) + 1
+    assert 1200 - bound <= got < 1200
+    assert [p.name for p in tmp_path.iterdir()] == ['bag']  # no .splits directory left
+    assert sorted(p.name for p in (tmp_path / 'bag').iterdir()) == [
+        'bag_0.mcap', 'bag_1.mcap', 'bag_2.mcap', METADATA_FILE]  # nor the disk reserve
+    assert load_metadata(tmp_path / 'bag')['relative_file_paths'] == ['bag_0.mcap', 'bag_1.mcap',
+                                                                      'bag_2.mcap']
+
+
 @pytest.mark.parametrize('cut', [9, 40, 0.37, 0.5, 0.81, -1])
 def test_reindex_recovers_the_whole_chunks_of_a_torn_file(tmp_path, cut):
     """A file cut anywhere (in the header, a chunk, a message index, the summary): every
@@ -146,7 +169,7 @@ def test_info_and_reindex_on_the_command_line(tmp_path):
     rec.add_topic('/force', FORCE)
     for k in range(1500):
         rec.write('/force', T0 + k, force(store, T0 + k, k, n=50))
-    shutil.copytree(tmp_path / 'bag', tmp_path / 'killed', ignore=shutil.ignore_patterns(RESERVE_NAME))
+    shutil.copytree(tmp_path / 'bag', tmp_path / 'killed')  # with its disk reserve
     rec.close()
     info = run_cli('info', tmp_path / 'killed')
     assert info.returncode == 2 and 'needs a reindex' in info.stderr, info.stderr
@@ -155,6 +178,7 @@ def test_info_and_reindex_on_the_command_line(tmp_path):
     out = run_cli('reindex', tmp_path / 'killed')
     assert out.returncode == 0, out.stderr
     assert 'metadata.yaml written' in out.stdout
+    assert sorted(p.name for p in (tmp_path / 'killed').iterdir()) == ['bag.mcap', METADATA_FILE]
     assert run_cli('info', tmp_path / 'killed').returncode == 0
     missing = run_cli('reindex', tmp_path / 'nothing')
     assert missing.returncode == 2 and 'Traceback' not in missing.stderr
@@ -281,6 +305,7 @@ def test_sigkilled_recorder_is_recovered_by_reindex(tmp_path, ros_domain):
     print(f"recovered {got}, reported before the kill {reported}, bound {bound}")
     assert got >= reported - bound, (got, reported, bound)
     assert set(seqs) >= {'/force', '/accel', '/motor', '/encoder'}
+    assert sorted(p.name for p in bag.iterdir()) == ['bag.mcap', METADATA_FILE]
 
 
 @pytest.mark.slow

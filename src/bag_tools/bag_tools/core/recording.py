@@ -29,7 +29,7 @@ from pathlib import Path
 from rosbags.typesys.store import Typestore
 
 from .errors import BagError
-from .reindex import ReindexReport, reindex
+from .reindex import RESERVE_NAME, ReindexReport, reindex
 from .split_writer import SplitBagWriter, open_bag_writer
 
 #: a chunk is closed and written once it holds this many bytes of records
@@ -39,7 +39,6 @@ FLUSH_S = 0.1
 #: space kept free for the summary and metadata.yaml written when the disk is full
 RESERVE_BASE_BYTES = 256 * 1024
 RESERVE_PER_CHUNK_BYTES = 256  # a chunk index record in the summary is about 170 bytes
-RESERVE_NAME = '.reserve'
 
 
 class Recording:
@@ -165,10 +164,7 @@ class Recording:
         if self._reserve_fd >= 0:
             os.close(self._reserve_fd)
             self._reserve_fd = -1
-        try:
-            (self.path / RESERVE_NAME).unlink()
-        except FileNotFoundError:
-            pass
+        (self.path / RESERVE_NAME).unlink(missing_ok=True)
 
     def _abandon(self) -> None:
         """Close the file being written without finishing it (its buffered bytes are dropped)."""

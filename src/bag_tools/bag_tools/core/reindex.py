@@ -63,6 +63,8 @@ _HEAD = struct.Struct('<BQ')               # record opcode, length
 _CHUNK_FIXED = struct.Struct('<QQQI')      # chunk: start, end, uncompressed size, crc
 _MESSAGE_FIXED = struct.Struct('<HIQ')     # message: channel, sequence, log time
 _ROSBAG2_METADATA = 'rosbag2'              # name of the metadata record rosbag2 writers add
+#: the space a recording keeps free for finishing its bag (core/recording.py); reindex removes it
+RESERVE_NAME = '.reserve'
 
 
 @dataclass
@@ -104,6 +106,7 @@ def reindex(bag: str | Path) -> ReindexReport:
     if not path.is_dir():
         raise BagError(f'bag {str(path)!r} is not a directory; expected a rosbag2 bag directory')
     moved = _adopt_split_in_progress(path)
+    (path / RESERVE_NAME).unlink(missing_ok=True)  # a killed recorder's, now free space
     files = sorted(path.glob('*.mcap'), key=_split_order)
     if not files:
         raise BagError(f'bag {str(path)!r} has no .mcap file; expected an MCAP rosbag2 bag '
