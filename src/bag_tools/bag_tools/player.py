@@ -25,7 +25,7 @@ from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.ros import BLOCK_QOS, ros_init
 
 from .core.errors import BagError, one_line
-from .core.playback import PLAY_DESCRIPTION, add_play_arguments, schedule
+from .core.playback import PLAY_DESCRIPTION, add_play_arguments, schedule, take_bag_argument
 from .core.reader import brief, open_bag
 from .core.typestore import normalize_type
 
@@ -83,6 +83,7 @@ class Plan:
 def load(args) -> Plan:
     """Read the selected playable messages and their playback offsets (all validation and
     every skip decision happens here, before ROS starts)."""
+    take_bag_argument(args)
     plan = Plan(remaps=parse_remaps(args.remap))
     with open_bag(args.bag, allow_empty=True) as bag:
         topics = bag.topics()

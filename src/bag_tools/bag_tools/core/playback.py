@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 import operator
+import os
 from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -13,6 +14,7 @@ from typing import NamedTuple
 from force_tester_common.core.clock import NS_PER_S, seconds_to_ns
 
 from .errors import BagError
+from .metadata import METADATA_FILE
 
 
 class Schedule(NamedTuple):
@@ -83,7 +85,7 @@ PLAY_DESCRIPTION = ('Republish a rosbag2 bag (MCAP or sqlite3) with its original
 
 def add_play_arguments(p: argparse.ArgumentParser) -> None:
     """The player's options (ROS-free, so `./ft bag --help` needs no rclpy)."""
-    p.add_argument('bag', help='bag directory (with metadata.yaml)')
+    p.add_argument('bag', nargs='?', default=None, help='bag directory (with metadata.yaml)')
     p.add_argument('--rate', type=float, default=1.0,
                    help='time scale: 2.0 plays twice as fast (default 1.0)')
     p.add_argument('--topics', nargs='+', metavar='TOPIC',
@@ -100,3 +102,16 @@ def add_play_arguments(p: argparse.ArgumentParser) -> None:
                    help='before playing, wait until every played topic has N subscribers')
     p.add_argument('--wait-timeout', type=float, default=30.0, metavar='S',
                    help='give up waiting for subscribers after S seconds (default 30)')
+
+
+def take_bag_argument(args: argparse.Namespace) -> argparse.Namespace:
+    """`--topics /a /b BAG` puts BAG among the topics (nargs='+'): a last item that is a
+    directory with a metadata.yaml, or not an absolute name as topics are, is the bag.
+    BagError if there is none."""
+    if args.bag is None and args.topics and len(args.topics) > 1:
+        last = args.topics[-1]
+        if not last.startswith('/') or os.path.isfile(os.path.join(last, METADATA_FILE)):
+            args.bag = args.topics.pop()
+    if args.bag is None:
+        raise BagError('no bag given; expected play [options] BAG (see --help)')
+    return args

@@ -15,7 +15,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, NamedTuple
 
-from rosbags.interfaces import MessageDefinitionFormat
+from rosbags.interfaces import MessageDefinitionFormat, Nodetype
 from rosbags.rosbag2 import Reader
 from rosbags.rosbag2.storage_mcap import DECOMPRESSORS  # name -> f(data, size): rosbags' zstd
 from rosbags.typesys import Stores, get_typestore
@@ -55,6 +55,14 @@ class CountDifference(NamedTuple):
     topic: str
     metadata_count: int | None  # None: the topic is not in metadata.yaml
     stored_count: int
+
+
+def _referenced(field: Any) -> str:
+    """The message type a rosbags field definition (nodetype, detail) refers to, else ''."""
+    kind, detail = field
+    while kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):  # (element field, length)
+        kind, detail = detail[0]
+    return detail if kind == Nodetype.NAME else ''
 
 
 class BagReaderHandle:
@@ -162,6 +170,23 @@ class BagReaderHandle:
     def type_class(self, type_name: str) -> Any:
         """The message class of type_name, built on first use; None if it cannot be built."""
         return None if self.type_error(type_name) else self._store().types.get(type_name)
+
+    def type_closure(self, type_name: str) -> dict:
+        """rosbags field definitions of type_name and every type it uses (for registering it
+        into another typestore); BagError when it cannot be built."""
+        reason = self.type_error(type_name)
+        if reason is not None:
+            raise BagError(f'cannot build message type {type_name!r}: {reason}')
+        defs = self._store().fielddefs
+        out: dict = {}
+        todo = [type_name]
+        while todo:
+            name = todo.pop()
+            if name in out or name not in defs:
+                continue
+            out[name] = defs[name]
+            todo.extend(_referenced(field) for _name, field in defs[name][1])
+        return out
 
     @property
     def typestore(self) -> Typestore:

@@ -32,7 +32,8 @@ def normalize_type(type_name: str) -> str:
 def types_from_definition(type_name: str, text: str) -> dict:
     """The rosbags type definitions of type_name from the definition a bag embeds for it.
 
-    A service event ('pkg/srv/Name_Event') comes as rosbag2 writes it: the srv text (request
+    A service event ('pkg/srv/Name_Event', or 'pkg/msg/Name_Event' from an old 'pkg/Name_Event'
+    name) comes as rosbag2 writes it: the srv text (request
     '---' response) rather than the event's own fields. It is built as the event message
     rosidl generates (service_msgs/ServiceEventInfo info, Request[<=1] request, Response[<=1]
     response); rosbags names parsed types 'pkg/msg/...', so the request and response are
@@ -41,8 +42,8 @@ def types_from_definition(type_name: str, text: str) -> dict:
     parts = type_name.split('/')
     main, sep, deps = text.partition(_DEP_SEPARATOR)
     lines = main.splitlines()
-    if len(parts) == 3 and parts[1] == 'srv' and parts[2].endswith(SERVICE_EVENT_SUFFIX) \
-            and '---' in (line.strip() for line in lines):
+    if len(parts) == 3 and parts[2].endswith(SERVICE_EVENT_SUFFIX) \
+            and '---' in (line.strip() for line in lines):  # no message has a '---' line
         pkg, base = parts[0], parts[2][:-len(SERVICE_EVENT_SUFFIX)]
         cut = [line.strip() for line in lines].index('---')
         tail = sep + deps

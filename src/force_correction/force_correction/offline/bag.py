@@ -329,7 +329,7 @@ def rewrite_bag(src: Path, dst: Path, arrays: dict, read: BagRead, pulls, runnin
             type_name = topics[t].type_name
             if type_name not in store.types:
                 try:
-                    store.register({type_name: bag.typestore.fielddefs[type_name]})
+                    store.register(bag.type_closure(type_name))  # with the types it uses
                 except Exception:  # noqa: BLE001 - any unparsable definition: skip the topic
                     warnings.append(f'topic {t} ({type_name}) not copied: its type is unknown')
                     continue
