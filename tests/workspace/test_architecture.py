@@ -23,8 +23,9 @@ LAYERS = {
     'bag_tools': {'force_tester_common'},
     'force_correction': {'force_tester_common', 'bag_tools'},
     'force_discovery': {'force_tester_common', 'force_tester_sim', 'force_correction', 'bag_tools'},
+    'force_tester_monitor': {'force_tester_common', 'bag_tools'},
     'ft_cli': {'force_tester_common', 'force_tester_sim', 'bag_tools', 'force_correction',
-               'force_discovery'},
+               'force_discovery', 'force_tester_monitor'},
 }
 ROS_MODULES = {'rclpy', 'rcl_interfaces', 'rosidl_runtime_py', 'force_tester_msgs', 'std_msgs',
                'diagnostic_msgs', 'builtin_interfaces'}

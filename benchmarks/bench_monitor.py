@@ -1,0 +1,116 @@
+"""The monitor's cost on the live 50 kHz graph: `./ft bench monitor [--pulls N] [--set S]`.
+
+Runs the live graph (sim, correction, validator as processes) twice on the same pulls: once without
+the monitor, once with monitor_node and one Foxglove client (tools/foxglove_client, subscribed to
+every topic, decoding nothing it does not print). Prints
+
+- the monitor process's CPU (user + system, from /proc) over the run, as a share of one core;
+- the correction path's latency in both runs: a /force_corrected block's arrival at this
+  benchmark's own rclpy node minus its header stamp (the block's first sample), p50 and p99;
+- how many blocks the monitor received of those published (it may lose, never delay).
+
+Short by default (one 2 s pull of set 3): the machine is shared.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / 'tools'))
+sys.path.insert(0, str(ROOT / 'tests' / 'force_tester_monitor'))
+
+from fox_client import client_command, monitor_port  # noqa: E402
+
+from force_tester_common.core.clock import stamp_to_ns  # noqa: E402
+from ft_cli.graph import Graph, ScoreCollector  # noqa: E402
+
+TICKS = os.sysconf('SC_CLK_TCK')
+
+
+def cpu_s(pid: int) -> float:
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS
+
+
+def run(pulls: int, test_set: int, monitor: bool, logs: Path) -> dict:
+    from force_tester_msgs.msg import CorrectedForceBlock, MonitorHealth
+
+    from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
+    graph = Graph(logs)
+    collector = ScoreCollector()
+    latency_ns, health = [], []
+
+    def on_corrected(msg):
+        latency_ns.append(time.time_ns() - stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec))
+    collector.node.create_subscription(CorrectedForceBlock, '/force_corrected', on_corrected, BLOCK_QOS)
+    collector.node.create_subscription(MonitorHealth, '/monitor/health', health.append, EVENT_QOS)
+    client = None
+    out = {}
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node')
+        subs = {'/force': 2, '/pull_event': 1}
+        if monitor:
+            mon = graph.start('force_tester_monitor', 'monitor_node', {'port': 0})
+            port = monitor_port(logs / 'monitor_node.log', mon)
+            client = subprocess.Popen(client_command(port, '--topics', '/motor,/encoder,/accel,/force,'
+                                                     '/force_corrected,/pull_event,/pull_score,/set_summary,'
+                                                     '/diagnostics,/monitor/force,/monitor/health',
+                                                     '--keep', '/force_corrected=0,/force=0,/accel=0,/motor=0,'
+                                                     '/encoder=0', '--timeout', '600'),
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            subs = {'/force': 3, '/pull_event': 2}
+        assert collector.wait_for_graph(subs, timeout=60)
+        time.sleep(1.0)
+        cpu0, t0 = (cpu_s(mon.pid) if monitor else 0.0), time.monotonic()
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': f'[{test_set}]', 'pulls_per_set': pulls,
+                                                     'wait_for_subscribers': subs['/pull_event'],
+                                                     'exit_when_done': True})
+        assert collector.wait(pulls, 60 + 10 * pulls, alive=lambda: not graph.dead()), graph.tail('sim_node')
+        if monitor:
+            out['cpu_share'] = (cpu_s(mon.pid) - cpu0) / (time.monotonic() - t0)
+            for _ in range(15):
+                collector.executor.spin_once(timeout_sec=0.1)
+            last = {t.topic: t for t in health[-1].topics} if health else {}
+            out['monitor_received'] = {k: last[k].received for k in ('/force', '/force_corrected') if k in last}
+    finally:
+        if client is not None:
+            client.kill()
+            client.wait()
+        graph.stop()
+        collector.close()
+    lat = np.array(latency_ns) / 1e6
+    out.update(blocks=lat.size, p50_ms=float(np.percentile(lat, 50)), p99_ms=float(np.percentile(lat, 99)),
+               dropped=sum(s['dropped_blocks'] for s in collector.scores))
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--pulls', type=int, default=1)
+    ap.add_argument('--set', type=int, default=3)
+    args = ap.parse_args()
+    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    with tempfile.TemporaryDirectory() as tmp:
+        without = run(args.pulls, args.set, False, Path(tmp) / 'without')
+        with_ = run(args.pulls, args.set, True, Path(tmp) / 'with')
+    print(f'{args.pulls} pull(s) of set {args.set}, 50 kHz, 50-sample blocks')
+    print(f"monitor CPU with one Foxglove client: {100 * with_['cpu_share']:.1f} % of one core (target < 15 %)")
+    print(f"monitor received (of {with_['blocks']} corrected blocks): {with_['monitor_received']}")
+    for name, r in (('without monitor', without), ('with monitor + client', with_)):
+        print(f"correction path latency {name}: p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms "
+              f"over {r['blocks']} blocks, dropped {r['dropped']}")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

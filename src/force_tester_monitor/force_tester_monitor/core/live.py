@@ -1,0 +1,207 @@
+"""Sample blocks -> the monitor's derived topics (ROS-free).
+
+``ForceJoin`` joins each /force_corrected block with the /force block of the same stamp (the
+correction stamps its output with the force block's stamp) to get the stationary cell beside the
+raw, corrected and filtered moving cell. ``LiveTrace`` turns joined blocks into MonitorForce
+scalars, ``PullTraces`` turns them into one PullTrace per pull. Forces are N in and lbf out (the
+monitor topics are for display; see MonitorForce.msg).
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from force_tester_common.core.clock import NS_PER_S, record_stamps_ns, sample_stamp_ns
+from force_tester_common.core.correction import LOADED_FRACTION
+from force_tester_common.core.units import n_to_lbf
+
+from .errors import MonitorError
+
+SIGNALS = ('stationary', 'raw', 'corrected', 'filtered')
+
+
+@dataclass
+class JoinedBlock:
+    stamp_ns: int
+    seq: int                # the /force_corrected seq
+    rate_hz: float
+    stationary: np.ndarray  # N
+    raw: np.ndarray
+    corrected: np.ndarray
+    filtered: np.ndarray
+
+    @property
+    def end_ns(self) -> int:
+        """The stamp just after the block's last sample."""
+        return sample_stamp_ns(self.stamp_ns, self.stationary.size, self.rate_hz)
+
+
+class ForceJoin:
+    """Stationary-cell blocks waiting for their corrected block, keyed by stamp. The corrected
+    stream lags the force stream; a force block left behind (its corrected block lost or never
+    made) is forgotten once ``max_pending`` newer ones wait."""
+
+    def __init__(self, max_pending: int = 20_000):
+        if max_pending < 1:
+            raise MonitorError(f'max_pending {max_pending!r} is invalid; expected >= 1')
+        self.max_pending = max_pending
+        self._stationary: OrderedDict = OrderedDict()
+        self.unmatched = 0  # corrected blocks that found no force block
+
+    def add_force(self, stamp_ns: int, stationary: np.ndarray) -> None:
+        self._stationary[int(stamp_ns)] = stationary
+        while len(self._stationary) > self.max_pending:
+            self._stationary.popitem(last=False)
+
+    def add_corrected(self, stamp_ns: int, seq: int, rate_hz: float, raw, corrected, filtered
+                      ) -> Optional[JoinedBlock]:
+        s = self._stationary.pop(int(stamp_ns), None)
+        if s is None or s.size != np.size(raw):
+            self.unmatched += 1
+            return None
+        # force blocks older than this one will never be joined: their corrected block is gone
+        while self._stationary:
+            oldest = next(iter(self._stationary))
+            if oldest >= stamp_ns:
+                break
+            self._stationary.popitem(last=False)
+        return JoinedBlock(int(stamp_ns), int(seq), float(rate_hz), s, np.asarray(raw), np.asarray(corrected),
+                           np.asarray(filtered))
+
+
+@dataclass(frozen=True)
+class ForceScalars:
+    """One MonitorForce message's content (lbf)."""
+    stamp_ns: int   # the last covered sample
+    seq: int
+    blocks: int
+    last: dict      # signal -> last sample, lbf
+    max: dict       # signal -> max over the covered blocks, lbf (NaN samples skipped; NaN if all are)
+
+
+def _nanmax(a: np.ndarray) -> float:
+    finite = a[np.isfinite(a)]
+    return float(finite.max()) if finite.size else float('nan')
+
+
+class LiveTrace:
+    """Joined blocks -> one ForceScalars per ``every`` blocks (``flush`` emits a partial group)."""
+
+    def __init__(self, every: int):
+        if every < 1:
+            raise MonitorError(f'every {every!r} is invalid; expected >= 1 blocks per message')
+        self.every = every
+        self._group: List[JoinedBlock] = []
+
+    def add(self, block: JoinedBlock) -> Optional[ForceScalars]:
+        self._group.append(block)
+        return self.flush() if len(self._group) >= self.every else None
+
+    def flush(self) -> Optional[ForceScalars]:
+        if not self._group:
+            return None
+        group, self._group = self._group, []
+        last = group[-1]
+        return ForceScalars(
+            stamp_ns=sample_stamp_ns(last.stamp_ns, last.stationary.size - 1, last.rate_hz),
+            seq=last.seq, blocks=len(group),
+            last={s: float(n_to_lbf(getattr(last, s)[-1])) for s in SIGNALS},
+            max={s: _nanmax(n_to_lbf(np.concatenate([getattr(b, s) for b in group]))) for s in SIGNALS})
+
+
+@dataclass
+class Trace:
+    """One PullTrace message's content: the pull's loaded window at full rate (lbf)."""
+    pull_id: int
+    test_set: int
+    start_ns: int
+    rate_hz: float
+    time_s: np.ndarray       # from the pull's START
+    signals: dict            # signal -> lbf array
+
+
+@dataclass
+class _Pull:
+    pull_id: int
+    test_set: int
+    start_ns: int
+    end_ns: Optional[int] = None
+    ended_at_ns: Optional[int] = None  # monotonic time the END arrived
+    blocks: list = field(default_factory=list)
+    samples: int = 0
+
+
+def loaded_window(stationary: np.ndarray, loaded_fraction: float = LOADED_FRACTION) -> Optional[slice]:
+    """The samples from the first to the last where the stationary force exceeds
+    ``loaded_fraction`` times its peak (the scoring's loaded window), or None if it never does."""
+    finite = np.isfinite(stationary)
+    if not finite.any():
+        return None
+    peak = stationary[finite].max()
+    if not peak > 0:
+        return None
+    idx = np.flatnonzero(finite & (stationary > loaded_fraction * peak))
+    return slice(int(idx[0]), int(idx[-1]) + 1)
+
+
+class PullTraces:
+    """Joined blocks and pull events -> one Trace per pull, after its END once the joined stream
+    has passed the END; or, when the stream stops short of it, once neither the END nor a block
+    has arrived for ``timeout_s`` (with what came). The corrected stream may lag the events by
+    seconds on a busy machine: only a stream that has stopped cuts a trace short."""
+
+    def __init__(self, margin_s: float, max_s: float, timeout_s: float,
+                 loaded_fraction: float = LOADED_FRACTION):
+        self.margin_s, self.max_s, self.timeout_ns = margin_s, max_s, int(timeout_s * NS_PER_S)
+        self.loaded_fraction = loaded_fraction
+        self._pulls: List[_Pull] = []
+        self._last_block_at_ns: Optional[int] = None  # monotonic time of the last add()
+
+    def start(self, pull_id: int, test_set: int, start_ns: int) -> None:
+        # an unfinished pull that another START replaces never ends: forget it
+        self._pulls = [p for p in self._pulls if p.end_ns is not None]
+        self._pulls.append(_Pull(int(pull_id), int(test_set), int(start_ns)))
+
+    def end(self, pull_id: int, end_ns: int, now_ns: int) -> None:
+        for p in self._pulls:
+            if p.pull_id == pull_id and p.end_ns is None:
+                p.end_ns, p.ended_at_ns = int(end_ns), int(now_ns)
+
+    def add(self, block: JoinedBlock, now_ns: int) -> List[Trace]:
+        self._last_block_at_ns = now_ns
+        done = []
+        for p in self._pulls:
+            if block.stamp_ns < p.start_ns or (p.end_ns is not None and block.stamp_ns >= p.end_ns):
+                continue
+            if p.samples < self.max_s * block.rate_hz:
+                p.blocks.append(block)
+                p.samples += block.stationary.size
+        for p in list(self._pulls):
+            if p.end_ns is not None and block.end_ns >= p.end_ns:
+                done.append(p)
+        return [t for t in (self._finish(p) for p in done) if t is not None]
+
+    def expire(self, now_ns: int) -> List[Trace]:
+        """Traces of ended pulls whose data stopped short of the END: nothing came for ``timeout_s``."""
+        last = self._last_block_at_ns or 0
+        late = [p for p in self._pulls
+                if p.ended_at_ns is not None and now_ns - max(p.ended_at_ns, last) >= self.timeout_ns]
+        return [t for t in (self._finish(p) for p in late) if t is not None]
+
+    def _finish(self, p: _Pull) -> Optional[Trace]:
+        self._pulls.remove(p)
+        if not p.blocks:
+            return None
+        rate = p.blocks[0].rate_hz
+        stamps = np.concatenate([record_stamps_ns(b.stamp_ns, b.stationary.size, b.rate_hz) for b in p.blocks])
+        arrays = {s: np.concatenate([getattr(b, s) for b in p.blocks]) for s in SIGNALS}
+        window = loaded_window(arrays['stationary'], self.loaded_fraction)
+        if window is None:
+            window = slice(0, stamps.size)
+        margin = int(round(self.margin_s * rate))
+        sel = slice(max(window.start - margin, 0), min(window.stop + margin, stamps.size))
+        return Trace(p.pull_id, p.test_set, p.start_ns, rate, (stamps[sel] - p.start_ns) / NS_PER_S,
+                     {s: n_to_lbf(a[sel]) for s, a in arrays.items()})

@@ -1,0 +1,135 @@
+"""The monitor's ROS-free core: health arithmetic, joining, live-trace scalars, pull traces, and
+batches of raw CDR blocks with malformed messages among them."""
+import math
+
+import numpy as np
+import pytest
+from force_tester_monitor.core.batch import decode_batch
+from force_tester_monitor.core.errors import MonitorError
+from force_tester_monitor.core.health import TopicStats, recorder_counts
+from force_tester_monitor.core.live import ForceJoin, JoinedBlock, LiveTrace, PullTraces, loaded_window
+from force_tester_monitor.core.params import MonitorParams
+
+from bag_tools.core.fastcdr import encode_blocks
+from force_tester_common.core.channels import FORCE_FIELDS
+from force_tester_common.core.clock import NS_PER_S
+from force_tester_common.core.units import LBF_N
+
+MS = 1_000_000
+
+
+def test_health_counts_gaps_nan_rate_and_latency_percentiles():
+    st = TopicStats('/force', window_s=1.0)
+    t0 = 10 * NS_PER_S
+    arrivals = t0 + np.arange(100) * 10 * MS               # 100 blocks/s for 1 s
+    stamps = arrivals - np.where(np.arange(100) < 98, 2 * MS, 50 * MS)
+    seq = np.concatenate((np.arange(50), np.arange(53, 103)))  # 3 skipped
+    st.add(arrivals[:60], stamps[:60], seq[:60], nan_samples=2)
+    st.add(arrivals[60:], stamps[60:], seq[60:], nan_samples=1)
+    snap = st.snapshot(int(arrivals[-1]))
+    assert (snap.received, snap.seq_gaps, snap.nan_samples) == (100, 3, 3)
+    assert snap.rate_hz == pytest.approx(100, rel=0.02)
+    assert snap.latency_p50_ms == pytest.approx(2.0)
+    assert snap.latency_p99_ms > 2.0
+    # a restart (seq back to 0) is a new run, not a gap; old arrivals leave the window
+    st.add([arrivals[-1] + 3 * NS_PER_S], [arrivals[-1] + 3 * NS_PER_S - MS], [0])
+    later = st.snapshot(int(arrivals[-1] + 3 * NS_PER_S))
+    assert later.seq_gaps == 3 and later.latency_p50_ms == pytest.approx(1.0) and later.rate_hz == pytest.approx(1.0)
+    assert math.isnan(TopicStats('/x', 1.0).snapshot(t0).latency_p50_ms)
+
+
+def test_recorder_counts_come_from_its_progress_report_only():
+    assert recorder_counts('recorder: bag recorder', {'messages': '12', '/force': '7', 'held_back': '1'}) == \
+        {'messages': 12, '/force': 7}
+    assert recorder_counts('correction: inertial correction', {'messages': '3'}) is None
+    assert recorder_counts('recorder: bag recorder', {'messages': 'many'}) is None
+
+
+def block(stamp, values, seq=0, rate=50_000.0):
+    v = np.asarray(values, float)
+    return JoinedBlock(stamp, seq, rate, v, v + 1, v + 2, v + 3)
+
+
+def test_join_pairs_by_stamp_and_forgets_force_blocks_whose_partner_is_gone():
+    j = ForceJoin()
+    for k in range(3):
+        j.add_force(k * MS, np.full(5, float(k)))
+    assert j.add_corrected(7 * MS, 0, 5e4, np.ones(5), np.ones(5), np.ones(5)) is None
+    got = j.add_corrected(2 * MS, 9, 5e4, np.ones(5), np.ones(5), np.ones(5))
+    assert got.stationary[0] == 2.0 and got.seq == 9
+    assert j.add_corrected(0, 1, 5e4, np.ones(5), np.ones(5), np.ones(5)) is None  # dropped as stale
+    with pytest.raises(MonitorError, match='max_pending 0'):
+        ForceJoin(0)
+
+
+def test_live_trace_gives_last_and_max_in_lbf_per_group():
+    lt = LiveTrace(every=2)
+    assert lt.add(block(0, [1.0, 9.0, 2.0])) is None
+    out = lt.add(block(60_000, [3.0, np.nan, 4.0], seq=1))
+    assert out.blocks == 2 and out.seq == 1
+    assert out.last['stationary'] == pytest.approx(4.0 / LBF_N)
+    assert out.max['stationary'] == pytest.approx(9.0 / LBF_N)
+    assert out.max['filtered'] == pytest.approx(12.0 / LBF_N)
+    assert out.stamp_ns == 60_000 + 2 * 20_000          # the last sample at 50 kHz
+    assert lt.flush() is None
+    lt.add(block(120_000, [5.0]))
+    assert lt.flush().blocks == 1
+
+
+def test_pull_trace_is_the_loaded_window_with_margin_at_full_rate():
+    rate = 1000.0
+    s = np.zeros(100)
+    s[40:60] = np.hanning(22)[1:-1] * 100.0
+    window = loaded_window(s)
+    assert s[window.start] > 10.0 and s[window.start - 1] <= 10.0 and s[window.stop - 1] > 10.0
+    traces = PullTraces(margin_s=0.005, max_s=10.0, timeout_s=1.0)
+    traces.start(4, 2, 0)
+    traces.end(4, 100 * MS, now_ns=0)
+    out = []
+    for k in range(10):
+        out += traces.add(block(k * 10 * MS, s[10 * k:10 * k + 10], rate=rate), now_ns=0)
+    assert len(out) == 1
+    t = out[0]
+    assert (t.pull_id, t.test_set) == (4, 2)
+    n = window.stop - window.start + 10
+    assert t.time_s.size == n and t.time_s[0] == pytest.approx((window.start - 5) / rate)
+    assert np.allclose(np.diff(t.time_s), 1 / rate)
+    assert max(t.signals['stationary']) == pytest.approx(s.max() / LBF_N)
+
+
+def test_pull_trace_goes_out_after_the_timeout_when_data_stops_short():
+    traces = PullTraces(margin_s=0.0, max_s=10.0, timeout_s=1.0)
+    traces.start(1, 1, 0)
+    assert traces.add(block(0, [0.1, 5.0, 0.1], rate=1000.0), now_ns=0) == []
+    traces.end(1, 10 * MS, now_ns=0)
+    assert traces.expire(NS_PER_S // 2) == []
+    # a lagging stream that is still coming keeps the pull open past the timeout
+    assert traces.add(block(3 * MS, [0.1, 0.1], rate=1000.0), now_ns=NS_PER_S // 2) == []
+    assert traces.expire(NS_PER_S) == []
+    (t,) = traces.expire(3 * NS_PER_S // 2)
+    assert t.time_s.size == 1 and t.signals['stationary'][0] == pytest.approx(5.0 / LBF_N)
+
+
+def test_a_batch_with_malformed_messages_keeps_the_good_ones():
+    counts = {f: np.full(3, 50) for f in FORCE_FIELDS}
+    buf, starts, lengths = encode_blocks(np.array([NS_PER_S, NS_PER_S + MS, NS_PER_S + 2 * MS]), 5e4,
+                                         np.arange(3), FORCE_FIELDS, counts,
+                                         {f: np.arange(150.0) for f in FORCE_FIELDS})
+    msgs = [bytes(buf[a:a + n]) for a, n in zip(starts, lengths)]
+    bad_rate = bytearray(msgs[1])
+    bad_rate[4 + 16:4 + 24] = np.float64(0.0).tobytes()  # sample_rate_hz = 0 (frame_id '' -> offset 16)
+    items = [(1, msgs[0]), (2, b'\x00\x01\x00\x00garbage'), (3, bytes(bad_rate)), (4, msgs[2])]
+    b = decode_batch(items, FORCE_FIELDS)
+    assert list(b.arrival_ns) == [1, 4] and list(b.seq) == [0, 2] and len(b.problems) == 2
+    assert 'sample_rate_hz 0.0' in b.problems[1]
+    assert np.array_equal(b.values['stationary_n'][1], np.arange(100.0, 150.0))
+    nan_msg = bytearray(msgs[0])
+    nan_msg[-8:] = np.float64(np.nan).tobytes()
+    assert decode_batch([(1, bytes(nan_msg))], FORCE_FIELDS).nan_samples == 1
+
+
+def test_params_name_the_value_and_the_range():
+    with pytest.raises(MonitorError, match=r'port 70000 is out of range; expected a value in \[0, 65535\]'):
+        MonitorParams(port=70000)
+    with pytest.raises(MonitorError, match="force_every 'x' is invalid"):
+        MonitorParams(force_every='x')
