@@ -55,6 +55,10 @@ def main(args) -> int:
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+    if not report['fitted_pulls']:   # the data-quality screen left too few pulls: the report says which and why
+        return _error(f'{report["causes"][0]["evidence"]["value"]} usable pulls after the data-quality screen; '
+                      f'expected at least {report["causes"][0]["evidence"]["threshold"]} '
+                      f'(why: {Path(args.out) / "report.md"})')
     names = ', '.join(c['name'] for c in report['causes']) or 'none'
     if report['gain'] is None:
         print(f'cause: {report["cause"]} (named: {names}); {report["notes"][0] if report["notes"] else ""}')

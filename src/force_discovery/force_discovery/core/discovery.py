@@ -30,6 +30,7 @@ nothing named gives `unexplained`.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -112,6 +113,10 @@ class Pull:
         return np.ones(i1 - i0, bool) if self.ok is None else self.ok[i0:i1]
 
 
+CAL_PULLS = 8                    # pulls whose stationary-cell free decay measures the cells' damping ratio
+CAL_RING_TO_NOISE = 10.0         # ... when its rms stands this many times above the quiet record's noise
+CAL_SAMPLES = 400                # ... over this many samples after the break (8 ms at 50 kHz)
+CAL_MIN_CHANGE = 0.25            # T is recomputed with the measured ratio when it departs from the rig's by this
 MASK_GROW_S = 0.5e-3             # masked spans grow by this much: the low-pass and the 2 ms Savitzky-Golay spread
 MIN_SAMPLES = 2000               # a pull record shorter than this is not a full record
 QUALITY_CHANNELS = ('force_stationary_n', 'force_moving_n', 'accel_axial_m_s2', 'encoder_position_m')
@@ -580,6 +585,50 @@ def _split(pulls: Sequence[Pull]):
     return fit, held
 
 
+def cell_damping_ratio(pulls: Sequence[Pull], idx: Sequence[int], rig) -> Optional[Tuple[float, int]]:
+    """(damping ratio, pulls used) of the load cells from the stationary cell's free decay after the break (lanyard
+    slack: m1 alone on its cell, one mode near sqrt(K_LC1/m1)), the median over up to CAL_PULLS of the pulls idx
+    whose ring stands CAL_RING_TO_NOISE x above the record's quiet noise; None if none does."""
+    fc = rig.force_chain
+    f1 = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m1) / (2 * np.pi)
+    zetas = []
+    for j in idx:
+        if len(zetas) >= CAL_PULLS:
+            break
+        p = pulls[j]
+        i0 = p.brk + int(round(2e-4 / p.dt))
+        seg = p.fs[i0:i0 + CAL_SAMPLES]
+        if len(seg) < CAL_SAMPLES // 2:
+            continue
+        seg = seg - np.mean(seg)
+        noise = float(np.std(p.fs[:max(10, p.pre1 // 4)]))
+        for f, z, e in matrix_pencil(seg, p.dt):
+            if abs(f / f1 - 1.0) < 0.3 and 0.0 < z < 0.5 and math.sqrt(e / len(seg)) > CAL_RING_TO_NOISE * noise:
+                zetas.append(z)
+                break
+    return (float(np.median(zetas)), len(zetas)) if zetas else None
+
+
+def calibrate_cells(pulls: Sequence[Pull], rig) -> Tuple[Sequence[Pull], Optional[dict]]:
+    """The cells' damping ratio measured on the pulls' free decay (cell_damping_ratio); when it departs from the
+    rig's by more than CAL_MIN_CHANGE (relative), every pull's T is recomputed with it (a1 from F_stat depends on the
+    stationary cell's damping: with a wrong one T rings wrongly at the cell mode). Returns (pulls, calibration or
+    None when nothing was measured)."""
+    fc = rig.force_chain
+    cal = cell_damping_ratio(pulls, range(len(pulls)), rig)
+    if cal is None:
+        return pulls, None
+    zeta, n = cal
+    used = abs(zeta / fc.load_cell_damping_ratio - 1.0) > CAL_MIN_CHANGE
+    out = {'rig_damping_ratio': fc.load_cell_damping_ratio, 'measured_damping_ratio': zeta, 'pulls': n,
+           'used_for_tension': used}
+    if not used:
+        return pulls, out
+    k1, m1 = fc.load_cell_stiffness_n_per_m, fc.m1
+    c1 = 2.0 * zeta * math.sqrt(k1 * m1)
+    return tuple(dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, m1, k1, c1)) for p in pulls), out
+
+
 @dataclass(frozen=True)
 class Analysis:
     """Everything the stages measured (no files, nothing decided yet)."""
@@ -595,6 +644,7 @@ class Analysis:
     notes: tuple = ()
     screens: tuple = ()          # quality.PullScreen per campaign pull (the data-quality stage)
     excluded: dict = field(default_factory=dict)   # pull name -> why the data-quality stage left it out
+    cells: Optional[dict] = None  # calibrate_cells(): the cells' damping ratio measured, and whether T used it
 
     @property
     def fitted_pulls(self) -> list:
@@ -734,6 +784,11 @@ def analyse(campaign_pulls, rig) -> Analysis:
     m2 = rig.force_chain.m2
     fit, held = _split(pulls)
     notes = []
+    pulls, cells = calibrate_cells(pulls, rig)
+    if cells and cells['used_for_tension']:
+        notes.append(f'the cells ring with damping ratio {cells["measured_damping_ratio"]:.4g} (free decay after the '
+                     f'break, {cells["pulls"]} pulls), not the rig\'s {cells["rig_damping_ratio"]:.4g}: T = F_stat + '
+                     f'm1 a1 uses the measured one')
     hum, hums = hum_stage(pulls, fit, held, m2)
     cand = {'mains_hum': hum}
     force_cand, force = force_stage(pulls, hums, fit, held, m2)
@@ -748,7 +803,8 @@ def analyse(campaign_pulls, rig) -> Analysis:
         notes.append('coulomb_friction not tested: the data has no motor_current_a channel')
     else:
         cand['coulomb_friction'] = friction
-    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens, excluded)
+    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens, excluded,
+                    cells)
 
 
 def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:

@@ -1,14 +1,20 @@
-"""discover(): the stages in order -- analyse, decide, check what is left, report."""
+"""discover(): the stages in order -- analyse, decide, check what is left, close the loop through the simulator,
+report."""
 from __future__ import annotations
 
 from pathlib import Path
 
+from force_tester_sim.core.departures import departures_from_data
+
 from . import report as R
 from .discovery import TERMS, analyse, decide, leftover
+from .errors import DiscoveryError
+from .resim import simulation_check
 
 
 def discover(campaign_pulls, rig, out_dir) -> dict:
-    """Analyse, decide, write DIR/report.json, report.md, extension.yaml (+ plots). Returns the report dict."""
+    """Analyse, decide, re-simulate the held-out pulls, write DIR/report.json, report.md, extension.yaml (+ plots).
+    Returns the report dict."""
     analysis = analyse(campaign_pulls, rig)
     decision = decide(analysis, rig)
     if not analysis.pulls:   # the data-quality stage left too few pulls: say so, name nothing
@@ -20,5 +26,13 @@ def discover(campaign_pulls, rig, out_dir) -> dict:
     left = leftover(analysis, tuple(dict.fromkeys(decision.named + TERMS)), rig)
     errors = R.force_errors(analysis, decision.named, rig)
     report = R.build_report(analysis, decision, errors, left, rig)
-    R.write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir))
+    # the loop closed: the held-out pulls re-simulated with the model of record and with the extension
+    check = None
+    try:
+        check = simulation_check(analysis.pulls, analysis.held, rig,
+                                 departures_from_data(R.extension(report, rig)['departures']))
+    except DiscoveryError as exc:
+        report['notes'].append(f'no simulation check: {exc}')
+    R.add_simulation(report, check)
+    R.write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir), check)
     return report

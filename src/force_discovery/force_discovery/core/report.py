@@ -169,6 +169,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
                            'tolerance': c['tolerance'], 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
+        'cell_damping': analysis.cells,
         'data_quality': quality_section(analysis),
         'notes': [*analysis.notes, *decision.notes],
     }
@@ -186,6 +187,13 @@ def quality_section(analysis: D.Analysis) -> list:
     return rows
 
 
+def add_simulation(report: dict, check) -> None:
+    """report.json simulation: {channel: {baseline_rms, extended_rms, gain}} from the re-simulation of the held-out
+    pulls (None when no pull could be re-simulated), and simulation_check: how (pulls, ring frequency, damping)."""
+    report['simulation'] = None if check is None else _clean(check.as_dict())
+    report['simulation_check'] = None if check is None else _clean(check.details())
+
+
 def unusable_report(analysis: D.Analysis, rig) -> dict:
     """The report when the data-quality stage leaves too few pulls: unexplained, data_quality says why."""
     return _clean({
@@ -196,6 +204,7 @@ def unusable_report(analysis: D.Analysis, rig) -> dict:
                                  'rule': 'defects leave too few pulls to fit and hold out; see data_quality'}}],
         'baseline_error': None, 'extended_error': None, 'gain': None, 'metric': 'none: no pulls to score',
         'within_tolerance': [], 'inconclusive': [], 'candidates': {}, 'leftover': None,
+        'simulation': None, 'simulation_check': None,
         'tolerances': dataclasses.asdict(rig.tolerances), 'fitted_pulls': [], 'held_out_pulls': [],
         'data_quality': quality_section(analysis), 'notes': list(analysis.notes)})
 
@@ -258,8 +267,9 @@ def extension(report, rig) -> dict:
     return out
 
 
-def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path) -> None:
-    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']).
+def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path, check=None) -> None:
+    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
+    simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png.
 
     Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
     leaves a half-written report."""
@@ -278,7 +288,7 @@ def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: 
                 'up with a2, then subtract\n# mass_kg * a2). assumptions: what a mapping to the sim needed that the '
                 'data do not identify.\n')
         (stage / 'extension.yaml').write_text(head + yaml.safe_dump(_clean(ext), sort_keys=False))
-        plots = _plots(analysis, errors, named, rig, stage)
+        plots = _plots(analysis, errors, named, rig, stage) + _simulation_plot(check, stage)
         report['plots'] = [str(out / Path(q).name) for q in plots]
         (stage / 'report.json').write_text(json.dumps(report, indent=1))
         (stage / 'report.md').write_text(markdown(report, report['plots'], analysis.screens, analysis.excluded))
@@ -352,6 +362,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
         L.append(f'- note: {note}')
     L += [''] + Q.markdown_lines(screens, excluded)
     L += ['## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
+    L += simulation_lines(r)
     if r.get('leftover'):
         lo = r['leftover']
         L += ['## Residual left after the extension', '',
@@ -363,6 +374,74 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
     else:
         L += ['(matplotlib not importable: no plots)']
     return '\n'.join(L) + '\n'
+
+
+CHANNEL_LABELS = {'force_moving_n': ('moving cell', 'N'), 'force_stationary_n': ('stationary cell', 'N'),
+                  'accel_axial_m_s2': ('accelerometer', 'm/s^2'), 'motor_current_a': ('motor current', 'A')}
+
+
+def simulation_lines(r) -> list:
+    """report.md: the simulator with and without the extension, against the measured held-out pulls."""
+    sim, how = r.get('simulation'), r.get('simulation_check')
+    L = ['## Closing the loop: the simulator with and without the extension', '']
+    if not sim:
+        return L + ['(no simulation check: see the notes)', '']
+    L += [f'Each of the {len(how["pulls"])} held-out pulls re-simulated twice, driven by its measured carriage '
+          'motion with its own slack, lanyard stiffness and coupon break fitted from its measured tension: with the '
+          'model of record (baseline) and with the model of record plus extension.yaml (extended). RMS of measured '
+          'minus simulated over the analysis window, after the discovery low-pass; gain = baseline / extended.', '',
+          '| channel | baseline RMS | extended RMS | gain |', '|---|---|---|---|']
+    for ch, v in sim.items():
+        name, unit = CHANNEL_LABELS.get(ch, (ch, ''))
+        L.append(f'| {name} | {v["baseline_rms"]:.4g} {unit} | {v["extended_rms"]:.4g} {unit} | '
+                 + ('inf' if v['gain'] is None else f'{v["gain"]:.3g}') + 'x |')
+    ring = how.get('ring')
+    if ring:
+        L += ['', (f'Mount ringing: measured {_num(ring["measured_hz"])} Hz, extended sim '
+                   f'{_num(ring["extended_sim_hz"])} Hz ({100 * ring["rel_error"]:.2f} % off; tolerance '
+                   f'{100 * ring["tolerance"]:g} %: {"met" if ring["within_tolerance"] else "NOT met"}).')
+              if ring['measured_hz'] else 'Mount ringing: no free decay to compare.']
+    cd = how.get('cell_damping') or {}
+    if cd.get('pulls'):
+        L += ['', f'Both sims use the cells\' damping ratio measured on {cd["pulls"]} pulls\' free decay, '
+                  f'{cd["used"]:.4g} (the rig says {cd["rig"]:.4g}).']
+    if how.get('skipped'):
+        L += ['', 'Not re-simulated: ' + '; '.join(f'{k}: {v}' for k, v in how['skipped'].items())]
+    return L + ['']
+
+
+def _simulation_plot(check, out: Path) -> list:
+    """simulation.png: measured, nominal-sim and extended-sim channels of one held-out pull, from the load to
+    30 ms after the break."""
+    if check is None or not check.trace:
+        return []
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    tr = check.trace
+    chans = [ch for ch in CHANNEL_LABELS if ch in tr]
+    t = tr['t']
+    lo, hi = tr['focus_s']
+    sel = (t >= lo) & (t <= hi)
+    fig, axes = plt.subplots(len(chans), 1, figsize=(8, 2.2 * len(chans)), sharex=True, squeeze=False)
+    for ax, ch in zip(axes[:, 0], chans):
+        name, unit = CHANNEL_LABELS[ch]
+        for kind, style in (('measured', dict(color='k', lw=0.8)), ('baseline', dict(color='tab:blue', lw=0.6)),
+                            ('extended', dict(color='tab:orange', lw=0.6, ls='--'))):
+            label = {'baseline': 'sim, model of record', 'extended': 'sim, with extension'}.get(kind, kind)
+            ax.plot(1e3 * (t[sel] - lo), tr[ch][kind][sel], label=label, **style)
+        ax.set_ylabel(f'{name}, {unit}')
+    axes[0, 0].legend(fontsize=7)
+    axes[0, 0].set_title(f'held-out pull {tr["pull"]}: measured and re-simulated')
+    axes[-1, 0].set_xlabel('ms from 5 ms before the load')
+    fig.tight_layout()
+    path = out / 'simulation.png'
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return [str(path)]
 
 
 def _plots(analysis: D.Analysis, errors: tuple, named, rig, out: Path):

@@ -39,7 +39,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, Optional, Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -57,6 +57,7 @@ from .discovery import (
     STILL_M_S,
     Pull,
     _filtered,
+    cell_damping_ratio,
     drive_force_balance,
     hum_per_pull,
     matrix_pencil,
@@ -74,8 +75,6 @@ BREAK_MARGIN_N = 0.05      # the calibrated break force stays this far off an F_
 DYNAMIC_PASSES = 2         # defect-correction passes of the per-pull fit (fit_pull_quantities)
 RING_SAMPLES = 400         # free-decay samples for the ring frequency (8 ms; a longer matrix pencil is slow)
 RING_PULLS = 6             # ring frequencies compared on at most this many pulls (matrix pencils are slow)
-CAL_PULLS = 8              # pulls whose stationary-cell free decay calibrates the cells' damping ratio
-CAL_RING_TO_NOISE = 10.0   # ... when its rms stands this many times above the quiet record's noise
 SATURATION_SHARE = 0.98    # measured force samples beyond this share of the cells' range are not compared
 RING_TOLERANCE = 0.02      # the extended sim rings at the measured frequency within 2 %
 
@@ -332,30 +331,6 @@ def ring_mode(pull: Pull, a2: np.ndarray, f_max: float) -> Optional[tuple]:
         return None
     modes = [m for m in matrix_pencil(seg[:RING_SAMPLES], pull.dt) if 100.0 < m[0] < f_max and 0 < m[1] < 0.5]
     return (modes[0][0], modes[0][1]) if modes else None
-
-
-def cell_damping_ratio(pulls: Sequence[Pull], idx: Sequence[int], rig) -> Optional[Tuple[float, int]]:
-    """(damping ratio, pulls used) of the load cells from the stationary cell's free decay after the break (lanyard
-    slack: m1 alone on its cell, one mode near sqrt(K_LC1/m1)), the median over up to CAL_PULLS of the pulls idx
-    whose ring stands CAL_RING_TO_NOISE x above the record's quiet noise; None if none does."""
-    fc = rig.force_chain
-    f1 = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m1) / (2 * np.pi)
-    zetas = []
-    for j in idx:
-        if len(zetas) >= CAL_PULLS:
-            break
-        p = pulls[j]
-        i0 = p.brk + int(round(2e-4 / p.dt))
-        seg = p.fs[i0:i0 + RING_SAMPLES]
-        if len(seg) < RING_SAMPLES // 2:
-            continue
-        seg = seg - np.mean(seg)
-        noise = float(np.std(p.fs[:max(10, p.pre1 // 4)]))
-        for f, z, e in matrix_pencil(seg, p.dt):
-            if abs(f / f1 - 1.0) < 0.3 and 0.0 < z < 0.5 and math.sqrt(e / len(seg)) > CAL_RING_TO_NOISE * noise:
-                zetas.append(z)
-                break
-    return (float(np.median(zetas)), len(zetas)) if zetas else None
 
 
 @dataclass(frozen=True)
