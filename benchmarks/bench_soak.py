@@ -95,6 +95,16 @@ def rss_all(graph: Graph) -> dict:
     return out
 
 
+def published_counts(c: Counters) -> dict:
+    """Messages published per topic, from the publishers' own counters."""
+    out = {topic: c.value('sim', 'blocks_per_topic') for topic, _ in BLOCK_TYPES.values()}
+    out[PULL_EVENT_TOPIC] = 2 * c.value('sim', 'pulls')
+    out[CORRECTED_TYPE[1][0]] = c.value('correction', 'pairs')
+    out[PULL_SCORE_TOPIC] = c.value('validator', 'scores')
+    out[SET_SUMMARY_TOPIC] = sum(1 for s in c.scores if s['status'] == PULL_OK)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(prog='./ft bench soak', description=__doc__.splitlines()[0])
     ap.add_argument('--seconds', type=float, default=600.0, help='length of the run, s of data (default 600)')
@@ -116,7 +126,7 @@ def main() -> int:
     bag = out / 'bag'
     graph = Graph(out / 'logs')
     c = Counters()
-    rss_start = rss_end = None
+    rss_start = rss_end = rss_max = None
     t0 = time.monotonic()
     try:
         graph.start('force_correction', 'correction_node')
@@ -132,16 +142,24 @@ def main() -> int:
         if not c.wait(1, 120, alive=lambda: not graph.dead()):
             raise SystemExit(f'soak: no pull scored within 120 s:\n{graph.tail((graph.dead() or ["sim_node"])[0])}')
         rss_start = rss_all(graph)
+        rss_max = dict(rss_start)
         deadline = time.monotonic() + pulls * PULL_S / args.rate * 1.5 + 120
         last_note = time.monotonic()
         while len(c.scores) < pulls and time.monotonic() < deadline and not graph.dead():
             c.wait(len(c.scores) + 1, 5)
+            now = rss_all(graph)
+            rss_max = {k: max(v, now[k]) for k, v in rss_max.items()}
             if time.monotonic() - last_note > 60:
                 last_note = time.monotonic()
-                print(f'soak: {len(c.scores)}/{pulls} pulls scored, RSS {rss_all(graph)} kB',
-                      file=sys.stderr, flush=True)
-        caught_up = c.wait_recorder_caught_up(timeout=60)
-        c.spin(2.5)  # one more heartbeat of every node, with the final counters
+                print(f'soak: {len(c.scores)}/{pulls} pulls scored, RSS {now} kB', file=sys.stderr, flush=True)
+        # the recorder has caught up when it has written every message published
+        deadline = time.monotonic() + 120
+        caught_up = False
+        while time.monotonic() < deadline and not caught_up:
+            c.spin(0.5)
+            caught_up = (c.value('sim', 'pulls') == pulls
+                         and c.value('recorder', 'messages') >= sum(published_counts(c).values()))
+        c.spin(1.5)  # one more heartbeat of every node, with the final counters
         rss_end = rss_all(graph)
     finally:
         codes = graph.stop()
@@ -149,13 +167,8 @@ def main() -> int:
     took = time.monotonic() - t0
     info = bag_info(bag)
     topics = info['topics']
-    blocks = c.value('sim', 'blocks_per_topic')
     ok_pulls = sum(1 for s in c.scores if s['status'] == PULL_OK)
-    published = {topic: blocks for topic, _ in BLOCK_TYPES.values()}
-    published[PULL_EVENT_TOPIC] = 2 * c.value('sim', 'pulls')
-    published[CORRECTED_TYPE[1][0]] = c.value('correction', 'pairs')
-    published[PULL_SCORE_TOPIC] = c.value('validator', 'scores')
-    published[SET_SUMMARY_TOPIC] = ok_pulls
+    published = published_counts(c)
     rows, equal = [], True
     for topic, n in published.items():
         got = topics.get(topic, {}).get('count', 0)
@@ -171,10 +184,11 @@ def main() -> int:
     print(f"{'topic':<18} {'published':>10} {'in bag':>10} {'seq gaps':>9}")
     for topic, n, got, g in rows:
         print(f'{topic:<18} {n:>10} {got:>10} {g!s:>9}{"" if n == got else "   DIFFERENT"}')
-    print(f"\n{'node RSS, MB':<18} {'start':>8} {'end':>8} {'change':>8}")
+    print(f"\n{'node RSS, MB':<18} {'start':>8} {'end':>8} {'change':>8} {'max':>8}")
     for name in rss_start:
-        a, b = rss_start[name] / 1024, rss_end[name] / 1024
-        print(f'{name:<18} {a:>8.1f} {b:>8.1f} {b - a:>+8.1f}')
+        a, b, m = rss_start[name] / 1024, rss_end[name] / 1024, rss_max[name] / 1024
+        note = '  (its pulls done)' if name == 'sim worker' else ''
+        print(f'{name:<18} {a:>8.1f} {b:>8.1f} {b - a:>+8.1f} {m:>8.1f}{note}')
     print(f'\ndropped blocks: {dropped_scores} (validator), {gaps} (seq gaps in the bag)')
     chunk_ms = CHUNK_BYTES / rate_bps * 1e3 if rate_bps else float('nan')
     print(f'bag: {size / 1e6:.0f} MB, {info["message_count"]} messages over {info["duration_s"]:.0f} s: '
@@ -183,7 +197,8 @@ def main() -> int:
           f'{min(chunk_ms, FLUSH_S * 1e3):.0f} ms at this rate')
     result = {'seconds': args.seconds, 'pulls': pulls, 'scored': len(c.scores), 'ok': ok_pulls,
               'published': published, 'in_bag': {t: topics.get(t, {}).get('count', 0) for t in published},
-              'rss_start_kb': rss_start, 'rss_end_kb': rss_end, 'dropped_blocks_validator': dropped_scores,
+              'rss_start_kb': rss_start, 'rss_end_kb': rss_end, 'rss_max_kb': rss_max,
+              'dropped_blocks_validator': dropped_scores,
               'seq_gaps': gaps, 'bag_bytes': size, 'bag_messages': info['message_count'],
               'bytes_per_s': rate_bps, 'bytes_per_message': per_msg, 'wall_s': took}
     if args.json:
