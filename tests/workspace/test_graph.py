@@ -16,11 +16,19 @@ from ft_cli.paths import executable
 pytestmark = pytest.mark.slow
 
 
+# the demo's extension column, wired with a hand-written extension (what discover finds is tested in
+# force_discovery; here: the second correction + validator pair runs live and equals offline correct with it)
+EXTENSION = {'correction': {'mass_kg': 1.3, 'moving_cell_gain': 1.015, 'accel_delay_s': 4e-5}}
+
+
 @pytest.fixture(scope='module')
 def live(tmp_path_factory, module_ros_domain):
+    import yaml
     out = tmp_path_factory.mktemp('demo')
+    (out / 'extension.yaml').write_text(yaml.safe_dump(EXTENSION))
     # the truth reference rig: it departs from the datasheet like the thesis's real rig did
-    scores = demo.run_live(out, sets=[1, 2, 3, 4, 5], pulls=1, seed=3, rate=1.0, timeout=180, rig='truth')
+    scores = demo.run_live(out, sets=[1, 2, 3, 4, 5], pulls=1, seed=3, rate=1.0, timeout=180, rig='truth',
+                           extension=out / 'extension.yaml')
     return out, scores
 
 
@@ -162,3 +170,21 @@ def test_player_rejects_a_bad_bag_with_one_line(live, tmp_path, make_bad):
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and 'error' in lines[0] and str(bad) in lines[0], res.stderr
+
+
+def test_the_extension_pair_scores_every_pull_as_offline_correct_with_the_extension(live, tmp_path):
+    """The demo's extension column: a second correction (extension_file) and validator, remapped under
+    /extension, score every pull live exactly as `./ft bag correct --extension` does on the recorded bag,
+    and the table shows it."""
+    from force_correction.offline import CorrectionSetup, correct
+    out, scores = live
+    assert all(s['extension'] and s['extension']['pull_id'] == s['pull_id'] for s in scores), scores
+    res = correct(out / 'bag', tmp_path / 'ext', CorrectionSetup.build(extension_file=out / 'extension.yaml'))
+    by_id = {p['pull_id']: p for p in res.as_dict()['pulls']}
+    for s in scores:
+        for k in ('raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct'):
+            assert abs(by_id[s['pull_id']][k] - s['extension'][k]) <= 1e-9, (k, s)
+    # the two pairs corrected differently, and the table has the column
+    assert any(abs(s['extension']['corrected_diff_pct'] - s['corrected_diff_pct']) > 0.1 for s in scores)
+    table = demo.format_table(scores)
+    assert 'ext + m*a' in table and 'diff ext' in table

@@ -16,6 +16,11 @@ SCORE_KEYS = ('pull_id', 'test_set', *PULL_SCORE_FIELDS, 'dropped_blocks')
 STATUS_KEYS = ('status', 'detail')  # how far to trust a score, and why
 
 
+def score_dict(msg) -> dict:
+    """A PullScore message as a dict of SCORE_KEYS and STATUS_KEYS."""
+    return {k: getattr(msg, k) for k in (*SCORE_KEYS, *STATUS_KEYS)}
+
+
 def ros_param_args(params: dict) -> list:
     out = ['--ros-args']
     for k, v in params.items():
@@ -33,12 +38,16 @@ class Graph:
         log_dir.mkdir(parents=True, exist_ok=True)
         self.procs = {}
 
-    def start(self, package: str, name: str, params: dict | None = None, extra: list | None = None):
+    def start(self, package: str, name: str, params: dict | None = None, extra: list | None = None,
+              key: str | None = None):
+        """Start executable ``name``; ``key`` (default: name) names the process and its log, for a second
+        instance of one executable."""
         exe = executable(package, name)
-        log = open(self.log_dir / f'{name}.log', 'a')  # a restarted node's log follows the first one's
+        key = key or name
+        log = open(self.log_dir / f'{key}.log', 'a')  # a restarted node's log follows the first one's
         cmd = [str(exe), *(extra or []), *ros_param_args(params or {})]
-        self.procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-        return self.procs[name]
+        self.procs[key] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        return self.procs[key]
 
     def dead(self) -> list:
         return [n for n, p in self.procs.items() if p.poll() not in (None, 0)]
@@ -65,7 +74,8 @@ class Graph:
 class ScoreCollector:
     """An rclpy node in this process that keeps every /pull_score message as a dict."""
 
-    def __init__(self):
+    def __init__(self, also: tuple = ()):
+        """also: more PullScore topics to keep (in ``also_scores[topic]``)."""
         import rclpy
         from force_tester_msgs.msg import PullScore
         from rclpy.executors import SingleThreadedExecutor
@@ -76,6 +86,10 @@ class ScoreCollector:
         self.scores = []
         self.recorded = []  # (time, {key: value}) from the recorder's progress reports
         self.node.create_subscription(PullScore, PULL_SCORE_TOPIC, self._on_score, SCORE_QOS)
+        self.also_scores = {topic: [] for topic in also}
+        for topic, kept in self.also_scores.items():
+            self.node.create_subscription(PullScore, topic, lambda msg, kept=kept: kept.append(score_dict(msg)),
+                                          SCORE_QOS)
         from diagnostic_msgs.msg import DiagnosticArray
 
         from force_tester_common.ros import EVENT_QOS
@@ -94,7 +108,7 @@ class ScoreCollector:
         return False
 
     def _on_score(self, msg):
-        self.scores.append({k: getattr(msg, k) for k in (*SCORE_KEYS, *STATUS_KEYS)})
+        self.scores.append(score_dict(msg))
 
     def _on_diagnostics(self, msg):
         for status in msg.status:
@@ -120,13 +134,17 @@ class ScoreCollector:
         return False
 
     def wait(self, n: int, timeout: float, alive=lambda: True, progress=None) -> bool:
+        """Wait until n scores arrived on /pull_score and on every ``also`` topic."""
         deadline = time.monotonic() + timeout
-        while len(self.scores) < n and time.monotonic() < deadline and alive():
+
+        def short():
+            return len(self.scores) < n or any(len(s) < n for s in self.also_scores.values())
+        while short() and time.monotonic() < deadline and alive():
             before = len(self.scores)
             self.executor.spin_once(timeout_sec=0.1)
             if progress and len(self.scores) > before:
                 progress(self.scores[-1])
-        return len(self.scores) >= n
+        return not short()
 
     def close(self):
         import rclpy

@@ -65,6 +65,30 @@ def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) ->
     return folder
 
 
+def reference_extension(pulls: int, seed: int, say=print, cache: Path = CACHE) -> Path:
+    """extension.yaml that `./ft discover` finds on the reference campaign, discovered on first use and cached
+    beside the campaign (keyed by the campaign and the discovery code)."""
+    import force_discovery.core as core
+    from bag_tools.core.daq import read_campaign
+    from force_discovery.core.pipeline import discover
+    from force_tester_sim.core.params import load_rig
+    folder = reference_campaign(pulls, seed, say, cache)
+    h = hashlib.sha256(folder.name.encode())
+    for src in sorted(Path(core.__file__).parent.glob('*.py')):
+        h.update(src.read_bytes())
+    out = cache / f'reference_discovery_{h.hexdigest()[:16]}'
+    if (out / 'extension.yaml').is_file():
+        return out / 'extension.yaml'
+    say(f'discovering what the model of record gets wrong on {folder.name} (./ft discover; about two minutes, '
+        f'once) ...')
+    t0 = time.monotonic()
+    for old in cache.glob('reference_discovery_*'):   # stale: another campaign or older discovery code
+        shutil.rmtree(old, ignore_errors=True)
+    report = discover([(p.meta, p.channels) for p in read_campaign(folder).pulls], load_rig(), out)
+    say(f'  done in {time.monotonic() - t0:.1f} s: {", ".join(c["name"] for c in report["causes"]) or "none"}')
+    return out / 'extension.yaml'
+
+
 def plot_top_speed(result: dict, path) -> bool:
     """Save velocity, current and power vs time as a PNG. ``result``: a top_speed_study dict or a
     simulate_drive dict. Returns False (and writes nothing) when matplotlib is not importable."""
