@@ -246,7 +246,7 @@ def test_truncated_and_metadata_less_bags(tmp_path, camp):
     assert not (tmp_path / 'c').exists()
     assert no_partials(tmp_path) == []
     (bag / 'metadata.yaml').unlink()
-    with pytest.raises(BagError, match='has no metadata.yaml.*unfinished recording'):
+    with pytest.raises(BagError, match='needs a reindex: run ./ft bag reindex.*no metadata.yaml'):
         bag_to_campaign(bag, tmp_path / 'c')
 
 
