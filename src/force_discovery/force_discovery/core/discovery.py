@@ -905,16 +905,20 @@ def leftover(analysis: Analysis, named, rig) -> Optional[dict]:
     vw, vq, spec, corr = [], [], None, {}
     for j in held:
         p = pulls[j]
-        r = _band(fm_.resid(terms, coef, d, j), p.dt)
-        keep = np.ones(len(r), bool)     # the break's and the elastic rise's fast steps alias: left out
+        ok = p.usable(p.w0, p.w1)
+        # masked (repaired) samples are zeroed before the band limit: a repaired span's residual would otherwise
+        # ring through the brick-wall filter into the samples kept
+        r = _band(np.where(ok, fm_.resid(terms, coef, d, j), 0.0), p.dt)
+        keep = ok.copy()     # the break's and the elastic rise's fast steps alias: left out
         g = int(3e-3 / p.dt)
         for i in (p.brk - p.w0, p.load0 - p.w0):
             keep[max(0, i - g):max(0, i + g)] = False
-        keep &= p.usable(p.w0, p.w1)
         pre = (p.fm - (hums[j] if hums is not None else 0) - p.T - rig.force_chain.m2 * p.a2)
         k = np.arange(len(pre))
-        rest = (k > int(0.02 / p.dt)) & (k < p.pre1) & (np.abs(p.v3) < 1e-3)   # quiet floor: carriage at rest
-        pre = pre[rest] if rest.sum() >= 2000 else pre[int(0.02 / p.dt):p.pre1]
+        usable = p.usable()
+        quiet = (k > int(0.02 / p.dt)) & (k < p.pre1) & usable   # the pre-pull record, defects left out ...
+        rest = quiet & (np.abs(p.v3) < 1e-3)                       # ... with the carriage at rest: the floor
+        pre = pre[rest] if rest.sum() >= 2000 else pre[quiet]
         pre = _band(pre - np.mean(pre), p.dt)
         vw.append(float(np.var(r[keep])))
         vq.append(float(np.var(pre)))
