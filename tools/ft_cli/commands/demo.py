@@ -101,7 +101,7 @@ def resolve_extension(choice: str, say=print) -> Path | None:
         return None
     if choice == 'auto':
         from .thesis import reference_extension
-        return reference_extension(20, 2013, say)
+        return reference_extension(say=say)
     path = Path(choice)
     if not path.is_file():
         raise RuntimeError(f'--extension {choice!r} is not a file; expected auto, none or an extension.yaml')

@@ -21,14 +21,18 @@ from ..paths import RUNS
 NAME = 'thesis'
 HELP = "the thesis's top-speed predictions and Tables 7-9 beside ours (--json FILE for the figures)"
 CACHE = RUNS / 'cache'
+REFERENCE_PULLS = 20     # the reference campaign: pulls per set ...
+REFERENCE_SEED = 2013    # ... and its seed
 
 
 def add_arguments(p):
     p.add_argument('--json', metavar='FILE', help='also write the figures as JSON')
     p.add_argument('--plots', metavar='DIR', default=str(RUNS / 'thesis'),
                    help='folder for the PNG plots (default runs/thesis)')
-    p.add_argument('--pulls', type=int, default=20, help='pulls per set in the reference campaign (default 20)')
-    p.add_argument('--seed', type=int, default=2013, help='seed of the reference campaign (default 2013)')
+    p.add_argument('--pulls', type=int, default=REFERENCE_PULLS,
+                   help=f'pulls per set in the reference campaign (default {REFERENCE_PULLS})')
+    p.add_argument('--seed', type=int, default=REFERENCE_SEED,
+                   help=f'seed of the reference campaign (default {REFERENCE_SEED})')
     p.add_argument('--no-campaign', action='store_true', help='skip the reference campaign (Tables 7-9)')
     p.add_argument('--cache', metavar='DIR', default=str(CACHE),
                    help='where the reference campaign is cached (default runs/cache)')
@@ -65,7 +69,8 @@ def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) ->
     return folder
 
 
-def reference_extension(pulls: int, seed: int, say=print, cache: Path = CACHE) -> Path:
+def reference_extension(pulls: int = REFERENCE_PULLS, seed: int = REFERENCE_SEED, say=print,
+                        cache: Path = CACHE) -> Path:
     """extension.yaml that `./ft discover` finds on the reference campaign, discovered on first use and cached
     beside the campaign (keyed by the campaign and the discovery code)."""
     import force_discovery.core as core

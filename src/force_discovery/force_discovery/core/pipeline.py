@@ -27,12 +27,12 @@ def discover(campaign_pulls, rig, out_dir) -> dict:
     errors = R.force_errors(analysis, decision.named, rig)
     report = R.build_report(analysis, decision, errors, left, rig)
     # the loop closed: the held-out pulls re-simulated with the model of record and with the extension
+    ext = R.extension(report, rig)
     check = None
     try:
-        check = simulation_check(analysis.pulls, analysis.held, rig,
-                                 departures_from_data(R.extension(report, rig)['departures']))
+        check = simulation_check(analysis.pulls, analysis.held, rig, departures_from_data(ext['departures']))
     except DiscoveryError as exc:
         report['notes'].append(f'no simulation check: {exc}')
     R.add_simulation(report, check)
-    R.write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir), check)
+    R.write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir), check, ext)
     return report

@@ -267,9 +267,11 @@ def extension(report, rig) -> dict:
     return out
 
 
-def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path, check=None) -> None:
+def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path, check=None,
+                  ext: dict | None = None) -> None:
     """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
-    simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png.
+    simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png; ext: extension()
+    of the report when the caller has it already.
 
     Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
     leaves a half-written report."""
@@ -280,7 +282,7 @@ def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: 
     out.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
     try:
-        ext = extension(report, rig)
+        ext = extension(report, rig) if ext is None else ext
         head = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig '
                 'YAML,\n# reproduces the behaviour with load_rig; the correction section is what the correction node '
                 'can undo\n# (the correction node and `./ft bag correct --extension` divide F_move by '
