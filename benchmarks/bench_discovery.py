@@ -90,10 +90,11 @@ def main() -> int:
           f'{a.false_trials} = {100 * fa / a.false_trials:.0f} % (target <= 5 %)')
     print(f'time: simulation {t_sim:.1f} s, analysis {t_an:.1f} s (catalog trials)')
     if not a.skip_timing:
+        from force_tester_common.engine import map_pulls
         from force_tester_sim.core.campaign import generate_campaign
         rig_t = G.rig_with({'effective_mass': {'mass_kg': 1.3}})
         t0 = time.perf_counter()
-        camp = generate_campaign(rig_t, pulls=20, seed=7, workers=2)
+        camp = generate_campaign(rig_t, pulls=20, seed=7, mapper=map_pulls)
         t1 = time.perf_counter()
         rep = discover(camp, rig, tmp / 'timing')
         t2 = time.perf_counter()

@@ -140,10 +140,11 @@ def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
     import force_tester_sim.core as sim_core
     from bag_tools.core.daq import write_campaign
     from force_correction.offline import CorrectionSetup, correct
+    from force_tester_common.engine import map_pulls
     from force_tester_sim.core.campaign import generate_campaign
     truth_yaml = Path(sim_core.__file__).parents[1] / 'config' / 'truth_reference.yaml'
     truth = load_rig(truth_yaml)
-    camp = generate_campaign(truth, pulls=4, seed=2013, workers=2)
+    camp = generate_campaign(truth, pulls=4, seed=2013, mapper=map_pulls)
     folder = tmp_path / 'campaign'
     write_campaign(folder, camp)
     report = discover(camp, load_rig(), tmp_path / 'out')   # the code sees the data and the nominal rig only

@@ -36,7 +36,7 @@ def clean():
     """One nominal pull per test set and one per set from the reference 'truth' rig (mount resonance,
     delays, hum ...): the rig's own sharp events in every variety the simulation makes."""
     camp = make_campaign(None, seed=12, sets=SETS, pulls=1)
-    truth = generate_campaign(load_rig(TRUTH_YAML), sets=list(SETS), pulls=1, seed=1212, workers=1)
+    truth = generate_campaign(load_rig(TRUTH_YAML), sets=list(SETS), pulls=1, seed=1212)
     return camp + [(dict(m, file='truth_' + m['file']), ch) for m, ch in truth]
 
 

@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from force_correction.core.campaign_stats import campaign_tables, format_tables
+from force_tester_common.engine import map_pulls
 from force_tester_sim.core import (
     SimError,
     integrate_chain,
@@ -236,7 +237,7 @@ def test_coulomb_friction_current_offset(nominal, base_pull):
 @pytest.fixture(scope='module')
 def small_campaign(truth):
     t0 = time.time()
-    camp = generate_campaign(truth, (1, 2, 3, 4, 5), 4, 0, workers=2)
+    camp = generate_campaign(truth, (1, 2, 3, 4, 5), 4, 0, mapper=map_pulls)
     return camp, time.time() - t0
 
 
@@ -278,21 +279,21 @@ def test_truth_campaign_correction_errors_same_order(small_campaign):
 
 def test_nominal_rig_does_not_reproduce_table7(nominal):
     """Sanity: the nominal rig's moving cell reads like the stationary one and a2 stays small."""
-    tables = campaign_tables(generate_campaign(nominal, (3,), 2, 0, workers=1))
+    tables = campaign_tables(generate_campaign(nominal, (3,), 2, 0))
     assert tables[0]['raw_diff_pct'] < 2.0 and tables[0]['a2_max_g'] < 0.5 * 330.0
 
 
 def test_generation_is_deterministic(truth):
-    a = generate_campaign(truth, (2, 4), 2, 7, workers=1)
-    b = generate_campaign(truth, (2, 4), 2, 7, workers=2)
+    a = generate_campaign(truth, (2, 4), 2, 7)                    # here, one pull after the other
+    b = generate_campaign(truth, (2, 4), 2, 7, mapper=map_pulls)  # on the embedded Dask cluster's workers
     assert [m for m, _ in a] == [m for m, _ in b]
     for (_, ca), (_, cb) in zip(a, b):
         for k in ca:
             assert np.array_equal(ca[k], cb[k]), k
-    c = generate_campaign(truth, (2,), 1, 8, workers=1)
+    c = generate_campaign(truth, (2,), 1, 8)
     assert not np.array_equal(c[0][1]['force_stationary_n'], a[0][1]['force_stationary_n'])
     # the pulls of a set do not depend on which other sets are generated
-    assert a[0][0] == generate_campaign(truth, (2,), 2, 7, workers=1)[0][0]
+    assert a[0][0] == generate_campaign(truth, (2,), 2, 7)[0][0]
 
 
 def test_truth_specs_follow_measured_levels(truth):
@@ -308,7 +309,7 @@ def test_truth_specs_follow_measured_levels(truth):
 @pytest.mark.slow
 def test_full_truth_campaign_100_pulls(truth):
     t0 = time.time()
-    camp = generate_campaign(truth, (1, 2, 3, 4, 5), 20, 0, workers=2)
+    camp = generate_campaign(truth, (1, 2, 3, 4, 5), 20, 0, mapper=map_pulls)
     elapsed = time.time() - t0
     assert elapsed < 60.0
     thesis8 = {1: 1.5, 2: 12.8, 3: 5.4, 4: 11.1, 5: 32.0}

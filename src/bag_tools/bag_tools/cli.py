@@ -3,8 +3,9 @@
 bag_tools holds the I/O commands; `correct` and `plot` come from force_correction (see
 build_parser). Every failure ends with one line on stderr, `./ft bag CMD: error: ...`, of at
 most MAX_LINE characters (`./ft bag --verbose CMD ...` prints it whole), and a non-zero exit
-code (2 for bad input, 1 for an I/O failure or an internal error, 130 for Ctrl-C); never a
-traceback.
+code (2 for bad input, an unreachable --scheduler included, 1 for an I/O failure or an internal
+error, 130 for Ctrl-C); never a traceback. import (and correct) on a campaign whose pull files
+partly fail to read write the rest, name each failed pull in a warning and exit 2.
 """
 from __future__ import annotations
 
@@ -126,20 +127,38 @@ def cmd_reindex(args) -> int:
     return 0
 
 
+def engine_for(args):
+    """The per-pull mapper of a command with --scheduler; a bad address fails here, before any work."""
+    from force_tester_common.engine import Mapper, check_scheduler
+    check_scheduler(args.scheduler)
+    return Mapper(args.scheduler)
+
+
+def report_engine(cmd: str, mapper, failed=()) -> int:
+    """Warn of the pulls rerun after a worker died; the failed pulls (named in the warnings before)
+    make exit code 2 with one error line."""
+    warn(cmd, [f'pull {n!r} was run again: its worker died ({mapper.where})' for n in mapper.retried])
+    if failed:
+        print(shorten(f'{len(failed)} pull(s) failed and were left out (warnings above); first: '
+                      f'{failed[0][0]}: {failed[0][1]}', f'./ft bag {cmd}: error: '), file=sys.stderr)
+        return 2
+    return 0
+
+
 def cmd_export(args) -> int:
     from .core.convert import bag_to_campaign
+    from .core.daq import campaign_index
+    mapper = engine_for(args)
     warnings: list = []
     prog = Progress('export')
     try:
-        out = bag_to_campaign(args.bag, args.dir, progress=prog, warnings=warnings,
-                              workers=args.jobs)
+        out = bag_to_campaign(args.bag, args.dir, progress=prog, warnings=warnings, mapper=mapper)
     finally:
         prog.close()
         warn('export', warnings)
-    from .core.daq import read_campaign
-    camp = read_campaign(out)
-    print(f'exported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz to {out}')
-    return 0
+    _path, rate, _rig, entries = campaign_index(out)
+    print(f'exported {len(entries)} pull(s) at {rate:g} Hz to {out}')
+    return report_engine('export', mapper)
 
 
 def cmd_import(args) -> int:
@@ -147,6 +166,7 @@ def cmd_import(args) -> int:
     from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_campaign, read_tdms
     warnings: list = []
     src = args.src
+    mapper = engine_for(args)
     if src.lower().endswith('.tdms'):
         if not os.path.isfile(src):
             raise BagError(f'TDMS file {src!r} does not exist')
@@ -163,7 +183,7 @@ def cmd_import(args) -> int:
         if args.map:
             raise BagError('--map applies to a .tdms source; a campaign folder maps its TDMS '
                            "files with a 'map:' entry per pull in campaign.yaml")
-        camp = read_campaign(src)
+        camp = read_campaign(src, mapper=mapper, skip_failed=True)
     prog = Progress('import', 'pulls')
     try:
         out = campaign_to_bag(camp, args.bag, block_size=args.block_size, progress=prog,
@@ -172,7 +192,7 @@ def cmd_import(args) -> int:
         prog.close()
         warn('import', warnings)
     print(f'imported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz into {out}')
-    return 0
+    return report_engine('import', mapper, camp.failed)
 
 
 # --------------------------------------------------------------------------- parser
@@ -191,6 +211,8 @@ def positive_float(name):
 def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     """The ./ft bag parser: bag_tools' own commands plus ``extra`` ones from the packages above
     it (force_correction adds correct and plot), which bag_tools itself does not import."""
+    from force_tester_common.engine import add_scheduler_argument
+
     from .core.playback import PLAY_DESCRIPTION, add_play_arguments
     p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
                 'rosbag2 bags (MCAP or sqlite3) and DAQ campaign folders (see '
@@ -230,8 +252,7 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
                        'one lossless CSV per pull plus campaign.yaml (stamps kept as start_ns).')
     e.add_argument('bag', help='rosbag2 directory')
     e.add_argument('dir', help='campaign folder to create (must not exist)')
-    e.add_argument('-j', '--jobs', type=int, default=os.cpu_count() or 1,
-                   help='processes formatting CSV (default: CPU count)')
+    add_scheduler_argument(e)
     e.set_defaults(func=cmd_export)
 
     im = sub.add_parser('import', help='DAQ campaign folder or .tdms file -> bag',
@@ -240,6 +261,7 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     im.add_argument('src', help='campaign folder (campaign.yaml) or a .tdms file')
     im.add_argument('bag', help='bag directory to create (must not exist)')
     im.add_argument('--block-size', type=int, default=50, help='samples per block (default 50)')
+    add_scheduler_argument(im)
     tg = im.add_argument_group('TDMS source (one pull)')
     tg.add_argument('--map', action='append', metavar='COLUMN=CHANNEL',
                     help="DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
@@ -274,7 +296,8 @@ def main(argv=None, extra: Sequence[Command] = ()) -> int:
         parser.error(f'--ros-args applies to play, not to {args.command}')
     args.ros_args = ros_args
     _verbose = args.verbose
-    input_errors = (BagError, *(e for c in extra for e in c.errors))
+    from force_tester_common.engine import EngineError
+    input_errors = (BagError, EngineError, *(e for c in extra for e in c.errors))
     prefix = f'./ft bag {args.command}: error: '
     try:
         return args.func(args)

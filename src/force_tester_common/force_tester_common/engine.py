@@ -23,7 +23,7 @@ KilledWorker. Those reruns are read back from the scheduler's own event log: eac
 ``remove-worker`` event names the tasks that were processing on the worker (and results it held
 that were lost); those pulls are listed in ``PullMap.retried``.
 
-An address that does not answer within ``connect_timeout`` (5 s) raises :class:`EngineError` with
+An address that does not answer within ``connect_timeout`` (3 s) raises :class:`EngineError` with
 one line naming the address and what was expected; the CLIs exit 2 on it.
 
 Workers need this workspace's packages: the embedded cluster's workers are spawned from this
@@ -46,8 +46,9 @@ from typing import Any, Callable, Iterable, List, Optional, Sequence, Tuple
 SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
 #: ``scheduler`` value that runs the pulls in this process, one after the other, without Dask.
 INLINE = 'inline'
-#: Seconds to wait for a scheduler to answer before giving up.
-CONNECT_TIMEOUT_S = 5.0
+#: Seconds to wait for a scheduler to answer before giving up (Dask retries a refused connection until then;
+#: a CLI's whole answer, interpreter start included, must come within 10 s).
+CONNECT_TIMEOUT_S = 3.0
 #: Reruns of a pull whose worker died (the embedded cluster's allowed-failures).
 RETRIES = 2
 
@@ -130,7 +131,7 @@ def _connect(address: str, timeout: float):
     except Exception as exc:  # noqa: BLE001 - refused, unresolvable, timed out, not a scheduler
         why = f'no answer within {timeout:g} s' if 'Timed out' in str(exc) else one_line(exc)
         raise EngineError(f'scheduler {address!r} is unreachable ({why}); expected a running dask scheduler '
-                          f'there, or no --scheduler and no ${SCHEDULER_ENV} for the embedded cluster') from None
+                          f'there (no --scheduler, no ${SCHEDULER_ENV}: a local one)') from None
     info = client.scheduler_info()
     workers = info.get('workers', {})
     threads = sum(w.get('nthreads', 0) for w in workers.values())
@@ -188,16 +189,26 @@ def check_scheduler(scheduler: Optional[str] = None, *, connect_timeout: float =
     return get_client(address, connect_timeout=connect_timeout)[1]
 
 
+def add_scheduler_argument(parser) -> None:
+    """The --scheduler option of every CLI that maps pulls (argparse; no Dask imported)."""
+    parser.add_argument('--scheduler', metavar='ADDRESS', default=None,
+                        help=f'Dask scheduler to run the per-pull work on, e.g. tcp://HOST:8786 (default: '
+                        f'${SCHEDULER_ENV}, else a local cluster in this process, one worker per CPU; '
+                        f'{INLINE!r}: in this process, one pull at a time)')
+
+
 # --------------------------------------------------------------------------- map
 def map_pulls(fn: Callable, items: Iterable, *, names: Optional[Sequence[str]] = None,
               scheduler: Optional[str] = None, progress: Optional[Callable[[int, int], None]] = None,
               retries: int = RETRIES, keep: bool = True,
               on_result: Optional[Callable[[int, Any], None]] = None,
-              connect_timeout: float = CONNECT_TIMEOUT_S, inline_max: int = 1) -> PullMap:
+              connect_timeout: float = CONNECT_TIMEOUT_S, inline_max: int = 1,
+              total: Optional[int] = None) -> PullMap:
     """Run ``fn(item)`` for every item; results in item order (see the module docstring).
 
-    names: one per item, used in ``failed`` and ``retried`` (default 'pull 1', 'pull 2', ...).
-    progress(done, total): called as pulls finish (total from len(items), 0 if unknown).
+    names: one per item, used in ``failed`` and ``retried`` (default 'pull 1', 'pull 2', ...); read when
+        needed, so a list that the items' iterator fills as it goes will do.
+    progress(done, total): called as pulls finish (total: the argument, else len(items), else 0).
     retries: reruns after a worker death (embedded cluster only; a cluster keeps its own setting). A pull
         that still fails with KilledWorker runs once more alone, since the scheduler blames every task a
         dying worker held; results after it wait for that (on_result stays in item order).
@@ -208,20 +219,46 @@ def map_pulls(fn: Callable, items: Iterable, *, names: Optional[Sequence[str]] =
     is read only as fast as the workers take them.
     """
     address = resolve_scheduler(scheduler)
-    try:
-        total = len(items)  # type: ignore[arg-type]
-    except TypeError:
-        total = 0
-    if names is not None:
-        names = [str(n) for n in names]
+    if total is None:
+        try:
+            total = len(items)  # type: ignore[arg-type]
+        except TypeError:
+            total = 0
     if address == INLINE or (address is None and total and total <= inline_max):
         return _map_inline(fn, items, names, progress, total, keep, on_result)
     client, where = get_client(address, retries=retries, connect_timeout=connect_timeout)
     return _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
 
 
+class Mapper:
+    """map_pulls bound to one scheduler, remembering every PullMap it returned: what a CLI hands to the
+    cores as their ``mapper=`` (they call it like map_pulls), then reports from (``retried``, ``where``)."""
+
+    def __init__(self, scheduler: Optional[str] = None, **options) -> None:
+        self.scheduler = scheduler
+        self.options = options
+        self.runs: List[PullMap] = []
+
+    def __call__(self, fn: Callable, items: Iterable, **kwargs) -> PullMap:
+        done = map_pulls(fn, items, scheduler=self.scheduler, **{**self.options, **kwargs})
+        self.runs.append(done)
+        return done
+
+    @property
+    def retried(self) -> List[str]:
+        return [name for r in self.runs for name in r.retried]
+
+    @property
+    def failed(self) -> List[Tuple[str, str]]:
+        return [f for r in self.runs for f in r.failed]
+
+    @property
+    def where(self) -> str:
+        return self.runs[-1].scheduler if self.runs else 'nothing run'
+
+
 def _name(names, i: int) -> str:
-    return names[i] if names is not None and i < len(names) else f'pull {i + 1}'
+    return str(names[i]) if names is not None and i < len(names) else f'pull {i + 1}'
 
 
 def _map_inline(fn, items, names, progress, total, keep, on_result) -> PullMap:
@@ -245,6 +282,7 @@ def _settle(out: PullMap, i: int, status: str, value, names, keep, on_result) ->
 
 
 def _map_dask(client, where, fn, items, names, progress, total, keep, on_result) -> PullMap:
+    import dask
     from distributed import as_completed
     token = uuid.uuid4().hex[:12]
     prefix = f'pull-{getattr(fn, "__name__", "fn")}-{token}'
@@ -265,7 +303,10 @@ def _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
         return 2 * max(threads, 1) + 2
 
     def submit(i: int, item, key: str):
-        fut = client.submit(_run_one, fn, item, key=key, pure=False, retries=0)
+        # an item may carry a pull's arrays (tens of MB, read from a bag here): that is the task's payload,
+        # not a graph that repeats data, so Dask's large-graph warning does not apply
+        with dask.config.set({'distributed.admin.large-graph-warning-threshold': '2GB'}):
+            fut = client.submit(_run_one, fn, item, key=key, pure=False, retries=0)
         pending[key] = (i, item)
         keys[key] = i
         return fut
@@ -355,5 +396,5 @@ def _reran(client, keys: dict, names) -> List[str]:
     return [_name(names, i) for i in sorted(hit)]
 
 
-__all__ = ['EngineError', 'PullMap', 'map_pulls', 'resolve_scheduler', 'check_scheduler', 'get_client',
-           'shutdown', 'SCHEDULER_ENV', 'INLINE', 'CONNECT_TIMEOUT_S', 'RETRIES']
+__all__ = ['EngineError', 'PullMap', 'Mapper', 'map_pulls', 'add_scheduler_argument', 'resolve_scheduler',
+           'check_scheduler', 'get_client', 'shutdown', 'SCHEDULER_ENV', 'INLINE', 'CONNECT_TIMEOUT_S', 'RETRIES']

@@ -36,6 +36,8 @@ def add_arguments(p):
     p.add_argument('--no-campaign', action='store_true', help='skip the reference campaign (Tables 7-9)')
     p.add_argument('--cache', metavar='DIR', default=str(CACHE),
                    help='where the reference campaign is cached (default runs/cache)')
+    from force_tester_common.engine import add_scheduler_argument
+    add_scheduler_argument(p)
 
 
 def cache_key(pulls: int, seed: int) -> str:
@@ -48,10 +50,12 @@ def cache_key(pulls: int, seed: int) -> str:
     return h.hexdigest()[:16]
 
 
-def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) -> Path:
-    """The reference campaign folder (DAQ export format), generated if the cache does not hold it."""
+def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE, scheduler: str | None = None) -> Path:
+    """The reference campaign folder (DAQ export format), generated if the cache does not hold it: each pull is
+    simulated and written on a Dask worker (force_tester_common.engine; ``scheduler`` as in map_pulls)."""
     from bag_tools.core.daq import write_campaign
-    from force_tester_sim.core.campaign import generate_campaign
+    from force_tester_common.engine import Mapper
+    from force_tester_sim.core.campaign import campaign_jobs, simulate_campaign_pull
     from force_tester_sim.core.params import TRUTH_YAML, load_rig
     key = cache_key(pulls, seed)
     folder = cache / f'reference_campaign_{key}'
@@ -60,12 +64,14 @@ def reference_campaign(pulls: int, seed: int, say=print, cache: Path = CACHE) ->
     say(f'generating the reference campaign ({5 * pulls} pulls of 2 s at 50 kHz, truth rig, seed {seed}) '
         f'into {folder} ...')
     t0 = time.monotonic()
-    pulls_data = generate_campaign(load_rig(TRUTH_YAML), pulls=pulls, seed=seed, workers=2)
+    mapper = Mapper(scheduler)
     for old in cache.glob('reference_campaign_*'):  # a stale campaign (older model or other size)
         shutil.rmtree(old, ignore_errors=True)
     cache.mkdir(parents=True, exist_ok=True)
-    write_campaign(folder, pulls_data)
-    say(f'  done in {time.monotonic() - t0:.1f} s')
+    write_campaign(folder, campaign_jobs(load_rig(TRUTH_YAML), pulls=pulls, seed=seed), mapper=mapper,
+                   produce=simulate_campaign_pull)
+    rerun = f'; rerun after a worker died: {", ".join(mapper.retried)}' if mapper.retried else ''
+    say(f'  done in {time.monotonic() - t0:.1f} s on {mapper.where}{rerun}')
     return folder
 
 
@@ -124,6 +130,19 @@ def plot_top_speed(result: dict, path) -> bool:
 
 
 def run(args) -> int:
+    from bag_tools.core.errors import BagError
+    from force_tester_common.engine import EngineError, check_scheduler
+    from force_tester_sim.core.errors import SimError
+    try:
+        if not args.no_campaign:
+            check_scheduler(args.scheduler)   # a bad address fails now, not after the top-speed study
+        return _run(args)
+    except (EngineError, BagError, SimError) as exc:
+        print(f'./ft thesis: error: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+
+
+def _run(args) -> int:
     from force_tester_sim.core.params import load_rig
     from force_tester_sim.core.thesis import format_report, mass_sweep, top_speed_study
     say = lambda m: print(m, file=sys.stderr)  # noqa: E731
@@ -141,7 +160,7 @@ def run(args) -> int:
     if not args.no_campaign:
         from bag_tools.core.daq import read_campaign
         from force_correction.core.campaign_stats import campaign_tables, format_tables
-        folder = reference_campaign(args.pulls, args.seed, say, Path(args.cache))
+        folder = reference_campaign(args.pulls, args.seed, say, Path(args.cache), args.scheduler)
         tables = campaign_tables(read_campaign(folder).pulls)
         print()
         print(format_tables(tables, rig))

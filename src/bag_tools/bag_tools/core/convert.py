@@ -47,6 +47,7 @@ from .daq import (
     DEFAULT_GAP_NS,
     Campaign,
     DaqPull,
+    Mapper,
     read_campaign,
     time_column,
     write_campaign,
@@ -173,13 +174,14 @@ def iter_campaign_messages(camp: Campaign, store: Typestore, block_size: int = 5
 
 def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size: int = 50,
                     typestore: Typestore | None = None, progress: Progress | None = None,
-                    warnings: list | None = None) -> Path:
+                    warnings: list | None = None, mapper: Mapper | None = None) -> Path:
     """Write the bag of a campaign folder (or Campaign). Returns the bag path.
 
     Optional channels absent from every pull give empty fields (a MotorBlock topic only when
-    at least one motor column exists); a warning says so.
+    at least one motor column exists); a warning says so. mapper: reads a folder's pull files in
+    parallel (read_campaign); the bag itself is one file, written here in time order.
     """
-    camp = src if isinstance(src, Campaign) else read_campaign(src)
+    camp = src if isinstance(src, Campaign) else read_campaign(src, mapper=mapper)
     if warnings is not None:
         warnings.extend(camp.warnings)
         absent = [c for c in OPTIONAL_CHANNELS if all(c not in p.channels for p in camp.pulls)]
@@ -334,8 +336,11 @@ def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
 
 
 def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progress | None = None,
-                    warnings: list | None = None, workers: int = 1) -> Path:
-    """Export a bag's pulls to a campaign folder (written atomically). Returns out_dir."""
+                    warnings: list | None = None, mapper: Mapper | None = None) -> Path:
+    """Export a bag's pulls to a campaign folder (written atomically). Returns out_dir.
+
+    The bag is read here, in one pass; mapper formats and writes the pulls' CSV files in parallel
+    (write_campaign)."""
     warnings = [] if warnings is None else warnings
     out_dir = Path(out_dir)
     if out_dir.exists():  # fail before the (long) read
@@ -346,5 +351,4 @@ def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progres
         warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')
     for i, p in enumerate(pulls):
         p.meta['file'] = f'pull_{i + 1:04d}.csv'
-    return write_campaign(out_dir, pulls, sample_rate_hz=rate, progress=progress,
-                          workers=workers)
+    return write_campaign(out_dir, pulls, sample_rate_hz=rate, progress=progress, mapper=mapper)

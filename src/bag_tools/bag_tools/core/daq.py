@@ -14,6 +14,7 @@ scoring uses nanmax), so keeping them changes no finite value and hides nothing.
 from __future__ import annotations
 
 import io
+import itertools
 import math
 import numbers
 import os
@@ -21,7 +22,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sequence
+from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sized
 
 import numpy as np
 import yaml
@@ -62,6 +63,7 @@ class Campaign:
     pulls: list  # [DaqPull]
     rig: str | None = None
     warnings: list = field(default_factory=list)
+    failed: list = field(default_factory=list)  # [(file, one line)]: pulls left out by read_campaign
 
     def missing_optional(self) -> list:
         """Optional channels absent from at least one pull."""
@@ -312,8 +314,14 @@ def parse_mapping(items: Iterable[str]) -> dict:
 
 
 # --------------------------------------------------------------------------- campaign
-def read_campaign(path: str | Path) -> Campaign:
-    """Read and validate a campaign folder. Raises BagError; warnings in Campaign.warnings."""
+#: mapper(fn, items, names=..., progress=...) -> an object with .results (in item order, None for a failed
+#: item) and .failed ([(name, one line)]): force_tester_common.engine.map_pulls, or None for a plain loop here.
+Mapper = Callable[..., Any]
+
+
+def campaign_index(path: str | Path) -> tuple:
+    """campaign.yaml of a campaign folder, validated, without reading the pulls:
+    (folder, sample_rate_hz or None, rig file name or None, [(meta, campaign.yaml entry)])."""
     path = Path(path)
     if not path.is_dir():
         what = 'does not exist' if not path.exists() else 'is not a directory'
@@ -338,30 +346,84 @@ def read_campaign(path: str | Path) -> Campaign:
     if rig is not None:
         if not isinstance(rig, str) or not (path / rig).is_file():
             raise BagError(f'{str(cfile)!r}: rig {rig!r} is not a file in the campaign folder')
-    warnings: list = []
-    pulls = []
+    entries = []
     seen = set()
     for i, entry in enumerate(doc['pulls']):
         meta = check_meta(entry, str(cfile), i)
         if meta['file'] in seen:
             raise BagError(f'{str(cfile)!r}: file {meta["file"]!r} is listed twice')
         seen.add(meta['file'])
-        fpath = path / meta['file']
-        if not fpath.is_file():
+        if not (path / meta['file']).is_file():
             raise BagError(f'{str(cfile)!r}: pull #{i} file {meta["file"]!r} does not exist in '
                            f'{str(path)!r}')
-        if fpath.suffix.lower() == '.tdms':
-            raw = read_tdms(fpath, entry.get('map'), rate)
-        else:
-            raw = read_csv(fpath)
-        channels, prate = check_channels(raw, str(fpath), rate, warnings)
-        if rate is None:
+        entries.append((meta, entry))
+    return path, rate, rig, entries
+
+
+def read_pull(job: tuple) -> tuple:
+    """One pull file, read and validated (the per-pull step of read_campaign, run on a worker).
+
+    job: (file path, TDMS channel map or None, campaign.yaml's sample rate or None).
+    Returns (channels, sample rate, warnings)."""
+    fpath, mapping, rate = job
+    fpath = Path(fpath)
+    raw = read_tdms(fpath, mapping, rate) if fpath.suffix.lower() == '.tdms' else read_csv(fpath)
+    warnings: list = []
+    channels, prate = check_channels(raw, str(fpath), rate, warnings)
+    return channels, prate, warnings
+
+
+def _map(fn: Callable, items: list, names: list, mapper: Mapper | None, progress=None) -> tuple:
+    """(results, failed): through ``mapper``, or a plain loop here in which the first error is raised."""
+    if mapper is None:
+        out = []
+        for i, item in enumerate(items):
+            out.append(fn(item))
+            if progress:
+                progress(i + 1, len(items))
+        return out, []
+    done = mapper(fn, items, names=names, progress=progress)
+    return done.results, list(done.failed)
+
+
+def failed_line(failed: list) -> str:
+    """'FILE: error' of the first failed pull, and how many more failed."""
+    name, why = failed[0]
+    more = f' (and {len(failed) - 1} more pull(s))' if len(failed) > 1 else ''
+    return f'pull {name!r} failed: {why}{more}'
+
+
+def read_campaign(path: str | Path, mapper: Mapper | None = None, skip_failed: bool = False,
+                  progress: Callable[[int, int], None] | None = None) -> Campaign:
+    """Read and validate a campaign folder. Raises BagError; warnings in Campaign.warnings.
+
+    mapper: reads the pull files in parallel (force_tester_common.engine.map_pulls). skip_failed: a pull
+    file that fails to read is left out, named in Campaign.failed and in a warning, instead of failing
+    the whole campaign (BagError when no pull is left)."""
+    path, rate, rig, entries = campaign_index(path)
+    jobs = [(path / meta['file'], entry.get('map'), rate) for meta, entry in entries]
+    names = [meta['file'] for meta, _ in entries]
+    results, failed = _map(read_pull, jobs, names, mapper, progress)
+    if failed and not skip_failed:
+        raise BagError(f'campaign {str(path)!r}: {failed_line(failed)}')
+    warnings: list = []
+    pulls = []
+    for (meta, _entry), (fpath, _m, _r), res in zip(entries, jobs, results):
+        if res is None:
+            continue
+        channels, prate, pull_warnings = res
+        warnings.extend(pull_warnings)
+        if rate is None:  # the first pull's rate, from its time column
             rate = prate
-        elif prate != rate:  # only when rate was inferred from an earlier pull
+        elif abs(prate - rate) > RATE_RTOL * rate:
             raise BagError(f'{str(fpath)!r}: sample rate {prate!r} Hz differs from {rate!r} Hz '
                            'of the earlier pulls; expected one rate per campaign')
         pulls.append(DaqPull(meta, channels))
-    camp = Campaign(path, rate, pulls, rig, warnings)
+    for name, why in failed:
+        warnings.append(f'pull {name!r} skipped: {why}')
+    if not pulls:
+        raise BagError(f'campaign {str(path)!r}: every pull failed; {failed_line(failed)}')
+    camp = Campaign(path, rate, pulls, rig, warnings, failed)
     miss = camp.missing_optional()
     if miss:
         warnings.append(f'campaign {str(path)!r}: optional column(s) {", ".join(miss)} missing '
@@ -379,63 +441,91 @@ def _atomic_dir(path: Path) -> Path:
     return Path(tempfile.mkdtemp(prefix=f'.{path.name}.partial-', dir=path.parent))
 
 
-def write_campaign(path: str | Path, pulls: Sequence, rig: str | os.PathLike | None = None,
+def write_pull(job: tuple) -> float:
+    """Write one pull's CSV (the per-pull step of write_campaign, run on a worker). Returns its rate.
+
+    job: (CSV path, channels or produce's argument, produce or None, rate or None, name for messages).
+    produce(argument) -> channels makes the pull where it is written (a simulation, for example)."""
+    dest, data, produce, rate, where = job
+    channels = produce(data) if produce is not None else data
+    chans, prate = check_channels(channels, where, rate)
+    rate = prate if rate is None else rate
+    n = len(chans['time_s'])
+    ordered = {'time_s': time_column(n, rate)}
+    ordered.update((c, chans[c]) for c in CHANNELS[1:] if c in chans)
+    ordered.update((c, v) for c, v in chans.items() if c not in ordered)
+    write_csv(Path(dest), ordered)
+    return float(rate)
+
+
+def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | None = None,
                    sample_rate_hz: float | None = None, extra: Mapping | None = None,
                    progress: Callable[[int, int], None] | None = None,
-                   workers: int = 1) -> Path:
+                   mapper: Mapper | None = None, produce: Callable | None = None) -> Path:
     """Write a campaign folder atomically (temp folder beside it, renamed when complete).
 
-    pulls: (meta, channels) pairs; meta needs META_REQUIRED except 'file' (default
-    pull_NNNN.csv); channels need the required columns. time_s is rewritten as k / rate
-    (rate = sample_rate_hz or the time column's). rig: a rig YAML file copied into the
-    folder. extra: {file name: bytes|str} written too (e.g. scores.json). workers > 1 formats
-    the CSV files in that many processes (formatting floats losslessly is the slow part).
+    pulls: (meta, channels) pairs (a list or any iterable, read once); meta needs META_REQUIRED except
+    'file' (default pull_NNNN.csv); channels need the required columns. time_s is rewritten as k / rate
+    (rate = sample_rate_hz, else the first pull's). rig: a rig YAML file copied into the folder.
+    extra: {file name: bytes|str} written too (e.g. scores.json).
+    mapper: formats and writes the CSV files in parallel (force_tester_common.engine.map_pulls; the
+    slow part is formatting floats losslessly); the workers write into the new folder, so they must
+    see it (the embedded cluster does; a cluster needs a shared file system). A pull that fails fails
+    the whole write (BagError naming it), leaving nothing.
+    produce: pulls are (meta, x) and each pull's channels are produce(x), computed where the pull is
+    written (the campaign is never whole in this process); its rate is then its own, and every pull's
+    must agree.
     """
     path = Path(path)
     tmp = _atomic_dir(path)
-    pool = None
-    if workers > 1 and len(pulls) > 1:
-        import multiprocessing  # noqa: PLC0415
-        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
-        pool = ProcessPoolExecutor(max_workers=workers,
-                                   mp_context=multiprocessing.get_context('spawn'))
-    pending: list = []
     try:
-        entries = []
+        entries: list = []
+        names: list = []
         rate = sample_rate_hz
         used = set()
-        for i, (meta, channels) in enumerate(pulls):
-            meta = dict(meta)
-            meta.setdefault('file', f'pull_{i + 1:04d}.csv')
-            meta = check_meta(meta, str(path), i)
-            if meta['file'] in used:
-                raise BagError(f'{str(path)!r}: file {meta["file"]!r} used by two pulls')
-            used.add(meta['file'])
-            if not meta['file'].lower().endswith('.csv'):
-                meta['file'] += '.csv'
-            chans, prate = check_channels(channels, f'{str(path)}/{meta["file"]}', rate)
-            rate = prate if rate is None else rate
-            n = len(chans['time_s'])
-            ordered = {'time_s': time_column(n, rate)}
-            ordered.update((c, chans[c]) for c in CHANNELS[1:] if c in chans)
-            ordered.update((c, v) for c, v in chans.items() if c not in ordered)
-            if pool is None:
-                write_csv(tmp / meta['file'], ordered)
-            else:
-                pending.append(pool.submit(write_csv, tmp / meta['file'], ordered))
-                while len(pending) > 2 * workers:  # bounded memory
-                    pending.pop(0).result()
-            entry = {k: meta[k] for k in META_REQUIRED}
-            for k in META_OPTIONAL:
-                if meta.get(k) is not None:
-                    entry[k] = int(meta[k])
-            entries.append(entry)
-            if progress:
-                progress(i + 1, len(pulls))
-        for fut in pending:
-            fut.result()
-        if not entries:
+        items = iter(pulls)
+        first = next(items, None)
+        if first is None:
             raise BagError(f'no pulls to write to {str(path)!r}')
+        if rate is None and produce is None:  # the first pull's rate, for all
+            rate = check_channels(first[1], f'{str(path)}/{first[0].get("file", "pull_0001.csv")}', None)[1]
+
+        def jobs():
+            for i, (meta, data) in enumerate(itertools.chain([first], items)):
+                meta = dict(meta)
+                meta.setdefault('file', f'pull_{i + 1:04d}.csv')
+                meta = check_meta(meta, str(path), i)
+                if meta['file'] in used:
+                    raise BagError(f'{str(path)!r}: file {meta["file"]!r} used by two pulls')
+                used.add(meta['file'])
+                if not meta['file'].lower().endswith('.csv'):
+                    meta['file'] += '.csv'
+                entry = {k: meta[k] for k in META_REQUIRED}
+                for k in META_OPTIONAL:
+                    if meta.get(k) is not None:
+                        entry[k] = int(meta[k])
+                entries.append(entry)
+                names.append(meta['file'])
+                yield tmp / meta['file'], data, produce, rate, f'{str(path)}/{meta["file"]}'
+
+        if mapper is None:
+            rates = []
+            for job in jobs():
+                rates.append(write_pull(job))
+                if progress:
+                    progress(len(rates), len(pulls) if isinstance(pulls, Sized) else 0)
+        else:
+            done = mapper(write_pull, jobs(), names=names, progress=progress,
+                          total=len(pulls) if isinstance(pulls, Sized) else 0)
+            if done.failed:
+                raise BagError(f'{str(path)!r}: {failed_line(done.failed)}; nothing written')
+            rates = done.results
+        if rate is None:
+            rate = rates[0]
+            for name, r in zip(names, rates):
+                if r != rate:
+                    raise BagError(f'{str(path)}/{name}: sample rate {r!r} Hz differs from {rate!r} Hz '
+                                   'of the first pull; expected one rate per campaign')
         doc: dict = {'format': FORMAT, 'sample_rate_hz': float(rate)}
         if rig is not None:
             rig = Path(rig)
@@ -453,12 +543,7 @@ def write_campaign(path: str | Path, pulls: Sequence, rig: str | os.PathLike | N
         os.chmod(tmp, 0o755)
         os.rename(tmp, path)
     except BaseException:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
-            pool = None
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True)
     return path
+

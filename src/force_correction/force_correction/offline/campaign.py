@@ -12,7 +12,7 @@ import numpy as np
 
 from bag_tools.core import daq
 from bag_tools.core.convert import place_pulls, read_bag_pulls
-from bag_tools.core.daq import Campaign, DaqPull, write_campaign
+from bag_tools.core.daq import Campaign, DaqPull, Mapper, write_campaign
 from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, record_stamps_ns
 
 from .stream import CorrectionStream
@@ -70,8 +70,9 @@ def bag_pulls_with_columns(src: Path, arrays: dict) -> tuple:
     return out, rate
 
 
-def write_corrected_campaign(dst: Path, pulls: list, rate: float, rig, scores: dict) -> None:
-    write_campaign(dst, pulls, rig=rig, sample_rate_hz=rate,
+def write_corrected_campaign(dst: Path, pulls: list, rate: float, rig, scores: dict,
+                             mapper: Mapper | None = None) -> None:
+    write_campaign(dst, pulls, rig=rig, sample_rate_hz=rate, mapper=mapper,
                    extra={'scores.json': json.dumps(scores, indent=1, default=_json) + '\n'})
 
 

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import math
 
-from bag_tools.cli import Command, Progress, positive_float, warn
+from bag_tools.cli import Command, Progress, engine_for, positive_float, report_engine, warn
 from force_tester_common.core.correction import LOADED_FRACTION, MASS_KG, WINDOW
 from force_tester_common.core.units import LBF_N
+from force_tester_common.engine import add_scheduler_argument
 
 from ..core.errors import CorrectionError
 from ..core.params import CorrectionParams
@@ -48,21 +49,24 @@ def _correct_arguments(p) -> None:
                    help=f'RMS window: stationary > this x its peak (default {LOADED_FRACTION})')
     p.add_argument('--to', choices=('bag', 'campaign'), default=None,
                    help='output kind (default: the kind of SRC)')
+    add_scheduler_argument(p)
 
 
 def run_correct(args) -> int:
     from .pipeline import CorrectionSetup, correct
     setup = CorrectionSetup.build(args.mass_kg, args.window, args.extension,
                                   loaded_fraction=args.loaded_fraction)
+    mapper = engine_for(args)
     prog = Progress('correct', 'messages')
     try:
-        result = correct(args.src, args.dst, setup, to=args.to, progress=prog)
+        result = correct(args.src, args.dst, setup, to=args.to, progress=prog, mapper=mapper,
+                         skip_failed=True)
     finally:
         prog.close()
     warn('correct', result.warnings)
     print(format_summary(result))
     print(f'written to {args.dst}')
-    return 0
+    return report_engine('correct', mapper, mapper.failed)
 
 
 def _plot_arguments(p) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Callable
 
 from bag_tools.core.convert import campaign_to_bag, source_kind
-from bag_tools.core.daq import DaqPull, read_campaign
+from bag_tools.core.daq import DaqPull, Mapper, read_campaign
 from bag_tools.core.fastcdr import FastPathError
 from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE, MASS_KG, MAX_PENDING, WINDOW
 
@@ -67,12 +67,17 @@ class CorrectionSetup:
 
 def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = None, *,
             to: str | None = None, path: str = 'auto',
-            progress: Progress | None = None) -> CorrectionResult:
+            progress: Progress | None = None, mapper: Mapper | None = None,
+            skip_failed: bool = False) -> CorrectionResult:
     """Correct and score a bag or a campaign; write the result to dst (a new bag or campaign).
 
     to: 'bag' or 'campaign' (default: the kind of src). path, for a bag: 'auto' (the fast path
     where it applies, else the generic one), 'fast' (CorrectionError if it does not apply),
     'fast_read' (the fast reader, the generic writer) or 'generic'.
+    mapper (force_tester_common.engine.map_pulls or a Mapper): reads and writes a campaign's pull
+    files in parallel; a bag is one file, read and written here in one pass, and the correction
+    itself streams through each run in time order. skip_failed: a campaign's pull file that fails
+    to read is left out (a warning names it) instead of failing the whole correction.
     """
     setup = CorrectionSetup() if setup is None else setup
     src, dst = Path(src), Path(dst)
@@ -91,14 +96,15 @@ def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = No
         tmp = Path(tempfile.mkdtemp(prefix=f'.{dst.name}.import-', dir=dst.parent))
         try:
             warnings: list = []
-            campaign_to_bag(src, tmp / 'bag', warnings=warnings)
+            campaign_to_bag(read_campaign(src, mapper=mapper, skip_failed=skip_failed), tmp / 'bag',
+                            warnings=warnings)
             res = correct(tmp / 'bag', dst, setup, to='bag', path=path, progress=progress)
             return replace(res, warnings=(*warnings, *res.warnings))
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     if kind == 'bag':
-        return _correct_bag(src, dst, setup, to, path, progress)
-    return _correct_campaign(src, dst, setup)
+        return _correct_bag(src, dst, setup, to, path, progress, mapper)
+    return _correct_campaign(src, dst, setup, mapper, skip_failed)
 
 
 def _result(setup, pulls, stats, stream, path, warnings) -> CorrectionResult:
@@ -108,7 +114,7 @@ def _result(setup, pulls, stats, stream, path, warnings) -> CorrectionResult:
 
 
 def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: str,
-                 progress) -> CorrectionResult:
+                 progress, mapper) -> CorrectionResult:
     warnings: list = []
     fast = bagio.fast_bag(src) if path != 'generic' else None
     if path == 'fast' and fast is None:
@@ -145,19 +151,19 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
         return _result(setup, pulls, stats, stream, used, warnings)
     result = _result(setup, pulls, stats, stream, used, warnings)
     camp_pulls, rate = bag_pulls_with_columns(src, stream.arrays())
-    write_corrected_campaign(dst, camp_pulls, rate, None, _scores_doc(result))
+    write_corrected_campaign(dst, camp_pulls, rate, None, _scores_doc(result), mapper)
     return result
 
 
-def _correct_campaign(src: Path, dst: Path, setup: CorrectionSetup) -> CorrectionResult:
-    camp = read_campaign(src)
+def _correct_campaign(src: Path, dst: Path, setup: CorrectionSetup, mapper, skip_failed) -> CorrectionResult:
+    camp = read_campaign(src, mapper=mapper, skip_failed=skip_failed)
     stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction)
     windows, columns = correct_runs(camp, stream)
     pulls, stats, warnings = stream.scores(windows, [])
     result = _result(setup, pulls, stats, stream, 'campaign', [*camp.warnings, *warnings])
     camp_pulls = [DaqPull(p.meta, {**p.channels, **c}) for p, c in zip(camp.pulls, columns)]
     rig = (camp.path / camp.rig) if camp.rig else None
-    write_corrected_campaign(dst, camp_pulls, camp.sample_rate_hz, rig, _scores_doc(result))
+    write_corrected_campaign(dst, camp_pulls, camp.sample_rate_hz, rig, _scores_doc(result), mapper)
     return result
 
 

@@ -1,8 +1,10 @@
 """Seeded campaigns (test sets x pulls) and the thesis-shaped tables (Tables 7, 8, 9), ROS-free.
 
-``generate_campaign(rig, sets, pulls, seed, workers)`` simulates every pull of the chosen sets in a
-process pool; each pull has its own seed (derived from ``seed``, the set and the pull index only), so the
-output does not depend on the number of workers.
+``generate_campaign(rig, sets, pulls, seed, mapper=...)`` simulates every pull of the chosen sets; each pull
+has its own seed (derived from ``seed``, the set and the pull index only), so the output does not depend on
+where or in which order the pulls run. This core runs them one after the other; a caller maps them over
+Dask workers by passing ``mapper=force_tester_common.engine.map_pulls`` (or a Mapper), or writes each pull
+where it is simulated with ``campaign_jobs`` + ``simulate_campaign_pull`` (``./ft thesis``).
 
 Which pulls are simulated depends on the rig:
 - a rig without departures (the nominal rig): ``make_pull_specs(rig, set, pulls, seed)``, unchanged.
@@ -13,9 +15,8 @@ Which pulls are simulated depends on the rig:
 """
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -146,30 +147,40 @@ def _meta(rig: RigParams, spec: PullSpec, seed: int) -> dict:
             'campaign_seed': int(seed)}
 
 
-def _run(args):
-    rig, spec, noise = args
+def simulate_campaign_pull(job: tuple) -> Dict[str, np.ndarray]:
+    """One pull of a campaign (the per-pull step, run on a worker): job = (rig, spec, noise) from campaign_jobs."""
+    rig, spec, noise = job
     return simulate_pull(rig, spec, noise)
 
 
+def campaign_jobs(rig: RigParams, sets: Sequence[int] = (1, 2, 3, 4, 5), pulls: int = 20, seed: int = 0,
+                  noise: bool = True) -> List[Tuple[dict, tuple]]:
+    """[(meta, job)] of a campaign: simulate_campaign_pull(job) gives the pull's channels (meta as in
+    generate_campaign)."""
+    return [(_meta(rig, sp, seed), (rig, sp, bool(noise))) for sp in campaign_specs(rig, sets, pulls, seed)]
+
+
 def generate_campaign(rig: RigParams, sets: Sequence[int] = (1, 2, 3, 4, 5), pulls: int = 20, seed: int = 0,
-                      workers: int = 2, noise: bool = True) -> List[Tuple[dict, Dict[str, np.ndarray]]]:
+                      noise: bool = True, mapper: Optional[Callable] = None
+                      ) -> List[Tuple[dict, Dict[str, np.ndarray]]]:
     """[(meta, channels)] for ``pulls`` pulls of each set (channels: simulate_pull's dict).
 
     meta: file 'set{S}_pull{NN}.csv' (NN from 01), set, coupon_lbf (the set's rating), velocity_fps, decel_g
     (commanded, Table 4), pull (1-based), seed (the pull's own seed), campaign_seed.
+    mapper: mapper(fn, jobs, names=...) -> .results in order and .failed (force_tester_common.engine.map_pulls);
+    None runs the pulls here, one after the other. The result is the same either way.
     """
-    if not (isinstance(workers, (int, np.integer)) and workers >= 1):
-        raise SimError(f'workers {workers!r} is invalid; expected an integer >= 1')
-    specs = campaign_specs(rig, sets, pulls, seed)
-    jobs = [(rig, sp, noise) for sp in specs]
-    if workers == 1 or len(jobs) == 1:
-        chans = [_run(j) for j in jobs]
+    jobs = campaign_jobs(rig, sets, pulls, seed, noise)
+    if mapper is None:
+        chans = [simulate_campaign_pull(job) for _meta_, job in jobs]
     else:
-        import multiprocessing as mp
-        ctx = mp.get_context('fork') if 'fork' in mp.get_all_start_methods() else None
-        with ProcessPoolExecutor(max_workers=int(workers), mp_context=ctx) as ex:
-            chans = list(ex.map(_run, jobs, chunksize=max(1, len(jobs) // (4 * int(workers)))))
-    return [(_meta(rig, sp, seed), ch) for sp, ch in zip(specs, chans)]
+        done = mapper(simulate_campaign_pull, [job for _m, job in jobs], names=[m['file'] for m, _j in jobs])
+        if done.failed:
+            name, why = done.failed[0]
+            raise SimError(f'campaign pull {name} failed: {why}; expected every pull to simulate')
+        chans = done.results
+    return [(meta, ch) for (meta, _job), ch in zip(jobs, chans)]
 
 
-__all__ = ['TruthSet', 'TRUTH_SETS', 'truth_pull_specs', 'campaign_specs', 'generate_campaign']
+__all__ = ['TruthSet', 'TRUTH_SETS', 'truth_pull_specs', 'campaign_specs', 'campaign_jobs', 'simulate_campaign_pull',
+           'generate_campaign']
