@@ -163,7 +163,7 @@ def cmd_export(args) -> int:
 
 def cmd_import(args) -> int:
     from .core.convert import campaign_to_bag
-    from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_campaign, read_tdms
+    from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_tdms
     warnings: list = []
     src = args.src
     mapper = engine_for(args)
@@ -177,22 +177,20 @@ def cmd_import(args) -> int:
                            'coupon_lbf': args.coupon_lbf, 'velocity_fps': args.velocity_fps,
                            'decel_g': args.decel_g, 'start_ns': args.start_ns,
                            'pull_id': args.pull_id}, src, 0)
-        camp = Campaign(Path(src).parent, rate, [DaqPull(meta, channels)], None,
-                        tdms_warnings)
-    else:
-        if args.map:
-            raise BagError('--map applies to a .tdms source; a campaign folder maps its TDMS '
-                           "files with a 'map:' entry per pull in campaign.yaml")
-        camp = read_campaign(src, mapper=mapper, skip_failed=True)
+        src = Campaign(Path(src).parent, rate, [DaqPull(meta, channels)], None, tdms_warnings)
+    elif args.map:
+        raise BagError('--map applies to a .tdms source; a campaign folder maps its TDMS '
+                       "files with a 'map:' entry per pull in campaign.yaml")
     prog = Progress('import', 'pulls')
-    try:
-        out = campaign_to_bag(camp, args.bag, block_size=args.block_size, progress=prog,
-                              warnings=warnings)
+    info: dict = {}
+    try:   # a folder's pulls are read on the engine's workers and written as they come, in order
+        out = campaign_to_bag(src, args.bag, block_size=args.block_size, progress=prog,
+                              warnings=warnings, mapper=mapper, skip_failed=True, info=info)
     finally:
         prog.close()
         warn('import', warnings)
-    print(f'imported {len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz into {out}')
-    return report_engine('import', mapper, camp.failed)
+    print(f'imported {info["pulls"]} pull(s) at {info["sample_rate_hz"]:g} Hz into {out}')
+    return report_engine('import', mapper, info['failed'])
 
 
 # --------------------------------------------------------------------------- parser

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 from rosbags.typesys.store import Typestore
@@ -48,7 +48,13 @@ from .daq import (
     Campaign,
     DaqPull,
     Mapper,
+    campaign_index,
+    check_rate,
+    csv_columns,
+    failed_line,
+    map_pulls_in_order,
     read_campaign,
+    read_pull,
     time_column,
     write_campaign,
 )
@@ -117,79 +123,124 @@ def pull_event_cdr(store: Typestore, stamp_ns: int, event: int, meta: dict, pull
 
 
 # --------------------------------------------------------------------------- campaign -> bag
-def place_pulls(camp: Campaign) -> list:
-    """(start_ns, pull_id) per pull: start_ns from campaign.yaml, else after the previous pull
+class PullPlacer:
+    """(start_ns, pull_id) of each pull in turn: start_ns from campaign.yaml, else after the previous pull
     with a DEFAULT_GAP_NS gap (the first at DEFAULT_EPOCH_NS). Overlapping pulls are an error."""
-    out = []
-    prev_end = None
-    rate = camp.sample_rate_hz
-    for i, p in enumerate(camp.pulls):
-        start = p.meta.get('start_ns')
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate = rate_hz
+        self.prev_end = None
+        self.count = 0
+
+    def __call__(self, meta: Mapping, n: int) -> tuple:
+        i = self.count
+        start = meta.get('start_ns')
         if start is None:
-            start = DEFAULT_EPOCH_NS if prev_end is None else prev_end + DEFAULT_GAP_NS
-        elif prev_end is not None and start < prev_end:
-            raise BagError(f'pull #{i} ({p.meta["file"]!r}) start_ns {start} is before the end '
-                           f'of the previous pull ({prev_end} ns); expected pulls in time order, '
+            start = DEFAULT_EPOCH_NS if self.prev_end is None else self.prev_end + DEFAULT_GAP_NS
+        elif self.prev_end is not None and start < self.prev_end:
+            raise BagError(f'pull #{i} ({meta["file"]!r}) start_ns {start} is before the end '
+                           f'of the previous pull ({self.prev_end} ns); expected pulls in time order, '
                            'not overlapping')
-        pid = p.meta.get('pull_id')
-        out.append((int(start), i + 1 if pid is None else int(pid)))
-        prev_end = end_stamp_ns(start, len(p.channels['time_s']), rate)
-    return out
+        pid = meta.get('pull_id')
+        self.prev_end = end_stamp_ns(start, n, self.rate)
+        self.count += 1
+        return int(start), i + 1 if pid is None else int(pid)
+
+
+def place_pulls(camp: Campaign) -> list:
+    """(start_ns, pull_id) per pull of a campaign (PullPlacer)."""
+    place = PullPlacer(camp.sample_rate_hz)
+    return [place(p.meta, len(p.channels['time_s'])) for p in camp.pulls]
+
+
+def campaign_topics(columns: list) -> list:
+    """[(topic, type, {field: column})] of the bag of pulls with these column sets: a block topic when
+    any pull has one of its columns, /force_corrected when every pull has the corrected columns."""
+    present = set().union(*columns)
+    topics = []
+    for type_name, (topic, fields) in BLOCK_TYPES.items():
+        if any(c in present for c in fields.values()):
+            topics.append((topic, type_name, fields))
+    if all(c in cols for cols in columns for c in CORRECTED_COLUMNS):
+        topics.append((CORRECTED_TOPIC, CORRECTED_NAME,
+                       {**EXPORT_FIELDS[CORRECTED_NAME], 'raw_n': 'force_moving_n'}))
+    return topics
+
+
+def _check_block_size(block_size) -> None:
+    if isinstance(block_size, bool) or not isinstance(block_size, int) \
+            or not 1 <= block_size <= 1_000_000:
+        raise BagError(f'block_size {block_size!r} is invalid; expected an integer 1..1000000')
+
+
+def pull_messages(store: Typestore, topics: list, seqs: dict, start: int, pid: int, pull: DaqPull,
+                  rate: float, block_size: int) -> Iterator[tuple]:
+    """(topic, type, log_ns, cdr) of one pull placed at ``start``: START, its blocks, END (seqs advance)."""
+    ch = pull.channels
+    n = len(ch['time_s'])
+    stamps = record_stamps_ns(start, n, rate)
+    yield PULL_EVENT_TOPIC, PULL_EVENT_TYPE, start, pull_event_cdr(store, start, PULL_START,
+                                                                 pull.meta, pid)
+    for b0 in range(0, n, block_size):
+        b1 = min(b0 + block_size, n)
+        first, last = int(stamps[b0]), int(stamps[b1 - 1])
+        for topic, type_name, fields in topics:
+            arrays = {f: ch[c][b0:b1] for f, c in fields.items() if c in ch}
+            yield topic, type_name, last, block_cdr(store, type_name, first, rate,
+                                                    seqs[topic], arrays)
+            seqs[topic] += 1
+    end = end_stamp_ns(start, n, rate)
+    yield PULL_EVENT_TOPIC, PULL_EVENT_TYPE, end, pull_event_cdr(store, end, PULL_END,
+                                                               pull.meta, pid)
 
 
 def iter_campaign_messages(camp: Campaign, store: Typestore, block_size: int = 50
                            ) -> Iterator[tuple]:
     """(topic, type, log_ns, cdr) of the bag made from a campaign, in log-time order."""
-    if isinstance(block_size, bool) or not isinstance(block_size, int) \
-            or not 1 <= block_size <= 1_000_000:
-        raise BagError(f'block_size {block_size!r} is invalid; expected an integer 1..1000000')
-    rate = camp.sample_rate_hz
-    present = set().union(*(p.channels for p in camp.pulls))
-    topics = []  # (topic, type, {field: column})
-    for type_name, (topic, fields) in BLOCK_TYPES.items():
-        if any(c in present for c in fields.values()):
-            topics.append((topic, type_name, fields))
-    if all(c in p.channels for p in camp.pulls for c in CORRECTED_COLUMNS):
-        topics.append((CORRECTED_TOPIC, CORRECTED_NAME,
-                       {**EXPORT_FIELDS[CORRECTED_NAME], 'raw_n': 'force_moving_n'}))
+    _check_block_size(block_size)
+    topics = campaign_topics([set(p.channels) for p in camp.pulls])
     seqs = {t[0]: 0 for t in topics}
     for (start, pid), p in zip(place_pulls(camp), camp.pulls):
-        ch = p.channels
-        n = len(ch['time_s'])
-        stamps = record_stamps_ns(start, n, rate)
-        yield PULL_EVENT_TOPIC, PULL_EVENT_TYPE, start, pull_event_cdr(store, start, PULL_START,
-                                                                     p.meta, pid)
-        for b0 in range(0, n, block_size):
-            b1 = min(b0 + block_size, n)
-            first, last = int(stamps[b0]), int(stamps[b1 - 1])
-            for topic, type_name, fields in topics:
-                arrays = {f: ch[c][b0:b1] for f, c in fields.items() if c in ch}
-                yield topic, type_name, last, block_cdr(store, type_name, first, rate,
-                                                        seqs[topic], arrays)
-                seqs[topic] += 1
-        end = end_stamp_ns(start, n, rate)
-        yield PULL_EVENT_TOPIC, PULL_EVENT_TYPE, end, pull_event_cdr(store, end, PULL_END,
-                                                                   p.meta, pid)
+        yield from pull_messages(store, topics, seqs, start, pid, p, camp.sample_rate_hz, block_size)
+
+
+def _absent_warning(columns: list) -> list:
+    absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
+    if not absent:
+        return []
+    return [f'no {", ".join(absent)} column(s): the bag has no samples of them'
+            + (' and no /motor topic' if all(c in absent for c in BLOCK_TYPES[
+                'force_tester_msgs/msg/MotorBlock'][1].values()) else '')]
 
 
 def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size: int = 50,
                     typestore: Typestore | None = None, progress: Progress | None = None,
-                    warnings: list | None = None, mapper: Mapper | None = None) -> Path:
+                    warnings: list | None = None, mapper: Mapper | None = None,
+                    skip_failed: bool = False, info: dict | None = None) -> Path:
     """Write the bag of a campaign folder (or Campaign). Returns the bag path.
 
     Optional channels absent from every pull give empty fields (a MotorBlock topic only when
-    at least one motor column exists); a warning says so. mapper: reads a folder's pull files in
-    parallel (read_campaign); the bag itself is one file, written here in time order.
+    at least one motor column exists); a warning says so.
+    A folder of CSV pulls is streamed: its pull files are read (in parallel with ``mapper``, e.g.
+    force_tester_common.engine.map_pulls) and each is written as soon as those before it are, so the
+    campaign is never whole in memory; the bag itself is one file, written here in time order.
+    skip_failed: a pull file that fails to read is left out with a warning naming it (else BagError).
+    info: filled with 'pulls' (written), 'sample_rate_hz' and 'failed' ([(file, one line)]).
     """
-    camp = src if isinstance(src, Campaign) else read_campaign(src, mapper=mapper)
-    if warnings is not None:
-        warnings.extend(camp.warnings)
-        absent = [c for c in OPTIONAL_CHANNELS if all(c not in p.channels for p in camp.pulls)]
-        if absent:
-            warnings.append(f'no {", ".join(absent)} column(s): the bag has no samples of them'
-                            + (' and no /motor topic' if all(c in absent for c in BLOCK_TYPES[
-                                'force_tester_msgs/msg/MotorBlock'][1].values()) else ''))
+    _check_block_size(block_size)
+    warnings = [] if warnings is None else warnings
+    info = {} if info is None else info
     store = typestore or default_typestore()
+    if not isinstance(src, Campaign):
+        path, rate, _rig, entries = campaign_index(src)
+        columns = [csv_columns(path / meta['file']) for meta, _entry in entries]
+        if all(c is not None for c in columns):
+            return _stream_to_bag(path, rate, entries, columns, bag_path, block_size, store, progress,
+                                  warnings, mapper, skip_failed, info)
+        src = read_campaign(src, mapper=mapper, skip_failed=skip_failed)   # TDMS pulls: read them first
+    camp = src
+    warnings.extend(camp.warnings)
+    warnings.extend(_absent_warning([set(p.channels) for p in camp.pulls]))
     done = 0
     with BagWriter(bag_path, store) as writer:
         for topic, type_name, log_ns, cdr in iter_campaign_messages(camp, store, block_size):
@@ -200,6 +251,48 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
                 done += 1
                 if done % 2 == 0:
                     progress(done // 2, len(camp.pulls))
+    info.update(pulls=len(camp.pulls), sample_rate_hz=camp.sample_rate_hz, failed=list(camp.failed))
+    return Path(bag_path)
+
+
+def _stream_to_bag(path: Path, rate, entries: list, columns: list, bag_path, block_size: int, store,
+                   progress, warnings: list, mapper, skip_failed: bool, info: dict) -> Path:
+    topics = campaign_topics(columns)
+    seqs = {t[0]: 0 for t in topics}
+    state: dict = {'rate': rate, 'place': None, 'pulls': 0}
+    jobs = [(path / meta['file'], entry.get('map'), rate) for meta, entry in entries]
+    names = [meta['file'] for meta, _ in entries]
+    with BagWriter(bag_path, store) as writer:
+        def write(i: int, result: tuple) -> None:
+            channels, prate, pull_warnings = result
+            warnings.extend(pull_warnings)
+            state['rate'] = check_rate(jobs[i][0], prate, state['rate'])
+            if state['place'] is None:
+                state['place'] = PullPlacer(state['rate'])
+            pull = DaqPull(entries[i][0], channels)
+            start, pid = state['place'](pull.meta, len(channels['time_s']))
+            for topic, type_name, log_ns, cdr in pull_messages(store, topics, seqs, start, pid, pull,
+                                                               state['rate'], block_size):
+                if topic not in writer.topics:
+                    writer.add_topic(topic, type_name)
+                writer.write(topic, log_ns, cdr)
+            state['pulls'] += 1
+
+        failed = map_pulls_in_order(read_pull, jobs, names, mapper, write, progress)
+        if failed and not skip_failed:
+            raise BagError(f'campaign {str(path)!r}: {failed_line(failed)}')
+        if not state['pulls']:
+            raise BagError(f'campaign {str(path)!r}: every pull failed; {failed_line(failed)}')
+    warnings.extend(f'pull {name!r} skipped: {why}' for name, why in failed)
+    bad = {name for name, _ in failed}
+    ok = [cols for cols, (meta, _) in zip(columns, entries) if meta['file'] not in bad]
+    miss = [c for c in OPTIONAL_CHANNELS if any(c not in cols for cols in ok)]
+    if miss:
+        warnings.append(f'campaign {str(path)!r}: optional column(s) {", ".join(miss)} missing '
+                        'in some pulls; their topics/fields stay empty and they cannot be '
+                        'plotted or exported')
+    warnings.extend(_absent_warning(ok))
+    info.update(pulls=state['pulls'], sample_rate_hz=state['rate'], failed=failed)
     return Path(bag_path)
 
 

@@ -373,15 +373,67 @@ def read_pull(job: tuple) -> tuple:
     return channels, prate, warnings
 
 
-def _map(fn: Callable, items: list, names: list, mapper: Mapper | None, progress=None) -> tuple:
-    """(results, failed): through ``mapper``, or a plain loop here in which the first error is raised."""
+def csv_columns(path: Path) -> set | None:
+    """The column names in a CSV pull's header row (empty when unreadable: reading the pull says why);
+    None for a TDMS file (its columns are known once it is read)."""
+    if Path(path).suffix.lower() == '.tdms':
+        return None
+    try:
+        with open(path, encoding='utf-8', newline='') as fh:
+            return {h.strip() for h in fh.readline().strip().split(',') if h.strip()}
+    except (OSError, UnicodeDecodeError):
+        return set()
+
+
+def check_rate(fpath, prate: float, rate: float | None) -> float:
+    """The campaign's rate after a pull at ``prate``: the first pull's when none is known yet."""
+    if rate is None:
+        return prate
+    if abs(prate - rate) > RATE_RTOL * rate:
+        raise BagError(f'{str(fpath)!r}: sample rate {prate!r} Hz differs from {rate!r} Hz '
+                       'of the earlier pulls; expected one rate per campaign')
+    return rate
+
+
+def _run(fn: Callable, item, name: str, skip: bool, failed: list):
+    """fn(item) here; with ``skip`` a bad pull (BagError) is recorded in ``failed`` instead of raised."""
+    try:
+        return fn(item)
+    except BagError as exc:
+        if not skip:
+            raise
+        failed.append((name, f'BagError: {" ".join(str(exc).split())}'))
+        return None
+
+
+def map_pulls_in_order(fn: Callable, items: list, names: list, mapper: Mapper | None,
+                       on_result: Callable[[int, Any], None], progress=None) -> list:
+    """on_result(i, fn(item)) for each item that succeeds, in item order, keeping no result (through
+    ``mapper``, else here). Returns the failed [(name, one line)]; here, only BagErrors are caught."""
+    if mapper is not None:
+        return list(mapper(fn, items, names=names, progress=progress, keep=False, on_result=on_result).failed)
+    failed: list = []
+    for i, item in enumerate(items):
+        res = _run(fn, item, names[i], True, failed)
+        if res is not None:
+            on_result(i, res)
+        if progress:
+            progress(i + 1, len(items))
+    return failed
+
+
+def _map(fn: Callable, items: list, names: list, mapper: Mapper | None, progress=None,
+         skip: bool = False) -> tuple:
+    """(results, failed): through ``mapper``, or a plain loop here in which the first error is raised
+    (with ``skip``, a BagError is recorded in failed instead)."""
     if mapper is None:
-        out = []
+        out: list = []
+        failed: list = []
         for i, item in enumerate(items):
-            out.append(fn(item))
+            out.append(_run(fn, item, names[i], skip, failed))
             if progress:
                 progress(i + 1, len(items))
-        return out, []
+        return out, failed
     done = mapper(fn, items, names=names, progress=progress)
     return done.results, list(done.failed)
 
@@ -403,7 +455,7 @@ def read_campaign(path: str | Path, mapper: Mapper | None = None, skip_failed: b
     path, rate, rig, entries = campaign_index(path)
     jobs = [(path / meta['file'], entry.get('map'), rate) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
-    results, failed = _map(read_pull, jobs, names, mapper, progress)
+    results, failed = _map(read_pull, jobs, names, mapper, progress, skip_failed)
     if failed and not skip_failed:
         raise BagError(f'campaign {str(path)!r}: {failed_line(failed)}')
     warnings: list = []
@@ -413,11 +465,7 @@ def read_campaign(path: str | Path, mapper: Mapper | None = None, skip_failed: b
             continue
         channels, prate, pull_warnings = res
         warnings.extend(pull_warnings)
-        if rate is None:  # the first pull's rate, from its time column
-            rate = prate
-        elif abs(prate - rate) > RATE_RTOL * rate:
-            raise BagError(f'{str(fpath)!r}: sample rate {prate!r} Hz differs from {rate!r} Hz '
-                           'of the earlier pulls; expected one rate per campaign')
+        rate = check_rate(fpath, prate, rate)   # None: the first pull's rate, from its time column
         pulls.append(DaqPull(meta, channels))
     for name, why in failed:
         warnings.append(f'pull {name!r} skipped: {why}')

@@ -96,8 +96,7 @@ def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = No
         tmp = Path(tempfile.mkdtemp(prefix=f'.{dst.name}.import-', dir=dst.parent))
         try:
             warnings: list = []
-            campaign_to_bag(read_campaign(src, mapper=mapper, skip_failed=skip_failed), tmp / 'bag',
-                            warnings=warnings)
+            campaign_to_bag(src, tmp / 'bag', warnings=warnings, mapper=mapper, skip_failed=skip_failed)
             res = correct(tmp / 'bag', dst, setup, to='bag', path=path, progress=progress)
             return replace(res, warnings=(*warnings, *res.warnings))
         finally:
