@@ -13,6 +13,7 @@ its header stamp. Messages are serialised with the rosbags typestore and written
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
@@ -312,6 +313,18 @@ class _Series:
         self.lengths.append(values.size)
         self.values.append(values)
 
+    def drop_before(self, cutoff_ns: int) -> None:
+        """Forget the blocks whose last sample is before cutoff_ns."""
+        if not self.stamps:
+            return
+        first = np.asarray(self.stamps, dtype=np.int64)
+        last = sample_stamps_ns(first, np.asarray(self.lengths, dtype=np.int64) - 1, self.rate)
+        keep = np.flatnonzero(last >= cutoff_ns)
+        if keep.size < first.size:
+            self.stamps = [self.stamps[i] for i in keep]
+            self.lengths = [self.lengths[i] for i in keep]
+            self.values = [self.values[i] for i in keep]
+
     def arrays(self) -> tuple:
         if not self.stamps:
             return np.empty(0, np.int64), _EMPTY
@@ -326,9 +339,98 @@ class _Series:
         return t, v
 
 
-def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None
-                   ) -> tuple:
-    """(sample_rate_hz, [DaqPull with meta start_ns/pull_id], extra info) from a bag."""
+#: While a bag is read, samples in no pull and older than the newest stamp by this much are dropped (a live
+#: recording may log a pull's START a little after its first blocks).
+HOLD_NS = 5 * NS_PER_S
+#: A pull open (START, no END yet) for longer than this keeps no older samples (a START whose END never
+#: comes must not keep the rest of the bag in memory).
+MAX_OPEN_NS = 60 * NS_PER_S
+
+
+class _Cutter:
+    """Per-column block series of the part of a bag still needed, cut into pulls as they complete."""
+
+    def __init__(self, bag_path, warnings: list) -> None:
+        self.bag_path, self.warnings = bag_path, warnings
+        self.series: dict = {}
+        self.front: dict = {}      # column -> first stamp of its newest block
+        self.rates: set = set()
+        self.newest = None
+
+    def add_block(self, topic: str, msg, type_name: str) -> None:
+        rate = float(msg.sample_rate_hz)
+        if not (math.isfinite(rate) and rate > 0):
+            raise BagError(f'{topic} block seq {msg.seq} has sample_rate_hz {rate!r}; '
+                           'expected a finite rate > 0 Hz')
+        stamp = stamp_of(msg)
+        for f, col in EXPORT_FIELDS[type_name].items():
+            v = np.asarray(getattr(msg, f), dtype=np.float64)
+            if not v.size:
+                continue
+            ser = self.series.get(col)
+            if ser is None:
+                ser = self.series[col] = _Series(rate)
+            elif ser.rate != rate:
+                raise BagError(f'{topic} block seq {msg.seq} has sample_rate_hz {rate!r} '
+                               f'but earlier blocks {ser.rate!r}; a campaign has one rate')
+            if rate not in self.rates:
+                self.rates.add(rate)
+                if len(self.rates) > 1:
+                    raise BagError(f'bag {str(self.bag_path)!r} mixes sample rates {sorted(self.rates)!r} '
+                                   'Hz; a campaign has one rate')
+            ser.add(stamp, v)
+            self.front[col] = max(self.front.get(col, stamp), stamp)
+        self.newest = stamp if self.newest is None else max(self.newest, stamp)
+
+    def passed(self, end_ns: int) -> bool:
+        """Every column seen so far has a block starting at or after end_ns: no more samples before it."""
+        return bool(self.front) and all(f >= end_ns for f in self.front.values())
+
+    def prune(self, keep_from: int | None) -> None:
+        cutoff = self.newest - HOLD_NS if self.newest is not None else None
+        if keep_from is not None and cutoff is not None:
+            cutoff = min(cutoff, keep_from)
+        if cutoff is not None:
+            for ser in self.series.values():
+                ser.drop_before(cutoff)
+
+    def cut(self, start: int, end: int, meta: dict) -> DaqPull | None:
+        """The pull in [start, end): NaN where samples are missing (with a warning)."""
+        rate = next(iter(self.rates))
+        n = int(round((end - start) * rate / NS_PER_S))
+        if n < 2:
+            self.warnings.append(f'pull {meta["pull_id"]}: {n} sample(s) between START and END; '
+                                 'skipped')
+            return None
+        ch = {'time_s': time_column(n, rate)}
+        for col, ser in self.series.items():
+            t, v = ser.arrays()
+            lo, hi = np.searchsorted(t, [start, end])
+            if hi <= lo:
+                continue
+            idx = np.rint((t[lo:hi] - start) * (rate / NS_PER_S)).astype(np.int64)
+            out = np.full(n, np.nan)
+            ok = (idx >= 0) & (idx < n)
+            out[idx[ok]] = v[lo:hi][ok]
+            iok = idx[ok]
+            got = int(np.count_nonzero(np.diff(iok))) + 1 if iok.size else 0  # idx is sorted
+            if got < n:
+                self.warnings.append(f'pull {meta["pull_id"]}: {n - got} of {n} samples of {col} '
+                                     'missing (dropped blocks); written as NaN')
+            ch[col] = out
+        missing = [c for c in REQUIRED_CHANNELS if c not in ch]
+        if missing:
+            raise BagError(f'pull {meta["pull_id"]} in bag {str(self.bag_path)!r} has no samples of '
+                           f'required column {missing[0]!r}; expected its block topic in the bag')
+        return DaqPull(meta, ch)
+
+
+def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None,
+                   state: dict | None = None) -> Iterator[DaqPull]:
+    """The pulls of a bag (meta with start_ns and pull_id), in start order, each yielded as soon as every
+    block topic has passed its END (else when the bag ends): the bag is read once, in log-time order, and
+    only the samples still needed are kept. state['sample_rate_hz'] is set before the first pull."""
+    state = {} if state is None else state
     with open_bag(bag_path) as bag:
         topics = bag.topics()
         block_topics, event_topics = {}, []
@@ -343,10 +445,10 @@ def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
         if not event_topics:
             raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
                            '/pull_event START/END messages to cut the pulls')
-        series: dict = {}
-        rates: set = set()
+        cutter = _Cutter(bag_path, warnings)
         starts: dict = {}
-        windows = []  # (start_ns, end_ns, meta)
+        closed: list = []   # (start_ns, end_ns, meta), sorted by start
+        emitted = 0
         total = sum(topics[t].count for t in [*block_topics, *event_topics])
         for k, (topic, type_name, _log, cdr) in enumerate(
                 bag.messages([*block_topics, *event_topics])):
@@ -365,83 +467,73 @@ def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
                         warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns '
                                         'without its START: skipped')
                     else:
-                        windows.append((st['start_ns'], stamp_of(msg), st))
-                continue
-            rate = float(msg.sample_rate_hz)
-            if not (math.isfinite(rate) and rate > 0):
-                raise BagError(f'{topic} block seq {msg.seq} has sample_rate_hz {rate!r}; '
-                               'expected a finite rate > 0 Hz')
-            stamp = stamp_of(msg)
-            for f, col in EXPORT_FIELDS[type_name].items():
-                v = np.asarray(getattr(msg, f), dtype=np.float64)
-                if v.size:
-                    rates.add(rate)
-                    ser = series.get(col)
-                    if ser is None:
-                        ser = series[col] = _Series(rate)
-                    elif ser.rate != rate:
-                        raise BagError(f'{topic} block seq {msg.seq} has sample_rate_hz {rate!r} '
-                                       f'but earlier blocks {ser.rate!r}; a campaign has one rate')
-                    ser.add(stamp, v)
+                        closed.append((st['start_ns'], stamp_of(msg), st))
+                        closed.sort(key=lambda w: w[0])
+            else:
+                cutter.add_block(topic, msg, type_name)
             if progress and k % 20000 == 0:
                 progress(k, total)
+            while closed and cutter.passed(closed[0][1]):
+                start, end, meta = closed.pop(0)
+                state['sample_rate_hz'] = next(iter(cutter.rates))
+                pull = cutter.cut(start, end, meta)
+                if pull is not None:
+                    meta['file'] = f'pull_{emitted + 1:04d}.csv'
+                    emitted += 1
+                    yield pull
+            if k % 2000 == 1999 and cutter.newest is not None:
+                keep = [w[0] for w in closed] + [max(m['start_ns'], cutter.newest - MAX_OPEN_NS)
+                                                 for m in starts.values()]
+                cutter.prune(min(keep) if keep else None)
         for pid, st in starts.items():
             warnings.append(f'pull {pid} (START at {st["start_ns"]} ns) has no END: skipped')
-    if len(rates) > 1:
-        raise BagError(f'bag {str(bag_path)!r} mixes sample rates {sorted(rates)!r} Hz; a '
-                       'campaign has one rate')
-    if not rates:
-        raise BagError(f'bag {str(bag_path)!r} has no block samples; expected /force, /accel, '
-                       '/encoder blocks')
-    rate = rates.pop()
-    arrays = {c: s.arrays() for c, s in series.items()}
-    pulls = []
-    for start, end, meta in sorted(windows, key=lambda w: w[0]):
-        n = int(round((end - start) * rate / NS_PER_S))
-        if n < 2:
-            warnings.append(f'pull {meta["pull_id"]}: {n} sample(s) between START and END; '
-                            'skipped')
-            continue
-        ch = {'time_s': time_column(n, rate)}
-        for col, (t, v) in arrays.items():
-            lo, hi = np.searchsorted(t, [start, end])
-            if hi <= lo:
-                continue
-            idx = np.rint((t[lo:hi] - start) * (rate / NS_PER_S)).astype(np.int64)
-            out = np.full(n, np.nan)
-            ok = (idx >= 0) & (idx < n)
-            out[idx[ok]] = v[lo:hi][ok]
-            iok = idx[ok]
-            got = int(np.count_nonzero(np.diff(iok))) + 1 if iok.size else 0  # idx is sorted
-            if got < n:
-                warnings.append(f'pull {meta["pull_id"]}: {n - got} of {n} samples of {col} '
-                                'missing (dropped blocks); written as NaN')
-            ch[col] = out
-        missing = [c for c in REQUIRED_CHANNELS if c not in ch]
-        if missing:
-            raise BagError(f'pull {meta["pull_id"]} in bag {str(bag_path)!r} has no samples of '
-                           f'required column {missing[0]!r}; expected its block topic in the bag')
-        pulls.append(DaqPull(meta, ch))
-    if not pulls:
+        if not cutter.rates:
+            raise BagError(f'bag {str(bag_path)!r} has no block samples; expected /force, /accel, '
+                           '/encoder blocks')
+        state['sample_rate_hz'] = next(iter(cutter.rates))
+        for start, end, meta in closed:
+            pull = cutter.cut(start, end, meta)
+            if pull is not None:
+                meta['file'] = f'pull_{emitted + 1:04d}.csv'
+                emitted += 1
+                yield pull
+    if not emitted:
         raise BagError(f'bag {str(bag_path)!r} has no complete pull (START and END); nothing '
                        'to export')
-    return rate, pulls
+
+
+def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None
+                   ) -> tuple:
+    """(sample_rate_hz, [DaqPull with meta start_ns/pull_id, file pull_NNNN.csv]) of a bag, all in memory."""
+    state: dict = {}
+    pulls = list(iter_bag_pulls(bag_path, warnings, progress, state))
+    return state['sample_rate_hz'], pulls
 
 
 def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progress | None = None,
                     warnings: list | None = None, mapper: Mapper | None = None) -> Path:
     """Export a bag's pulls to a campaign folder (written atomically). Returns out_dir.
 
-    The bag is read here, in one pass; mapper formats and writes the pulls' CSV files in parallel
-    (write_campaign)."""
+    The bag is read here in one pass and each pull goes to be written as soon as it is complete (bounded
+    memory); mapper formats and writes the CSV files in parallel (write_campaign), a few pulls at a time.
+    """
     warnings = [] if warnings is None else warnings
     out_dir = Path(out_dir)
     if out_dir.exists():  # fail before the (long) read
         raise BagError(f'output {str(out_dir)!r} exists already; expected a new directory name')
-    rate, pulls = read_bag_pulls(bag_path, warnings, progress)
-    absent = [c for c in OPTIONAL_CHANNELS if all(c not in p.channels for p in pulls)]
+    state: dict = {}
+    columns: list = []
+
+    def pulls():
+        for p in iter_bag_pulls(bag_path, warnings, progress, state):
+            columns.append(set(p.channels))
+            yield p
+
+    it = pulls()
+    first = next(it)   # the rate is known once the first pull is
+    out = write_campaign(out_dir, itertools.chain([first], it), sample_rate_hz=state['sample_rate_hz'],
+                         mapper=mapper)   # progress: the reader's, by messages
+    absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')
-    for i, p in enumerate(pulls):
-        p.meta['file'] = f'pull_{i + 1:04d}.csv'
-    return write_campaign(out_dir, pulls, sample_rate_hz=rate, progress=progress, mapper=mapper)
+    return out
