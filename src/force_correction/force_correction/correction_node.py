@@ -21,7 +21,7 @@ from force_tester_common.conversions import (
 )
 from force_tester_common.core import correction as C
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, main_for, qos_watch
+from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, in_namespace, main_for, qos_watch
 
 from .core.extension import Extension, ForcePrefilter
 from .core.pairing import BlockAligner
@@ -62,9 +62,9 @@ class CorrectionNode(Node):
         self._reconfigure(self.params.config)
         self.aligner = BlockAligner(('force', 'accel'), max_pending=self.params.values['max_pending'],
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
-        self.pub = self.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
+        self.pub = self.create_publisher(CORRECTED_TOPIC.msg_type, in_namespace(CORRECTED_TOPIC.topic), BLOCK_QOS)
         for channel, topic in (('force', TOPICS['/force']), ('accel', TOPICS['/accel'])):
-            self.create_subscription(topic.msg_type, topic.topic, guarded(
+            self.create_subscription(topic.msg_type, in_namespace(topic.topic), guarded(
                 self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS,
                 event_callbacks=qos_watch(self.diag, topic.topic))
         self.seq = 0

@@ -51,6 +51,7 @@ from force_tester_common.ros import (
     WARN,
     Diagnostics,
     guarded,
+    in_namespace,
     main_for,
     qos_watch,
 )
@@ -80,8 +81,9 @@ SPECS = [
               C.ABORT_TIMEOUT_RANGE_S, read_only=True),
     ParamSpec('state_file', '', 'JSON-lines file the scores are appended to; a restarted validator republishes '
                                 'them and its set summaries go on from them ("" = keep nothing)', read_only=True),
-    ParamSpec('correction_node', '/correction', 'fully qualified name of the correction node whose parameter '
-                                                'changes mark the pulls in progress RECONFIGURED', read_only=True),
+    ParamSpec('correction_node', 'correction', 'name of the correction node whose parameter changes mark the '
+                                               'pulls in progress RECONFIGURED (relative: in this node\'s '
+                                               'namespace)', read_only=True),
 ]
 
 
@@ -103,19 +105,22 @@ class ValidatorNode(Node):
         super().__init__('validator', **kwargs)
         self.diag = Diagnostics(self, 'validator', counters=lambda: self.counts)
         self.params = NodeParams(self, SPECS, check)
+        name = self.params.values['correction_node']
+        self.correction_node = name if name.startswith('/') else f"{self.get_namespace().rstrip('/')}/{name}"
         self.aligner = BlockAligner(('corrected', 'force'), max_pending=self.params.values['max_pending'],
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
         self.tracker = PullTracker(add_pair, abort_timeout_s=self.params.values['abort_timeout_s'])
         self.stats = SetStatistics()
         self.counts = {'scores': 0, 'bad_messages': 0, 'runs': 0, 'aborted': 0}
         self._source_restarted = False   # a /force new run whose /force_corrected new run is still to come
-        self.score_pub = self.create_publisher(PullScore, PULL_SCORE_TOPIC, SCORE_QOS)
-        self.summary_pub = self.create_publisher(SetSummary, SET_SUMMARY_TOPIC, SUMMARY_QOS)
+        self.score_pub = self.create_publisher(PullScore, in_namespace(PULL_SCORE_TOPIC), SCORE_QOS)
+        self.summary_pub = self.create_publisher(SetSummary, in_namespace(SET_SUMMARY_TOPIC), SUMMARY_QOS)
         for channel, topic in (('corrected', CORRECTED_TOPIC), ('force', FORCE)):
-            self.create_subscription(topic.msg_type, topic.topic, guarded(
+            self.create_subscription(topic.msg_type, in_namespace(topic.topic), guarded(
                 self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS,
                 event_callbacks=qos_watch(self.diag, topic.topic))
-        self.create_subscription(PullEvent, PULL_EVENT_TOPIC, guarded(self.diag, PULL_EVENT_TOPIC, self._on_event),
+        self.create_subscription(PullEvent, in_namespace(PULL_EVENT_TOPIC),
+                                 guarded(self.diag, PULL_EVENT_TOPIC, self._on_event),
                                  EVENT_QOS, event_callbacks=qos_watch(self.diag, PULL_EVENT_TOPIC))
         self.create_subscription(ParameterEvent, '/parameter_events',
                                  guarded(self.diag, '/parameter_events', self._on_parameters), EVENT_QOS)
@@ -145,7 +150,7 @@ class ValidatorNode(Node):
             self._score(f)
 
     def _on_parameters(self, msg: ParameterEvent):
-        if msg.node != self.params.values['correction_node']:
+        if msg.node != self.correction_node:
             return
         # changed only: a restarted correction declares its parameters anew (new_parameters), which
         # is a restart (the gap makes those pulls INCOMPLETE), not a change of configuration

@@ -9,7 +9,7 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .core.channels import DIAGNOSTICS_TOPIC
@@ -26,6 +26,11 @@ SCORE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, histo
 # A set summary is cumulative: a late joiner needs the current one only, not a backlog.
 SUMMARY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+# How a node process spins its nodes: $FT_EXECUTOR (make_executor). ./ft bench rigs compares them.
+EXECUTOR_ENV = 'FT_EXECUTOR'
+EXECUTORS = ('single', 'multi', 'events')
+DEFAULT_EXECUTOR = 'events'
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
@@ -119,17 +124,42 @@ def ros_init(args=None):
         rclpy.try_shutdown()
 
 
-def spin_nodes(*node_factories, args=None) -> int:
-    """Create the nodes in one process, add them to one executor and spin until shut down.
-    An invalid parameter at start-up ends the process: one line on stderr, exit code 2."""
+def make_executor(kind: str | None = None, context=None):
+    """The executor ``kind`` names (EXECUTORS; default: $FT_EXECUTOR, else DEFAULT_EXECUTOR)."""
+    kind = kind or os.environ.get(EXECUTOR_ENV) or DEFAULT_EXECUTOR
+    if kind not in EXECUTORS:
+        raise ParameterError(f'executor {kind!r} (${EXECUTOR_ENV}) is unknown; expected one of {", ".join(EXECUTORS)}')
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    return (MultiThreadedExecutor if kind == 'multi' else SingleThreadedExecutor)(context=context)
+
+
+def spin(executor, poll_s: float = 0.5) -> None:
+    """Spin until the context shuts down (Ctrl-C, SIGTERM, rclpy.shutdown()).
+
+    The EventsExecutor of the Jazzy wheels (rclpy 7.1.6) is spun with spin_once(timeout): its
+    spin() busy-waits on one core, runs no callback and ignores Ctrl-C
+    (benchmarks/events_executor_spin.py reproduces it). spin_once returns after each callback or
+    ``poll_s``, and after a signal, which shuts the context down."""
+    if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
+        executor.spin()
+        return
+    while rclpy.ok():
+        executor.spin_once(timeout_sec=poll_s)
+
+
+def spin_nodes(*node_factories, args=None, executor: str | None = None) -> int:
+    """Create the nodes in one process, add them to one executor (make_executor) and spin until
+    shut down. An invalid parameter at start-up ends the process: one line on stderr, exit code 2."""
     try:
         with ros_init(args):
-            executor = SingleThreadedExecutor()
+            ex = make_executor(executor)
             nodes = [factory() for factory in node_factories]
             for node in nodes:
-                executor.add_node(node)
+                ex.add_node(node)
             try:
-                executor.spin()
+                spin(ex)
             finally:
                 for node in nodes:
                     close = getattr(node, 'close', None)
@@ -149,6 +179,13 @@ def main_for(node_factory):
     def main(args=None):
         sys.exit(spin_nodes(node_factory, args=args))
     return main
+
+
+def in_namespace(topic: str) -> str:
+    """A graph topic's name as a node creates it: relative, so that it resolves in the node's
+    namespace (``/force`` in the root namespace; ``/rig1/force`` under ``-r __ns:=/rig1``).
+    /diagnostics and /parameter_events stay absolute: one for the whole machine, as ROS tools expect."""
+    return topic.lstrip('/')
 
 
 def guarded(diag: Diagnostics, topic: str, callback):

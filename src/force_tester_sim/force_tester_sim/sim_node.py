@@ -18,10 +18,11 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 
 from force_tester_common.conversions import BLOCK_TOPICS, block_message, ns_to_stamp
+from force_tester_common.core.blocks import BLOCK_SAMPLES, BLOCK_SAMPLES_RANGE
 from force_tester_common.core.channels import PULL_EVENT_TOPIC
 from force_tester_common.core.clock import sample_stamp_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, WARN, Diagnostics, main_for
+from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, WARN, Diagnostics, in_namespace, main_for
 
 from .core.sim_config import SimConfig, block_bounds
 from .core.simulate import simulate_pull
@@ -30,7 +31,7 @@ SPECS = [
     ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),
     ParamSpec('pulls_per_set', 1, 'pulls of each test set', (1, 1000)),
     ParamSpec('seed', 0, 'seed of the pull-to-pull scatter and the sensor noise', (0, 2**31 - 1)),
-    ParamSpec('block_size', 50, 'samples per published block (50 = 1 ms at 50 kHz)', (1, 100_000)),
+    ParamSpec('block_size', BLOCK_SAMPLES, 'samples per published block (50 = 1 ms at 50 kHz)', BLOCK_SAMPLES_RANGE),
     ParamSpec('rate', 1.0, 'pace as a real-time factor (1.0 = real time)', (0.01, 1000.0)),
     ParamSpec('rig_file', '', 'rig YAML replacing the nominal constants ("" = nominal)'),
     ParamSpec('noise', True, 'add sensor noise'),
@@ -60,8 +61,9 @@ class SimNode(Node):
         self.params = NodeParams(self, SPECS, config_from)
         self.progress = {'pulls': 0, 'blocks_per_topic': 0}   # published so far: the heartbeat's counters
         self.diag = Diagnostics(self, 'simulator', counters=lambda: self.progress)
-        self.block_pubs = [(t, self.create_publisher(t.msg_type, t.topic, BLOCK_QOS)) for t in BLOCK_TOPICS]
-        self.event_pub = self.create_publisher(PullEvent, PULL_EVENT_TOPIC, EVENT_QOS)
+        self.block_pubs = [(t, self.create_publisher(t.msg_type, in_namespace(t.topic), BLOCK_QOS))
+                           for t in BLOCK_TOPICS]
+        self.event_pub = self.create_publisher(PullEvent, in_namespace(PULL_EVENT_TOPIC), EVENT_QOS)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name='sim-publisher', daemon=True)
         self._thread.start()

@@ -4,6 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterator
 
+from force_tester_common.core.blocks import BLOCK_SAMPLES, BLOCK_SAMPLES_RANGE
+
 from .campaign import truth_pull_specs
 from .errors import SimError
 from .params import RigParams, load_rig
@@ -16,7 +18,7 @@ class SimConfig:
     test_sets: tuple = (1, 2, 3, 4, 5)
     pulls_per_set: int = 1
     seed: int = 0
-    block_size: int = 50
+    block_size: int = BLOCK_SAMPLES
     rate: float = 1.0
     rig_file: str = ''
     noise: bool = True
@@ -30,8 +32,9 @@ class SimConfig:
             raise SimError('test_sets is empty; expected one or more of 1, 2, 3, 4, 5')
         if not 1 <= self.pulls_per_set <= 1000:
             raise SimError(f'pulls_per_set {self.pulls_per_set} is out of range; expected an integer in [1, 1000]')
-        if not 1 <= self.block_size <= 100_000:
-            raise SimError(f'block_size {self.block_size} is out of range; expected an integer in [1, 100000] samples')
+        lo, hi = BLOCK_SAMPLES_RANGE
+        if not lo <= self.block_size <= hi:
+            raise SimError(f'block_size {self.block_size} is out of range; expected an integer in [{lo}, {hi}] samples')
         if not 0.01 <= self.rate <= 1000.0:
             raise SimError(f'rate {self.rate} is out of range; expected a real-time factor in [0.01, 1000]')
         if self.coupons not in self.COUPONS:
