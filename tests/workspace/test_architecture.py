@@ -112,6 +112,13 @@ def test_layering(name):
             assert top in allowed, f'{name} imports {mod}; a ROS-free part may import {sorted(allowed)}'
 
 
+def test_only_the_engine_imports_dask():
+    for name, path in MODULES.items():
+        if name != ENGINE:
+            bad = [m for m in imports_of(name, path) if m.split('.')[0] in ('dask', 'distributed')]
+            assert not bad, f'{name} imports {bad[0]}; campaign work goes through {ENGINE}'
+
+
 def test_shared_facts_import_only_numpy():
     for name, path in MODULES.items():
         if name.startswith('force_tester_common.core'):
