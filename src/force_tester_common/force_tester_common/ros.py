@@ -135,17 +135,17 @@ def make_executor(kind: str | None = None, context=None):
     return (MultiThreadedExecutor if kind == 'multi' else SingleThreadedExecutor)(context=context)
 
 
-def spin(executor, poll_s: float = 0.5) -> None:
+def spin(executor, poll_s: float = 0.5, ok=rclpy.ok) -> None:
     """Spin until the context shuts down (Ctrl-C, SIGTERM, rclpy.shutdown()).
 
     The EventsExecutor of the Jazzy wheels (rclpy 7.1.6) is spun with spin_once(timeout): its
     spin() busy-waits on one core, runs no callback and ignores Ctrl-C
     (benchmarks/events_executor_spin.py reproduces it). spin_once returns after each callback or
-    ``poll_s``, and after a signal, which shuts the context down."""
+    ``poll_s``, and after a signal, which shuts the context down. ok: the context's ok()."""
     if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
         executor.spin()
         return
-    while rclpy.ok():
+    while ok():
         executor.spin_once(timeout_sec=poll_s)
 
 

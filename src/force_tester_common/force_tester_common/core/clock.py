@@ -46,8 +46,15 @@ def sample_stamps_ns(first_ns, k, rate_hz) -> np.ndarray:
 
 
 def record_stamps_ns(first_ns: int, n: int, rate_hz: float) -> np.ndarray:
-    """Stamps of the ``n`` samples of one record or block."""
-    return sample_stamps_ns(first_ns, np.arange(int(n), dtype=np.int64), rate_hz)
+    """Stamps of the ``n`` samples of one record or block: sample_stamps_ns's arithmetic for one
+    scalar start and rate, without its broadcasting (a live node calls this once per block)."""
+    k = np.arange(int(n), dtype=np.int64)
+    if _is_integer_rate(rate_hz):
+        rate = int(rate_hz)
+        if NS_PER_S % rate == 0:    # a whole number of ns per sample (50 kHz: 20 us): no division
+            return int(first_ns) + k * (NS_PER_S // rate)
+        return int(first_ns) + (k * NS_PER_S) // rate
+    return int(first_ns) + np.round(k * (NS_PER_S / float(rate_hz))).astype(np.int64)
 
 
 def stamp_to_ns(sec: int, nanosec: int) -> int:

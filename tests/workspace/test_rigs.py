@@ -1,0 +1,30 @@
+"""Several rigs on one machine (issue 15): each rig's sim, correction and validator under its own
+namespace, as separate processes or with every rig's correction and validator composed in one
+process, through `./ft bench rigs` (real processes over Fast DDS)."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from conftest import ROOT
+
+
+@pytest.mark.slow
+def test_two_rigs_each_score_their_own_pulls(tmp_path, ros_domain):
+    out = tmp_path / 'rigs.json'
+    res = subprocess.run([sys.executable, str(ROOT / 'benchmarks' / 'bench_rigs.py'), '--rigs', '2',
+                          '--seconds', '4', '--block', '250', '--layout', 'process,composed',
+                          '--domain', str(ros_domain), '--json', str(out)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    runs = json.loads(out.read_text())['runs']
+    assert [r['compose'] for r in runs] == [False, True]
+    for r in runs:
+        assert (r['rigs'], r['dropped'], r['unscored']) == (2, 0, 0)
+        for rig in r['per_rig']:
+            # one pull of each set (2 s each) at 50 kHz in 250-sample blocks; a rig that heard the
+            # other's topics would pair and score twice as much
+            assert rig['scored'] == rig['scored_ok'] == rig['pulls'] == 5
+            assert rig['sent'] == rig['corrected'] == 5 * 2 * 50_000 // 250
+        assert r['p99_added_ms'] is not None and r['correction_cpu_per_rig'] > 0
