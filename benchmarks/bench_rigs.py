@@ -1,12 +1,12 @@
 """Benchmark: how many rigs one machine runs live (./ft bench rigs [--rigs N] [--seconds S] [--json FILE]).
 
 Each rig is a sim, a correction and a validator under its own namespace (/rig1/force, ...), started
-as separate processes over Fast DDS in a ROS domain of their own (or, with --compose, every rig's
-correction and validator in one process and one executor). The sims pace 50 kHz in real time in
-blocks of --block samples, back-to-back pulls of the five test sets, for S seconds of data. It
-prints:
+as separate processes over Fast DDS in a ROS domain of their own (or, with --layout composed, every
+rig's correction and validator in one process and one executor). The sims pace 50 kHz in real time
+in blocks of --block samples, back-to-back pulls of the five test sets, for S seconds of data (the
+prescribed carriage motion unless --drive: a real rig's hardware makes the data). It prints:
   - per rig: blocks sent (the sim's count), corrected (the correction's), pulls scored and scored
-    OK, and the blocks dropped (sent but not corrected, plus the blocks the scores say are missing);
+    OK, and the blocks dropped (the larger of: sent but not corrected; missing from the scored pulls);
   - the CPU of every process (its children included) as a share of one core over the run;
   - for rig 1, the latency of /rig1/force_corrected after its block is complete (stamp + block
     length) and the latency the correction adds (arrival of the corrected block minus arrival of
@@ -14,9 +14,11 @@ prints:
   - the correction's CPU per rig, and its ratio to the same arithmetic done by the core on one
     numpy array (timed in the same run).
 
---max finds the largest N with zero dropped blocks and every pull scored (N = 1, 2, 4, ... until a run drops, then
-bisection). --json FILE writes {"rigs", "dropped", "p99_added_ms", "correction_cpu_per_rig", ...}
-(for --max: the largest clean run's figures, and every run's).
+--max finds the largest N with zero dropped blocks and every pull scored (N = 1, 2, 4, ... until
+a run drops, then bisection). --block, --executor and --layout take comma-separated lists: every
+combination runs, one after another, and a table puts them side by side. --json FILE writes
+{"rigs", "dropped", "p99_added_ms", "correction_cpu_per_rig", ...} (for a list: every run's; for
+--max: the largest clean run's figures, and every run's).
 """
 from __future__ import annotations
 
@@ -45,6 +47,7 @@ from ft_cli.graph import Graph  # noqa: E402
 from ft_cli.paths import RUNS  # noqa: E402
 
 SETS = (1, 2, 3, 4, 5)
+LAYOUTS = ('process', 'composed')
 PULL_S = 2.0          # every test set's pull lasts 2 s of data (the sim's schedule)
 START_TIMEOUT_S = 60.0
 
@@ -141,7 +144,8 @@ def batch_seconds(seconds: float) -> float:
     return float(np.median(times))
 
 
-def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, domain: int, log=print) -> dict:
+def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, domain: int, drive: bool = False,
+        log=print) -> dict:
     """Start ``rigs`` rigs, let them publish ``seconds`` of data, and measure (see the module doc)."""
     pulls_per_set = max(1, math.ceil(seconds / (PULL_S * len(SETS))))
     n_pulls = pulls_per_set * len(SETS)
@@ -153,7 +157,7 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
     procs = {}
     try:
         sim_params = {'test_sets': list(SETS), 'pulls_per_set': pulls_per_set, 'block_size': block,
-                      'wait_for_subscribers': 2}
+                      'wait_for_subscribers': 2, 'drive': drive}
         namespaces = [f'/rig{k}' for k in range(1, rigs + 1)]
         if compose:
             procs['correction_graph'] = graph.start(
@@ -215,7 +219,7 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
     corr_names = ['correction_graph'] if compose else [f'rig{k}/correction' for k in range(1, rigs + 1)]
     corr_cpu = sum(cpu[n] for n in corr_names) / wall   # composed: the correction and the validator
     batch = batch_seconds(n_pulls * PULL_S)
-    return {'rigs': rigs, 'dropped': sum(r['dropped'] for r in per_rig),
+    return {'rigs': rigs, 'drive': drive, 'dropped': sum(r['dropped'] for r in per_rig),
             'unscored': sum(r['pulls'] - r['scored'] for r in per_rig), 'block': block, 'executor': executor,
             'compose': compose,
             'seconds_of_data': n_pulls * PULL_S, 'wall_s': wall,
@@ -255,57 +259,95 @@ def clean(r: dict) -> bool:
     return r['dropped'] == 0 and r['unscored'] == 0
 
 
+def summary(results: list) -> None:
+    """One line per run: the trade-offs side by side."""
+    print('side by side (one run each, in this order):')
+    print(f"{'rigs':>4} {'block':>5} {'executor':>8} {'layout':>8} {'dropped':>7} {'corr CPU/rig':>12} "
+          f"{'x batch':>7} {'p50 after':>9} {'p99 after':>9} {'p50 added':>9} {'p99 added':>9}  (ms)")
+    for r in results:
+        def ms(key, r=r):
+            return f'{r[key]:9.2f}' if r[key] is not None else f"{'-':>9}"
+        print(f"{r['rigs']:>4} {r['block']:>5} {r['executor']:>8} {'composed' if r['compose'] else 'process':>8} "
+              f"{r['dropped'] + r['unscored']:>7} {100 * r['correction_cpu_per_rig']:11.1f}% "
+              f"{r['correction_cpu_over_batch']:7.0f} {ms('p50_latency_ms')} {ms('p99_latency_ms')} "
+              f"{ms('p50_added_ms')} {ms('p99_added_ms')}")
+
+
+def listed(kind, choices=None):
+    def parse(text):
+        items = [kind(x) for x in text.split(',') if x]
+        if not items or (choices and any(x not in choices for x in items)):
+            raise argparse.ArgumentTypeError(f'{text!r}: expected a comma-separated list'
+                                             + (f" of {', '.join(choices)}" if choices else ''))
+        return items
+    return parse
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(prog='./ft bench rigs', description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog='\n'.join(__doc__.splitlines()[2:]))
     ap.add_argument('--rigs', type=int, default=1, help='rigs to run (default 1)')
     ap.add_argument('--seconds', type=float, default=60.0, help='seconds of data per rig (default 60)')
-    ap.add_argument('--block', type=int, default=BLOCK_SAMPLES,
-                    help=f'samples per block (default {BLOCK_SAMPLES}, the workspace default)')
-    ap.add_argument('--executor', choices=EXECUTORS, default=os.environ.get(EXECUTOR_ENV, DEFAULT_EXECUTOR),
-                    help=f'the nodes\' executor (default ${EXECUTOR_ENV} or {DEFAULT_EXECUTOR})')
-    ap.add_argument('--compose', action='store_true',
-                    help="every rig's correction and validator in one process, one executor")
-    ap.add_argument('--max', action='store_true', help='find the largest number of rigs with zero drops')
+    ap.add_argument('--block', type=listed(int), default=[BLOCK_SAMPLES], metavar='N[,N...]',
+                    help=f'samples per block (default {BLOCK_SAMPLES}, the workspace default); a list runs each')
+    ap.add_argument('--executor', type=listed(str, EXECUTORS), metavar='E[,E...]',
+                    default=[os.environ.get(EXECUTOR_ENV, DEFAULT_EXECUTOR)],
+                    help=f"the nodes' executor: {', '.join(EXECUTORS)} (default ${EXECUTOR_ENV} or "
+                         f"{DEFAULT_EXECUTOR}); a list runs each")
+    ap.add_argument('--layout', type=listed(str, LAYOUTS), default=['process'], metavar='L[,L...]',
+                    help="process: one process per node (default); composed: every rig's correction and "
+                         "validator in one process, one executor; a list runs each")
+    ap.add_argument('--drive', action='store_true',
+                    help="the sims simulate the carriage's motor drive too (0.25 s of CPU per 2 s pull; "
+                         "default: the prescribed motion, since a real rig's hardware makes the data)")
+    ap.add_argument('--max', action='store_true',
+                    help='find the largest number of rigs with zero drops (first --block, --executor, --layout)')
     ap.add_argument('--json', type=Path, metavar='FILE', help='write the figures as JSON')
     ap.add_argument('--domain', type=int, default=60, help='first ROS domain id to use (default 60)')
     args = ap.parse_args()
-    if args.rigs < 1 or args.seconds <= 0 or args.block < 1:
+    if args.rigs < 1 or args.seconds <= 0 or min(args.block) < 1:
         ap.error('--rigs, --seconds and --block must be positive')
 
     domain = [args.domain]
+    results = []
 
-    def trial(n):
-        r = run(n, args.seconds, args.block, args.executor, args.compose, domain[0])
+    def trial(n, block, executor, layout):
+        r = run(n, args.seconds, block, executor, layout == 'composed', domain[0], args.drive)
         domain[0] += 1
         report(r)
-        print()
+        print(flush=True)
+        results.append(r)
         return r
     if not args.max:
-        result = trial(args.rigs)
-        out = result
+        for block in args.block:
+            for executor in args.executor:
+                for layout in args.layout:
+                    trial(args.rigs, block, executor, layout)
+        if len(results) > 1:
+            summary(results)
+        out = results[0] if len(results) == 1 else {'runs': results}
+        ok = all(clean(r) for r in results)
     else:
-        runs, good, bad = [], 0, None
-        n = 1
+        setup = (args.block[0], args.executor[0], args.layout[0])
+        good, bad, n = 0, None, 1
         while bad is None:
-            runs.append(trial(n))
-            if clean(runs[-1]):
+            if clean(trial(n, *setup)):
                 good, n = n, n * 2
             else:
                 bad = n
         while bad - good > 1:
             n = (good + bad) // 2
-            runs.append(trial(n))
-            good, bad = (n, bad) if clean(runs[-1]) else (good, n)
-        best = next((r for r in runs if r['rigs'] == good), None)
+            good, bad = (n, bad) if clean(trial(n, *setup)) else (good, n)
+        summary(results)
         print(f'largest number of rigs with zero dropped blocks: {good}')
-        out = dict(best or {'rigs': 0, 'dropped': None}, max_rigs=good, runs=runs)
-        result = best or runs[0]
+        best = next((r for r in results if r['rigs'] == good), None)
+        out = dict(best or {'rigs': 0, 'dropped': None}, max_rigs=good, runs=results)
+        ok = good > 0
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(out, indent=1) + '\n')
-    return 0 if clean(result) else 1
+    return 0 if ok else 1
 
 
 if __name__ == '__main__':
