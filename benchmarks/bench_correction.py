@@ -12,6 +12,7 @@ Starts the correction node as its own process, publishes /force and /accel in 1 
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 import threading
 import time
@@ -21,8 +22,31 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
+from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
 from force_tester_common.core.clock import NS_PER_S  # noqa: E402
 from ft_cli.graph import Graph  # noqa: E402
+
+RELAY = '''
+import rclpy
+from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC
+from force_tester_common.ros import BLOCK_QOS, make_executor, spin
+rclpy.init()
+node = rclpy.create_node('relay')
+topics = {t.topic: t for t in BLOCK_TOPICS}
+pub = node.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
+def on_force(m):
+    out = CORRECTED_TOPIC.msg_type(header=m.header, sample_rate_hz=m.sample_rate_hz, seq=m.seq)
+    out.raw_n = out.inertial_n = out.corrected_n = out.filtered_n = m.moving_n
+    pub.publish(out)
+node.create_subscription(topics['/force'].msg_type, '/force', on_force, BLOCK_QOS)
+node.create_subscription(topics['/accel'].msg_type, '/accel', lambda m: None, BLOCK_QOS)
+ex = make_executor()
+ex.add_node(node)
+try:
+    spin(ex)
+except Exception:
+    pass
+'''
 
 
 def cpu_seconds(pid: int) -> float:
@@ -34,7 +58,11 @@ def cpu_seconds(pid: int) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(prog='./ft bench correction', description=__doc__.splitlines()[0])
     ap.add_argument('--seconds', type=float, default=60.0, help='live run length (default 60)')
-    ap.add_argument('--block', type=int, default=50, help='samples per block (default 50 = 1 ms)')
+    ap.add_argument('--block', type=int, default=BLOCK_SAMPLES,
+                    help=f'samples per block (default {BLOCK_SAMPLES}, the workspace default)')
+    ap.add_argument('--relay', action='store_true',
+                    help='run a relay node instead of the correction: it takes /force and /accel and publishes '
+                         'each force block as /force_corrected, no arithmetic (the floor of rclpy and DDS)')
     args = ap.parse_args()
 
     import rclpy
@@ -71,7 +99,12 @@ def main() -> int:
     node.create_subscription(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, on_corrected, BLOCK_QOS)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    proc = graph.start('force_correction', 'correction_node')
+    if args.relay:
+        proc = subprocess.Popen([sys.executable, '-c', RELAY], stdout=open(out / 'logs' / 'relay.log', 'a'),
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        graph.procs['relay'] = proc
+    else:
+        proc = graph.start('force_correction', 'correction_node')
     try:
         deadline = time.monotonic() + 30
         while (pub_f.get_subscription_count() < 1 or pub_a.get_subscription_count() < 1
