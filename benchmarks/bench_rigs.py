@@ -129,6 +129,14 @@ class Probe:
         self.context.try_shutdown()
 
 
+def write_params(path: Path, namespace: str, nodes: dict) -> Path:
+    """A ROS parameter file for one rig: {node name: {parameter: value}} under ``namespace``."""
+    import yaml
+    path.write_text(yaml.safe_dump({f'{namespace}/{node}': {'ros__parameters': params}
+                                    for node, params in nodes.items()}, sort_keys=False))
+    return path
+
+
 def batch_seconds(seconds: float) -> float:
     """The core's m*a + moving average on one numpy array of ``seconds`` of one rig's data (median of 3)."""
     from force_correction.core.params import CorrectionParams
@@ -159,11 +167,16 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
         sim_params = {'test_sets': list(SETS), 'pulls_per_set': pulls_per_set, 'block_size': block,
                       'wait_for_subscribers': 2, 'drive': drive}
         namespaces = [f'/rig{k}' for k in range(1, rigs + 1)]
+        # the documented way (README, "Several rigs on one machine"): a namespace and a parameter file per rig
+        files = [write_params(graph.log_dir / f'rig{k}.yaml', ns, {'sim': dict(sim_params, seed=k)})
+                 for k, ns in enumerate(namespaces, 1)]
         if compose:
             procs['correction_graph'] = graph.start(
-                'force_correction', 'correction_graph', extra=[a for ns in namespaces for a in ('--namespace', ns)])
+                'force_correction', 'correction_graph', extra=[
+                    *(a for ns in namespaces for a in ('--namespace', ns)),
+                    '--ros-args', *(a for f in files for a in ('--params-file', str(f)))])
         for k, ns in enumerate(namespaces, 1):
-            remap = ['--ros-args', '-r', f'__ns:={ns}']
+            remap = ['--ros-args', '-r', f'__ns:={ns}', '--params-file', str(files[k - 1])]
             if not compose:
                 procs[f'rig{k}/correction'] = graph.start('force_correction', 'correction_node', extra=remap,
                                                           key=f'rig{k}_correction')
@@ -172,8 +185,8 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
         # the sims last: they wait for their correction and validator, then start at once
         cpu0 = {}
         for k, ns in enumerate(namespaces, 1):
-            procs[f'rig{k}/sim'] = graph.start('force_tester_sim', 'sim_node', sim_params,
-                                               extra=['--ros-args', '-r', f'__ns:={ns}'], key=f'rig{k}_sim')
+            procs[f'rig{k}/sim'] = graph.start('force_tester_sim', 'sim_node', extra=[
+                '--ros-args', '-r', f'__ns:={ns}', '--params-file', str(files[k - 1])], key=f'rig{k}_sim')
 
         def started():
             return all(probe.events.values())

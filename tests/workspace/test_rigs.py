@@ -27,3 +27,22 @@ def test_two_rigs_each_score_their_own_pulls(tmp_path, ros_domain):
             assert rig['scored'] == rig['scored_ok'] == rig['pulls'] == 5
             assert rig['sent'] == rig['corrected'] == 5 * 2 * 50_000 // 250
         assert r['p99_added_ms'] is not None and r['correction_cpu_per_rig'] > 0
+
+
+def test_the_rig_parameter_files_set_only_declared_parameters():
+    """config/rigs/*.yaml (README, "Several rigs on one machine"): every node they name is one of a
+    rig's nodes under the file's namespace, and every parameter is one that node declares."""
+    import yaml
+
+    from force_correction import correction_node, validator_node
+    from force_tester_sim import sim_node
+    declared = {name: {spec.name for spec in module.SPECS}
+                for name, module in (('sim', sim_node), ('correction', correction_node),
+                                     ('validator', validator_node))}
+    files = sorted((ROOT / 'config' / 'rigs').glob('*.yaml'))
+    assert len(files) >= 2
+    for f in files:
+        for node, section in yaml.safe_load(f.read_text()).items():
+            namespace, name = node.rsplit('/', 1)
+            assert namespace == f'/{f.stem}' and name in declared, (f.name, node)
+            assert set(section['ros__parameters']) <= declared[name], (f.name, node)
