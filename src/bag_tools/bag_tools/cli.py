@@ -146,9 +146,9 @@ def report_engine(cmd: str, mapper, failed=()) -> int:
 
 
 def cmd_export(args) -> int:
+    mapper = engine_for(args)
     from .core.convert import bag_to_campaign
     from .core.daq import campaign_index
-    mapper = engine_for(args)
     warnings: list = []
     prog = Progress('export')
     try:
@@ -162,11 +162,11 @@ def cmd_export(args) -> int:
 
 
 def cmd_import(args) -> int:
+    mapper = engine_for(args)
     from .core.convert import campaign_to_bag
     from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_tdms
     warnings: list = []
     src = args.src
-    mapper = engine_for(args)
     if src.lower().endswith('.tdms'):
         if not os.path.isfile(src):
             raise BagError(f'TDMS file {src!r} does not exist')

@@ -129,17 +129,24 @@ def plot_top_speed(result: dict, path) -> bool:
     return True
 
 
+def _fail(exc) -> int:
+    print(f'./ft thesis: error: {" ".join(str(exc).split())}', file=sys.stderr)
+    return 2
+
+
 def run(args) -> int:
-    from bag_tools.core.errors import BagError
     from force_tester_common.engine import EngineError, check_scheduler
+    try:   # a bad address fails first, before the (slow) imports and the top-speed study
+        if not args.no_campaign:
+            check_scheduler(args.scheduler)
+    except EngineError as exc:
+        return _fail(exc)
+    from bag_tools.core.errors import BagError
     from force_tester_sim.core.errors import SimError
     try:
-        if not args.no_campaign:
-            check_scheduler(args.scheduler)   # a bad address fails now, not after the top-speed study
         return _run(args)
     except (EngineError, BagError, SimError) as exc:
-        print(f'./ft thesis: error: {" ".join(str(exc).split())}', file=sys.stderr)
-        return 2
+        return _fail(exc)
 
 
 def _run(args) -> int:

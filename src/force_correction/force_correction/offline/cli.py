@@ -53,10 +53,10 @@ def _correct_arguments(p) -> None:
 
 
 def run_correct(args) -> int:
+    mapper = engine_for(args)   # a bad address fails first
     from .pipeline import CorrectionSetup, correct
     setup = CorrectionSetup.build(args.mass_kg, args.window, args.extension,
                                   loaded_fraction=args.loaded_fraction)
-    mapper = engine_for(args)
     prog = Progress('correct', 'messages')
     try:
         result = correct(args.src, args.dst, setup, to=args.to, progress=prog, mapper=mapper,

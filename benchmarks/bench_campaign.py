@@ -1,0 +1,169 @@
+"""Benchmark: an N-pull campaign end to end on Dask (./ft bench campaign --pulls N [--json FILE] [--scheduler ADDR]).
+
+Stages, in this order, each timed with the peak RSS of this process (the client) and of every Dask worker:
+1. generate: the truth rig's campaign (sets 1-5 in turn, N pulls in all, 2 s at 50 kHz each, seed 2013), each
+   pull simulated and written as CSV on a worker (as ./ft thesis makes the reference campaign);
+2. import: that campaign folder -> a bag (pull files read on the workers, the bag written here, streamed);
+3. discover: ./ft discover on the campaign folder (its CLI function, in this process, on the same scheduler);
+   the generated campaign is deleted after it;
+4. export: the bag -> a campaign folder (the bag read here once, CSV formatted on the workers), then deleted.
+Disk: about 16 MB of CSV and 8 MB of bag per pull, at most campaign + bag at once (24 GB for 1,000 pulls).
+
+Peak RSS per stage: Linux's VmHWM (/proc/PID/status), reset before each stage by writing 5 to
+/proc/PID/clear_refs, in this process and, through client.run, in each worker process. Where the reset is not
+allowed, the figure is the peak since the process started (the table says so).
+Per-pull cost: the stage's wall time / N on this machine's workers (cost per pull x N / workers for a cluster).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+for _pkg in ('bag_tools', 'force_tester_common', 'force_correction', 'force_tester_sim', 'force_discovery'):
+    if str(ROOT / 'src' / _pkg) not in sys.path:
+        sys.path.insert(0, str(ROOT / 'src' / _pkg))
+
+SETS = (1, 2, 3, 4, 5)
+SEED = 2013
+
+
+def peak_rss_mb(reset: bool = False) -> tuple:
+    """(VmHWM of this process in MB, whether the peak could be reset before), optionally resetting it now."""
+    ok = True
+    if reset:
+        try:
+            with open('/proc/self/clear_refs', 'w') as fh:
+                fh.write('5')
+        except OSError:
+            ok = False
+    with open('/proc/self/status') as fh:
+        for line in fh:
+            if line.startswith('VmHWM:'):
+                return int(line.split()[1]) / 1024.0, ok
+    return float('nan'), False
+
+
+def _worker_peak(reset: bool = False):   # runs in each worker process (client.run)
+    return peak_rss_mb(reset)
+
+
+class Meter:
+    """Peak RSS of the client and the workers over one stage, and its wall time."""
+
+    def __init__(self, client) -> None:
+        self.client = client
+
+    def __enter__(self):
+        self.client_reset = peak_rss_mb(reset=True)[1]
+        self.worker_reset = all(ok for _mb, ok in self._workers(True).values())
+        self.t0 = time.perf_counter()
+        return self
+
+    def _workers(self, reset: bool) -> dict:
+        if self.client is None:
+            return {}
+        return self.client.run(_worker_peak, reset)
+
+    def __exit__(self, *exc):
+        self.wall = time.perf_counter() - self.t0
+        self.client_mb = peak_rss_mb()[0]
+        self.workers_mb = {w: mb for w, (mb, _ok) in sorted(self._workers(False).items())}
+        return False
+
+
+def run(n: int, scheduler: str | None, work: Path) -> dict:
+    from bag_tools.core.convert import bag_to_campaign, campaign_to_bag
+    from bag_tools.core.daq import write_campaign
+    from force_tester_common.engine import INLINE, Mapper, get_client, resolve_scheduler
+    from force_tester_sim.core.campaign import campaign_jobs, simulate_campaign_pull
+    from force_tester_sim.core.params import TRUTH_YAML, load_rig
+
+    address = resolve_scheduler(scheduler)
+    client, where = (None, INLINE) if address == INLINE else get_client(address)
+    per_set = -(-n // len(SETS))
+    jobs = campaign_jobs(load_rig(TRUTH_YAML), SETS, per_set, SEED)
+    jobs = [jobs[(i % len(SETS)) * per_set + i // len(SETS)] for i in range(n)]   # sets in turn, N in all
+    camp, bag, out, exported = work / 'campaign', work / 'bag', work / 'discover', work / 'exported'
+    stages = {}
+
+    def stage(name, fn):
+        with Meter(client) as m:
+            fn()
+        stages[name] = m
+        workers = ', '.join(f'{mb:.0f}' for mb in m.workers_mb.values()) or '-'
+        print(f'  {name:9s} {m.wall:8.1f} s  {m.wall / n:6.2f} s/pull  client peak {m.client_mb:6.0f} MB  '
+              f'workers peak {workers} MB', flush=True)
+
+    print(f'campaign of {n} pulls on {where}; work folder {work}', flush=True)
+    mapper = Mapper(scheduler)
+    stage('generate', lambda: write_campaign(camp, jobs, mapper=mapper, produce=simulate_campaign_pull))
+    stage('import', lambda: campaign_to_bag(camp, bag, mapper=mapper))
+    stage('discover', lambda: discover(camp, out, scheduler))
+    shutil.rmtree(camp)
+    stage('export', lambda: bag_to_campaign(bag, exported, mapper=mapper))
+    total = sum(m.wall for m in stages.values())
+    return {
+        'pulls': n, 'scheduler': where, 'cpus': os.cpu_count(), 'wall_s': total, 's_per_pull': total / n,
+        'retried': mapper.retried,
+        'stages': {k: {'wall_s': m.wall, 's_per_pull': m.wall / n, 'share': m.wall / total,
+                       'client_peak_mb': m.client_mb, 'worker_peak_mb': list(m.workers_mb.values()),
+                       'peak_reset': m.client_reset and m.worker_reset} for k, m in stages.items()},
+    }
+
+
+def discover(folder: Path, out: Path, scheduler: str | None) -> None:
+    """./ft discover FOLDER --out OUT [--scheduler S], through its CLI function (whatever options it has)."""
+    from force_discovery.cli import add_arguments, main
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    argv = [str(folder), '--out', str(out)]
+    if scheduler and any('--scheduler' in a.option_strings for a in ap._actions):
+        argv += ['--scheduler', scheduler]
+    rc = main(ap.parse_args(argv))
+    if rc != 0:
+        raise SystemExit(f'bench campaign: ./ft discover exited {rc}')
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(prog='./ft bench campaign', description=__doc__.splitlines()[0])
+    ap.add_argument('--pulls', type=int, required=True, help='pulls in the campaign (N)')
+    ap.add_argument('--json', help='write the figures to this file too')
+    ap.add_argument('--scheduler', metavar='ADDRESS', default=None,
+                    help='Dask scheduler (default: $DASK_SCHEDULER_ADDRESS, else the embedded local cluster)')
+    ap.add_argument('--work', metavar='DIR', default=None,
+                    help='folder for the campaign and bag (default: a temporary folder under runs/, removed)')
+    a = ap.parse_args()
+    if a.pulls < 1:
+        ap.error(f'--pulls {a.pulls} is invalid; expected an integer >= 1')
+    from force_tester_common.engine import EngineError
+    (ROOT / 'runs').mkdir(exist_ok=True)
+    work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix='bench_campaign_', dir=ROOT / 'runs'))
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        res = run(a.pulls, a.scheduler, work)
+    except EngineError as exc:
+        print(f'./ft bench campaign: error: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        if not a.work:
+            shutil.rmtree(work, ignore_errors=True)
+    print(f'total {res["wall_s"]:.1f} s, {res["s_per_pull"]:.2f} s/pull; shares: '
+          + ', '.join(f'{k} {100 * v["share"]:.0f} %' for k, v in res['stages'].items())
+          + ('' if all(v['peak_reset'] for v in res['stages'].values())
+             else '; peaks: since process start (clear_refs not allowed)')
+          + (f'; rerun after a worker died: {", ".join(res["retried"])}' if res['retried'] else ''))
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=1))
+        print(f'json: {a.json}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
