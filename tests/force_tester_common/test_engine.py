@@ -119,3 +119,14 @@ def test_workers_are_real_processes_of_this_venv(cluster):
     assert set(exe.values()) == {sys.executable}
     assert len(set(pids.values())) == 2 and __import__('os').getpid() not in pids.values()
     assert all(Path(m).is_file() for m in mods.values())
+
+
+def test_an_error_in_the_items_stops_the_map_and_reaches_the_caller(cluster):
+    def items():
+        yield from ITEMS[:3]
+        raise ValueError('pull 4 is listed twice')
+
+    with pytest.raises(ValueError, match='listed twice'):
+        map_pulls(engine_jobs.square_slowly, items(), scheduler=cluster.scheduler_address)
+    again = map_pulls(engine_jobs.square_slowly, ITEMS, scheduler=cluster.scheduler_address)
+    assert again.results == [i * i for i in range(6)]     # the engine still works afterwards

@@ -307,7 +307,7 @@ def _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
         # not a graph that repeats data, so Dask's large-graph warning does not apply
         with dask.config.set({'distributed.admin.large-graph-warning-threshold': '2GB'}):
             fut = client.submit(_run_one, fn, item, key=key, pure=False, retries=0)
-        pending[key] = (i, item)
+        pending[key] = (i, item, fut)
         keys[key] = i
         return fut
 
@@ -346,7 +346,7 @@ def _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
         while in_flight:
             fut = next(ac)
             in_flight -= 1
-            i, item = pending.pop(fut.key)
+            i, item, _f = pending.pop(fut.key)
             result, killed = outcome(fut)
             fut.release()
             if killed:
@@ -367,10 +367,22 @@ def _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
             fut.release()
             settle(i, result)
     except (OSError, TimeoutError) as exc:
+        _cancel(client, pending)
         raise EngineError(f'lost the scheduler {where} during the campaign ({one_line(exc)}); expected it '
                           'to stay up until the last pull') from None
+    except BaseException:   # the items' iterator or on_result raised, or Ctrl-C: stop the pulls in flight
+        _cancel(client, pending)
+        raise
     out.retried = _reran(client, keys, names)
     return out
+
+
+def _cancel(client, pending: dict) -> None:
+    try:
+        client.cancel([f for _i, _item, f in pending.values()])
+    except Exception:  # noqa: BLE001,S110 - the scheduler is gone: nothing runs for us any more
+        pass
+    pending.clear()
 
 
 def _death_line(exc: BaseException) -> str:
