@@ -21,7 +21,8 @@ from force_tester_sim.core.params import load_rig
 
 
 def run(camp, tmp):
-    return discover(camp, load_rig(), tmp)
+    """The streamed discovery, its per-pull stages inline (test_stream.py runs them on Dask workers)."""
+    return discover(camp, load_rig(), tmp, scheduler='inline')
 
 
 @pytest.mark.parametrize('name', sorted(PLAUSIBLE))

@@ -2,6 +2,8 @@
 
 DATA is a campaign folder in the DAQ export format or a bag (converted to a temporary campaign first).
 Writes DIR/report.json, DIR/report.md (+ residuals.png when matplotlib is importable) and DIR/extension.yaml.
+The pulls are streamed (bounded memory); the per-pull stages run on Dask (--scheduler, see
+force_tester_common.engine). A pull whose file cannot be read is left out and named.
 """
 from __future__ import annotations
 
@@ -16,6 +18,8 @@ def add_arguments(p):
     p.add_argument('--rig', metavar='RIG.yaml', default=None,
                    help='nominal rig YAML (default: the packaged nominal rig)')
     p.add_argument('--out', metavar='DIR', required=True, help='output folder')
+    from force_tester_common.engine import add_scheduler_argument
+    add_scheduler_argument(p)
 
 
 def _error(msg: str) -> int:
@@ -25,12 +29,12 @@ def _error(msg: str) -> int:
 
 def main(args) -> int:
     from bag_tools.core.errors import BagError
+    from force_tester_common.engine import EngineError, check_scheduler
     from force_tester_sim.core.errors import SimError
 
     from .core.errors import DiscoveryError
     tmp = None
     try:
-        from bag_tools.core.daq import read_campaign
         from force_tester_sim.core.params import load_rig
 
         from .core.pipeline import discover
@@ -38,16 +42,16 @@ def main(args) -> int:
         data = Path(args.data)
         if not data.exists():
             return _error(f'DATA {str(data)!r} does not exist; expected a campaign folder or a bag')
+        scheduler = getattr(args, 'scheduler', None)
+        check_scheduler(scheduler)   # an unreachable scheduler fails now, not after the bag is converted
         if data.is_dir() and (data / 'campaign.yaml').is_file():
             folder = data
         else:
             from bag_tools.core.convert import bag_to_campaign
             tmp = Path(tempfile.mkdtemp(prefix='ft_discover_'))
             folder = bag_to_campaign(data, tmp / 'campaign')
-        camp = read_campaign(folder)
-        pulls = [(p.meta, p.channels) for p in camp.pulls]
-        report = discover(pulls, rig, Path(args.out))
-    except (BagError, DiscoveryError, SimError) as exc:
+        report = discover(folder, rig, Path(args.out), scheduler=scheduler, progress=_progress())
+    except (BagError, DiscoveryError, SimError, EngineError) as exc:
         return _error(exc)
     except OSError as exc:
         print(f'./ft discover: error: I/O failure: {" ".join(str(exc).split())}', file=sys.stderr)
@@ -55,6 +59,10 @@ def main(args) -> int:
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+    for f in report.get('failed_pulls') or []:
+        print(f'pull {f["pull"]} left out: {f["error"]}', file=sys.stderr)
+    if report.get('retried_pulls'):
+        print(f'rerun after a worker died: {", ".join(report["retried_pulls"])}', file=sys.stderr)
     if not report['fitted_pulls']:   # the data-quality screen left too few pulls: the report says which and why
         return _error(f'{report["causes"][0]["evidence"]["value"]} usable pulls after the data-quality screen; '
                       f'expected at least {report["causes"][0]["evidence"]["threshold"]} '
@@ -72,6 +80,17 @@ def main(args) -> int:
         print(f'data quality: {len(report["data_quality"])} defects or exclusions (report.md, Data quality)')
     print(f'report: {Path(args.out) / "report.md"}')
     return 0
+
+
+def _progress():
+    """progress(stage, done, total) on one terminal line of stderr (nothing when stderr is not a terminal)."""
+    if not sys.stderr.isatty():
+        return None
+
+    def show(stage, done, total):
+        end = '\n' if stage == 'held-out' and done == total else ''
+        print(f'\r./ft discover: {stage} {done}/{total} pulls   ', end=end, file=sys.stderr, flush=True)
+    return show
 
 
 def cli(argv=None) -> int:

@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -49,6 +49,7 @@ MIN_PULLS = 4                 # half are fitted, half held out
 MIN_REL_REDUCTION = 0.01      # held-out SSE must fall by at least 1 %
 MIN_T = 4.0                   # and consistently over held-out pulls
 HUM_BAND_HZ = (45.0, 65.0)
+FEW_PULLS = 12               # the hum frequency and the free-decay modes come from this many fitted pulls
 MOUNT_MAX_FRACTION = 0.7      # a free-decay mode below 0.7 x the cell mode is not the cell
 UNEXPLAINED_SHARE = 0.3       # residual variance in W above 1/(1-0.3) x the quiet-record floor: structured
 NONLIN_SHARE = 0.03           # a T^2 term removing > 3 % of the held-out force residual: not a linear sensor
@@ -205,22 +206,34 @@ def _pre_resid(p: Pull, m2: float) -> Tuple[np.ndarray, np.ndarray]:
     return p.t[i0:p.pre1][ok], (p.fm - p.T - m2 * p.a2)[i0:p.pre1][ok]
 
 
+pre_residual = _pre_resid   # (t, r): the pull's pre-pull residual F_move - T - m2 a2 (usable samples), the hum's data
+
+
+def few_pulls(fit: Sequence[int]) -> list:
+    """The fitted pulls (list positions) that the hum frequency and the free-decay modes are measured on: up to
+    FEW_PULLS, spread evenly over the fitted ones."""
+    return list(fit[::max(1, len(fit) // FEW_PULLS)][:FEW_PULLS])
+
+
 def fit_hum_frequency(pulls: Sequence[Pull], m2: float) -> Tuple[float, dict]:
     """Frequency maximizing the summed (per-pull, free phase) line power of the pre-pull residual, 45-65 Hz."""
+    return hum_frequency_from([_pre_resid(p, m2) for p in pulls], pulls[0].dt)
+
+
+def hum_frequency_from(pres: Sequence[Tuple[np.ndarray, np.ndarray]], dt: float) -> Tuple[float, dict]:
+    """fit_hum_frequency() on the pulls' pre-pull residuals pres = [(t, r)] (pre_residual), dt: the first one's."""
     def power(f):
         tot = 0.0
-        for p in pulls:
-            t, r = _pre_resid(p, m2)
+        for t, r in pres:
             A = _hum_design(t, f)
             c, *_ = np.linalg.lstsq(A, r, rcond=None)
             tot += float(np.sum((A[:, :2] @ c[:2]) ** 2))
         return tot
     nfft = 2 ** 19   # zero-padded periodogram (about 0.1 Hz bins) summed over pulls, then a local LS refinement
     spec = 0.0
-    for p in pulls:
-        t, r = _pre_resid(p, m2)
+    for _t, r in pres:
         spec = spec + np.abs(np.fft.rfft((r - r.mean()) * np.hanning(len(r)), nfft)) ** 2
-    fgrid = np.fft.rfftfreq(nfft, pulls[0].dt)
+    fgrid = np.fft.rfftfreq(nfft, dt)
     band = (fgrid >= HUM_BAND_HZ[0]) & (fgrid <= HUM_BAND_HZ[1])
     pw = spec[band]
     f0 = float(fgrid[band][int(np.argmax(pw))])
@@ -234,8 +247,12 @@ def fit_hum_frequency(pulls: Sequence[Pull], m2: float) -> Tuple[float, dict]:
 
 def hum_frequency_per_pull(p: Pull, f0: float, m2: float) -> float:
     """One pull's own least-squares hum frequency near f0 (its pre-pull record only)."""
+    return hum_frequency_near(*_pre_resid(p, m2), f0)
+
+
+def hum_frequency_near(t: np.ndarray, r: np.ndarray, f0: float) -> float:
+    """hum_frequency_per_pull() on the pull's pre-pull residual (t, r)."""
     from scipy.optimize import minimize_scalar
-    t, r = _pre_resid(p, m2)
 
     def neg_power(f):
         A = _hum_design(t, f)
@@ -372,6 +389,23 @@ class ForceModel:
         ys, Xs, names = self.design(terms, d, [j], masked=False)
         c = np.array([coef[n] for n in names]) if names else np.zeros(0)
         return ys[0] - Xs[0] @ c
+
+    def t2_reduction(self, coef, d, fit, held) -> float:
+        """Relative held-out SSE reduction when T^2 is added to the full model (coef, d: its fit)."""
+        fm_ = self
+        sig = fm_.at(d)
+
+        def t2(j):   # T^2 on W, on the usable samples as design() takes them
+            p = fm_.pulls[j]
+            return sig[j][1][p.usable(p.w0, p.w1)] ** 2
+        ys, Xs, names = fm_.design(set(TERMS), d, fit)
+        X = np.vstack([np.column_stack([Xk, t2(j)]) for Xk, j in zip(Xs, fit)])
+        c, *_ = np.linalg.lstsq(X, np.concatenate(ys), rcond=None)
+        ys2, Xs2, _ = fm_.design(set(TERMS), d, held)
+        c0 = np.array([coef[n] for n in names])
+        s0 = sum(float(np.sum((y - Xk @ c0) ** 2)) for y, Xk in zip(ys2, Xs2))
+        s1 = sum(float(np.sum((y - np.column_stack([Xk, t2(j)]) @ c) ** 2)) for y, Xk, j in zip(ys2, Xs2, held))
+        return float(1 - s1 / s0) if s0 > 0 else 0.0
 
 
 def _parabolic_offset(y: np.ndarray, k: int) -> float:
@@ -544,16 +578,28 @@ def _friction_stat(rows: np.ndarray) -> float:
     return float(np.median(rows[:, 0]) - np.median(rows[:, 1]))
 
 
+def friction_row(p: Pull, rig) -> Optional[tuple]:
+    """The pull's median force-balance residual while moving and at rest (None without a current channel)."""
+    cr = current_resid(p, rig)
+    if cr is None:
+        return None
+    rho, sg = cr
+    return np.median(rho[sg == 1.0]), np.median(rho[sg == 0.0])
+
+
 def friction_offsets(pulls, idx, rig) -> Optional[np.ndarray]:
     """Per pull: the median force-balance residual while moving and at rest (None without a current channel)."""
-    rows = []
-    for j in idx:
-        cr = current_resid(pulls[j], rig)
-        if cr is None:
+    return friction_rows(friction_row(pulls[j], rig) for j in idx)
+
+
+def friction_rows(rows: Iterable[Optional[tuple]]) -> Optional[np.ndarray]:
+    """The friction_row()s as an array, None when a pull had no current channel."""
+    out = []
+    for r in rows:
+        if r is None:
             return None
-        rho, sg = cr
-        rows.append((np.median(rho[sg == 1.0]), np.median(rho[sg == 0.0])))
-    return np.array(rows)
+        out.append(r)
+    return np.array(out)
 
 
 def friction_sse(p: Pull, rig, fc: float) -> float:
@@ -585,28 +631,61 @@ def _split(pulls: Sequence[Pull]):
     return fit, held
 
 
-def cell_damping_ratio(pulls: Sequence[Pull], idx: Sequence[int], rig) -> Optional[Tuple[float, int]]:
-    """(damping ratio, pulls used) of the load cells from the stationary cell's free decay after the break (lanyard
-    slack: m1 alone on its cell, one mode near sqrt(K_LC1/m1)), the median over up to CAL_PULLS of the pulls idx
-    whose ring stands CAL_RING_TO_NOISE x above the record's quiet noise; None if none does."""
+def cell_zeta(p: Pull, rig) -> Optional[float]:
+    """One pull's damping ratio of the load cells from the stationary cell's free decay after the break (lanyard
+    slack: m1 alone on its cell, one mode near sqrt(K_LC1/m1)), when its ring stands CAL_RING_TO_NOISE x above the
+    record's quiet noise; else None."""
     fc = rig.force_chain
     f1 = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m1) / (2 * np.pi)
-    zetas = []
-    for j in idx:
-        if len(zetas) >= CAL_PULLS:
+    i0 = p.brk + int(round(2e-4 / p.dt))
+    seg = p.fs[i0:i0 + CAL_SAMPLES]
+    if len(seg) < CAL_SAMPLES // 2:
+        return None
+    seg = seg - np.mean(seg)
+    noise = float(np.std(p.fs[:max(10, p.pre1 // 4)]))
+    for f, z, e in matrix_pencil(seg, p.dt):
+        if abs(f / f1 - 1.0) < 0.3 and 0.0 < z < 0.5 and math.sqrt(e / len(seg)) > CAL_RING_TO_NOISE * noise:
+            return z
+    return None
+
+
+def cell_damping_from(zetas: Iterable[Optional[float]]) -> Optional[Tuple[float, int]]:
+    """(median, count) of the first CAL_PULLS measured ratios among the per-pull cell_zeta() values (None: not
+    measured on that pull), in pull order; None if none was measured."""
+    found = []
+    for z in zetas:
+        if len(found) >= CAL_PULLS:
             break
-        p = pulls[j]
-        i0 = p.brk + int(round(2e-4 / p.dt))
-        seg = p.fs[i0:i0 + CAL_SAMPLES]
-        if len(seg) < CAL_SAMPLES // 2:
-            continue
-        seg = seg - np.mean(seg)
-        noise = float(np.std(p.fs[:max(10, p.pre1 // 4)]))
-        for f, z, e in matrix_pencil(seg, p.dt):
-            if abs(f / f1 - 1.0) < 0.3 and 0.0 < z < 0.5 and math.sqrt(e / len(seg)) > CAL_RING_TO_NOISE * noise:
-                zetas.append(z)
-                break
-    return (float(np.median(zetas)), len(zetas)) if zetas else None
+        if z is not None:
+            found.append(z)
+    return (float(np.median(found)), len(found)) if found else None
+
+
+def cell_damping_ratio(pulls: Sequence[Pull], idx: Sequence[int], rig) -> Optional[Tuple[float, int]]:
+    """(damping ratio, pulls used) of the load cells (cell_zeta), the median over up to CAL_PULLS of the pulls idx
+    where it could be measured; None if it could not on any."""
+    return cell_damping_from(cell_zeta(pulls[j], rig) for j in idx)
+
+
+def cell_calibration(cal: Optional[Tuple[float, int]], rig) -> Tuple[Optional[float], Optional[dict]]:
+    """(the stationary cell's damping coefficient c1 that T must use, or None to keep the rig's; the calibration as
+    report.json cell_damping says it, or None when nothing was measured) from cell_damping_ratio()'s result."""
+    if cal is None:
+        return None, None
+    fc = rig.force_chain
+    zeta, n = cal
+    used = abs(zeta / fc.load_cell_damping_ratio - 1.0) > CAL_MIN_CHANGE
+    out = {'rig_damping_ratio': fc.load_cell_damping_ratio, 'measured_damping_ratio': zeta, 'pulls': n,
+           'used_for_tension': used}
+    return (2.0 * zeta * math.sqrt(fc.load_cell_stiffness_n_per_m * fc.m1) if used else None), out
+
+
+def with_tension(p: Pull, rig, c1: Optional[float]) -> Pull:
+    """The pull with T recomputed from its stationary cell with damping coefficient c1 (None: the pull as is)."""
+    if c1 is None:
+        return p
+    fc = rig.force_chain
+    return dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, fc.m1, fc.load_cell_stiffness_n_per_m, c1))
 
 
 def calibrate_cells(pulls: Sequence[Pull], rig) -> Tuple[Sequence[Pull], Optional[dict]]:
@@ -614,37 +693,41 @@ def calibrate_cells(pulls: Sequence[Pull], rig) -> Tuple[Sequence[Pull], Optiona
     rig's by more than CAL_MIN_CHANGE (relative), every pull's T is recomputed with it (a1 from F_stat depends on the
     stationary cell's damping: with a wrong one T rings wrongly at the cell mode). Returns (pulls, calibration or
     None when nothing was measured)."""
-    fc = rig.force_chain
-    cal = cell_damping_ratio(pulls, range(len(pulls)), rig)
-    if cal is None:
-        return pulls, None
-    zeta, n = cal
-    used = abs(zeta / fc.load_cell_damping_ratio - 1.0) > CAL_MIN_CHANGE
-    out = {'rig_damping_ratio': fc.load_cell_damping_ratio, 'measured_damping_ratio': zeta, 'pulls': n,
-           'used_for_tension': used}
-    if not used:
+    c1, out = cell_calibration(cell_damping_ratio(pulls, range(len(pulls)), rig), rig)
+    if c1 is None:
         return pulls, out
-    k1, m1 = fc.load_cell_stiffness_n_per_m, fc.m1
-    c1 = 2.0 * zeta * math.sqrt(k1 * m1)
-    return tuple(dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, m1, k1, c1)) for p in pulls), out
+    return tuple(with_tension(p, rig, c1) for p in pulls), out
+
+
+def calibration_note(cells: Optional[dict]) -> Optional[str]:
+    if not (cells and cells['used_for_tension']):
+        return None
+    return (f'the cells ring with damping ratio {cells["measured_damping_ratio"]:.4g} (free decay after the '
+            f'break, {cells["pulls"]} pulls), not the rig\'s {cells["rig_damping_ratio"]:.4g}: T = F_stat + '
+            f'm1 a1 uses the measured one')
 
 
 @dataclass(frozen=True)
 class Analysis:
     """Everything the stages measured (no files, nothing decided yet)."""
 
-    pulls: tuple                 # Pull per campaign pull
+    pulls: tuple                 # per usable pull: its Pull (analyse) or PullInfo (stream.analyse_stream)
     quality: tuple               # PullQuality per campaign pull
     fit: tuple                   # list positions of the fitted pulls
     held: tuple                  # list positions of the held-out pulls
-    hums: Optional[tuple]        # mains-hum estimate per pull when the hum is significant, else None
+    hums: Optional[tuple]        # the mains hum per pull when it is significant (analyse: the arrays; the stream:
+    #                              HumScales), else None
     candidates: dict             # catalog name -> {'parameters', 'evidence', 'channel', ...}
     force: dict                  # the full force model: coef, delay_s, held-out SSE
-    ring: Optional[dict]         # free-decay segments and the observed mode, if any
+    ring: Optional[dict]         # the observed free-decay mode, its held-out scores and one segment, if any
     notes: tuple = ()
     screens: tuple = ()          # quality.PullScreen per campaign pull (the data-quality stage)
     excluded: dict = field(default_factory=dict)   # pull name -> why the data-quality stage left it out
     cells: Optional[dict] = None  # calibrate_cells(): the cells' damping ratio measured, and whether T used it
+    friction: Optional[dict] = None   # current_stage(): held-out squared current residuals without/with friction
+    failed: tuple = ()           # (pull name, one line) per pull whose file could not be read or analysed
+    retried: tuple = ()          # names of the pulls rerun because a worker died under them
+    scheduler: str = ''          # where the per-pull stages ran ('' for analyse(): in this process, one pass)
 
     @property
     def fitted_pulls(self) -> list:
@@ -658,38 +741,58 @@ class Analysis:
 FORCE_CHANNEL_TEXT = 'force_moving_n - (T + m2 a2), analysis window'
 
 
+def hum_candidate(f_hum: float, pres: Sequence[Tuple[np.ndarray, np.ndarray]], amps: Sequence[float], a_fit: float,
+                  fm_h, fm_0, fit, held) -> Tuple[dict, bool]:
+    """(the mains-hum candidate, whether it is significant) from the hum frequency f_hum, the few pulls' pre-pull
+    residuals pres (for its interval), every pull's hum amplitude, and the full force model with (fm_h) and without
+    (fm_0) the hum: a ForceModel or a ForceStats."""
+    c_h, _, d_h = fm_h.fit_delay(set(TERMS), fit)
+    c_0, _ = fm_0.fit(set(TERMS), fit, d_h)
+    sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
+    sig['rms_gain_alone'] = significance(fm_0.sse_per_pull(set(), {}, 0.0, held),
+                                         fm_h.sse_per_pull(set(), {}, 0.0, held))['rms_gain']
+    ci = {'frequency_hz': list(bootstrap_ci([hum_frequency_near(t, r, f_hum) for t, r in pres], np.mean)),
+          'amplitude_n': list(bootstrap_ci([amps[k] for k in fit], np.mean))}
+    cand = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': a_fit}, 'parameters_ci95': ci, 'ci_pulls': len(fit),
+            'evidence': sig,
+            'channel': FORCE_CHANNEL_TEXT, 'where': f'whole record; line at {f_hum:.2f} Hz'}
+    return cand, bool(sig['significant'])
+
+
+def hum_scale(amps: Sequence[float], a_fit: float, j: int) -> float:
+    """The factor on held-out pull j's own hum estimate: its amplitude comes from the fitted pulls (a_fit)."""
+    return a_fit / max(amps[j], 1e-12)
+
+
 def hum_stage(pulls, fit, held, m2) -> Tuple[dict, Optional[tuple]]:
     """The mains-hum candidate and, when it is significant, the hum per pull.
 
     Frequency from a few fitted pulls' pre-pull records; phase per pull from its own pre-pull record;
     amplitude of the held-out pulls from the fitted pulls. Scored on W (disjoint from the pre-pull
     record the phases came from), inside the full force model."""
-    few = fit[::max(1, len(fit) // 12)][:12]
-    f_hum, _power = fit_hum_frequency([pulls[j] for j in few], m2)
+    few = few_pulls(fit)
+    pres = [_pre_resid(pulls[j], m2) for j in few]
+    f_hum, _power = hum_frequency_from(pres, pulls[few[0]].dt)
     amps, hums = [], []
     for p in pulls:
         a, h = hum_per_pull(p, f_hum, m2)
         amps.append(a)
         hums.append(h)
     a_fit = float(np.mean([amps[k] for k in fit]))
-    hums = [h * (a_fit / max(amps[j], 1e-12)) if j in held else h for j, h in enumerate(hums)]
-    fm_h, fm_0 = ForceModel(pulls, m2, hums), ForceModel(pulls, m2)
-    c_h, _, d_h = fm_h.fit_delay(set(TERMS), fit)
-    c_0, _ = fm_0.fit(set(TERMS), fit, d_h)
-    sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
-    sig['rms_gain_alone'] = significance(fm_0.sse_per_pull(set(), {}, 0.0, held),
-                                         fm_h.sse_per_pull(set(), {}, 0.0, held))['rms_gain']
-    ci = {'frequency_hz': list(bootstrap_ci([hum_frequency_per_pull(pulls[j], f_hum, m2) for j in few], np.mean)),
-          'amplitude_n': list(bootstrap_ci([amps[k] for k in fit], np.mean))}
-    cand = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': a_fit}, 'parameters_ci95': ci, 'ci_pulls': len(fit),
-            'evidence': sig,
-            'channel': FORCE_CHANNEL_TEXT, 'where': f'whole record; line at {f_hum:.2f} Hz'}
-    return cand, (tuple(hums) if sig['significant'] else None)
+    hums = [h * hum_scale(amps, a_fit, j) if j in held else h for j, h in enumerate(hums)]
+    cand, significant = hum_candidate(f_hum, pres, amps, a_fit, ForceModel(pulls, m2, hums), ForceModel(pulls, m2),
+                                      fit, held)
+    return cand, (tuple(hums) if significant else None)
 
 
 def force_stage(pulls, hums, fit, held, m2) -> Tuple[dict, dict]:
     """The force-channel candidates (each tested by dropping it from the full model) and the full model."""
-    fm_ = ForceModel(pulls, m2, hums)
+    return force_stage_from(ForceModel(pulls, m2, hums), fit, held, m2)
+
+
+def force_stage_from(fm_, fit, held, m2) -> Tuple[dict, dict]:
+    """force_stage() on a force model: a ForceModel (the pulls' arrays) or a ForceStats (their sufficient
+    statistics)."""
     full = set(TERMS)
     coef_full, _, d_full = fm_.fit_delay(full, fit)
     sse_full = fm_.sse_per_pull(full, coef_full, d_full, held)
@@ -706,33 +809,73 @@ def force_stage(pulls, hums, fit, held, m2) -> Tuple[dict, dict]:
         cand[term] = {'parameters': params_full[term], 'parameters_ci95': ci[term], 'ci_pulls': len(fit),
                       'evidence': sig, 'channel': FORCE_CHANNEL_TEXT}
     # non-linearity check for the gain: would T^2 explain more than a linear gain?
-    cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = _nonlinear_check(
-        fm_, coef_full, d_full, fit, held)
+    cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = fm_.t2_reduction(coef_full, d_full, fit, held)
     force = {'coef': coef_full, 'delay_s': d_full, 'sse_base_held': base_sse.tolist(),
              'sse_full_held': sse_full.tolist()}
     return cand, force
 
 
-def ring_stage(pulls, fit, held, fc) -> Tuple[Optional[dict], Optional[dict]]:
-    """The mount-resonance candidate from the free decay after the break (None, None without one)."""
-    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
-    segs = {j: s for j, s in ((j, ring_segment(p)) for j, p in enumerate(pulls)) if s is not None}
-    modes = []
-    for j in fit[::max(1, len(fit) // 12)][:12]:
-        if j in segs:
-            mm = [m for m in matrix_pencil(segs[j][:800], pulls[j].dt) if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
-            if mm:
-                modes.append(mm[0])
+def free_decay_mode(p: Pull) -> Optional[Tuple[float, float, float]]:
+    """The strongest mode (frequency, damping ratio, energy) of the pull's free decay after the break, or None."""
+    seg = ring_segment(p)
+    if seg is None:
+        return None
+    mm = [m for m in matrix_pencil(seg[:800], p.dt) if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
+    return mm[0] if mm else None
+
+
+def cell_modes(fc) -> list:
+    """The model of record's only mode after the break: the moving cell on m2, [(frequency, damping ratio)]."""
+    return [(math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi), fc.load_cell_damping_ratio)]
+
+
+def observed_mode(modes: Sequence[Optional[tuple]]) -> Optional[Tuple[float, float]]:
+    """(frequency, damping ratio): the medians of the few fitted pulls' free_decay_mode() (None: none had one)."""
+    modes = [m for m in modes if m is not None]
     if not modes:
+        return None
+    return float(np.median([m[0] for m in modes])), float(np.median([m[1] for m in modes]))
+
+
+@dataclass(frozen=True)
+class RingPart:
+    """One held-out pull's free decay scored with the cell mode alone (base) and with the observed mode (ext)."""
+
+    sse_base: float          # with the campaign's sample interval (the ring stage's)
+    sse_ext: float
+    ring_to_noise: float
+    samples: int
+    own_base: float          # with the pull's own sample interval (the report's RMS)
+    own_ext: float
+    segment: Optional[np.ndarray] = None
+
+
+def ring_part(p: Pull, dt: float, cell: list, mode: Tuple[float, float], keep: bool = False) -> Optional[RingPart]:
+    """RingPart of the held-out pull p (None: no clean free decay); dt: the campaign's sample interval; keep: keep
+    the segment (for the plot)."""
+    seg = ring_segment(p)
+    if seg is None:
+        return None
+    b, e = ring_sse(seg, dt, cell), ring_sse(seg, dt, cell + [mode])
+    ob, oe = (b, e) if p.dt == dt else (ring_sse(seg, p.dt, cell), ring_sse(seg, p.dt, cell + [mode]))
+    return RingPart(b, e, ring_to_noise(p, seg, cell, mode), len(seg), ob, oe, seg if keep else None)
+
+
+def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[RingPart]], names: Sequence[str],
+                    dt: float, fc) -> Tuple[Optional[dict], Optional[dict]]:
+    """The mount-resonance candidate (None, None without a free-decay mode) from the few fitted pulls'
+    free_decay_mode() and the held-out pulls' ring_part() (with the observed_mode() of those modes); names: the
+    held-out pulls' names."""
+    obs = observed_mode(modes)
+    if obs is None:
         return None, None
-    dt = pulls[0].dt
-    fo = float(np.median([m[0] for m in modes]))
-    zo = float(np.median([m[1] for m in modes]))
-    ok = [j for j in held if j in segs]
-    cell = [(f_cell, fc.load_cell_damping_ratio)]
-    b = np.array([ring_sse(segs[j], dt, cell) for j in ok])
-    e = np.array([ring_sse(segs[j], dt, cell + [(fo, zo)]) for j in ok])
-    r2n = np.array([ring_to_noise(pulls[j], segs[j], cell, (fo, zo)) for j in ok])
+    modes = [m for m in modes if m is not None]
+    fo, zo = obs
+    f_cell = cell_modes(fc)[0][0]
+    ok = [(n, pt) for n, pt in zip(names, parts) if pt is not None]
+    b = np.array([pt.sse_base for _, pt in ok])
+    e = np.array([pt.sse_ext for _, pt in ok])
+    r2n = np.array([pt.ring_to_noise for _, pt in ok])
     sig = significance(b, e) if len(ok) >= 2 else {'significant': False, 'rel_sse_reduction': 0.0, 't': 0.0,
                                                    'rms_gain': 1.0}
     sig.update(observed_frequency_hz=fo, observed_damping_ratio=zo, cell_mode_hz=f_cell,
@@ -747,24 +890,52 @@ def ring_stage(pulls, fit, held, fc) -> Tuple[Optional[dict], Optional[dict]]:
             'evidence': sig,
             'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break',
             'identified': 'the mode as it appears in the measured channels (extension.yaml maps it to the mount)'}
-    return cand, {'segments': {j: segs[j] for j in ok[:3]}, 'fo': fo, 'zo': zo}
+    first = next(((n, pt) for n, pt in ok if pt.segment is not None), (None, None))
+    ring = {'fo': fo, 'zo': zo, 'segment': first[1].segment if first[1] else None, 'segment_pull': first[0],
+            'segment_dt': dt, 'sse_base': [pt.own_base for _, pt in ok], 'sse_ext': [pt.own_ext for _, pt in ok],
+            'samples': [pt.samples for _, pt in ok]}
+    return cand, ring
 
 
-def current_stage(pulls, fit, held, rig) -> Optional[dict]:
-    """The coulomb-friction candidate from the motor current (None without a current channel)."""
-    rows = friction_offsets(pulls, fit, rig)
-    if rows is None:
-        return None
-    fcf = _friction_stat(rows)
-    b = np.array([friction_sse(pulls[j], rig, 0.0) for j in held])
-    e = np.array([friction_sse(pulls[j], rig, fcf) for j in held])
+def ring_stage(pulls, fit, held, fc) -> Tuple[Optional[dict], Optional[dict]]:
+    """The mount-resonance candidate from the free decay after the break (None, None without one)."""
+    modes = [free_decay_mode(pulls[j]) for j in few_pulls(fit)]
+    obs = observed_mode(modes)
+    dt = pulls[0].dt
+    parts = [] if obs is None else [ring_part(pulls[j], dt, cell_modes(fc), obs, keep=k == 0)
+                                    for k, j in enumerate(held)]
+    if parts and parts[0] is None:   # the plot's segment: the first held-out pull with one
+        k = next((k for k, pt in enumerate(parts) if pt is not None), None)
+        if k is not None:
+            parts[k] = ring_part(pulls[held[k]], dt, cell_modes(fc), obs, keep=True)
+    return ring_stage_from(modes, parts, [pulls[j].name for j in held], dt, fc)
+
+
+def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int) -> dict:
+    """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf, and the held-out
+    pulls' friction_sse() without (b) and with (e) it."""
     return {'parameters': {'force_n': fcf}, 'parameters_ci95': {'force_n': list(bootstrap_ci(rows, _friction_stat))},
-            'ci_pulls': len(fit), 'evidence': significance(b, e),
+            'ci_pulls': n_fit, 'evidence': significance(b, e),
             'channel': 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)'}
 
 
+def current_stage(pulls, fit, held, rig) -> Tuple[Optional[dict], Optional[dict]]:
+    """The coulomb-friction candidate from the motor current and the held-out squared residuals without/with it
+    (None, None without a current channel)."""
+    rows = friction_offsets(pulls, fit, rig)
+    if rows is None:
+        return None, None
+    fcf = _friction_stat(rows)
+    b = [friction_sse(pulls[j], rig, 0.0) for j in held]
+    e = [friction_sse(pulls[j], rig, fcf) for j in held]
+    return (friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit)),
+            {'sse_base': b, 'sse_ext': e, 'samples': [len(pulls[j].t) for j in held]})
+
+
 def analyse(campaign_pulls, rig) -> Analysis:
-    """All statistics (no files). campaign_pulls: [(meta, channels)]."""
+    """All statistics (no files), in one pass with every pull's arrays in memory. campaign_pulls: [(meta, channels)].
+
+    The reference implementation: discover() streams the pulls instead (stream.py), with the same stages."""
     if len(campaign_pulls) < MIN_PULLS:
         raise DiscoveryError(f'campaign has {len(campaign_pulls)} pulls; expected at least {MIN_PULLS} '
                              '(half are fitted, half held out)')
@@ -778,50 +949,43 @@ def analyse(campaign_pulls, rig) -> Analysis:
     excluded = {p.name: w for p, w in zip(prepared, why) if w}
     pulls = tuple(p for p, w in zip(prepared, why) if not w)
     if len(pulls) < MIN_PULLS:
-        return Analysis((), quality, (), (), None, {}, {}, None,
-                        (f'{len(pulls)} of {len(prepared)} pulls are usable after the data-quality screen; '
-                         f'at least {MIN_PULLS} are needed',), screens, excluded)
+        return unusable_analysis(len(pulls), len(prepared), quality, screens, excluded)
     m2 = rig.force_chain.m2
     fit, held = _split(pulls)
     notes = []
     pulls, cells = calibrate_cells(pulls, rig)
-    if cells and cells['used_for_tension']:
-        notes.append(f'the cells ring with damping ratio {cells["measured_damping_ratio"]:.4g} (free decay after the '
-                     f'break, {cells["pulls"]} pulls), not the rig\'s {cells["rig_damping_ratio"]:.4g}: T = F_stat + '
-                     f'm1 a1 uses the measured one')
+    if calibration_note(cells):
+        notes.append(calibration_note(cells))
     hum, hums = hum_stage(pulls, fit, held, m2)
     cand = {'mains_hum': hum}
     force_cand, force = force_stage(pulls, hums, fit, held, m2)
     cand.update(force_cand)
     mount, ring = ring_stage(pulls, fit, held, rig.force_chain)
+    friction, friction_sses = current_stage(pulls, fit, held, rig)
+    notes += candidate_notes(cand, mount, friction)
+    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens, excluded,
+                    cells, friction_sses)
+
+
+def unusable_analysis(usable: int, total: int, quality: tuple, screens: tuple, excluded: dict, **run) -> Analysis:
+    """The analysis when the data-quality stage leaves fewer than MIN_PULLS pulls: nothing fitted, a note why."""
+    return Analysis((), quality, (), (), None, {}, {}, None,
+                    (f'{usable} of {total} pulls are usable after the data-quality screen; '
+                     f'at least {MIN_PULLS} are needed',), screens, excluded, **run)
+
+
+def candidate_notes(cand: dict, mount: Optional[dict], friction: Optional[dict]) -> list:
+    """Adds the mount and friction candidates to cand; the notes on the ones that could not be tested."""
+    notes = []
     if mount is None:
         notes.append('no free decay after the break to analyse for a mount resonance')
     else:
         cand['mount_resonance'] = mount
-    friction = current_stage(pulls, fit, held, rig)
     if friction is None:
         notes.append('coulomb_friction not tested: the data has no motor_current_a channel')
     else:
         cand['coulomb_friction'] = friction
-    return Analysis(pulls, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens, excluded,
-                    cells)
-
-
-def _nonlinear_check(fm_: ForceModel, coef, d, fit, held) -> float:
-    """Relative held-out SSE reduction when T^2 is added to the full model."""
-    sig = fm_.at(d)
-
-    def t2(j):   # T^2 on W, on the usable samples as design() takes them
-        p = fm_.pulls[j]
-        return sig[j][1][p.usable(p.w0, p.w1)] ** 2
-    ys, Xs, names = fm_.design(set(TERMS), d, fit)
-    X = np.vstack([np.column_stack([Xk, t2(j)]) for Xk, j in zip(Xs, fit)])
-    c, *_ = np.linalg.lstsq(X, np.concatenate(ys), rcond=None)
-    ys2, Xs2, _ = fm_.design(set(TERMS), d, held)
-    c0 = np.array([coef[n] for n in names])
-    s0 = sum(float(np.sum((y - Xk @ c0) ** 2)) for y, Xk in zip(ys2, Xs2))
-    s1 = sum(float(np.sum((y - np.column_stack([Xk, t2(j)]) @ c) ** 2)) for y, Xk, j in zip(ys2, Xs2, held))
-    return float(1 - s1 / s0) if s0 > 0 else 0.0
+    return notes
 
 
 @dataclass(frozen=True)
@@ -900,40 +1064,85 @@ def leftover(analysis: Analysis, named, rig) -> Optional[dict]:
     pulls, held, hums = analysis.pulls, analysis.held, analysis.hums
     fm_ = ForceModel(pulls, rig.force_chain.m2, hums)
     terms = set(n for n in named if n in TERMS)
-    coef, _, d = (fm_.fit_delay(terms, analysis.fit) if 'accel_delay' in terms
-                  else (*fm_.fit(terms, analysis.fit), 0.0))
-    vw, vq, spec, corr = [], [], None, {}
-    for j in held:
-        p = pulls[j]
-        ok = p.usable(p.w0, p.w1)
-        # masked (repaired) samples are zeroed before the band limit: a repaired span's residual would otherwise
-        # ring through the brick-wall filter into the samples kept
-        r = _band(np.where(ok, fm_.resid(terms, coef, d, j), 0.0), p.dt)
-        keep = ok.copy()     # the break's and the elastic rise's fast steps alias: left out
-        g = int(3e-3 / p.dt)
-        for i in (p.brk - p.w0, p.load0 - p.w0):
-            keep[max(0, i - g):max(0, i + g)] = False
-        pre = (p.fm - (hums[j] if hums is not None else 0) - p.T - rig.force_chain.m2 * p.a2)
-        k = np.arange(len(pre))
-        usable = p.usable()
-        quiet = (k > int(0.02 / p.dt)) & (k < p.pre1) & usable   # the pre-pull record, defects left out ...
-        rest = quiet & (np.abs(p.v3) < 1e-3)                       # ... with the carriage at rest: the floor
-        pre = pre[rest] if rest.sum() >= 2000 else pre[quiet]
-        pre = _band(pre - np.mean(pre), p.dt)
-        vw.append(float(np.var(r[keep])))
-        vq.append(float(np.var(pre)))
-        P = np.abs(np.fft.rfft((r - r.mean()) * np.hanning(len(r)), 2 ** 16)) ** 2
-        spec = P if spec is None else spec + P
-        for nm, x in (('tension T', p.T[p.w0:p.w1]), ('T^2', p.T[p.w0:p.w1] ** 2),
-                      ('accel_axial', p.a2[p.w0:p.w1]), ('encoder a3', p.a3[p.w0:p.w1])):
-            cc = np.corrcoef(r, x)[0, 1] if np.std(x) > 0 else 0.0
-            corr.setdefault(nm, []).append(abs(cc))
-    share = 1.0 - float(np.mean(vq)) / float(np.mean(vw)) if np.mean(vw) > 0 else 0.0
-    f = np.fft.rfftfreq(2 ** 16, pulls[0].dt)
-    ok = f > 5.0
-    fdom = float(f[ok][np.argmax(spec[ok])])
-    best = max(corr, key=lambda k: np.mean(corr[k]))
-    return {'share_of_residual_variance': share, 'dominant_frequency_hz': fdom, 'correlated_channel': best,
-            'correlation': float(np.mean(corr[best])), 'structured': bool(share > UNEXPLAINED_SHARE),
-            'rule': f'residual variance in the analysis window exceeds the quiet pre-pull floor by a share > '
-                    f'{UNEXPLAINED_SHARE}'}
+    coef, d = fit_terms(fm_, terms, analysis.fit)
+    parts = [leftover_part(pulls[j], hums[j] if hums is not None else None, fm_.resid(terms, coef, d, j), rig)
+             for j in held]
+    return leftover_from(parts, pulls[0].dt)
+
+
+def fit_terms(fm_, terms, fit) -> Tuple[dict, float]:
+    """(coefficients, delay) of the force model with the given terms on the fitted pulls (the delay fitted when it
+    is a term, else 0)."""
+    coef, _, d = (fm_.fit_delay(terms, fit) if 'accel_delay' in terms else (*fm_.fit(terms, fit), 0.0))
+    return coef, d
+
+
+@dataclass(frozen=True)
+class LeftoverPart:
+    """What one held-out pull adds to the structure check (leftover_part)."""
+
+    var_window: float        # residual variance in W (band-limited, steps left out)
+    var_quiet: float         # the quiet pre-pull floor's
+    spectrum: np.ndarray     # residual power spectrum (2^16 points)
+    corr: dict               # channel -> |correlation| with the residual
+
+
+def leftover_part(p: Pull, hum: Optional[np.ndarray], r: np.ndarray, rig) -> LeftoverPart:
+    """One held-out pull's share of leftover(): r is its force residual on W after the extension (ForceModel.resid),
+    hum its hum estimate when the hum is significant (else None)."""
+    ok = p.usable(p.w0, p.w1)
+    # masked (repaired) samples are zeroed before the band limit: a repaired span's residual would otherwise
+    # ring through the brick-wall filter into the samples kept
+    r = _band(np.where(ok, r, 0.0), p.dt)
+    keep = ok.copy()     # the break's and the elastic rise's fast steps alias: left out
+    g = int(3e-3 / p.dt)
+    for i in (p.brk - p.w0, p.load0 - p.w0):
+        keep[max(0, i - g):max(0, i + g)] = False
+    pre = (p.fm - (hum if hum is not None else 0) - p.T - rig.force_chain.m2 * p.a2)
+    k = np.arange(len(pre))
+    usable = p.usable()
+    quiet = (k > int(0.02 / p.dt)) & (k < p.pre1) & usable   # the pre-pull record, defects left out ...
+    rest = quiet & (np.abs(p.v3) < 1e-3)                       # ... with the carriage at rest: the floor
+    pre = pre[rest] if rest.sum() >= 2000 else pre[quiet]
+    pre = _band(pre - np.mean(pre), p.dt)
+    P = np.abs(np.fft.rfft((r - r.mean()) * np.hanning(len(r)), 2 ** 16)) ** 2
+    corr = {}
+    for nm, x in (('tension T', p.T[p.w0:p.w1]), ('T^2', p.T[p.w0:p.w1] ** 2),
+                  ('accel_axial', p.a2[p.w0:p.w1]), ('encoder a3', p.a3[p.w0:p.w1])):
+        corr[nm] = abs(np.corrcoef(r, x)[0, 1] if np.std(x) > 0 else 0.0)
+    return LeftoverPart(float(np.var(r[keep])), float(np.var(pre)), P, corr)
+
+
+class LeftoverSum:
+    """leftover_part()s added up in pull order (only their spectra's sum is kept)."""
+
+    def __init__(self):
+        self.vw, self.vq, self.spec, self.corr = [], [], None, {}
+
+    def add(self, part: LeftoverPart) -> None:
+        self.vw.append(part.var_window)
+        self.vq.append(part.var_quiet)
+        self.spec = part.spectrum if self.spec is None else self.spec + part.spectrum
+        for nm, c in part.corr.items():
+            self.corr.setdefault(nm, []).append(c)
+
+    def result(self, dt: float) -> dict:
+        """The structure check (see leftover()); dt: the campaign's sample interval."""
+        vw, vq, spec, corr = self.vw, self.vq, self.spec, self.corr
+        share = 1.0 - float(np.mean(vq)) / float(np.mean(vw)) if np.mean(vw) > 0 else 0.0
+        f = np.fft.rfftfreq(2 ** 16, dt)
+        ok = f > 5.0
+        fdom = float(f[ok][np.argmax(spec[ok])])
+        best = max(corr, key=lambda k: np.mean(corr[k]))
+        return {'share_of_residual_variance': share, 'dominant_frequency_hz': fdom, 'correlated_channel': best,
+                'correlation': float(np.mean(corr[best])), 'structured': bool(share > UNEXPLAINED_SHARE),
+                'rule': f'residual variance in the analysis window exceeds the quiet pre-pull floor by a share > '
+                        f'{UNEXPLAINED_SHARE}'}
+
+
+def leftover_from(parts: Iterable[LeftoverPart], dt: float) -> dict:
+    """leftover() from the held-out pulls' leftover_part()s, in pull order."""
+    acc = LeftoverSum()
+    for part in parts:
+        acc.add(part)
+    return acc.result(dt)

@@ -4,7 +4,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -15,6 +17,7 @@ from . import quality as Q
 from .uncertainty import INCONCLUSIVE, WITHIN
 
 FORCE_CHANNEL = ('mains_hum',) + D.TERMS
+PLOT_FFT = 2 ** 15   # points of the residual spectra in residuals.png
 
 
 def _clean(x):
@@ -32,24 +35,65 @@ def _clean(x):
     return x
 
 
-def force_errors(analysis: D.Analysis, named, rig) -> tuple:
+@dataclass(frozen=True)
+class ErrorPart:
+    """One held-out pull's force-channel residual, model of record (base) and extended (ext): what the report
+    and the plots take from it (error_part)."""
+
+    base_sse: float
+    ext_sse: float
+    samples: int                       # usable samples in W (masked ones count as zero residual and are left out)
+    base_spectrum: np.ndarray          # |FFT|^2 of the residual (2^15 points), for the plot
+    ext_spectrum: np.ndarray
+    plot: Optional[dict] = None        # the residuals themselves ('pull', 't', 'dt', 'base', 'ext'), when kept
+
+
+def error_part(p: D.Pull, base: np.ndarray, ext: np.ndarray, keep: bool = False) -> ErrorPart:
+    """ErrorPart of held-out pull p from its residuals on W (ForceModel.resid), which it zeroes where masked;
+    keep: keep the residuals for the plot."""
+    bad = ~p.usable(p.w0, p.w1)    # masked (repaired) samples are no evidence: zero residual
+    base[bad] = ext[bad] = 0.0
+    spec = [np.abs(np.fft.rfft(r - r.mean(), PLOT_FFT)) ** 2 for r in (base, ext)]
+    plot = {'pull': p.name, 't': p.t[p.w0:p.w1], 'dt': p.dt, 'base': base, 'ext': ext} if keep else None
+    return ErrorPart(float(base @ base), float(ext @ ext), int((~bad).sum()), spec[0], spec[1], plot)
+
+
+class ForceErrors:
+    """The held-out force-channel errors, model of record and extended: error_part()s added up in pull order."""
+
+    def __init__(self):
+        self.base_sse, self.ext_sse, self.samples = [], [], 0
+        self.base_spectrum = self.ext_spectrum = 0
+        self.pulls = 0
+        self.plot = None
+
+    def add(self, part: ErrorPart) -> None:
+        self.base_sse.append(part.base_sse)
+        self.ext_sse.append(part.ext_sse)
+        self.samples += part.samples
+        self.base_spectrum = self.base_spectrum + part.base_spectrum
+        self.ext_spectrum = self.ext_spectrum + part.ext_spectrum
+        self.pulls += 1
+        if self.plot is None and part.plot is not None:
+            self.plot = part.plot
+
+    def rms(self) -> tuple:
+        """(baseline, extended) RMS over the usable samples."""
+        return _rms(self.base_sse, self.samples), _rms(self.ext_sse, self.samples)
+
+
+def force_errors(analysis: D.Analysis, named, rig) -> ForceErrors:
     """Held-out force-channel residual per pull: baseline (model of record) and extended (named causes)."""
     pulls, fit, held = analysis.pulls, analysis.fit, analysis.held
     m2 = rig.force_chain.m2
     fm0 = D.ForceModel(pulls, m2)
-    base = [fm0.resid(set(), {}, 0.0, j) for j in held]
     fm1 = D.ForceModel(pulls, m2, analysis.hums if 'mains_hum' in named else None)
     terms = set(n for n in named if n in D.TERMS)
-    if 'accel_delay' in terms:
-        coef, _, d = fm1.fit_delay(terms, fit)
-    else:
-        coef, _ = fm1.fit(terms, fit, 0.0)
-        d = 0.0
-    ext = [fm1.resid(terms, coef, d, j) for j in held]
-    for j, b, e in zip(held, base, ext):   # masked (repaired) samples are no evidence: zero residual
-        bad = ~pulls[j].usable(pulls[j].w0, pulls[j].w1)
-        b[bad] = e[bad] = 0.0
-    return base, ext
+    coef, d = D.fit_terms(fm1, terms, fit)
+    out = ForceErrors()
+    for k, j in enumerate(held):
+        out.add(error_part(pulls[j], fm0.resid(set(), {}, 0.0, j), fm1.resid(terms, coef, d, j), keep=k == 0))
+    return out
 
 
 def _where(n, c):
@@ -77,14 +121,9 @@ def _where(n, c):
     return ''
 
 
-def _rms(rs, n=None):
-    """RMS over the residuals rs; n: the number of samples they stand for (masked ones are zero and left out)."""
-    n = sum(len(r) for r in rs) if n is None else n
-    return float(math.sqrt(sum(float(r @ r) for r in rs) / n))
-
-
-def _usable_samples(analysis: D.Analysis) -> int:
-    return sum(int(analysis.pulls[j].usable(analysis.pulls[j].w0, analysis.pulls[j].w1).sum()) for j in analysis.held)
+def _rms(sses, n: int) -> float:
+    """RMS from the per-pull sums of squares over the n samples they stand for."""
+    return float(math.sqrt(sum(sses) / n))
 
 
 def candidates(analysis: D.Analysis, decision: D.Decision) -> dict:
@@ -106,7 +145,7 @@ def _entry(n: str, c: dict) -> dict:
             'tolerance': c['tolerance']}
 
 
-def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left, rig) -> dict:
+def build_report(analysis: D.Analysis, decision: D.Decision, errors: ForceErrors, left, rig) -> dict:
     """The report (JSON-ready). errors: force_errors() of the analysis and the named causes."""
     named = decision.named
     cand = candidates(analysis, decision)
@@ -116,8 +155,6 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         ev = dict(c['evidence'])
         causes.append({**_entry(n, c), 'evidence': ev, 'gain': ev.get('rms_gain'), 'channel': c['channel'],
                        'where': _where(n, c)})
-    base, ext = errors
-    n_ok = _usable_samples(analysis)
     primary = named[0] if named else ('unexplained' if left and left['structured'] else 'none')
     if primary == 'unexplained':
         causes.append({'name': 'unexplained', 'parameters': {
@@ -136,7 +173,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         else:
             baseline_error, extended_error = _current_rms(analysis, rig, cand[primary]['parameters']['force_n'])
     else:
-        baseline_error, extended_error = _rms(base, n_ok), _rms(ext, n_ok)
+        baseline_error, extended_error = errors.rms()
         metric = ('RMS (N) on the held-out pulls of the moving-cell prediction residual F_move - F_pred over the '
                   'analysis window (50 ms before the load to 150 ms after the break); baseline F_pred = T + m2 a2 '
                   '(eq 21, T = F_stat + m1 a1, nominal m2, ideal sensors), extended: all named force-channel causes')
@@ -147,7 +184,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         'extended_error': extended_error,
         'gain': baseline_error / extended_error if extended_error > 0 else None,
         'metric': metric,
-        'force_channel': {'baseline_rms_n': _rms(base, n_ok), 'extended_rms_n': _rms(ext, n_ok)},
+        'force_channel': dict(zip(('baseline_rms_n', 'extended_rms_n'), errors.rms())),
         'within_tolerance': [{**_entry(n, cand[n]), 'evidence': cand[n]['evidence']}
                              for n in decision.with_verdict(WITHIN)],
         'inconclusive': [{**_entry(n, cand[n]), 'evidence': cand[n]['evidence'],
@@ -172,8 +209,16 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: tuple, left
         'cell_damping': analysis.cells,
         'data_quality': quality_section(analysis),
         'notes': [*analysis.notes, *decision.notes],
+        **run_section(analysis),
     }
     return _clean(report)
+
+
+def run_section(analysis: D.Analysis) -> dict:
+    """report.json: the pulls that could not be analysed (failed_pulls: name and why), those rerun after a worker
+    died (retried_pulls), and where the per-pull stages ran (scheduler)."""
+    return {'failed_pulls': [{'pull': n, 'error': e} for n, e in analysis.failed],
+            'retried_pulls': list(analysis.retried), 'scheduler': analysis.scheduler or None}
 
 
 def quality_section(analysis: D.Analysis) -> list:
@@ -206,31 +251,29 @@ def unusable_report(analysis: D.Analysis, rig) -> dict:
         'within_tolerance': [], 'inconclusive': [], 'candidates': {}, 'leftover': None,
         'simulation': None, 'simulation_check': None,
         'tolerances': dataclasses.asdict(rig.tolerances), 'fitted_pulls': [], 'held_out_pulls': [],
-        'data_quality': quality_section(analysis), 'notes': list(analysis.notes)})
+        'data_quality': quality_section(analysis), 'notes': list(analysis.notes), **run_section(analysis)})
 
 
 def _ring_rms(analysis: D.Analysis, rig):
     ring = analysis.ring
-    pulls, held = analysis.pulls, analysis.held
-    fc = rig.force_chain
-    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
     b = e = n = 0.0
-    for j in held:
-        s = D.ring_segment(pulls[j])
-        if s is None:
-            continue
-        b += D.ring_sse(s, pulls[j].dt, [(f_cell, fc.load_cell_damping_ratio)])
-        e += D.ring_sse(s, pulls[j].dt, [(f_cell, fc.load_cell_damping_ratio), (ring['fo'], ring['zo'])])
-        n += len(s)
+    for sb, se, ns in zip(ring['sse_base'], ring['sse_ext'], ring['samples']):
+        b += sb
+        e += se
+        n += ns
     return math.sqrt(b / n), math.sqrt(e / n)
 
 
 def _current_rms(analysis: D.Analysis, rig, fcf):
-    pulls, held = analysis.pulls, analysis.held
-    b = sum(D.friction_sse(pulls[j], rig, 0.0) for j in held)
-    e = sum(D.friction_sse(pulls[j], rig, fcf) for j in held)
-    n = sum(len(pulls[j].t) for j in held)
-    return math.sqrt(b / n), math.sqrt(e / n)
+    fr = analysis.friction
+    return math.sqrt(sum(fr['sse_base']) / sum(fr['samples'])), math.sqrt(sum(fr['sse_ext']) / sum(fr['samples']))
+
+
+def named_extension(analysis: D.Analysis, decision: D.Decision, rig) -> dict:
+    """extension() of the report build_report() will write, from the named causes alone (it needs nothing else
+    of the report): the stream re-simulates with it before the report exists."""
+    cand = candidates(analysis, decision)
+    return extension(_clean({'causes': [_entry(n, cand[n]) for n in decision.named]}), rig)
 
 
 def extension(report, rig) -> dict:
@@ -267,7 +310,7 @@ def extension(report, rig) -> dict:
     return out
 
 
-def write_outputs(report, analysis: D.Analysis, errors: tuple, named, rig, out: Path, check=None,
+def write_outputs(report, analysis: D.Analysis, errors: Optional[ForceErrors], named, rig, out: Path, check=None,
                   ext: dict | None = None) -> None:
     """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
     simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png; ext: extension()
@@ -312,7 +355,7 @@ def _fmt_params(p):
 def markdown(r, plots, screens=(), excluded=None) -> str:
     if r['gain'] is None and not r['fitted_pulls']:
         return '\n'.join(['# Discovery report', '', f'**Primary cause: `{r["cause"]}`.** {r["notes"][0]}.', '']
-                         + Q.markdown_lines(screens, excluded)) + '\n'
+                         + Q.markdown_lines(screens, excluded) + run_lines(r)) + '\n'
     L = ['# Discovery report', '',
          f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, '
          f'extended {r["extended_error"]:.4g}, '
@@ -362,7 +405,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
         L.append('(none: every candidate passed)')
     for note in r['notes']:
         L.append(f'- note: {note}')
-    L += [''] + Q.markdown_lines(screens, excluded)
+    L += [''] + Q.markdown_lines(screens, excluded) + run_lines(r)
     L += ['## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
     L += simulation_lines(r)
     if r.get('leftover'):
@@ -376,6 +419,23 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
     else:
         L += ['(matplotlib not importable: no plots)']
     return '\n'.join(L) + '\n'
+
+
+def run_lines(r) -> list:
+    """report.md: the pulls that failed (by name, with why) or were rerun after a worker died, and where the
+    per-pull stages ran."""
+    failed, retried = r.get('failed_pulls') or [], r.get('retried_pulls') or []
+    L = ['## Pulls not analysed, pulls rerun', '']
+    if failed:
+        L += [f'{len(failed)} pulls could not be read or analysed and are left out:', '']
+        L += [f'- {f["pull"]}: {f["error"]}' for f in failed] + ['']
+    if retried:
+        L += [f'Rerun because the worker running them died (the results are the rerun\'s): {", ".join(retried)}.', '']
+    if not (failed or retried):
+        L += ['Every pull was read and analysed; none was rerun.', '']
+    if r.get('scheduler'):
+        L += [f'Per-pull stages ran on: {r["scheduler"]}.', '']
+    return L
 
 
 CHANNEL_LABELS = {'force_moving_n': ('moving cell', 'N'), 'force_stationary_n': ('stationary cell', 'N'),
@@ -446,29 +506,26 @@ def _simulation_plot(check, out: Path) -> list:
     return [str(path)]
 
 
-def _plots(analysis: D.Analysis, errors: tuple, named, rig, out: Path):
+def _plots(analysis: D.Analysis, errors: Optional[ForceErrors], named, rig, out: Path):
     try:
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
     except ImportError:
         return []
-    base, ext = errors
-    pulls, held = analysis.pulls, analysis.held
-    if not held:
+    if errors is None or errors.plot is None:
         return []
-    p = pulls[held[0]]
-    t = p.t[p.w0:p.w1]
+    pl = errors.plot
     fig, ax = plt.subplots(2, 1, figsize=(8, 6))
-    ax[0].plot(t, base[0], lw=0.6, label='model of record')
-    ax[0].plot(t, ext[0], lw=0.6, label='extended')
+    ax[0].plot(pl['t'], pl['base'], lw=0.6, label='model of record')
+    ax[0].plot(pl['t'], pl['ext'], lw=0.6, label='extended')
     ax[0].set_xlabel('time, s')
     ax[0].set_ylabel('F_move residual, N')
     ax[0].legend()
-    ax[0].set_title(f'held-out pull {p.name}')
-    for lab, rs in (('model of record', base), ('extended', ext)):
-        P = sum(np.abs(np.fft.rfft(r - r.mean(), 2 ** 15)) ** 2 for r in rs) / len(rs)
-        f = np.fft.rfftfreq(2 ** 15, p.dt)
+    ax[0].set_title(f'held-out pull {pl["pull"]}')
+    for lab, P in (('model of record', errors.base_spectrum), ('extended', errors.ext_spectrum)):
+        P = P / errors.pulls
+        f = np.fft.rfftfreq(PLOT_FFT, pl['dt'])
         ax[1].semilogy(f[1:], P[1:], lw=0.6, label=lab)
     ax[1].set_xlabel('frequency, Hz')
     ax[1].set_ylabel('residual power')
@@ -480,24 +537,21 @@ def _plots(analysis: D.Analysis, errors: tuple, named, rig, out: Path):
     plt.close(fig)
     paths = [str(path)]
     ring = analysis.ring
-    if ring and 'mount_resonance' in named:
+    if ring and 'mount_resonance' in named and ring.get('segment') is not None:
         fc = rig.force_chain
-        f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
-        j = next(iter(ring['segments']))
-        seg = ring['segments'][j]
-        dt = pulls[j].dt
+        seg, dt = ring['segment'], ring['segment_dt']
         tt = np.arange(len(seg)) * dt * 1e3
         fig, ax = plt.subplots(figsize=(8, 3.5))
         ax.plot(tt, seg, lw=0.6, label='measured a2 - a3 after the break')
-        for lab, modes in (('model of record (cell mode)', [(f_cell, fc.load_cell_damping_ratio)]),
-                           ('extended (mount mode)', [(f_cell, fc.load_cell_damping_ratio), (ring['fo'], ring['zo'])])):
+        for lab, modes in (('model of record (cell mode)', D.cell_modes(fc)),
+                           ('extended (mount mode)', D.cell_modes(fc) + [(ring['fo'], ring['zo'])])):
             X = np.hstack([D.damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
             c, *_ = np.linalg.lstsq(X, seg, rcond=None)
             ax.plot(tt, seg - X @ c, lw=0.6, label=f'residual, {lab}')
         ax.set_xlabel('ms after the break')
         ax.set_ylabel('m/s^2')
         ax.legend(fontsize=7)
-        ax.set_title(f'held-out pull {pulls[j].name}: free decay')
+        ax.set_title(f'held-out pull {ring["segment_pull"]}: free decay')
         fig.tight_layout()
         p2 = out / 'ringing.png'
         fig.savefig(p2, dpi=90)

@@ -326,10 +326,20 @@ def _measured(pull: Pull) -> Dict[str, np.ndarray]:
 def ring_mode(pull: Pull, a2: np.ndarray, f_max: float) -> Optional[tuple]:
     """(frequency Hz, damping ratio) of the strongest free-decay mode of a2 - a3 after the break below f_max
     (ring_segment / matrix_pencil as discovery's ring stage), or None."""
+    return window_mode(ring_window(pull, a2), pull.dt, f_max)
+
+
+def ring_window(pull: Pull, a2: np.ndarray) -> Optional[np.ndarray]:
+    """The RING_SAMPLES of a2 - a3 after the break that ring_mode() analyses (None: no clean free decay)."""
     seg = ring_segment(dataclasses.replace(pull, a2=a2))
+    return None if seg is None else seg[:RING_SAMPLES].copy()
+
+
+def window_mode(seg: Optional[np.ndarray], dt: float, f_max: float) -> Optional[tuple]:
+    """ring_mode() of a ring_window()."""
     if seg is None:
         return None
-    modes = [m for m in matrix_pencil(seg[:RING_SAMPLES], pull.dt) if 100.0 < m[0] < f_max and 0 < m[1] < 0.5]
+    modes = [m for m in matrix_pencil(seg, dt) if 100.0 < m[0] < f_max and 0 < m[1] < 0.5]
     return (modes[0][0], modes[0][1]) if modes else None
 
 
@@ -357,6 +367,149 @@ class SimulationCheck:
                 'quantities': [dict(q) for q in self.quantities]}
 
 
+@dataclass(frozen=True)
+class ResimSetup:
+    """What re-simulating a pull needs besides the pull (resim_setup): the two models and the comparison's
+    constants. Small and picklable: a Dask worker gets it with each pull."""
+
+    base_rig: object          # the model of record (with the measured cell damping when calibrated)
+    ext_rig: object           # ... plus the extension
+    same_chain: bool          # the extension changes only sensors: one fit and one sim serve both
+    m2: float
+    cell_range_n: float
+    mount: bool               # the extension has a mount resonance: compare ring frequencies
+    f_cell: float
+    damping: dict             # the cells' damping ratio: the rig's, the one used, pulls it was measured on
+
+
+def resim_setup(rig, departures: Departures, cal: Optional[tuple] = None) -> ResimSetup:
+    """ResimSetup for the rig (model of record) and the extension's departures; cal: (damping ratio, pulls) of
+    the cells measured on the pulls checked (discovery.cell_damping_ratio), or None to keep the rig's."""
+    fc = rig.force_chain
+    damping = {'rig': fc.load_cell_damping_ratio, 'used': fc.load_cell_damping_ratio, 'pulls': 0}
+    if cal is not None:
+        damping.update(used=cal[0], pulls=cal[1])
+        rig = dataclasses.replace(rig, force_chain=dataclasses.replace(fc, load_cell_damping_ratio=cal[0]))
+    ext_rig = with_departures(rig, departures)
+    f_cell = math.sqrt(rig.force_chain.load_cell_stiffness_n_per_m / rig.force_chain.m2) / (2 * np.pi)
+    return ResimSetup(rig, ext_rig, _chain(rig) == _chain(ext_rig), rig.force_chain.m2,
+                      rig.sensors.load_cell_range_lbf * LBF_N, 'mount_resonance' in departures, f_cell, damping)
+
+
+@dataclass(frozen=True)
+class ResimPart:
+    """One pull re-simulated (resim_pull): its squared errors per channel, or why it was skipped."""
+
+    name: str
+    skipped: Optional[str] = None
+    sse: tuple = ()                 # (channel, baseline SSE, extended SSE, samples compared, samples saturated)
+    quantities: Optional[dict] = None
+    windows: Optional[tuple] = None  # (measured, extended-sim) ring_window()s (a mount in the extension only); their
+    #                                  modes are found by ResimSum, on the first RING_PULLS pulls that have them
+    trace: Optional[dict] = None    # the pull's traces (asked for with trace=True)
+    time_s: float = 0.0
+    dt: float = 0.0
+
+
+def resim_pull(p: Pull, setup: ResimSetup, trace: bool = False) -> ResimPart:
+    """Re-simulate one pull with the model of record and with the extension (setup) and compare each channel with
+    the measured one over the analysis window (see simulation_check). A pull whose fit or sim fails is skipped
+    (ResimPart.skipped says why). trace: keep the traces (for the plot)."""
+    t0 = time.perf_counter()
+    base_rig, ext_rig, same_chain = setup.base_rig, setup.ext_rig, setup.same_chain
+    try:
+        qb = fit_pull_quantities(p, base_rig)
+        qe = qb if same_chain else fit_pull_quantities(p, ext_rig)
+        clean_b = _physics(p, base_rig, qb)
+        clean_e = clean_b if same_chain else _physics(p, ext_rig, qe)
+    except (DiscoveryError, SimError) as exc:   # one pull the sim cannot reproduce does not end the check
+        return ResimPart(p.name, skipped=str(exc), time_s=time.perf_counter() - t0)
+    sims = {'baseline': _record(p, base_rig, clean_b, setup.m2), 'extended': _record(p, ext_rig, clean_e, setup.m2)}
+    meas = _measured(p)
+    w = slice(p.w0, p.w1)
+    tr = None
+    if trace:
+        tr = {'pull': p.name, 't': p.t[w].copy(),
+              'focus_s': (float(p.t[max(p.w0, p.load0 - int(5e-3 / p.dt))]),
+                          float(p.t[min(p.w1 - 1, p.brk + int(30e-3 / p.dt))]))}
+    rows = []
+    for ch, m in meas.items():
+        ok = np.abs(m[w]) < SATURATION_SHARE * setup.cell_range_n if ch in FORCE_CHANNELS else np.ones(p.w1 - p.w0,
+                                                                                                      bool)
+        sse = {}
+        for kind, sim in sims.items():
+            y = _filtered(sim[ch], p.dt)
+            sse[kind] = float(np.sum((y[w] - m[w])[ok] ** 2))
+            if tr is not None:
+                tr.setdefault(ch, {'measured': m[w].copy()})[kind] = y[w]
+        rows.append((ch, sse['baseline'], sse['extended'], int(np.count_nonzero(ok)), int(np.count_nonzero(~ok))))
+    windows = None
+    if setup.mount:
+        windows = (ring_window(p, p.a2), ring_window(p, _filtered(sims['extended']['accel_axial_m_s2'], p.dt)))
+    return ResimPart(p.name, None, tuple(rows), {'baseline': qb.as_dict(), 'extended': qe.as_dict()}, windows, tr,
+                     time.perf_counter() - t0, p.dt)
+
+
+class ResimSum:
+    """resim_pull()'s parts added up in pull order into a SimulationCheck. keep: the list position of the pull
+    whose traces are kept (None: the first pull re-simulated); the part of that pull must carry its trace."""
+
+    def __init__(self, setup: ResimSetup, keep: Optional[int] = None):
+        self.setup, self.keep = setup, keep
+        self.sse, self.names, self.quants, self.rings = {}, [], [], []
+        self.trace, self.skipped, self.time_s = {}, {}, 0.0
+
+    def add(self, j: int, part: ResimPart) -> None:
+        self.time_s += part.time_s
+        if part.skipped is not None:
+            self.skipped[part.name] = part.skipped
+            return
+        if self.keep is None:
+            self.keep = j
+        if j == self.keep and part.trace is not None:
+            self.trace = part.trace
+        for ch, b, e, n, sat in part.sse:
+            acc = self.sse.setdefault(ch, {'baseline': 0.0, 'extended': 0.0, 'n': 0, 'saturated': 0})
+            acc['n'] += n
+            acc['saturated'] += sat
+            acc['baseline'] += b
+            acc['extended'] += e
+        self.names.append(part.name)
+        self.quants.append(part.quantities)
+        if self.setup.mount and part.windows is not None and len(self.rings) < RING_PULLS:
+            f_max = MOUNT_MAX_FRACTION * self.setup.f_cell
+            rm, re_ = (window_mode(w, part.dt, f_max) for w in part.windows)
+            if rm is not None and re_ is not None:
+                self.rings.append((rm[0], re_[0]))
+
+    def result(self) -> SimulationCheck:
+        if not self.names:
+            raise DiscoveryError(f'simulation check: no pull could be re-simulated ({self.skipped}); expected at '
+                                 'least one')
+        channels, saturated = {}, {}
+        for ch, acc in self.sse.items():
+            b = math.sqrt(acc['baseline'] / acc['n'])
+            e = math.sqrt(acc['extended'] / acc['n'])
+            channels[ch] = {'baseline_rms': b, 'extended_rms': e, 'gain': b / e if e > 0 else math.inf}
+            if acc['saturated']:
+                saturated[ch] = acc['saturated']
+        ring = None
+        rings = self.rings
+        if self.setup.mount:
+            if rings:
+                fm_, fe = (float(np.median([r[k] for r in rings])) for k in (0, 1))
+                err = abs(fe / fm_ - 1.0)
+                worst = max(abs(r[1] / r[0] - 1.0) for r in rings)
+                ring = {'measured_hz': fm_, 'extended_sim_hz': fe, 'rel_error': err, 'max_pull_rel_error': worst,
+                        'tolerance': RING_TOLERANCE, 'within_tolerance': bool(err <= RING_TOLERANCE),
+                        'pulls': len(rings)}
+            else:
+                ring = {'measured_hz': None, 'extended_sim_hz': None, 'rel_error': None, 'max_pull_rel_error': None,
+                        'tolerance': RING_TOLERANCE, 'within_tolerance': False, 'pulls': 0}
+        return SimulationCheck(channels, tuple(self.names), tuple(self.quants), ring, self.trace, self.time_s,
+                               dict(self.setup.damping), self.skipped, saturated)
+
+
 def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures: Departures,
                      trace_pull: Optional[int] = None, calibrate: bool = True) -> SimulationCheck:
     """Re-simulate pulls[idx] twice (model of record; plus ``departures``) and compare with the measurements.
@@ -367,89 +520,20 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
     measured channel is at the cells' range (SATURATION_SHARE of it) are left out: a DAQ clips there.
     ``calibrate``: both runs use the cells' damping ratio measured on these pulls (cell_damping_ratio) instead of
     the rig's assumed one: the cells ring after every fast break, and a wrong decay rate of that ringing would
-    swamp what the extension changes."""
-    t_start = time.perf_counter()
+    swamp what the extension changes. time_s: the seconds spent re-simulating, summed over the pulls.
+
+    The same work one pull at a time: resim_setup, resim_pull per pull, ResimSum (what discover's stream does)."""
     if not len(idx):
         raise DiscoveryError('simulation check has no pulls; expected at least one held-out pull')
-    fc = rig.force_chain
-    damping = {'rig': fc.load_cell_damping_ratio, 'used': fc.load_cell_damping_ratio, 'pulls': 0}
-    cal = cell_damping_ratio(pulls, idx, rig) if calibrate else None
-    if cal is not None:
-        damping.update(used=cal[0], pulls=cal[1])
-        rig = dataclasses.replace(rig, force_chain=dataclasses.replace(fc, load_cell_damping_ratio=cal[0]))
-    base_rig = rig
-    ext_rig = with_departures(rig, departures)
-    f_cell = math.sqrt(rig.force_chain.load_cell_stiffness_n_per_m / rig.force_chain.m2) / (2 * np.pi)
-    mount = 'mount_resonance' in departures
-    sse = {}
-    names, quants, rings = [], [], []
-    trace = {}
-    keep = trace_pull
-    same_chain = _chain(base_rig) == _chain(ext_rig)   # sensor-side extension: one fit and one sim serve both
-    m2 = rig.force_chain.m2
-    cell_range = rig.sensors.load_cell_range_lbf * LBF_N
-    skipped = {}
+    setup = resim_setup(rig, departures, cell_damping_ratio(pulls, idx, rig) if calibrate else None)
+    acc = ResimSum(setup, trace_pull)
     for j in idx:
-        p = pulls[j]
-        try:
-            qb = fit_pull_quantities(p, base_rig)
-            qe = qb if same_chain else fit_pull_quantities(p, ext_rig)
-            clean_b = _physics(p, base_rig, qb)
-            clean_e = clean_b if same_chain else _physics(p, ext_rig, qe)
-        except (DiscoveryError, SimError) as exc:   # one pull the sim cannot reproduce does not end the check
-            skipped[p.name] = str(exc)
-            continue
-        sims = {'baseline': _record(p, base_rig, clean_b, m2), 'extended': _record(p, ext_rig, clean_e, m2)}
-        meas = _measured(p)
-        w = slice(p.w0, p.w1)
-        if keep is None:
-            keep = j
-        if j == keep:
-            trace = {'pull': p.name, 't': p.t[w].copy(),
-                     'focus_s': (float(p.t[max(p.w0, p.load0 - int(5e-3 / p.dt))]),
-                                 float(p.t[min(p.w1 - 1, p.brk + int(30e-3 / p.dt))]))}
-        for ch, m in meas.items():
-            acc = sse.setdefault(ch, {'baseline': 0.0, 'extended': 0.0, 'n': 0, 'saturated': 0})
-            ok = np.abs(m[w]) < SATURATION_SHARE * cell_range if ch in FORCE_CHANNELS else np.ones(p.w1 - p.w0, bool)
-            acc['n'] += int(np.count_nonzero(ok))
-            acc['saturated'] += int(np.count_nonzero(~ok))
-            for kind, sim in sims.items():
-                y = _filtered(sim[ch], p.dt)
-                acc[kind] += float(np.sum((y[w] - m[w])[ok] ** 2))
-                if j == keep:
-                    trace.setdefault(ch, {'measured': m[w].copy()})[kind] = y[w]
-        names.append(p.name)
-        quants.append({'baseline': qb.as_dict(), 'extended': qe.as_dict()})
-        if mount and len(rings) < RING_PULLS:
-            a2e = _filtered(sims['extended']['accel_axial_m_s2'], p.dt)
-            rm = ring_mode(p, p.a2, MOUNT_MAX_FRACTION * f_cell)
-            re_ = ring_mode(p, a2e, MOUNT_MAX_FRACTION * f_cell)
-            if rm is not None and re_ is not None:
-                rings.append((rm[0], re_[0]))
-    if not names:
-        raise DiscoveryError(f'simulation check: no pull could be re-simulated ({skipped}); expected at least one')
-    channels, saturated = {}, {}
-    for ch, acc in sse.items():
-        b = math.sqrt(acc['baseline'] / acc['n'])
-        e = math.sqrt(acc['extended'] / acc['n'])
-        channels[ch] = {'baseline_rms': b, 'extended_rms': e, 'gain': b / e if e > 0 else math.inf}
-        if acc['saturated']:
-            saturated[ch] = acc['saturated']
-    ring = None
-    if mount:
-        if rings:
-            fm_, fe = (float(np.median([r[k] for r in rings])) for k in (0, 1))
-            err = abs(fe / fm_ - 1.0)
-            worst = max(abs(r[1] / r[0] - 1.0) for r in rings)
-            ring = {'measured_hz': fm_, 'extended_sim_hz': fe, 'rel_error': err, 'max_pull_rel_error': worst,
-                    'tolerance': RING_TOLERANCE, 'within_tolerance': bool(err <= RING_TOLERANCE),
-                    'pulls': len(rings)}
-        else:
-            ring = {'measured_hz': None, 'extended_sim_hz': None, 'rel_error': None, 'max_pull_rel_error': None,
-                    'tolerance': RING_TOLERANCE, 'within_tolerance': False, 'pulls': 0}
-    return SimulationCheck(channels, tuple(names), tuple(quants), ring, trace, time.perf_counter() - t_start,
-                           damping, skipped, saturated)
+        want = j == trace_pull if trace_pull is not None else acc.keep is None
+        acc.add(j, resim_pull(pulls[j], setup, trace=want))
+    return acc.result()
 
 
-__all__ = ['PullQuantities', 'SimulationCheck', 'SIM_CHANNELS', 'cell_damping_ratio', 'fit_pull_quantities',
-           'quasi_static_tension', 'resimulate', 'ring_mode', 'sample_beta', 'simulation_check', 'with_departures']
+__all__ = ['PullQuantities', 'ResimPart', 'ResimSetup', 'ResimSum', 'SimulationCheck', 'SIM_CHANNELS',
+           'cell_damping_ratio', 'fit_pull_quantities', 'quasi_static_tension', 'resim_pull', 'resim_setup',
+           'resimulate', 'ring_mode', 'ring_window', 'sample_beta', 'simulation_check', 'window_mode',
+           'with_departures']

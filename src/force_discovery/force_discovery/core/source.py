@@ -1,0 +1,52 @@
+"""Where a campaign's pulls come from, one at a time (issue 16): a campaign folder in the DAQ export format, read
+pull by pull, or (meta, channels) pairs already in memory. ROS-free.
+
+A ``PullRef`` names one pull and says how to get its channels; it is small (except for in-memory pulls, which
+carry their arrays) and picklable, so a Dask worker can load the pull itself.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Sequence, Tuple
+
+from bag_tools.core.daq import campaign_index, read_pull
+
+
+@dataclass(frozen=True)
+class PullRef:
+    """One pull of a campaign: a file of a campaign folder (folder, meta, rate_hz), or channels in memory."""
+
+    name: str
+    folder: Optional[str] = None
+    meta: Optional[dict] = None          # the pull's campaign.yaml entry, validated (bag_tools.core.daq.check_meta)
+    entry: Optional[dict] = None         # ... as written (a TDMS file's channel map is in it)
+    rate_hz: Optional[float] = None      # campaign.yaml's sample_rate_hz (None: from the time column)
+    channels: Optional[dict] = None      # in-memory pulls: column -> array
+
+    def __repr__(self) -> str:
+        return f'PullRef({self.name!r})'
+
+
+def campaign_refs(folder) -> list:
+    """PullRef per pull of a campaign folder (campaign.yaml read and checked as read_campaign checks it; no pull
+    data read). BagError for a missing or malformed campaign.yaml or a missing pull file."""
+    path, rate, _rig, entries = campaign_index(folder)
+    return [PullRef(meta['file'], str(Path(path).resolve()), meta, dict(entry), rate) for meta, entry in entries]
+
+
+def memory_refs(campaign_pulls: Sequence) -> list:
+    """PullRef per (meta, channels) pair; the pull's name is meta['file']."""
+    return [PullRef(str(meta.get('file', '?')), meta=meta, channels=ch) for meta, ch in campaign_pulls]
+
+
+def load_channels(ref: PullRef) -> Tuple[dict, dict]:
+    """(meta, channels) of one pull: read from its file (and checked as read_campaign checks it), or as given."""
+    if ref.channels is not None:
+        return ref.meta, ref.channels
+    channels, _rate, _warnings = read_pull((Path(ref.folder) / ref.meta['file'], (ref.entry or {}).get('map'),
+                                            ref.rate_hz))
+    return ref.meta, channels
+
+
+__all__ = ['PullRef', 'campaign_refs', 'memory_refs', 'load_channels']
