@@ -269,7 +269,7 @@ def _live(tmp_path, bag, pulls):
     graph.start('bag_tools', 'recorder_node', {'bag_path': str(bag)})
     graph.start('force_tester_sim', 'sim_node', {
         'test_sets': '[1]', 'pulls_per_set': pulls, 'rate': 1.0, 'wait_for_subscribers': 1,
-        'exit_when_done': True})
+        'exit_when_done': True, 'block_size': 50})   # 1 ms blocks: many messages in flight when it is killed
     return graph, watch
 
 

@@ -54,8 +54,10 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
         # the monitor subscribes to /force too: correction, validator, monitor
         assert collector.wait_for_graph({'/force': 3, '/force_corrected': 3, '/pull_event': 2}, timeout=60)
         time.sleep(1.0)  # both clients subscribed (they connect within milliseconds)
+        # 1 ms blocks: the message rate this test's counts and the stalled client were sized for
         graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,
-                                                     'wait_for_subscribers': 2, 'exit_when_done': True})
+                                                     'wait_for_subscribers': 2, 'exit_when_done': True,
+                                                     'block_size': 50})
         assert collector.wait(PULLS, 150, alive=lambda: not graph.dead()), graph.tail('sim_node')
         out, err = reader.communicate(timeout=60)
         def caught_up():  # the monitor may lag the graph on a busy machine; it catches up

@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from force_tester_common.core.blocks import BLOCK_SAMPLES
 from ft_cli.commands import demo
 from ft_cli.graph import SCORE_KEYS, Graph, ScoreCollector
 from ft_cli.paths import executable
@@ -96,7 +97,7 @@ def test_recorded_bag_is_complete(live):
     for topic in ('/force', '/accel', '/motor', '/encoder', '/force_corrected'):
         t = info['topics'][topic]
         assert t['seq_gaps'] == 0, (topic, t)
-        assert t['count'] == 5 * 2000, (topic, t)   # 5 pulls x 100,000 samples / 50-sample blocks
+        assert t['count'] == 5 * 100_000 // BLOCK_SAMPLES, (topic, t)   # 5 pulls x 100,000 samples
         assert t['sample_rate_hz'] == 50000.0
     assert info['pulls']['count'] == 5
 

@@ -52,6 +52,13 @@ _DISCOVERY_VARS = ('ROS_LOCALHOST_ONLY', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_S
                    'RMW_FASTRTPS_USE_QOS_FROM_XML')
 
 
+# Blocks across the link: 1 ms (50 samples, 0.4-1.6 KB a message, one or two IP packets). 10 ms
+# blocks (8-16 KB, a dozen IP fragments: losing one loses the message) did not get through the
+# lossy link (2 % loss, 5 ms delay): reliable resends fell behind and the sim exited with
+# unacknowledged blocks. README, "Across two hosts".
+LINK_BLOCK_SAMPLES = 50
+
+
 def fastdds_profile(peers) -> str:
     """A Fast DDS (2.x) XML profile: UDPv4 only (no shared memory), the given hosts as initial peers."""
     locators = ''.join(f'<locator><udpv4><address>{p}</address></udpv4></locator>' for p in peers)
@@ -231,7 +238,8 @@ def run_two_hosts(out: Path, impairment: Impairment | None = None, discovery: st
                     # host B's graph is up (as the demo waits for its local graph): the sim may start
                     sim = a.start('force_tester_sim', 'sim_node', {
                         'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls,
-                        'seed': seed, 'rate': float(rate), 'wait_for_subscribers': READERS, 'exit_when_done': True})
+                        'seed': seed, 'rate': float(rate), 'wait_for_subscribers': READERS, 'exit_when_done': True,
+                        'block_size': LINK_BLOCK_SAMPLES})
                 dead = [n for n, p in {**a.procs, **b.procs}.items() if p.poll() not in (None, 0)]
                 if dead or b.procs['watcher'].poll() is not None:
                     problem = f'{(dead or ["watcher"])[0]} stopped'

@@ -146,7 +146,14 @@ def spin(executor, poll_s: float = 0.5, ok=rclpy.ok) -> None:
         executor.spin()
         return
     while ok():
-        executor.spin_once(timeout_sec=poll_s)
+        try:
+            executor.spin_once(timeout_sec=poll_s)
+        except Exception:
+            # a callback that raced the shutdown (a heartbeat publishing on the closed context of a
+            # node that shut itself down) is the end of spinning, not a crash
+            if ok():
+                raise
+            return
 
 
 def spin_nodes(*node_factories, args=None, executor: str | None = None) -> int:

@@ -31,7 +31,7 @@ SPECS = [
     ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),
     ParamSpec('pulls_per_set', 1, 'pulls of each test set', (1, 1000)),
     ParamSpec('seed', 0, 'seed of the pull-to-pull scatter and the sensor noise', (0, 2**31 - 1)),
-    ParamSpec('block_size', BLOCK_SAMPLES, 'samples per published block (50 = 1 ms at 50 kHz)', BLOCK_SAMPLES_RANGE),
+    ParamSpec('block_size', BLOCK_SAMPLES, 'samples per published block (500 = 10 ms at 50 kHz)', BLOCK_SAMPLES_RANGE),
     ParamSpec('rate', 1.0, 'pace as a real-time factor (1.0 = real time)', (0.01, 1000.0)),
     ParamSpec('rig_file', '', 'rig YAML replacing the nominal constants ("" = nominal)'),
     ParamSpec('noise', True, 'add sensor noise'),

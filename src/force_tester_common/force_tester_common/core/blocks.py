@@ -12,10 +12,11 @@ from typing import Mapping, Optional, Sequence
 from .channels import PULL_END, PULL_START
 from .clock import NS_PER_S
 
-# Samples per block a live source publishes (the sim's block_size): 50 = 1 ms at 50 kHz. Per message
-# the cost is fixed (DDS and Python), so larger blocks cost less CPU and add their length in latency:
-# ./ft bench rigs --block N measures the trade-off (README, Speed).
-BLOCK_SAMPLES = 50
+# Samples per block a live source publishes (the sim's block_size): 500 = 10 ms at 50 kHz. A message
+# costs about the same in rclpy and DDS whatever its length, so 1 ms blocks (50) spend most of a
+# node's CPU on messages; 10 ms blocks pay that 100 times a second instead of 1000, and 10 ms is
+# less than a display frame. ./ft bench rigs --block 50,100,250,500 measures it (README, Speed).
+BLOCK_SAMPLES = 500
 BLOCK_SAMPLES_RANGE = (1, 100_000)
 MAX_BLOCK_SAMPLES = 1_000_000       # 20 s at 50 kHz: a longer block is not a block
 MAX_SAMPLE_RATE_HZ = 100e6          # no DAQ here samples faster
