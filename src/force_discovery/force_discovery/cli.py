@@ -64,7 +64,8 @@ def main(args) -> int:
     if report.get('retried_pulls'):
         print(f'rerun after a worker died: {", ".join(report["retried_pulls"])}', file=sys.stderr)
     if not report['fitted_pulls']:   # the data-quality screen left too few pulls: the report says which and why
-        return _error(f'{report["causes"][0]["evidence"]["value"]} usable pulls after the data-quality screen; '
+        unread = f' ({len(report["failed_pulls"])} could not be read)' if report.get('failed_pulls') else ''
+        return _error(f'{report["causes"][0]["evidence"]["value"]} usable pulls after the data-quality screen{unread}; '
                       f'expected at least {report["causes"][0]["evidence"]["threshold"]} '
                       f'(why: {Path(args.out) / "report.md"})')
     names = ', '.join(c['name'] for c in report['causes']) or 'none'

@@ -327,7 +327,11 @@ class Stream:
         usable = [s for s in surveys if not s.excluded]
         run = {'failed': tuple(self.failed), 'retried': tuple(self.retried), 'scheduler': self.where}
         if len(usable) < D.MIN_PULLS:
-            return D.unusable_analysis(len(usable), len(surveys), quality, screens, excluded, **run)
+            out = D.unusable_analysis(len(usable), len(refs), quality, screens, excluded, **run)
+            if self.failed:
+                out = dataclasses.replace(out, notes=out.notes + (f'{len(self.failed)} pulls could not be read or '
+                                                                  'analysed (failed_pulls)',))
+            return out
         self.sources = [Source(refs[where[id(s)]], s.spill) for s in usable]
         self.usable = usable
         names = [s.name for s in usable]
