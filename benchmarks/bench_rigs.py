@@ -14,8 +14,9 @@ prescribed carriage motion unless --drive: a real rig's hardware makes the data)
   - the correction's CPU per rig, and its ratio to the same arithmetic done by the core on one
     numpy array (timed in the same run).
 
---max finds the largest N with zero dropped blocks and every pull scored (N = 1, 2, 4, ... until
-a run drops, then bisection). --block, --executor and --layout take comma-separated lists: every
+--max finds the largest N with zero dropped blocks, every pull scored and rig 1 keeping up (p99
+latency after the block is complete under --live-ms, 100 ms): N = --rigs, doubled until a run
+fails, then bisection. --block, --executor and --layout take comma-separated lists: every
 combination runs, one after another, and a table puts them side by side. --json FILE writes
 {"rigs", "dropped", "p99_added_ms", "correction_cpu_per_rig", ...} (for a list: every run's; for
 --max: the largest clean run's figures, and every run's).
@@ -50,6 +51,10 @@ SETS = (1, 2, 3, 4, 5)
 LAYOUTS = ('process', 'composed')
 PULL_S = 2.0          # every test set's pull lasts 2 s of data (the sim's schedule)
 START_TIMEOUT_S = 60.0
+
+
+class NotStarted(Exception):
+    """The rigs' sims did not all start publishing in time."""
 
 
 def tree_cpu(proc) -> float:
@@ -191,7 +196,8 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
         def started():
             return all(probe.events.values())
         if not probe.spin_until(lambda: started() or graph.dead(), START_TIMEOUT_S + 5 * rigs) or graph.dead():
-            raise SystemExit(f'bench rigs: the rigs did not start (dead: {graph.dead()}); logs in {graph.log_dir}')
+            raise NotStarted(f'bench rigs: {rigs} rig(s) did not start within {START_TIMEOUT_S + 5 * rigs:.0f} s '
+                             f'(dead: {graph.dead()}); logs in {graph.log_dir}')
         cpu0 = {name: tree_cpu(p) for name, p in procs.items()}
         wall0 = time.monotonic()
         log(f'  {rigs} rig(s) publishing {n_pulls} pulls each ({n_pulls * PULL_S:.0f} s of data)', file=sys.stderr)
@@ -268,8 +274,12 @@ def report(r: dict) -> None:
     print(f"dropped blocks, all rigs: {r['dropped']}; pulls not scored: {r['unscored']}")
 
 
-def clean(r: dict) -> bool:
-    return r['dropped'] == 0 and r['unscored'] == 0
+def clean(r: dict, live_ms: float = math.inf) -> bool:
+    """Every block corrected and every pull scored (and, for --max, rig 1 kept up: its p99 latency
+    after the block is complete under live_ms; a graph that falls behind drops nothing until its
+    queues overflow, BLOCK_QOS's 10,000 blocks, 100 s of 10 ms blocks)."""
+    return (r.get('started', True) and r['dropped'] == 0 and r['unscored'] == 0
+            and (r['p99_latency_ms'] or math.inf) < live_ms)
 
 
 def summary(results: list) -> None:
@@ -278,6 +288,11 @@ def summary(results: list) -> None:
     print(f"{'rigs':>4} {'block':>5} {'executor':>8} {'layout':>8} {'dropped':>7} {'corr CPU/rig':>12} "
           f"{'x batch':>7} {'p50 after':>9} {'p99 after':>9} {'p50 added':>9} {'p99 added':>9}  (ms)")
     for r in results:
+        if not r.get('started', True):
+            print(f"{r['rigs']:>4} {r['block']:>5} {r['executor']:>8} {'composed' if r['compose'] else 'process':>8} "
+                  'did not start')
+            continue
+
         def ms(key, r=r):
             return f'{r[key]:9.2f}' if r[key] is not None else f"{'-':>9}"
         print(f"{r['rigs']:>4} {r['block']:>5} {r['executor']:>8} {'composed' if r['compose'] else 'process':>8} "
@@ -315,7 +330,11 @@ def main() -> int:
                     help="the sims simulate the carriage's motor drive too (0.25 s of CPU per 2 s pull; "
                          "default: the prescribed motion, since a real rig's hardware makes the data)")
     ap.add_argument('--max', action='store_true',
-                    help='find the largest number of rigs with zero drops (first --block, --executor, --layout)')
+                    help='find the largest number of rigs with zero drops, doubling from --rigs, then bisecting '
+                         '(first --block, --executor, --layout)')
+    ap.add_argument('--live-ms', type=float, default=100.0,
+                    help='--max: a run keeps up when rig 1\'s p99 latency after the block is complete is under '
+                         'this (default 100 ms), besides dropping nothing')
     ap.add_argument('--json', type=Path, metavar='FILE', help='write the figures as JSON')
     ap.add_argument('--domain', type=int, default=60, help='first ROS domain id to use (default 60)')
     args = ap.parse_args()
@@ -326,8 +345,16 @@ def main() -> int:
     results = []
 
     def trial(n, block, executor, layout):
-        r = run(n, args.seconds, block, executor, layout == 'composed', domain[0], args.drive)
-        domain[0] += 1
+        try:
+            r = run(n, args.seconds, block, executor, layout == 'composed', domain[0], args.drive)
+        except NotStarted as exc:   # too many rigs to even start: a failed run, not the end of --max
+            print(exc)
+            r = {'rigs': n, 'block': block, 'executor': executor, 'compose': layout == 'composed',
+                 'dropped': None, 'unscored': None, 'started': False}
+            results.append(r)
+            return r
+        finally:
+            domain[0] += 1
         report(r)
         print(flush=True)
         results.append(r)
@@ -343,17 +370,18 @@ def main() -> int:
         ok = all(clean(r) for r in results)
     else:
         setup = (args.block[0], args.executor[0], args.layout[0])
-        good, bad, n = 0, None, 1
+        good, bad, n = 0, None, args.rigs
         while bad is None:
-            if clean(trial(n, *setup)):
+            if clean(trial(n, *setup), args.live_ms):
                 good, n = n, n * 2
             else:
                 bad = n
         while bad - good > 1:
             n = (good + bad) // 2
-            good, bad = (n, bad) if clean(trial(n, *setup)) else (good, n)
+            good, bad = (n, bad) if clean(trial(n, *setup), args.live_ms) else (good, n)
         summary(results)
-        print(f'largest number of rigs with zero dropped blocks: {good}')
+        print(f'largest number of rigs with zero dropped blocks, every pull scored and rig 1 within '
+              f'{args.live_ms:g} ms at p99: {good}')
         best = next((r for r in results if r['rigs'] == good), None)
         out = dict(best or {'rigs': 0, 'dropped': None}, max_rigs=good, runs=results)
         ok = good > 0

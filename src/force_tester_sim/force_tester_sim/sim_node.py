@@ -108,8 +108,7 @@ class SimNode(Node):
         config = self.params.config
         pulls = list(self._schedule(config))
         self.diag.report(OK, f'publishing {len(pulls)} pull(s) of sets {list(config.test_sets)}')
-        t0_ns = time.time_ns()
-        t0_mono = time.monotonic()
+        t0_ns = t0_mono = None   # the sample clock starts once the first pull is simulated
         index = 0  # samples published so far: the sample clock
         seqs = [0] * len(self.block_pubs)
         # the next pull is simulated in a worker process, so the publishing thread keeps its pace
@@ -121,6 +120,8 @@ class SimNode(Node):
             for i, (pull_id, rig, spec) in enumerate(pulls):
                 channels = upcoming.result()
                 upcoming = simulate(i + 1) if i + 1 < len(pulls) else None
+                if t0_ns is None:   # (the worker process's start-up is not the data's lateness)
+                    t0_ns, t0_mono = time.time_ns(), time.monotonic()
                 rate_hz = rig.daq.sample_rate_hz
                 n = len(channels['time_s'])
                 config = self.params.config  # parameter changes apply from here
