@@ -156,12 +156,12 @@ def spin(executor, poll_s: float = 0.5, ok=rclpy.ok) -> None:
             return
 
 
-def spin_nodes(*node_factories, args=None, executor: str | None = None) -> int:
+def spin_nodes(*node_factories, args=None) -> int:
     """Create the nodes in one process, add them to one executor (make_executor) and spin until
     shut down. An invalid parameter at start-up ends the process: one line on stderr, exit code 2."""
     try:
         with ros_init(args):
-            ex = make_executor(executor)
+            ex = make_executor()
             nodes = [factory() for factory in node_factories]
             for node in nodes:
                 ex.add_node(node)

@@ -80,7 +80,6 @@ def reference_extension(pulls: int = REFERENCE_PULLS, seed: int = REFERENCE_SEED
     """extension.yaml that `./ft discover` finds on the reference campaign, discovered on first use and cached
     beside the campaign (keyed by the campaign and the discovery code)."""
     import force_discovery.core as core
-    from bag_tools.core.daq import read_campaign
     from force_discovery.core.pipeline import discover
     from force_tester_sim.core.params import load_rig
     folder = reference_campaign(pulls, seed, say, cache)
@@ -95,7 +94,7 @@ def reference_extension(pulls: int = REFERENCE_PULLS, seed: int = REFERENCE_SEED
     t0 = time.monotonic()
     for old in cache.glob('reference_discovery_*'):   # stale: another campaign or older discovery code
         shutil.rmtree(old, ignore_errors=True)
-    report = discover([(p.meta, p.channels) for p in read_campaign(folder).pulls], load_rig(), out)
+    report = discover(folder, load_rig(), out)   # streamed from the folder: bounded memory
     say(f'  done in {time.monotonic() - t0:.1f} s: {", ".join(c["name"] for c in report["causes"]) or "none"}')
     return out / 'extension.yaml'
 
