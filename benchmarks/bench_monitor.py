@@ -29,6 +29,7 @@ sys.path.insert(0, str(ROOT / 'tests' / 'force_tester_monitor'))
 
 from fox_client import client_command, monitor_port  # noqa: E402
 
+from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
 from force_tester_common.core.clock import stamp_to_ns  # noqa: E402
 from ft_cli.graph import Graph, ScoreCollector  # noqa: E402
 
@@ -107,8 +108,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         without = run(args.pulls, args.set, False, Path(tmp) / 'without')
         with_ = run(args.pulls, args.set, True, Path(tmp) / 'with')
-    print(f'{args.pulls} pull(s) of set {args.set}, 50 kHz, 50-sample blocks')
-    data_s = with_['blocks'] / 1000.0  # 1 ms blocks
+    print(f'{args.pulls} pull(s) of set {args.set}, 50 kHz, {BLOCK_SAMPLES}-sample blocks (the sim default)')
+    data_s = with_['blocks'] * BLOCK_SAMPLES / 50_000
     print(f"monitor CPU with one Foxglove client: {with_['cpu_s']:.2f} s for {data_s:.1f} s of data = "
           f"{100 * with_['cpu_s'] / data_s:.1f} % of one core per second of data (target < 15 %); "
           f"{100 * with_['cpu_s'] / with_['wall_s']:.1f} % over the {with_['wall_s']:.1f} s run")
