@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 import time
 
 import rclpy
@@ -141,19 +143,30 @@ def spin(executor, poll_s: float = 0.5, ok=rclpy.ok) -> None:
     The EventsExecutor of the Jazzy wheels (rclpy 7.1.6) is spun with spin_once(timeout): its
     spin() busy-waits on one core, runs no callback and ignores Ctrl-C
     (benchmarks/events_executor_spin.py reproduces it). spin_once returns after each callback or
-    ``poll_s``, and after a signal, which shuts the context down. ok: the context's ok()."""
+    ``poll_s``; the loop ends when the context shuts down or on SIGINT/SIGTERM (in the main
+    thread), within ``poll_s``. ok: the context's ok()."""
     if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
         executor.spin()
         return
-    while ok():
-        try:
-            executor.spin_once(timeout_sec=poll_s)
-        except Exception:
-            # a callback that raced the shutdown (a heartbeat publishing on the closed context of a
-            # node that shut itself down) is the end of spinning, not a crash
-            if ok():
-                raise
-            return
+    # Ctrl-C and SIGTERM only ask the loop to stop: a KeyboardInterrupt raised inside a callback
+    # that the EventsExecutor runs from C++ cannot propagate there, and aborts the process
+    # (SIGABRT, "terminate called after throwing ... KeyboardInterrupt").
+    stop = []
+    handled = (signal.SIGINT, signal.SIGTERM) if threading.current_thread() is threading.main_thread() else ()
+    previous = {sig: signal.signal(sig, lambda signum, _frame: stop.append(signum)) for sig in handled}
+    try:
+        while ok() and not stop:
+            try:
+                executor.spin_once(timeout_sec=poll_s)
+            except Exception:
+                # a callback that raced the shutdown (a heartbeat publishing on the closed context of a
+                # node that shut itself down) is the end of spinning, not a crash
+                if ok():
+                    raise
+                return
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def spin_nodes(*node_factories, args=None) -> int:
