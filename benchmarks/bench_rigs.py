@@ -188,7 +188,6 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
                 procs[f'rig{k}/validator'] = graph.start('force_correction', 'validator_node', extra=remap,
                                                          key=f'rig{k}_validator')
         # the sims last: they wait for their correction and validator, then start at once
-        cpu0 = {}
         for k, ns in enumerate(namespaces, 1):
             procs[f'rig{k}/sim'] = graph.start('force_tester_sim', 'sim_node', extra=[
                 '--ros-args', '-r', f'__ns:={ns}', '--params-file', str(files[k - 1])], key=f'rig{k}_sim')

@@ -7,6 +7,7 @@ pair per rig, each under its own namespace (topics /rig1/force, /rig1/force_corr
 """
 import argparse
 import functools
+import sys
 
 from force_tester_common.ros import spin_nodes
 
@@ -15,7 +16,6 @@ from .validator_node import ValidatorNode
 
 
 def main(args=None):
-    import sys
     argv = list(sys.argv if args is None else args)
     ros_args = argv[argv.index('--ros-args'):] if '--ros-args' in argv else []
     own = argv[1:len(argv) - len(ros_args)]
