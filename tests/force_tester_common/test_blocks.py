@@ -55,3 +55,16 @@ def test_pull_status_precedence_and_detail():
     code, detail = pull_status(2, [('reconfigured', 'window'), ('incomplete', 'gap')])
     assert code == PULL_INCOMPLETE and detail == '2 block(s) missing; window; gap'
     assert pull_status(0, [('aborted', 'stopped')], aborted=True) == (PULL_ABORTED, 'stopped')
+
+
+@pytest.mark.parametrize('rate', [50_000.0, 48_000.0, 12_345.678, 1.5, 3.0, 1e6, 1e9])
+def test_record_stamps_equal_the_broadcast_sample_clock(rate):
+    """record_stamps_ns (one block, the per-block fast path) stamps exactly as sample_stamps_ns."""
+    import numpy as np
+
+    from force_tester_common.core.clock import record_stamps_ns, sample_stamps_ns
+    for first in (0, 123_456_789, 1_795_477_056_761_810_612):
+        for n in (0, 1, 50, 500, 5000):
+            got = record_stamps_ns(first, n, rate)
+            assert got.dtype == np.int64
+            assert np.array_equal(got, sample_stamps_ns(first, np.arange(n), rate)), (rate, first, n)
