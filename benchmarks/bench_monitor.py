@@ -1,10 +1,13 @@
 """The monitor's cost on the live 50 kHz graph: `./ft bench monitor [--pulls N] [--set S]`.
 
-Runs the live graph (sim, correction, validator as processes) twice on the same pulls: once without
-the monitor, once with monitor_node and one Foxglove client (tools/foxglove_client, subscribed to
-every topic, decoding nothing it does not print). Prints
+Runs the live graph (sim, correction, validator as processes) three times on the same pulls: without
+the monitor; with monitor_node and one Foxglove client (tools/foxglove_client, decoding nothing it
+does not print) on the topics the shipped layout reads, as the Foxglove app with that layout open;
+and with the monitor and one client on every topic it serves (so /motor and /encoder too, which
+the monitor subscribes to only while a client watches them). Prints
 
-- the monitor process's CPU (user + system, from /proc) over the run, as a share of one core;
+- the monitor process's CPU (user + system, from /proc) while data flows and over the run, as a
+  share of one core;
 - the correction path's latency in both runs: a /force_corrected block's arrival at this
   benchmark's own rclpy node minus its header stamp (the block's first sample), p50 and p99;
 - how many blocks the monitor received of those published (it may lose, never delay).
@@ -14,6 +17,7 @@ Short by default (one 2 s pull of set 3): the machine is shared.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -27,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tools'))
 sys.path.insert(0, str(ROOT / 'tests' / 'force_tester_monitor'))
 
-from fox_client import client_command, monitor_port  # noqa: E402
+from fox_client import LAYOUT, client_command, layout_topics, monitor_port  # noqa: E402
 
 from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
 from force_tester_common.core.clock import stamp_to_ns  # noqa: E402
@@ -41,8 +45,9 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICKS
 
 
-def run(pulls: int, test_set: int, monitor: bool, logs: Path) -> dict:
-    from force_tester_msgs.msg import CorrectedForceBlock, MonitorHealth
+def run(pulls: int, test_set: int, topics: list | None, logs: Path) -> dict:
+    """topics: the Foxglove client's; None runs no monitor."""
+    from force_tester_msgs.msg import CorrectedForceBlock, MonitorHealth, PullEvent
 
     from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
     graph = Graph(logs)
@@ -54,7 +59,20 @@ def run(pulls: int, test_set: int, monitor: bool, logs: Path) -> dict:
     collector.node.create_subscription(CorrectedForceBlock, '/force_corrected', on_corrected, BLOCK_QOS)
     collector.node.create_subscription(MonitorHealth, '/monitor/health', health.append, EVENT_QOS)
     client = None
+    monitor = topics is not None
     out = {}
+    flowing = {'cpu_s': 0.0, 'wall_s': 0.0, 'start': None}   # the monitor's CPU from each pull's START to its END
+
+    def on_event(msg):
+        now = (time.monotonic(), cpu_s(mon.pid))
+        if msg.event == PullEvent.START:
+            flowing['start'] = now
+        elif flowing['start'] is not None:
+            flowing['wall_s'] += now[0] - flowing['start'][0]
+            flowing['cpu_s'] += now[1] - flowing['start'][1]
+            flowing['start'] = None
+    if monitor:
+        collector.node.create_subscription(PullEvent, '/pull_event', on_event, EVENT_QOS)
     try:
         graph.start('force_correction', 'correction_node')
         graph.start('force_correction', 'validator_node')
@@ -62,13 +80,11 @@ def run(pulls: int, test_set: int, monitor: bool, logs: Path) -> dict:
         if monitor:
             mon = graph.start('force_tester_monitor', 'monitor_node', {'port': 0})
             port = monitor_port(logs / 'monitor_node.log', mon)
-            client = subprocess.Popen(client_command(port, '--topics', '/motor,/encoder,/accel,/force,'
-                                                     '/force_corrected,/pull_event,/pull_score,/set_summary,'
-                                                     '/diagnostics,/monitor/force,/monitor/health',
-                                                     '--keep', '/force_corrected=0,/force=0,/accel=0,/motor=0,'
-                                                     '/encoder=0', '--timeout', '600'),
+            client = subprocess.Popen(client_command(port, '--topics', ','.join(topics),
+                                                     '--keep', ','.join(f'{t}=0' for t in topics),
+                                                     '--timeout', '600'),
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            subs = {'/force': 3, '/pull_event': 2}
+            subs = {'/force': 3, '/pull_event': 3}
         assert collector.wait_for_graph(subs, timeout=60)
         time.sleep(1.0)
         cpu0, t0 = (cpu_s(mon.pid) if monitor else 0.0), time.monotonic()
@@ -85,6 +101,7 @@ def run(pulls: int, test_set: int, monitor: bool, logs: Path) -> dict:
                     break
             out['cpu_s'] = cpu_s(mon.pid) - cpu0
             out['wall_s'] = time.monotonic() - t0
+            out['flowing'] = flowing
             out['monitor_received'] = {k: last[k].received for k in ('/force', '/force_corrected') if k in last}
     finally:
         if client is not None:
@@ -105,16 +122,23 @@ def main() -> int:
     args = ap.parse_args()
     os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    from force_tester_monitor.monitor_node import DERIVED, FORWARDED
+    served = sorted({*FORWARDED, *DERIVED})
+    clients = {'layout': layout_topics(json.loads(LAYOUT.read_text()), served), 'every topic': served}
     with tempfile.TemporaryDirectory() as tmp:
-        without = run(args.pulls, args.set, False, Path(tmp) / 'without')
-        with_ = run(args.pulls, args.set, True, Path(tmp) / 'with')
+        runs = {'without monitor': run(args.pulls, args.set, None, Path(tmp) / 'without')}
+        for name, topics in clients.items():
+            runs[f'monitor + client on {name}'] = run(args.pulls, args.set, topics, Path(tmp) / name.replace(' ', '_'))
     print(f'{args.pulls} pull(s) of set {args.set}, 50 kHz, {BLOCK_SAMPLES}-sample blocks (the sim default)')
-    data_s = with_['blocks'] * BLOCK_SAMPLES / 50_000
-    print(f"monitor CPU with one Foxglove client: {with_['cpu_s']:.2f} s for {data_s:.1f} s of data = "
-          f"{100 * with_['cpu_s'] / data_s:.1f} % of one core per second of data (target < 15 %); "
-          f"{100 * with_['cpu_s'] / with_['wall_s']:.1f} % over the {with_['wall_s']:.1f} s run")
-    print(f"monitor received (of {with_['blocks']} corrected blocks): {with_['monitor_received']}")
-    for name, r in (('without monitor', without), ('with monitor + client', with_)):
+    for name, topics in clients.items():
+        r = runs[f'monitor + client on {name}']
+        f = r['flowing']
+        print(f"monitor CPU, one Foxglove client on {name} ({', '.join(topics)}): "
+              f"{100 * f['cpu_s'] / f['wall_s']:.1f} % of one core while data flows ({f['cpu_s']:.2f} CPU-s in "
+              f"{f['wall_s']:.1f} s from each pull's START to its END; target < 15 %); "
+              f"{100 * r['cpu_s'] / r['wall_s']:.1f} % over the {r['wall_s']:.1f} s run; it received (of "
+              f"{r['blocks']} corrected blocks) {r['monitor_received']}")
+    for name, r in runs.items():
         print(f"correction path latency {name}: p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms "
               f"over {r['blocks']} blocks, dropped {r['dropped']}")
     return 0

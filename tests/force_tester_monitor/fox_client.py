@@ -12,6 +12,29 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 CLIENT_DIR = ROOT / 'tools' / 'foxglove_client'
 PORT_LINE = re.compile(r'Foxglove WebSocket at ws://127\.0\.0\.1:(\d+)')
+LAYOUT = ROOT / 'src' / 'force_tester_monitor' / 'layouts' / 'force_tester.json'
+
+
+def _strings(value):
+    if isinstance(value, str):
+        yield value
+    elif isinstance(value, dict):
+        for v in value.values():
+            yield from _strings(v)
+    elif isinstance(value, list):
+        for v in value:
+            yield from _strings(v)
+
+
+def layout_topics(layout: dict, served) -> list:
+    """The topics of ``served`` that the layout's panels read (a path is a topic, or a topic and
+    '.field'): what the Foxglove app subscribes to with this layout open."""
+    used = set()
+    for text in _strings(layout['configById']):
+        hits = [t for t in served if text == t or text.startswith(t + '.')]
+        if hits:
+            used.add(max(hits, key=len))
+    return sorted(used)
 
 
 def client_command(port: int, *args: str) -> list:

@@ -51,8 +51,10 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
         stalled = subprocess.Popen(client_command(port, '--topics', BLOCK_TOPICS, '--stall', '--timeout', '300'),
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         clients += [reader, stalled]
-        # the monitor subscribes to /force too: correction, validator, monitor
-        assert collector.wait_for_graph({'/force': 3, '/force_corrected': 3, '/pull_event': 2}, timeout=60)
+        # the monitor subscribes to /force too: correction, validator, monitor; and to /accel, /motor and
+        # /encoder because the stalled client watches them (on demand)
+        assert collector.wait_for_graph({'/force': 3, '/force_corrected': 3, '/pull_event': 2, '/accel': 2,
+                                         '/motor': 1, '/encoder': 1}, timeout=60)
         time.sleep(1.0)  # both clients subscribed (they connect within milliseconds)
         # 1 ms blocks: the message rate this test's counts and the stalled client were sized for
         graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,

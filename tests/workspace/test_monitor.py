@@ -174,3 +174,45 @@ def test_in_tmux_against_a_live_graph(tmp_path, ros_domain):
         collector.close()
     assert shown(screen), f'{want}\n{screen}'
     assert 'health (' in screen and 'recorder ' in screen
+
+
+def test_demo_with_monitor_in_tmux(tmp_path, ros_domain):
+    """`./ft demo --monitor` in a tmux pane: while it runs, the scoreboard shows the pull's row and
+    the monitor node's health line; when the demo is done, the scoreboard closes and the demo's table
+    is printed on the same terminal, and the exit code is 0."""
+    import json
+    import os
+    import shutil
+    import subprocess
+
+    from ft_cli.paths import ROOT
+    if shutil.which('tmux') is None:
+        pytest.fail('tmux is not installed; the scoreboard smoke test needs it')
+    sock = f'ft-demo-monitor-test-{os.getpid()}'
+    tmux = ['tmux', '-L', sock]
+    out = tmp_path / 'demo'
+    env = ' '.join(f'{k}={os.environ[k]}' for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE'))
+
+    def capture():
+        return subprocess.run([*tmux, 'capture-pane', '-p', '-t', 'demo'], capture_output=True, text=True).stdout
+    seen_live, screen = False, ''
+    try:
+        subprocess.run([*tmux, 'new-session', '-d', '-s', 'demo', '-x', '160', '-y', '50',
+                        f'env {env} {ROOT}/ft demo --monitor --sets 2 --pulls 1 --extension none --out {out}; '
+                        f'echo DEMO EXIT $?; sleep 600'], check=True)
+        deadline = time.monotonic() + 300
+        while 'DEMO EXIT' not in screen and time.monotonic() < deadline:
+            screen = capture()
+            rows = [line.split() for line in screen.splitlines()]
+            if 'health (monitor node)' in screen and any(r[1:3] == ['2', 'OK'] for r in rows if len(r) > 2):
+                seen_live = True
+                (tmp_path / 'live_screen.txt').write_text(screen)
+            time.sleep(0.25)
+        (tmp_path / 'final_screen.txt').write_text(screen)
+    finally:
+        subprocess.run([*tmux, 'kill-server'], capture_output=True)
+    assert 'DEMO EXIT 0' in screen, screen
+    assert seen_live, 'the scoreboard never showed the pull scored with the monitor node health line'
+    (score,) = json.loads((out / 'scores.json').read_text())
+    assert score['test_set'] == 2
+    assert 'bag:' in screen and 'scores:' in screen  # the demo's table, printed after the scoreboard closed

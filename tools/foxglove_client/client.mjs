@@ -5,7 +5,7 @@
 //
 //   node client.mjs --url ws://127.0.0.1:8765 --topics /force_corrected,/pull_score
 //        [--until /pull_score=3] [--keep /force_corrected=200] [--timeout 60]
-//        [--stall] [--malformed]
+//        [--stall] [--malformed] [--get-params] [--set-param NAME=JSON]
 //
 // Lines: {"kind":"open","protocol":...}, {"kind":"serverInfo",...}, {"kind":"channel",...} per
 // advertised channel, {"kind":"message","topic":...,"logTime":...,"data":{...}} per decoded
@@ -13,6 +13,9 @@
 // {"kind":"done","counts":{...}} at the end. --until: stop once each topic has that many
 // messages. --stall: subscribe, then stop reading the socket (a viewer that hangs) until killed.
 // --malformed: send messages the protocol does not know before subscribing.
+// --get-params: ask for every parameter (as the Parameters panel does), print
+// {"kind":"parameters",...} and stop. --set-param: set one parameter (JSON value), subscribe to
+// its updates, print each {"kind":"parameters",...}, and stop once it has the value that was set.
 import rosmsg from "@foxglove/rosmsg";
 import rosmsg2 from "@foxglove/rosmsg2-serialization";
 import wsProtocol from "@foxglove/ws-protocol";
@@ -40,6 +43,12 @@ function args(argv) {
     } else if (a === "--timeout") out.timeout = Number(next());
     else if (a === "--stall") out.stall = true;
     else if (a === "--malformed") out.malformed = true;
+    else if (a === "--get-params") out.getParams = true;
+    else if (a === "--set-param") {
+      const s = next();
+      const k = s.indexOf("=");
+      out.setParam = { name: s.slice(0, k), value: JSON.parse(s.slice(k + 1)) };
+    }
     else throw new Error(`unknown argument ${a}`);
   }
   if (!out.url) throw new Error("--url is required");
@@ -95,7 +104,22 @@ client.on("close", (ev) => {
   say({ kind: "close", code: ev && ev.code });
   if (!finished) finish(4);
 });
-client.on("serverInfo", (info) => say({ kind: "serverInfo", name: info.name, capabilities: info.capabilities }));
+client.on("serverInfo", (info) => {
+  say({ kind: "serverInfo", name: info.name, capabilities: info.capabilities });
+  if (opt.getParams) client.getParameters([], "get");
+  if (opt.setParam) {
+    client.subscribeParameterUpdates([opt.setParam.name]);
+    client.setParameters([opt.setParam], "set");
+  }
+});
+client.on("parameterValues", (ev) => {
+  const parameters = plain(ev.parameters);
+  say({ kind: "parameters", id: ev.id, parameters });
+  if (opt.getParams && ev.id === "get") finish(0);
+  const want = opt.setParam;
+  if (want && parameters.some((p) => p.name === want.name && JSON.stringify(p.value) === JSON.stringify(want.value)))
+    finish(0);
+});
 client.on("status", (st) => say({ kind: "status", level: st.level, message: st.message }));
 client.on("advertise", (channels) => {
   for (const ch of channels) {

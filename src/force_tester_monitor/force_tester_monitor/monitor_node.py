@@ -74,6 +74,8 @@ SPECS = [
               P.BACKLOG_RANGE, read_only=True),
     ParamSpec('depth', P.DEPTH, 'subscription queue depth (best effort, keep last)', P.DEPTH_RANGE,
               read_only=True),
+    ParamSpec('on_demand', P.ON_DEMAND, f'subscribe to {", ".join(P.ON_DEMAND_TOPICS)} only while a Foxglove '
+                                        'client watches them (false: always)', read_only=True),
 ]
 
 
@@ -120,6 +122,17 @@ def _fox_value(value):
     return value
 
 
+def _as_type_of(current, value):
+    """A value from a client, in the type of the parameter's current value where that loses nothing:
+    JSON has one number type, so the Parameters panel sends 140 for an integer parameter as a float."""
+    if isinstance(current, int) and not isinstance(current, bool) and isinstance(value, float) \
+            and value.is_integer():
+        return int(value)
+    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
 class _Listener(foxglove.websocket.ServerListener):
     """Server callbacks (they run on the server's thread): parameters, and client messages, which
     this server does not take (no ClientPublish capability) and reports once."""
@@ -138,13 +151,15 @@ class _Listener(foxglove.websocket.ServerListener):
         self.node.requests.append(('refresh', None))
 
     def on_subscribe(self, client, channel):
-        self.node.subscribed.setdefault(client.id, set()).add(channel.id)
+        self.node.subscribed.setdefault(client.id, set()).add(channel.topic)
+        self.node.requests.append(('watch', None))
 
     def on_unsubscribe(self, client, channel):
-        channels = self.node.subscribed.get(client.id, set())
-        channels.discard(channel.id)
-        if not channels:
+        topics = self.node.subscribed.get(client.id, set())
+        topics.discard(channel.topic)
+        if not topics:
             self.node.subscribed.pop(client.id, None)
+        self.node.requests.append(('watch', None))
 
     def on_client_advertise(self, client, channel):
         self.node.requests.append(('client_message', f'client {client.id} advertised {channel.topic}'))
@@ -173,7 +188,7 @@ class MonitorNode(Node):
         cfg: P.MonitorParams = self.params.config
         self.cfg = cfg
         self.requests = []       # from the server's thread: (kind, payload)
-        self.subscribed = {}     # Foxglove client id -> channel ids it subscribes to
+        self.subscribed = {}     # Foxglove client id -> topics it subscribes to
         self._param_lock = threading.Lock()
         self._param_cache = {}   # '/node.name' -> python value
         self._param_clients = {}  # node fqn -> AsyncParameterClient
@@ -212,9 +227,11 @@ class MonitorNode(Node):
         self.recorder_seen_ns = None
         self.pubs = {topic: self.create_publisher(cls, topic, EVENT_QOS) for topic, (_n, cls) in DERIVED.items()}
         self.force_seq = 0
-        for topic, (type_name, _fields) in FORWARDED.items():
-            self.create_subscription(_msg_class(type_name), topic, self._receiver(topic),
-                                     _qos(topic, cfg.depth), raw=True)
+        self.on_demand = P.ON_DEMAND_TOPICS if cfg.on_demand else ()
+        self.subs = {}           # topic -> its rclpy subscription, while watched
+        for topic in FORWARDED:
+            if topic not in self.on_demand:
+                self._watch(topic)
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS_TOPIC, self._on_parameter_event,
                                  QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
         self.create_timer(cfg.period_s, self._tick)
@@ -222,6 +239,20 @@ class MonitorNode(Node):
         self.create_timer(5.0, self._fetch_parameters)
 
     # ------------------------------------------------------------------ receiving
+    def _watch(self, topic: str) -> None:
+        self.stats[topic] = TopicStats(topic, self.cfg.health_window_s)  # a new run: no gap across the pause
+        self.subs[topic] = self.create_subscription(_msg_class(FORWARDED[topic][0]), topic, self._receiver(topic),
+                                                    _qos(topic, self.cfg.depth), raw=True)
+
+    def _update_watched(self) -> None:
+        """Subscribe to an on-demand topic while some client watches it, and only then."""
+        wanted = set().union(*self.subscribed.values()) if self.subscribed else set()
+        for topic in self.on_demand:
+            if topic in wanted and topic not in self.subs:
+                self._watch(topic)
+            elif topic not in wanted and topic in self.subs:
+                self.destroy_subscription(self.subs.pop(topic))
+
     def _receiver(self, topic: str):
         channel, pending = self.channels[topic], self.pending[topic]
 
@@ -351,6 +382,8 @@ class MonitorNode(Node):
                             if self.recorder_seen_ns is not None else float('nan'))
         msg.header.stamp = ns_to_stamp(now)
         for topic, stats in self.stats.items():
+            if topic not in self.subs:
+                continue
             snap = stats.snapshot(now, self.recorder.get(topic, -1))
             msg.topics.append(TopicHealth(topic=topic, received=snap.received, rate_hz=snap.rate_hz,
                                           seq_gaps=snap.seq_gaps, nan_samples=snap.nan_samples,
@@ -425,13 +458,17 @@ class MonitorNode(Node):
     def _serve_requests(self) -> None:
         requests, self.requests = self.requests, []
         for kind, payload in requests:
-            if kind == 'refresh':
+            if kind == 'watch':
+                self._update_watched()
+            elif kind == 'refresh':
                 self._fetch_parameters(force=True)
             elif kind == 'set':
                 by_node = defaultdict(list)
+                with self._param_lock:
+                    current = dict(self._param_cache)
                 for name, value in payload:
                     fqn, _, pname = name.rpartition('.')
-                    by_node[fqn].append(RosParameter(pname, value=value))
+                    by_node[fqn].append(RosParameter(pname, value=_as_type_of(current.get(name), value)))
                 for fqn, ps in by_node.items():
                     self._client(fqn).set_parameters(ps).add_done_callback(
                         lambda f, n=fqn: self._on_set(f, n))

@@ -52,7 +52,8 @@ LEVEL_COLOURS = {LEVEL_OK: 'green', LEVEL_WARN: 'yellow', LEVEL_ERROR: 'bold red
 PULL_COLUMNS = ('pull', 'set', 'status', 'stat lbf', 'raw lbf', 'm*a lbf', 'MA lbf', 'raw %', 'm*a %', 'MA %')
 SET_COLUMNS = ('set', 'OK pulls', 'stat lbf', 'raw % mean+/-std', 'm*a % mean+/-std', 'MA % mean+/-std')
 NODE_COLUMNS = ('node', 'state', 'message', 'age s')
-# the health line shows the sample-block topics the correction reads and writes (the others are quiet)
+# the health line shows the sample-block topics the correction reads and writes (the others are quiet;
+# the monitor node watches /accel only while a Foxglove client does, so it may be missing)
 HEALTH_TOPICS = (BLOCK_TYPES[FORCE_TYPE][0], BLOCK_TYPES[ACCEL_TYPE][0], CORRECTED_TYPE[1][0])
 
 

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from force_tester_common.core.channels import ACCEL_TYPE, BLOCK_TYPES, ENCODER_TYPE, MOTOR_TYPE
+
 from .errors import MonitorError
 
 HOST = '127.0.0.1'                 # the WebSocket listens on loopback only
 PORT = 8765                        # Foxglove's default WebSocket port
 PORT_RANGE = (0, 65535)            # 0: any free port (the node logs the one it got)
-FORCE_EVERY = 10                   # /force_corrected blocks per /monitor/force message (10 ms at 1 ms blocks)
+FORCE_EVERY = 2                    # /force_corrected blocks per /monitor/force message: 50 Hz at the
+                                   # default 10 ms blocks (each message carries the maxima, so no peak is lost)
 FORCE_EVERY_RANGE = (1, 10_000)
 PERIOD_S = 0.05                    # the monitor works through what arrived this often
 PERIOD_RANGE_S = (0.001, 1.0)
@@ -28,6 +31,12 @@ BACKLOG_RANGE = (16, 1_000_000)
 DEPTH = 10_000                     # subscription queue (best effort, keep last; 10 s of 1 ms blocks, as the graph's):
                                    # a monitor that falls further behind loses blocks, and never delays a publisher
 DEPTH_RANGE = (1, 100_000)
+# The block topics no monitor topic is made from. With ``on_demand`` (the default) the monitor
+# subscribes to them only while a Foxglove client watches them, and their health is in
+# /monitor/health only then. /force and /force_corrected are always watched: they feed the live
+# trace, the pull traces and the scoreboard's health line.
+ON_DEMAND_TOPICS = (BLOCK_TYPES[MOTOR_TYPE][0], BLOCK_TYPES[ENCODER_TYPE][0], BLOCK_TYPES[ACCEL_TYPE][0])
+ON_DEMAND = True
 
 
 def _check(name: str, value, rng: tuple, kind: type):
@@ -50,6 +59,7 @@ class MonitorParams:
     trace_timeout_s: float = TRACE_TIMEOUT_S
     backlog: int = BACKLOG
     depth: int = DEPTH
+    on_demand: bool = ON_DEMAND
 
     def __post_init__(self):
         for name, rng, kind in (('port', PORT_RANGE, int), ('force_every', FORCE_EVERY_RANGE, int),
@@ -61,3 +71,5 @@ class MonitorParams:
                                 ('trace_timeout_s', TRACE_TIMEOUT_RANGE_S, float),
                                 ('backlog', BACKLOG_RANGE, int), ('depth', DEPTH_RANGE, int)):
             object.__setattr__(self, name, _check(name, getattr(self, name), rng, kind))
+        if not isinstance(self.on_demand, bool):
+            raise MonitorError(f'on_demand {self.on_demand!r} is invalid; expected true or false')
