@@ -46,3 +46,17 @@ def test_the_rig_parameter_files_set_only_declared_parameters():
             namespace, name = node.rsplit('/', 1)
             assert namespace == f'/{f.stem}' and name in declared, (f.name, node)
             assert set(section['ros__parameters']) <= declared[name], (f.name, node)
+
+
+@pytest.mark.slow
+def test_null_rigs_of_the_floor_benchmark_deliver_every_block(tmp_path, ros_domain):
+    """./ft bench floor: two null rigs (null sim, relay, null validator under /rig1 and /rig2) deliver
+    every block from the first each validator received, and the CPU is measured."""
+    out = tmp_path / 'floor.json'
+    res = subprocess.run([sys.executable, str(ROOT / 'benchmarks' / 'bench_floor.py'), '--rigs', '2',
+                          '--seconds', '2', '--json', str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    (run,) = json.loads(out.read_text())
+    assert run['rigs'] == 2 and run['lost'] == 0
+    assert run['received'] >= 2 * 150   # 2 s at 100 blocks/s per rig, from the first block received
+    assert run['cpu_total'] > 0 and run['us_per_op'] > 0
