@@ -13,10 +13,11 @@ validator. Every process spins rclpy's EventsExecutor, as the workspace's nodes 
 
 It prints, for each N: the CPU of the null rigs (all processes, as a share of one core) per rig and
 in total, the CPU per message operation, the blocks lost (published by the null sims but not
-received by the null validators, from the first one each received), and how far the slowest null sim fell behind its 50 kHz clock
-(blocks due but not sent when it was stopped). A run is live if nothing is lost and no sim is
-behind by more than a block or two. If N null rigs already need the machine's cores, N real rigs
-cannot run on it with rclpy, whatever the workspace's own code costs: that is the ceiling.
+received by the null validators, from the first one each received), and how far the slowest null
+sim fell behind its 50 kHz clock (blocks due but not sent when it was stopped). A run is live if
+nothing is lost and no sim is behind by more than a block or two. If N null rigs already need the
+machine's cores, N real rigs cannot run on it with rclpy, whatever the workspace's own code costs;
+if they fit, the rest of the machine is what the workspace's own work per rig may cost.
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
 from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
+from force_tester_common.core.clock import NS_PER_S  # noqa: E402
 
 RATE_HZ = 50_000.0
 OPS_PER_BLOCK = 9     # null sim: 4 publishes; relay: 2 receipts + 1 publish; null validator: 2 receipts
@@ -62,7 +64,7 @@ def role_main(role: str, block: int, started: Path) -> None:
             for field in topic.fields:
                 setattr(msg, field, zeros)
             msgs.append((node.create_publisher(topic.msg_type, in_namespace(topic.topic), BLOCK_QOS), msg))
-        period_ns = int(block / RATE_HZ * 1e9)
+        period_ns = int(block / RATE_HZ * NS_PER_S)
         t0 = []
         counts['sent'] = 0
         force_pub = msgs[list(topics).index('/force')][0]
@@ -81,7 +83,7 @@ def role_main(role: str, block: int, started: Path) -> None:
                     msg.seq = counts['sent']
                     pub.publish(msg)
                 counts['sent'] += 1
-        node.create_timer(period_ns / 1e9, tick)
+        node.create_timer(period_ns / NS_PER_S, tick)
     elif role == 'relay':
         pub = node.create_publisher(CORRECTED_TOPIC.msg_type, in_namespace(CORRECTED_TOPIC.topic), BLOCK_QOS)
         counts.update(force=0, accel=0)
@@ -150,7 +152,7 @@ def run(rigs: int, seconds: float, block: int, started: Path) -> dict:
     counts = {}
     for stage in ROLES:  # stop the sims first, then what they feed, each after the one before has ended
         time.sleep(DRAIN_S)  # what is in flight arrives
-        for (k, role), p in procs.items():
+        for (_k, role), p in procs.items():
             if role == stage:
                 p.send_signal(signal.SIGINT)
         for (k, role), p in procs.items():

@@ -137,6 +137,9 @@ def make_executor(kind: str | None = None, context=None):
     return (MultiThreadedExecutor if kind == 'multi' else SingleThreadedExecutor)(context=context)
 
 
+SHUTDOWN_TIMEOUT_S = 5.0   # an executor's shutdown waits at most this long for callbacks in progress
+
+
 def spin(executor, poll_s: float = 0.5, ok=rclpy.ok) -> None:
     """Spin until the context shuts down (Ctrl-C, SIGTERM, rclpy.shutdown()).
 
@@ -169,6 +172,23 @@ def spin(executor, poll_s: float = 0.5, ok=rclpy.ok) -> None:
             signal.signal(sig, handler)
 
 
+def release(executor, nodes) -> None:
+    """Take the nodes out of the executor and shut it down before destroying them: destroying a
+    node's entities while an executor still holds them can crash or hang the process (rclpy
+    issues #260 and #1644, the latter for the EventsExecutor)."""
+    for node in nodes:
+        try:
+            executor.remove_node(node)
+        except Exception:  # noqa: BLE001 - the context may already be shut down
+            pass
+    try:
+        executor.shutdown(timeout_sec=SHUTDOWN_TIMEOUT_S)
+    except Exception:  # noqa: BLE001 - idem
+        pass
+    for node in nodes:
+        node.destroy_node()
+
+
 def spin_nodes(*node_factories, args=None) -> int:
     """Create the nodes in one process, add them to one executor (make_executor) and spin until
     shut down. An invalid parameter at start-up ends the process: one line on stderr, exit code 2."""
@@ -181,11 +201,11 @@ def spin_nodes(*node_factories, args=None) -> int:
             try:
                 spin(ex)
             finally:
-                for node in nodes:
+                for node in nodes:   # first what matters: a node's data (the recorder's bag) is closed
                     close = getattr(node, 'close', None)
                     if close is not None:
                         close()
-                    node.destroy_node()
+                release(ex, nodes)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ParameterError as exc:

@@ -21,7 +21,7 @@ import logging
 import sys
 import threading
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
 
 import foxglove
 from diagnostic_msgs.msg import DiagnosticArray
@@ -123,8 +123,9 @@ def _fox_value(value):
 
 
 def _as_type_of(current, value):
-    """A value from a client, in the type of the parameter's current value where that loses nothing:
-    JSON has one number type, so the Parameters panel sends 140 for an integer parameter as a float."""
+    """A value from a client, in the type of the parameter's current value where that loses nothing.
+    JSON has one number type: a float parameter set to 2 in the Parameters panel arrives as the
+    integer 2, which the node would refuse as the wrong type."""
     if isinstance(current, int) and not isinstance(current, bool) and isinstance(value, float) \
             and value.is_integer():
         return int(value)
@@ -151,14 +152,16 @@ class _Listener(foxglove.websocket.ServerListener):
         self.node.requests.append(('refresh', None))
 
     def on_subscribe(self, client, channel):
-        self.node.subscribed.setdefault(client.id, set()).add(channel.topic)
+        with self.node.sub_lock:
+            self.node.subscribed.setdefault(client.id, set()).add(channel.topic)
         self.node.requests.append(('watch', None))
 
     def on_unsubscribe(self, client, channel):
-        topics = self.node.subscribed.get(client.id, set())
-        topics.discard(channel.topic)
-        if not topics:
-            self.node.subscribed.pop(client.id, None)
+        with self.node.sub_lock:
+            topics = self.node.subscribed.get(client.id, set())
+            topics.discard(channel.topic)
+            if not topics:
+                self.node.subscribed.pop(client.id, None)
         self.node.requests.append(('watch', None))
 
     def on_client_advertise(self, client, channel):
@@ -187,8 +190,9 @@ class MonitorNode(Node):
         self.params = NodeParams(self, SPECS, _config)
         cfg: P.MonitorParams = self.params.config
         self.cfg = cfg
-        self.requests = []       # from the server's thread: (kind, payload)
-        self.subscribed = {}     # Foxglove client id -> topics it subscribes to
+        self.requests = deque()  # from the server's thread: (kind, payload)
+        self.subscribed = {}     # Foxglove client id -> topics it subscribes to (under sub_lock)
+        self.sub_lock = threading.Lock()
         self._param_lock = threading.Lock()
         self._param_cache = {}   # '/node.name' -> python value
         self._param_clients = {}  # node fqn -> AsyncParameterClient
@@ -246,7 +250,8 @@ class MonitorNode(Node):
 
     def _update_watched(self) -> None:
         """Subscribe to an on-demand topic while some client watches it, and only then."""
-        wanted = set().union(*self.subscribed.values()) if self.subscribed else set()
+        with self.sub_lock:
+            wanted = set().union(*self.subscribed.values())
         for topic in self.on_demand:
             if topic in wanted and topic not in self.subs:
                 self._watch(topic)
@@ -456,8 +461,8 @@ class MonitorNode(Node):
             self.server.publish_parameter_values(self.parameters_for(changed))
 
     def _serve_requests(self) -> None:
-        requests, self.requests = self.requests, []
-        for kind, payload in requests:
+        while self.requests:
+            kind, payload = self.requests.popleft()
             if kind == 'watch':
                 self._update_watched()
             elif kind == 'refresh':

@@ -170,7 +170,8 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         raise RuntimeError(f'only {len(collector.scores)} of {expected} pulls were scored; '
                            f'last lines of {dead[0]}:\n{graph.tail(dead[0])}')
     if codes.get('recorder_node') not in (0, -signal.SIGINT) or not (bag / 'metadata.yaml').is_file():
-        raise RuntimeError(f'the recorder did not close the bag cleanly:\n{graph.tail("recorder_node")}')
+        raise RuntimeError(f'the recorder did not close the bag cleanly (exit code {codes.get("recorder_node")}):\n'
+                           f'{graph.tail("recorder_node")}')
     scores = sorted(collector.scores, key=lambda sc: sc['pull_id'])
     if extension:
         ext = {sc['pull_id']: sc for sc in collector.also_scores[EXT_SCORE_TOPIC]}
