@@ -51,7 +51,7 @@ def role_main(role: str, block: int, started: Path) -> None:
     import rclpy
 
     from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC, ns_to_stamp
-    from force_tester_common.ros import BLOCK_QOS, in_namespace, make_executor, spin
+    from force_tester_common.ros import BLOCK_QOS, in_namespace, make_executor, release, spin
     rclpy.init()
     node = rclpy.create_node(f'null_{role}')
     topics = {t.topic: t for t in BLOCK_TOPICS}
@@ -120,6 +120,7 @@ def role_main(role: str, block: int, started: Path) -> None:
     if role == 'sim':  # blocks due by the 50 kHz clock but not sent: the sim fell behind real time
         counts['behind'] = int((time.monotonic_ns() - t0[0]) // period_ns + 1 - counts['sent']) if t0 else -1
     print(json.dumps(counts), flush=True)
+    release(ex, [node])
 
 
 # ------------------------------------------------------------------ the benchmark
