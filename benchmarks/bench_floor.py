@@ -22,6 +22,7 @@ if they fit, the rest of the machine is what the workspace's own work per rig ma
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
 import signal
@@ -42,6 +43,8 @@ WARMUP_S = 2.0
 START_TIMEOUT_S = 120.0
 DRAIN_S = 0.5
 ROLES = ('sim', 'relay', 'sink')
+STARTED = []   # every null-rig process; those still running when the benchmark ends (a failed run) are killed
+atexit.register(lambda: [p.kill() for p in STARTED if p.poll() is None])
 
 
 # ------------------------------------------------------------------ the three roles (child processes)
@@ -138,6 +141,7 @@ def run(rigs: int, seconds: float, block: int, started: Path) -> dict:
             procs[(k, role)] = subprocess.Popen(
                 [sys.executable, __file__, '--role', role, '--block', str(block), '--started', str(started),
                  '--ros-args', '-r', f'__ns:=/rig{k}'], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            STARTED.append(procs[(k, role)])
     deadline = time.monotonic() + START_TIMEOUT_S
     while len(list(started.iterdir())) < rigs:  # every null sim has found its two readers
         if time.monotonic() > deadline:

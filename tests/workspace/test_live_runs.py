@@ -174,8 +174,10 @@ class EventWatch:
 def test_faults_mid_pull_are_scored_with_their_status(tmp_path, ros_domain):
     """The window changed mid-pull: RECONFIGURED. The correction node SIGKILLed mid-pull and
     restarted: the corrected stream resumes and the pull is INCOMPLETE, with the gap. The sim
-    SIGKILLed mid-pull: the validator closes that pull as ABORTED after abort_timeout_s. Every
-    pull gets a score message, whatever happened to it."""
+    SIGKILLed mid-pull: the validator closes that pull as ABORTED after abort_timeout_s, and the
+    sim's worker process does not outlive it. Every pull gets a score message, whatever happened
+    to it."""
+    import psutil
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
@@ -201,11 +203,15 @@ def test_faults_mid_pull_are_scored_with_their_status(tmp_path, ros_domain):
         kill(graph, 'correction_node')
         graph.start('force_correction', 'correction_node', {'window': 200})
         assert events.wait_start(5, alive=alive), graph.tail('sim_node')
+        helpers = psutil.Process(graph.procs['sim_node'].pid).children(recursive=True)
+        assert helpers, 'the sim simulates the next pull in a worker process'
         kill(graph, 'sim_node')
         assert collector.wait(6, 180, alive=alive), graph.tail('validator_node')
+        _gone, left = psutil.wait_procs(helpers, timeout=30)
     finally:
         graph.stop()
         collector.close()
+    assert not left, f'the SIGKILLed sim left {[p.cmdline() for p in left]} running'
     status = {s['pull_id']: (s['status'], s['detail']) for s in collector.scores}
     assert sorted(status) == [0, 1, 2, 3, 4, 5], status
     assert status[0] == (PULL_OK, ''), status

@@ -9,6 +9,7 @@ time by default (parameter ``rate`` > 1 runs faster). Changed parameters apply f
 from __future__ import annotations
 
 import multiprocessing
+import os
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -26,6 +27,7 @@ from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, WARN, Diagn
 
 from .core.sim_config import SimConfig, block_bounds
 from .core.simulate import simulate_pull
+from .core.worker import exit_with_parent
 
 SPECS = [
     ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),
@@ -117,7 +119,8 @@ class SimNode(Node):
         seqs = [0] * len(self.block_pubs)
         # the next pull is simulated in a worker process, so the publishing thread keeps its pace
         with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
-                                 max_tasks_per_child=WORKER_PULLS) as pool:
+                                 max_tasks_per_child=WORKER_PULLS, initializer=exit_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             def simulate(i):
                 _, rig, spec = pulls[i]
                 return pool.submit(simulate_pull, rig, spec, config.noise, config.drive)
