@@ -175,3 +175,46 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'tcp://127.0.0.1:9' in err[0] and err[0].startswith('./ft discover: error: '), err
     assert not (tmp_path / 'o' / 'report.json').exists()
+
+
+def test_a_worker_killed_mid_discovery_is_rerun_and_the_report_says_so(tmp_path):
+    """discover on a LocalCluster of 2 worker processes; one worker is SIGKILLed while it runs a pull. Dask reruns
+    that worker's pulls; the report lists them as rerun (retried_pulls, report.md) and is otherwise the inline
+    report, number for number."""
+    import os
+    import signal
+    import threading
+
+    from distributed import Client, LocalCluster
+
+    from bag_tools.core.daq import write_campaign
+    write_campaign(tmp_path / 'camp', make_campaign({'effective_mass': {'mass_kg': 1.4}}, seed=65, sets=(3,), pulls=6))
+    assert discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'inline', '--scheduler', 'inline')) == 0
+    inline = json.loads((tmp_path / 'inline' / 'report.json').read_text())
+    killed = []
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        pids = client.run(os.getpid)
+        done = threading.Event()
+
+        def kill_a_busy_worker():
+            while not done.is_set() and not killed:
+                busy = [addr for addr, tasks in client.processing().items() if tasks and addr in pids]
+                if busy:
+                    os.kill(pids[busy[0]], signal.SIGKILL)
+                    killed.append(busy[0])
+                done.wait(0.02)
+        watcher = threading.Thread(target=kill_a_busy_worker, daemon=True)
+        watcher.start()
+        try:
+            assert discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'dask', '--scheduler',
+                                           cluster.scheduler_address)) == 0
+        finally:
+            done.set()
+            watcher.join()
+    assert killed, 'no worker was busy long enough to be killed'
+    on_dask = json.loads((tmp_path / 'dask' / 'report.json').read_text())
+    assert on_dask['retried_pulls'] and inline['retried_pulls'] == []
+    assert set(on_dask['retried_pulls']) <= set(on_dask['fitted_pulls'] + on_dask['held_out_pulls'])
+    assert 'Rerun because the worker running them died' in (tmp_path / 'dask' / 'report.md').read_text()
+    assert _differences(inline, on_dask, rtol=1e-12, skip={'scheduler', 'plots', 'retried_pulls'}) == []
