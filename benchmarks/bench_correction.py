@@ -24,35 +24,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
 from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
 from force_tester_common.core.clock import NS_PER_S  # noqa: E402
-from ft_cli.graph import Graph  # noqa: E402
+from ft_cli.graph import Graph, cpu_seconds  # noqa: E402
 
-RELAY = '''
-import rclpy
-from force_tester_common.conversions import BLOCK_TOPICS, CORRECTED_TOPIC
-from force_tester_common.ros import BLOCK_QOS, make_executor, spin
-rclpy.init()
-node = rclpy.create_node('relay')
-topics = {t.topic: t for t in BLOCK_TOPICS}
-pub = node.create_publisher(CORRECTED_TOPIC.msg_type, CORRECTED_TOPIC.topic, BLOCK_QOS)
-def on_force(m):
-    out = CORRECTED_TOPIC.msg_type(header=m.header, sample_rate_hz=m.sample_rate_hz, seq=m.seq)
-    out.raw_n = out.inertial_n = out.corrected_n = out.filtered_n = m.moving_n
-    pub.publish(out)
-node.create_subscription(topics['/force'].msg_type, '/force', on_force, BLOCK_QOS)
-node.create_subscription(topics['/accel'].msg_type, '/accel', lambda m: None, BLOCK_QOS)
-ex = make_executor()
-ex.add_node(node)
-try:
-    spin(ex)
-except Exception:
-    pass
-'''
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    import os
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+# the relay: bench_floor's, a node that publishes each /force block as /force_corrected, with no arithmetic
+RELAY = [sys.executable, str(Path(__file__).with_name('bench_floor.py')), '--role', 'relay']
 
 
 def main() -> int:
@@ -100,7 +75,7 @@ def main() -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     if args.relay:
-        proc = subprocess.Popen([sys.executable, '-c', RELAY], stdout=open(out / 'logs' / 'relay.log', 'a'),
+        proc = subprocess.Popen(RELAY, stdout=open(out / 'logs' / 'relay.log', 'a'),
                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         graph.procs['relay'] = proc
     else:

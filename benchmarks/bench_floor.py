@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
 from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
 from force_tester_common.core.clock import NS_PER_S  # noqa: E402
+from ft_cli.graph import cpu_seconds  # noqa: E402
 
 RATE_HZ = 50_000.0
 OPS_PER_BLOCK = 9     # null sim: 4 publishes; relay: 2 receipts + 1 publish; null validator: 2 receipts
@@ -127,11 +128,6 @@ def role_main(role: str, block: int, started: Path) -> None:
 
 
 # ------------------------------------------------------------------ the benchmark
-def cpu_s(pid: int) -> float:
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-
-
 def run(rigs: int, seconds: float, block: int, started: Path) -> dict:
     procs = {}
     for marker in started.iterdir():
@@ -150,9 +146,9 @@ def run(rigs: int, seconds: float, block: int, started: Path) -> dict:
             raise SystemExit(f'bench floor: {rigs} null rigs did not all start within {START_TIMEOUT_S:g} s')
         time.sleep(0.1)
     time.sleep(WARMUP_S)  # start-up, left out of the CPU window
-    cpu0, t0 = {key: cpu_s(p.pid) for key, p in procs.items()}, time.monotonic()
+    cpu0, t0 = {key: cpu_seconds(p.pid) for key, p in procs.items()}, time.monotonic()
     time.sleep(seconds)
-    cpu = {key: cpu_s(p.pid) - cpu0[key] for key, p in procs.items()}
+    cpu = {key: cpu_seconds(p.pid) - cpu0[key] for key, p in procs.items()}
     wall = time.monotonic() - t0
     counts = {}
     for stage in ROLES:  # stop the sims first, then what they feed, each after the one before has ended

@@ -35,14 +35,7 @@ from fox_client import LAYOUT, client_command, layout_topics, monitor_port  # no
 
 from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
 from force_tester_common.core.clock import stamp_to_ns  # noqa: E402
-from ft_cli.graph import Graph, ScoreCollector  # noqa: E402
-
-TICKS = os.sysconf('SC_CLK_TCK')
-
-
-def cpu_s(pid: int) -> float:
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
+from ft_cli.graph import Graph, ScoreCollector, cpu_seconds  # noqa: E402
 
 
 def run(pulls: int, test_set: int, topics: list | None, logs: Path) -> dict:
@@ -64,7 +57,7 @@ def run(pulls: int, test_set: int, topics: list | None, logs: Path) -> dict:
     flowing = {'cpu_s': 0.0, 'wall_s': 0.0, 'start': None}   # the monitor's CPU from each pull's START to its END
 
     def on_event(msg):
-        now = (time.monotonic(), cpu_s(mon.pid))
+        now = (time.monotonic(), cpu_seconds(mon.pid))
         if msg.event == PullEvent.START:
             flowing['start'] = now
         elif flowing['start'] is not None:
@@ -87,22 +80,20 @@ def run(pulls: int, test_set: int, topics: list | None, logs: Path) -> dict:
             subs = {'/force': 3, '/pull_event': 3}
         assert collector.wait_for_graph(subs, timeout=60)
         time.sleep(1.0)
-        cpu0, t0 = (cpu_s(mon.pid) if monitor else 0.0), time.monotonic()
+        cpu0, t0 = (cpu_seconds(mon.pid) if monitor else 0.0), time.monotonic()
         graph.start('force_tester_sim', 'sim_node', {'test_sets': f'[{test_set}]', 'pulls_per_set': pulls,
                                                      'wait_for_subscribers': subs['/pull_event'],
                                                      'exit_when_done': True})
         assert collector.wait(pulls, 60 + 10 * pulls, alive=lambda: not graph.dead()), graph.tail('sim_node')
         if monitor:  # until the monitor has worked through every corrected block (it may lag)
-            deadline = time.monotonic() + 30
-            while time.monotonic() < deadline:
-                collector.executor.spin_once(timeout_sec=0.1)
-                last = {t.topic: t for t in health[-1].topics} if health else {}
-                if '/force_corrected' in last and last['/force_corrected'].received >= len(latency_ns):
-                    break
-            out['cpu_s'] = cpu_s(mon.pid) - cpu0
+            def last():
+                return {t.topic: t for t in health[-1].topics} if health else {}
+            collector.spin_until(lambda: last().get('/force_corrected') is not None
+                                 and last()['/force_corrected'].received >= len(latency_ns), 30, poll_s=0.1)
+            out['cpu_s'] = cpu_seconds(mon.pid) - cpu0
             out['wall_s'] = time.monotonic() - t0
             out['flowing'] = flowing
-            out['monitor_received'] = {k: last[k].received for k in ('/force', '/force_corrected') if k in last}
+            out['monitor_received'] = {k: t.received for k, t in last().items() if k in ('/force', '/force_corrected')}
     finally:
         if client is not None:
             client.kill()

@@ -9,7 +9,6 @@
   monitor's subscription appear with the client and go with it.
 """
 import subprocess
-import time
 
 import pytest
 from fox_client import client_command, lines, monitor_port
@@ -18,15 +17,6 @@ from force_tester_common.core.correction import WINDOW, WINDOW_RANGE
 from ft_cli.graph import Graph, ScoreCollector
 
 pytestmark = pytest.mark.slow
-
-
-def _spin_until(collector, condition, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        collector.executor.spin_once(timeout_sec=0.1)
-    return condition()
 
 
 def _node_value(collector, client, name: str):
@@ -69,11 +59,11 @@ def test_the_parameters_panel_reads_and_sets_and_raw_topics_are_watched_on_deman
         assert node.count_subscribers('/accel') == 1
         watcher = subprocess.Popen(client_command(port, '--topics', '/motor', '--timeout', '120'),
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        assert _spin_until(collector, lambda: node.count_subscribers('/motor') == 1, 60)
+        assert collector.spin_until(lambda: node.count_subscribers('/motor') == 1, 60)
         assert node.count_subscribers('/encoder') == 0
         watcher.kill()
         watcher.wait()
-        assert _spin_until(collector, lambda: node.count_subscribers('/motor') == 0, 60), \
+        assert collector.spin_until(lambda: node.count_subscribers('/motor') == 0, 60), \
             'the monitor kept /motor after its only client left'
 
         # the panel reads the correction node's parameters (the monitor fetches them: it started after)
@@ -82,7 +72,7 @@ def test_the_parameters_panel_reads_and_sets_and_raw_topics_are_watched_on_deman
         def panel_has_correction():
             params.update(_panel_parameters(port))
             return '/correction.window' in params
-        assert _spin_until(collector, panel_has_correction, 60), sorted(params)
+        assert collector.spin_until(panel_has_correction, 60), sorted(params)
         correction = AsyncParameterClient(node, '/correction')
         assert correction.wait_for_services(timeout_sec=30)
         assert params['/correction.window'] == _node_value(collector, correction, 'window').integer_value == WINDOW
@@ -107,7 +97,7 @@ def test_the_parameters_panel_reads_and_sets_and_raw_topics_are_watched_on_deman
                            capture_output=True, text=True, timeout=120)
         assert r.returncode == 3, r.stdout[-2000:]  # the panel never saw the value it asked for
         assert _node_value(collector, correction, 'window').integer_value == wanted
-        assert _spin_until(collector, lambda: any('refused by /correction' in m and str(bad) in m
+        assert collector.spin_until(lambda: any('refused by /correction' in m and str(bad) in m
                                                   for m in monitor_warnings), 30), monitor_warnings
         assert monitor.poll() is None
     finally:

@@ -2,6 +2,7 @@
 process that collects what the graph publishes (scores, the recorder's progress)."""
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import time
@@ -19,6 +20,12 @@ STATUS_KEYS = ('status', 'detail')  # how far to trust a score, and why
 def score_dict(msg) -> dict:
     """A PullScore message as a dict of SCORE_KEYS and STATUS_KEYS."""
     return {k: getattr(msg, k) for k in (*SCORE_KEYS, *STATUS_KEYS)}
+
+
+def cpu_seconds(pid: int) -> float:
+    """CPU seconds (user + system) a process has used so far, from /proc (its children not included)."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def ros_param_args(params: dict) -> list:
@@ -98,14 +105,19 @@ class ScoreCollector:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
 
-    def wait_for_graph(self, subscribers: dict, timeout: float) -> bool:
-        """Wait until each topic has the given number of subscribers (so no early block is lost)."""
+    def spin_until(self, condition, timeout: float, poll_s: float = 0.05) -> bool:
+        """Spin this node until condition() holds (True) or timeout seconds pass (condition() then)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            if all(self.node.count_subscribers(t) >= n for t, n in subscribers.items()):
+            if condition():
                 return True
-            self.executor.spin_once(timeout_sec=0.05)
-        return False
+            self.executor.spin_once(timeout_sec=poll_s)
+        return condition()
+
+    def wait_for_graph(self, subscribers: dict, timeout: float) -> bool:
+        """Wait until each topic has the given number of subscribers (so no early block is lost)."""
+        return self.spin_until(lambda: all(self.node.count_subscribers(t) >= n for t, n in subscribers.items()),
+                               timeout)
 
     def _on_score(self, msg):
         self.scores.append(score_dict(msg))
