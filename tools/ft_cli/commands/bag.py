@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import argparse
 
-NAME = 'bag'
-HELP = 'record, play, inspect, convert and correct rosbag2 MCAP bags (./ft bag --help)'
 PASSTHROUGH = 'bag_args'  # every argument goes to the bag tool's own parser
 ADD_HELP = False  # --help too
 

@@ -26,11 +26,9 @@ from force_tester_common.core.units import LBF_N
 from ..graph import Graph, ScoreCollector
 from ..paths import RUNS, executable
 
-NAME = 'demo'
 CORRECTED_TOPIC = CORRECTED_TYPE[1][0]
 EXT_NS = '/extension'   # the extension pair's topics: /extension/force_corrected, /extension/pull_score, ...
 EXT_SCORE_TOPIC = EXT_NS + PULL_SCORE_TOPIC
-HELP = 'run sim + correction + validator over DDS on the test sets, record a bag, print per-set scores'
 
 
 def add_arguments(p):

@@ -1,10 +1,6 @@
 """./ft discover DATA --out DIR: force_discovery's command line (see its cli module)."""
 from __future__ import annotations
 
-NAME = 'discover'
-HELP = ('find what the simulation gets wrong in measured data: name the cause, extend the model, '
-        'measure the gain')
-
 
 def add_arguments(p):
     from force_discovery.cli import add_arguments as add

@@ -5,12 +5,16 @@ requirements.txt says what the workspace needs; requirements.lock (made by `uv p
 installs with `pip --require-hashes` from it, so a new release somewhere cannot change a fresh
 machine. The lock's first line records the SHA-256 of the requirements.txt it was made from;
 `./ft lock --check` (and a test) fail when they differ, a requirement is not pinned or a pin has
-no hashes. `./ft lock` keeps the versions already pinned where requirements.txt still allows them
+no hashes, or when the closure is incomplete: a locked package requires something the lock does
+not pin, or pins at a version the requirement excludes (read from the installed packages'
+metadata, extras followed). ./ft installs with --no-deps, so such a gap would otherwise show only
+as an ImportError. `./ft lock` keeps the versions already pinned where requirements.txt still allows them
 (uv prefers the pins of the file it writes); `./ft lock --upgrade` takes the newest of everything.
 """
 from __future__ import annotations
 
 import hashlib
+import importlib.metadata
 import re
 import shutil
 import subprocess
@@ -19,8 +23,6 @@ from pathlib import Path
 
 from ..paths import ROOT
 
-NAME = 'lock'
-HELP = 'update requirements.lock from requirements.txt (--check: say whether it is up to date)'
 REQUIREMENTS = ROOT / 'requirements.txt'
 LOCK = ROOT / 'requirements.lock'
 STAMP = '# made from requirements.txt sha256 '
@@ -38,14 +40,60 @@ def requirement_names(text: str) -> list:
     return [_name(line) for line in text.splitlines() if line.strip() and line.lstrip()[0] not in '#-']
 
 
-def lock_problems(requirements: Path = REQUIREMENTS, lock: Path = LOCK) -> list:
+def pins(lock_text: str) -> dict:
+    """{normalised name: version} of every pin in a lock."""
+    return {_name(n): v for n, v in re.findall(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==(\S+)', lock_text, re.M)}
+
+
+def installed_requires(name: str):
+    """The Requires-Dist lines of the installed package NAME, or None when it is not installed."""
+    try:
+        return importlib.metadata.requires(name) or []
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def closure_problems(lock_text: str, requires=installed_requires) -> list:
+    """What the lock's packages require that the lock does not pin, or pins at an excluded version.
+    Extras are followed: a requirement `coverage[toml]` needs what coverage's `toml` extra needs."""
+    from packaging.requirements import Requirement
+    pinned = pins(lock_text)
+    extras = {name: {''} for name in pinned}
+    problems, unread = set(), []
+    todo = list(pinned)
+    while todo:
+        name = todo.pop()
+        lines = requires(name)
+        if lines is None:
+            unread.append(name)
+            continue
+        for line in lines:
+            req = Requirement(line)
+            if req.marker and not any(req.marker.evaluate({'extra': e}) for e in extras[name]):
+                continue
+            dep = _name(req.name)
+            if dep not in pinned:
+                problems.add(f'{dep} (required by {name}) is not pinned')
+                continue
+            if not req.specifier.contains(pinned[dep], prereleases=True):
+                problems.add(f'{dep}=={pinned[dep]} does not satisfy {name}\'s {line!r}')
+            wanted = {_name(e) for e in req.extras} - extras[dep]
+            if wanted:
+                extras[dep] |= wanted
+                todo.append(dep)
+    if unread:
+        problems.add(f'cannot read the requirements of {len(unread)} locked packages (not installed here: '
+                     f'{", ".join(sorted(unread)[:3])}...); check in the workspace venv')
+    return sorted(problems)
+
+
+def lock_problems(requirements: Path = REQUIREMENTS, lock: Path = LOCK, requires=installed_requires) -> list:
     """Why the lock does not match the requirements (empty when it does), most telling first."""
     if not lock.is_file():
         return [f'{lock.name} is missing']
     req_text, lock_text = requirements.read_text(), lock.read_text()
     problems = []
-    pinned = {_name(m) for m in re.findall(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==', lock_text, re.M)}
-    missing = [n for n in requirement_names(req_text) if n not in pinned]
+    missing = [n for n in requirement_names(req_text) if n not in pins(lock_text)]
     if missing:
         problems.append(f'not pinned in {lock.name}: {", ".join(missing)}')
     digest = hashlib.sha256(requirements.read_bytes()).hexdigest()
@@ -54,6 +102,9 @@ def lock_problems(requirements: Path = REQUIREMENTS, lock: Path = LOCK) -> list:
                         'is not the one the lock records)')
     if re.search(r'^\S+==\S+$', lock_text, re.M):   # a pin line ends in ' \' when hashes follow
         problems.append(f'{lock.name} has a pin without hashes')
+    closure = closure_problems(lock_text, requires)
+    if closure:
+        problems.append(f'{lock.name} is not a complete closure: {"; ".join(closure)}')
     return problems
 
 

@@ -42,9 +42,6 @@ from force_tester_common.core.clock import NS_PER_S, stamp_to_ns
 from force_tester_common.core.health import LEVEL_ERROR, LEVEL_NAMES, LEVEL_OK, LEVEL_STALE, LEVEL_WARN, NodeStates
 from force_tester_common.core.units import n_to_lbf
 
-NAME = 'monitor'
-HELP = 'live terminal scoreboard of a running graph or a bag played back (per pull, per set, health, nodes)'
-
 REFRESH_S = 0.5
 PULL_ROWS = 12        # the last pulls shown
 COLOURS = {GOOD: 'green', FAIR: 'yellow', POOR: 'bold red'}

@@ -18,8 +18,6 @@ from force_tester_common.core.units import FT_M
 
 from ..paths import RUNS
 
-NAME = 'thesis'
-HELP = "the thesis's top-speed predictions and Tables 7-9 beside ours (--json FILE for the figures)"
 CACHE = RUNS / 'cache'
 REFERENCE_PULLS = 20     # the reference campaign: pulls per set ...
 REFERENCE_SEED = 2013    # ... and its seed

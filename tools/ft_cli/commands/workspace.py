@@ -17,8 +17,6 @@ ENV_VARS = (
 
 
 class Test:
-    NAME = 'test'
-    HELP = 'run the test suite (pytest); extra arguments go to pytest'
     PASSTHROUGH = 'pytest_args'
 
     @staticmethod
@@ -37,8 +35,6 @@ class Test:
 
 
 class Run:
-    NAME = 'run'
-    HELP = 'run a node like `ros2 run PACKAGE EXECUTABLE [--ros-args ...]`'
     PASSTHROUGH = 'args'
 
     @staticmethod
@@ -55,8 +51,6 @@ class Run:
 
 
 class Env:
-    NAME = 'env'
-    HELP = 'print the environment as shell exports: eval "$(./ft env)"'
 
     @staticmethod
     def add_arguments(p):
@@ -67,12 +61,37 @@ class Env:
         for name in ENV_VARS:
             if name in os.environ:
                 print(f'export {name}={shlex.quote(os.environ[name])}')
+        if not (ROOT / 'install' / 'setup.bash').is_file() or not (ROOT / '.venv' / 'bin' / 'python').exists():
+            print('ft: .venv or install/ is not set up yet (the first ./ft demo or ./ft test does it): '
+                  'these exports will work once it is', file=sys.stderr)
+        return 0
+
+
+class Wheels:
+    """./ft wheels DIR: what an air-gapped machine needs, carried in one folder."""
+
+    @staticmethod
+    def add_arguments(p):
+        p.description = ('Download every package requirements.lock pins, with its hashes checked, the tools that '
+                         "build the lock's few source packages, and the Foxglove client's npm packages, into DIR. "
+                         'Carry DIR and the workspace to the machine with no network and run FT_WHEELS=DIR ./ft demo '
+                         '(or ./ft test) there: it installs from DIR alone.')
+        p.add_argument('dir', type=Path, help='the folder to fill (made if missing)')
+
+    @staticmethod
+    def run(args) -> int:
+        from ..bootstrap import SetupError, download
+        try:
+            n_files = download(ROOT / 'requirements.lock', args.dir, ROOT / '.ft' / 'wheels.log',
+                               ROOT / 'tools' / 'foxglove_client')
+        except SetupError as e:
+            print(f'ft: error: {e}', file=sys.stderr)
+            return 1
+        print(f'ft: {n_files} files in {args.dir}; on the machine with no network: FT_WHEELS={args.dir} ./ft demo')
         return 0
 
 
 class Bench:
-    NAME = 'bench'
-    HELP = 'run a benchmark script from benchmarks/ (e.g. ./ft bench correction)'
     PASSTHROUGH = 'bench_args'
 
     @staticmethod

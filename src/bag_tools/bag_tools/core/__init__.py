@@ -1,18 +1,15 @@
 """ROS-free core of bag_tools: rosbag2 (MCAP) writing, reading, inspection, scheduling.
 
-Imports only rosbags, numpy, yaml and the standard library (no rclpy).
+Imports only rosbags, numpy, yaml and the standard library (no rclpy). The names below are
+imported from their modules on first use.
 """
+from force_tester_common.core.lazy import lazy_exports
 
-from .errors import BagError
-from .info import bag_info, format_info
-from .metadata import METADATA_VERSION
-from .playback import Schedule, schedule
-from .reader import BagMessage, BagReaderHandle, TopicSummary, open_bag
-from .typestore import default_typestore, find_msg_dirs, make_typestore
-from .writer import BagWriter
-
-__all__ = [
-    'METADATA_VERSION', 'BagError', 'BagMessage', 'BagReaderHandle', 'BagWriter', 'Schedule',
-    'TopicSummary', 'bag_info', 'default_typestore', 'find_msg_dirs', 'format_info',
-    'make_typestore', 'open_bag', 'schedule',
-]
+_EXPORTS = {
+    'BagError': 'errors', 'bag_info': 'info', 'format_info': 'info', 'METADATA_VERSION': 'metadata',
+    'Schedule': 'playback', 'schedule': 'playback', 'BagMessage': 'reader', 'BagReaderHandle': 'reader',
+    'TopicSummary': 'reader', 'open_bag': 'reader', 'default_typestore': 'typestore',
+    'find_msg_dirs': 'typestore', 'make_typestore': 'typestore', 'BagWriter': 'writer',
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,166 @@
+"""The workspace's set-up steps, run by ./ft before anything is installed (standard library only).
+
+    python -m ft_cli.bootstrap venv  --venv DIR --lock FILE --log FILE [--wheels DIR]
+    python -m ft_cli.bootstrap build --log FILE
+    python -m ft_cli.bootstrap npm   --log FILE [--wheels DIR]
+
+The lock is installed exactly as written, with no dependency resolution at all:
+`pip install --no-deps --require-hashes -r LOCK`, then `pip check`. requirements.lock is the
+whole closure (`./ft lock --check` says so), so nothing needs resolving; a resolver would ask the
+index again for every requirement that names an extra (`coverage[toml]`) and could pick a newer,
+unpinned release than the lock's. With --wheels DIR the install reads only DIR (`--no-index
+--find-links DIR`): an air-gapped machine installs from a folder that `./ft wheels DIR` filled.
+
+A failing step prints one line: the step, the log file and the log's line that explains it.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+# what pip needs to build the lock's few sdists (empy) from a wheel folder with no index
+SDIST_BUILD_TOOLS = ('setuptools', 'wheel')
+NPM_CACHE = 'npm-cache'   # the folder of `./ft wheels DIR` that holds the npm packages' tarballs
+
+
+class SetupError(Exception):
+    """A set-up step failed: the step, its log file, and the log's line that explains it."""
+
+    def __init__(self, step: str, log: Path, line: str):
+        super().__init__(f'{step} failed: {line} (log: {log})')
+
+
+def explaining_line(text: str) -> str:
+    """The line of a tool's log that says why it failed: pip's, CMake's, colcon's or npm's first error."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    patterns = (r'^ERROR: (?!Exception:)', r'^CMake Error', r'error:', r'^npm ERR!|^npm error', r'\berror\b',
+                r'Failed\s+<<<', r'has requirement|requires .*, which is not installed|is not supported')
+    for pattern in patterns:
+        for i, line in enumerate(lines):
+            if re.search(pattern, line, re.I):
+                # pip's "ERROR: ... These do not:" names the culprit on the next line
+                if line.endswith(':') and i + 1 < len(lines):
+                    return f'{line} {lines[i + 1]}'
+                return line
+    return lines[-1] if lines else '(the log is empty)'
+
+
+def _run(step: str, cmd: list, log: Path, env: dict | None = None, cwd: Path | None = None) -> None:
+    with open(log, 'a') as out:
+        out.write(f'$ {" ".join(map(str, cmd))}\n')
+        out.flush()
+        rc = subprocess.call([str(c) for c in cmd], stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd)
+    if rc:
+        raise SetupError(step, log, explaining_line(log.read_text(errors='replace').split('$ ')[-1]))
+
+
+def _pip_env() -> dict:
+    env = dict(os.environ, PIP_DISABLE_PIP_VERSION_CHECK='1', _ROS_WHEELS_BOOTSTRAP_COMPLETE='1')
+    env.pop('PIP_REQUIRE_VIRTUALENV', None)
+    return env
+
+
+def source_args(wheels: Path | None) -> list:
+    """pip's package source: the configured registry, or only the folder DIR (no network)."""
+    return [] if wheels is None else ['--no-index', '--find-links', str(wheels)]
+
+
+def install_lock(python: Path, lock: Path, log: Path, wheels: Path | None = None) -> None:
+    """Install exactly what LOCK pins into PYTHON's environment: no resolution, every hash checked."""
+    if wheels is not None and not wheels.is_dir():
+        raise SetupError('pip install', log, f'FT_WHEELS={wheels} is not a folder (make one with ./ft wheels DIR)')
+    _run('pip install', [python, '-m', 'pip', 'install', '--no-deps', '--require-hashes', '--no-input',
+                         *source_args(wheels), '-r', lock], log, env=_pip_env())
+    _run('pip check', [python, '-m', 'pip', 'check'], log, env=_pip_env())
+
+
+def setup_venv(venv: Path, lock: Path, log: Path, wheels: Path | None = None, mend: Path | None = None) -> None:
+    """Make VENV (if needed), install LOCK into it, and mend the ROS wheels' CMake files."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    log.write_text('')
+    python = venv / 'bin' / 'python'
+    if not python.exists():
+        _run('python -m venv', [sys.executable, '-m', 'venv', venv], log)
+    install_lock(python, lock, log, wheels)
+    if mend is not None:
+        _run('mending the ROS wheels', [python, mend], log, env=_pip_env())
+
+
+def build(log: Path) -> None:
+    """colcon-build src/ into install/ (./ft has set the ROS environment)."""
+    log.write_text('')
+    _run('colcon build', ['colcon', '--log-base', ROOT / 'log', 'build', '--base-paths', 'src',
+                          '--build-base', ROOT / 'build', '--install-base', ROOT / 'install',
+                          '--event-handlers', 'console_direct-'], log, cwd=ROOT)
+
+
+def npm_install(folder: Path, log: Path, wheels: Path | None = None) -> None:
+    """`npm ci` from the folder's package-lock.json; offline from `./ft wheels`' npm cache when given one."""
+    if shutil.which('npm') is None:
+        raise SetupError('npm ci', log, 'no npm on PATH; the Foxglove client of the tests needs Node.js 20 and npm')
+    log.write_text('')
+    offline = [] if wheels is None else ['--offline', '--cache', str(wheels / NPM_CACHE)]
+    _run('npm ci', ['npm', 'ci', '--no-audit', '--no-fund', *offline], log, cwd=folder)
+
+
+def download(lock: Path, into: Path, log: Path, npm_folder: Path | None = None) -> int:
+    """Fill INTO with every file the lock pins (hashes checked), the sdists' build tools, and the npm tarballs."""
+    into.mkdir(parents=True, exist_ok=True)
+    log.parent.mkdir(parents=True, exist_ok=True)
+    log.write_text('')
+    python = Path(sys.executable)
+    _run('pip download', [python, '-m', 'pip', 'download', '--no-deps', '--require-hashes', '--no-input',
+                          '-d', into, '-r', lock], log, env=_pip_env())
+    if any(p.name.endswith(('.tar.gz', '.zip')) for p in into.iterdir()):
+        _run('pip download', [python, '-m', 'pip', 'download', '--no-input', '--only-binary', ':all:',
+                              '-d', into, *SDIST_BUILD_TOOLS], log, env=_pip_env())
+    if npm_folder is not None and shutil.which('npm'):
+        # npm ci into a scratch copy fills the cache folder with every tarball of package-lock.json
+        scratch = into / '.npm-scratch'
+        shutil.rmtree(scratch, ignore_errors=True)
+        scratch.mkdir()
+        for name in ('package.json', 'package-lock.json'):
+            shutil.copy2(npm_folder / name, scratch / name)
+        _run('npm ci', ['npm', 'ci', '--no-audit', '--no-fund', '--ignore-scripts', '--cache', into / NPM_CACHE],
+             log, cwd=scratch)
+        shutil.rmtree(scratch)
+    return sum(1 for p in into.iterdir() if p.is_file())
+
+
+def main(argv: list | None = None) -> int:
+    p = argparse.ArgumentParser(prog='python -m ft_cli.bootstrap', description=__doc__.split('\n\n')[0])
+    sub = p.add_subparsers(dest='step', required=True)
+    v = sub.add_parser('venv', help='make the venv and install the lock into it')
+    v.add_argument('--venv', type=Path, required=True)
+    v.add_argument('--lock', type=Path, required=True)
+    v.add_argument('--log', type=Path, required=True)
+    v.add_argument('--wheels', type=Path, help='install from this folder only (no network)')
+    v.add_argument('--mend', type=Path, help="the script that mends the ROS wheels' CMake files")
+    b = sub.add_parser('build', help='colcon-build src/ into install/')
+    b.add_argument('--log', type=Path, required=True)
+    n = sub.add_parser('npm', help='npm ci in a folder with a package-lock.json')
+    n.add_argument('folder', type=Path)
+    n.add_argument('--log', type=Path, required=True)
+    n.add_argument('--wheels', type=Path)
+    args = p.parse_args(argv)
+    try:
+        if args.step == 'venv':
+            setup_venv(args.venv, args.lock, args.log, args.wheels, args.mend)
+        elif args.step == 'build':
+            build(args.log)
+        else:
+            npm_install(args.folder, args.log, args.wheels)
+    except SetupError as e:
+        print(f'ft: error: {e}', file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
