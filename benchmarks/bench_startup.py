@@ -108,7 +108,8 @@ def main() -> int:
           'whole-process runs (target >= 150x real time):')
     for name in trees:
         t = statistics.median(times[name])
-        print(f'  {name:<12} {t:6.2f} s  {seconds / t:5.0f}x real time   `./ft env` {statistics.median(env_times[name]):.2f} s'
+        t_env = statistics.median(env_times[name])
+        print(f'  {name:<12} {t:6.2f} s  {seconds / t:5.0f}x real time   `./ft env` {t_env:.2f} s'
               f'   start-up share {1 - t_in / t:4.0%}   (runs: {", ".join(f"{x:.2f}" for x in times[name])})')
     print(f'  in this process, after a first call: {t_in:.2f} s, {seconds / t_in:.0f}x real time '
           '(the arithmetic and the I/O alone)')
