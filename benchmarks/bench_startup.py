@@ -38,6 +38,7 @@ def make_bag(n_pulls: int) -> tuple:
     if not (bag / 'metadata.yaml').is_file():
         print(f'making a bag of {n_pulls} pulls under {CACHE} (once)', file=sys.stderr)
         shutil.rmtree(bag, ignore_errors=True)
+        CACHE.mkdir(parents=True, exist_ok=True)
         pulls = sim_pulls(n_pulls)
         with tempfile.TemporaryDirectory() as tmp:
             write_campaign(Path(tmp) / 'campaign', pulls)
