@@ -188,3 +188,18 @@ def test_help_and_env_answer_on_a_fresh_clone_without_setting_anything_up(tmp_pa
     assert res.returncode == 0, res.stderr
     assert (res.stdout.startswith('usage: ./ft') or 'export VIRTUAL_ENV=' in res.stdout), res.stdout[:200]
     assert not (clone / '.venv').exists() and not (clone / 'install').exists()
+
+
+@pytest.mark.parametrize('log, expected', [
+    ('Collecting x\nERROR: Could not find a version that satisfies the requirement x==9 (from versions: none)\n'
+     'ERROR: No matching distribution found for x==9\n',
+     'ERROR: Could not find a version that satisfies the requirement x==9 (from versions: none)'),
+    ('Starting >>> force_tester_msgs\n-- Found ament_cmake\nCMake Error at CMakeLists.txt:12 (find_package):\n'
+     '  By not providing "Findrosidl_default_generators.cmake"\n--- stderr: force_tester_msgs\n'
+     'Failed   <<< force_tester_msgs [1.2s, exited with code 1]\n',
+     'CMake Error at CMakeLists.txt:12 (find_package): By not providing "Findrosidl_default_generators.cmake"'),
+    ('npm error code ENOTCACHED\nnpm error request to https://registry/x failed: cache mode is only-if-cached\n',
+     'npm error code ENOTCACHED'),
+])
+def test_the_explaining_line_is_the_first_error(log, expected):
+    assert bootstrap.explaining_line(log) == expected
