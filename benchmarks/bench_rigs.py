@@ -172,7 +172,7 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
         sim_params = {'test_sets': list(SETS), 'pulls_per_set': pulls_per_set, 'block_size': block,
                       'wait_for_subscribers': 2, 'drive': drive}
         namespaces = [f'/rig{k}' for k in range(1, rigs + 1)]
-        # the documented way (README, "Several rigs on one machine"): a namespace and a parameter file per rig
+        # the documented way (docs/nodes.md, "Several rigs on one machine"): a namespace and a parameter file per rig
         files = [write_params(graph.log_dir / f'rig{k}.yaml', ns, {'sim': dict(sim_params, seed=k)})
                  for k, ns in enumerate(namespaces, 1)]
         if compose:

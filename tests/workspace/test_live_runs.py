@@ -121,7 +121,7 @@ def test_replays_a_parameter_change_and_bad_messages(bag, tmp_path, ros_domain):
 
 @pytest.mark.parametrize('attempt', range(3))
 def test_the_by_hand_recipe_scores_every_pull(tmp_path, ros_domain, attempt):
-    """README's recipe: correction, validator and recorder up, then the sim waiting for the two
+    """docs/nodes.md's recipe: correction, validator and recorder up, then the sim waiting for the two
     readers of /pull_event, so no pull event is lost (issue: 1 run in 3 lost the first pull's
     START; with the default of one reader, 1 CI run in 3 still did when the validator matched
     after the recorder's quiet second)."""

@@ -30,7 +30,7 @@ def test_two_rigs_each_score_their_own_pulls(tmp_path, ros_domain):
 
 
 def test_the_rig_parameter_files_set_only_declared_parameters():
-    """config/rigs/*.yaml (README, "Several rigs on one machine"): every node they name is one of a
+    """config/rigs/*.yaml (docs/nodes.md, "Several rigs on one machine"): every node they name is one of a
     rig's nodes under the file's namespace, and every parameter is one that node declares."""
     import yaml
 

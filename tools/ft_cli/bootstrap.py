@@ -120,9 +120,10 @@ def download(lock: Path, into: Path, log: Path, npm_folder: Path | None = None) 
     python = Path(sys.executable)
     _run('pip download', [python, '-m', 'pip', 'download', '--no-deps', '--require-hashes', '--no-input',
                           '-d', into, '-r', lock], log, env=_pip_env())
-    if any(p.name.endswith(('.tar.gz', '.zip')) for p in into.iterdir()):
+    tools = [t for t in SDIST_BUILD_TOOLS if f'\n{t}==' not in '\n' + lock.read_text()]   # the lock's own if pinned
+    if tools and any(p.name.endswith(('.tar.gz', '.zip')) for p in into.iterdir()):
         _run('pip download', [python, '-m', 'pip', 'download', '--no-input', '--only-binary', ':all:',
-                              '-d', into, *SDIST_BUILD_TOOLS], log, env=_pip_env())
+                              '-d', into, *tools], log, env=_pip_env())
     if npm_folder is not None and shutil.which('npm'):
         # npm ci into a scratch copy fills the cache folder with every tarball of package-lock.json
         scratch = into / '.npm-scratch'

@@ -55,7 +55,7 @@ _DISCOVERY_VARS = ('ROS_LOCALHOST_ONLY', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_S
 # Blocks across the link: 1 ms (50 samples, 0.4-1.6 KB a message, one or two IP packets). 10 ms
 # blocks (8-16 KB, a dozen IP fragments: losing one loses the message) did not get through the
 # lossy link (2 % loss, 5 ms delay): reliable resends fell behind and the sim exited with
-# unacknowledged blocks. README, "Across two hosts".
+# unacknowledged blocks. docs/nodes.md, "Across two hosts".
 LINK_BLOCK_SAMPLES = 50
 
 

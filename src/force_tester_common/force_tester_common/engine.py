@@ -28,7 +28,7 @@ one line naming the address and what was expected; the CLIs exit 2 on it.
 
 Workers need this workspace's packages: the embedded cluster's workers are spawned from this
 process (same interpreter, same ``sys.path``); a cluster's workers must run the same venv or have
-the packages installed (README, "Campaigns on Dask"). Functions and items are pickled by reference
+the packages installed (docs/campaigns.md). Functions and items are pickled by reference
 to their module, so ``fn`` must be a top-level function of an importable module.
 
 Importing this module is cheap: dask and distributed are imported on first use.

@@ -7,7 +7,7 @@ SIGKILL (or a power cut) loses is that chunk; every chunk written before it is r
 chunk is closed and handed to the OS once it holds CHUNK_BYTES of records, and at least every
 FLUSH_S by the recorder's timer (flush()), whichever comes first. So a kill loses at most
 CHUNK_BYTES of records and at most FLUSH_S of data (plus the timer's lateness on a busy
-machine); README.md states the figures at the live rate.
+machine); docs/speed.md states the figures at the live rate.
 
 **Full disk.** A file of RESERVE_BASE_BYTES + RESERVE_PER_CHUNK_BYTES per chunk written is kept
 allocated in the bag directory (`.reserve`), grown at each flush(). When a write fails with an

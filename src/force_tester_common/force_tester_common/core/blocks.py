@@ -15,7 +15,7 @@ from .clock import NS_PER_S
 # Samples per block a live source publishes (the sim's block_size): 500 = 10 ms at 50 kHz. A message
 # costs about the same in rclpy and DDS whatever its length, so 1 ms blocks (50) spend most of a
 # node's CPU on messages; 10 ms blocks pay that 100 times a second instead of 1000, and 10 ms is
-# less than a display frame. ./ft bench rigs --block 50,100,250,500 measures it (README, Speed).
+# less than a display frame. ./ft bench rigs --block 50,100,250,500 measures it (docs/speed.md).
 BLOCK_SAMPLES = 500
 BLOCK_SAMPLES_RANGE = (1, 100_000)
 MAX_BLOCK_SAMPLES = 1_000_000       # 20 s at 50 kHz: a longer block is not a block
