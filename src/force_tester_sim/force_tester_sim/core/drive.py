@@ -92,7 +92,7 @@ class DriveSetup:
         return self.drive.torque_constant_nm_per_a / self.drive.back_emf_constant_v_s_per_rad
 
 
-def _validate_drive(d: DriveParams) -> None:
+def validate_drive(d: DriveParams) -> None:
     for name in ('armature_resistance_ohm', 'armature_inductance_h', 'torque_constant_nm_per_a',
                  'back_emf_constant_v_s_per_rad', 'gear_ratio', 'pulley_radius_m',
                  'current_limit_a', 'voltage_limit_v'):
@@ -190,7 +190,7 @@ def simulate_drive(rig: RigParams, command_velocity_m_s, duration_s: float, load
     if load is not None and not callable(load):
         raise SimError(f'load is {load!r}; expected None or a callable (t, x3, v3) -> N')
     drive = apply_overrides(rig.drive, overrides)
-    _validate_drive(drive)
+    validate_drive(drive)
     setup = DriveSetup(drive, control)
     cmd = _as_command(command_velocity_m_s)
     f_load = (lambda t, x3, v3: 0.0) if load is None else load
