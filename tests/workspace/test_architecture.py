@@ -26,7 +26,10 @@ LAYERS = {
     'force_tester_monitor': {'force_tester_common', 'bag_tools'},
     'ft_cli': {'force_tester_common', 'force_tester_sim', 'bag_tools', 'force_correction',
                'force_discovery', 'force_tester_monitor'},
+    'netlab': {'force_tester_common', 'bag_tools', 'ft_cli'},
 }
+# the network lab's hosts, links and sniffer: standard library only (a Dask cluster may use them as well)
+NETLAB_STDLIB = ('netlab.netns', 'netlab.rtps_sniff')
 ROS_MODULES = {'rclpy', 'rcl_interfaces', 'rosidl_runtime_py', 'force_tester_msgs', 'std_msgs',
                'diagnostic_msgs', 'builtin_interfaces'}
 # ROS-free parts: what they may import from outside the workspace
@@ -40,6 +43,7 @@ ENGINE_THIRD_PARTY = PURE_THIRD_PARTY | {'dask', 'distributed'}
 def package_dirs() -> dict:
     out = {p.name: p / p.name for p in sorted(SRC.iterdir()) if (p / p.name / '__init__.py').is_file()}
     out['ft_cli'] = TOOLS / 'ft_cli'
+    out['netlab'] = TOOLS / 'netlab'
     return out
 
 
@@ -117,6 +121,12 @@ def test_only_the_engine_imports_dask():
         if name != ENGINE:
             bad = [m for m in imports_of(name, path) if m.split('.')[0] in ('dask', 'distributed')]
             assert not bad, f'{name} imports {bad[0]}; campaign work goes through {ENGINE}'
+
+
+def test_the_network_lab_imports_only_the_standard_library():
+    for name in NETLAB_STDLIB:
+        for mod in imports_of(name, MODULES[name]):
+            assert mod.split('.')[0] in sys.stdlib_module_names or mod.startswith('netlab.'), f'{name} imports {mod}'
 
 
 def test_shared_facts_import_only_numpy():
