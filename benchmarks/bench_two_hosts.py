@@ -20,13 +20,10 @@ import json
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tools'))
-
-from force_tester_common.core.scores import PULL_STATUS_NAMES  # noqa: E402
-from ft_cli.paths import RUNS  # noqa: E402
-from netlab.netns import Impairment, probe  # noqa: E402
-from netlab.two_hosts import DISCOVERY, LINK_TOPICS, run_two_hosts  # noqa: E402
+from force_tester_common.core.scores import PULL_STATUS_NAMES
+from ft_cli.paths import RUNS
+from netlab.netns import Impairment, probe
+from netlab.two_hosts import DISCOVERY, LINK_TOPICS, run_two_hosts
 
 MB = 1e6
 

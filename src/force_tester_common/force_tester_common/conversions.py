@@ -82,15 +82,6 @@ def block_message(topic: BlockTopic, channels: dict, start: int, stop: int, stam
     return fill_block(topic.msg_type(), stamp_ns, sample_rate_hz, seq, arrays)
 
 
-def block_arrays(msg, topic: BlockTopic) -> dict:
-    """The channels of a block message as numpy arrays keyed by channel name."""
-    return {c: to_array(getattr(msg, f)) for f, c in topic.fields.items()}
-
-
-def block_length(msg, topic: BlockTopic) -> int:
-    return max(len(getattr(msg, f)) for f in topic.fields)
-
-
 def message_problem(msg, topic: BlockTopic, required) -> str | None:
     """Why a received block message cannot be used (stamp, rate, array lengths), or None.
     required: the message fields the caller reads."""

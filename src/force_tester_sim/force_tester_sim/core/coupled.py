@@ -327,10 +327,6 @@ def integrate_coupled_reference(rig: RigParams, spec: PullSpec, result: CoupledP
             'force_moving_n': fm, 'tension_n': T, 'a2_m_s2': (fm - T) / p.m2, 'break_s': tb}
 
 
-def simulate_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, **kw) -> Dict[str, np.ndarray]:
-    return run_coupled_pull(rig, spec, noise, **kw).channels
-
-
 __all__ = ['DriveMotion', 'drive_on_grid', 'DRIVE_METHODS', 'drive_voltage_array', 'drive_motion', 'check_fits',
-           'CoupledPullResult', 'run_coupled_pull', 'simulate_coupled_pull', 'V_EPS_M_S', 'free_chain_stack',
+           'CoupledPullResult', 'run_coupled_pull', 'V_EPS_M_S', 'free_chain_stack',
            'free_after_break', 'integrate_coupled_reference', 'linearised_after_break']

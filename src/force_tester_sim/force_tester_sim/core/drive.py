@@ -163,14 +163,6 @@ def _as_command(cmd) -> Callable[[float], float]:
     return lambda t: value
 
 
-def ramp_command(velocity_m_s: float, accel_m_s2: float) -> Callable[[float], float]:
-    """A velocity command ramping from 0 at ``accel_m_s2`` to ``velocity_m_s`` and holding."""
-    if not (math.isfinite(velocity_m_s) and math.isfinite(accel_m_s2) and accel_m_s2 > 0):
-        raise SimError(f'ramp ({velocity_m_s!r} m/s, {accel_m_s2!r} m/s^2); expected finite, accel > 0')
-    sign = 1.0 if velocity_m_s >= 0 else -1.0
-    return lambda t: sign * min(abs(velocity_m_s), accel_m_s2 * max(t, 0.0))
-
-
 def simulate_drive(rig: RigParams, command_velocity_m_s, duration_s: float, load=None,
                    control: DriveControl = DriveControl(), overrides: Mapping | None = None,
                    max_step_s: float = 5e-5, sample_dt_s: float = 1e-4, method: str = 'LSODA',
