@@ -24,21 +24,18 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from bag_tools.core.convert import bag_to_campaign, campaign_to_bag
+from bag_tools.core.daq import read_campaign, write_campaign
+from force_correction.core import CorrectionParams, SetStatistics, correct_signal, score_pull
+from force_correction.offline import correct
+from force_tester_common.core.clock import NS_PER_S
+from force_tester_sim.core.params import load_rig
+from force_tester_sim.core.pull import make_pull_specs
+from force_tester_sim.core.simulate import simulate_pull
+
 ROOT = Path(__file__).resolve().parents[1]
-for _pkg in ('bag_tools', 'force_tester_common', 'force_correction', 'force_tester_sim'):
-    if str(ROOT / 'src' / _pkg) not in sys.path:
-        sys.path.insert(0, str(ROOT / 'src' / _pkg))
-
-import numpy as np  # noqa: E402
-
-from bag_tools.core.convert import bag_to_campaign, campaign_to_bag  # noqa: E402
-from bag_tools.core.daq import read_campaign, write_campaign  # noqa: E402
-from force_correction.core import CorrectionParams, SetStatistics, correct_signal, score_pull  # noqa: E402
-from force_correction.offline import correct  # noqa: E402
-from force_tester_common.core.clock import NS_PER_S  # noqa: E402
-from force_tester_sim.core.params import load_rig  # noqa: E402
-from force_tester_sim.core.pull import make_pull_specs  # noqa: E402
-from force_tester_sim.core.simulate import simulate_pull  # noqa: E402
 
 
 def sim_pulls(n: int, contiguous: bool = True) -> list:

@@ -26,10 +26,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-for _pkg in ('bag_tools', 'force_tester_common', 'force_correction', 'force_tester_sim', 'force_discovery'):
-    if str(ROOT / 'src' / _pkg) not in sys.path:
-        sys.path.insert(0, str(ROOT / 'src' / _pkg))
-
 SETS = (1, 2, 3, 4, 5)
 SEED = 2013
 

@@ -20,11 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
-
-from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
-from force_tester_common.core.clock import NS_PER_S  # noqa: E402
-from ft_cli.graph import Graph, cpu_seconds  # noqa: E402
+from force_tester_common.core.blocks import BLOCK_SAMPLES
+from force_tester_common.core.clock import NS_PER_S
+from ft_cli.graph import Graph, cpu_seconds
 
 # the relay: bench_floor's, a node that publishes each /force block as /force_corrected, with no arithmetic
 RELAY = [sys.executable, str(Path(__file__).with_name('bench_floor.py')), '--role', 'relay']

@@ -1,4 +1,5 @@
-"""Benchmark of `discover` (issues 5 and 12): identification and false-alarm rates, and the time of a 100-pull
+"""Benchmark of `discover` (README, "What the simulation gets wrong"): identification and false-alarm rates,
+and the time of a 100-pull
 analysis with its split (the stages, and the re-simulation of the held-out pulls).
 
     ./ft bench discovery [--trials N] [--false-trials M] [--skip-timing]
@@ -21,14 +22,12 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-for sub in ('src/force_tester_sim', 'src/force_correction', 'src/force_discovery', 'src/force_tester_common',
-            'src/bag_tools', 'tools', 'tests', 'tests/force_discovery'):
-    sys.path.insert(0, str(ROOT / sub))
+sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generator (./ft gives install/, tools/)
 
-import generator as G  # noqa: E402  (the generator)
+import generator as G  # the generator
 
-from force_discovery.core.pipeline import discover  # noqa: E402
-from force_tester_sim.core.params import load_rig  # noqa: E402
+from force_discovery.core.pipeline import discover
+from force_tester_sim.core.params import load_rig
 
 FALSE_KINDS = ('clean', 'nuisance', 'defects')
 

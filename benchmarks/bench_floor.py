@@ -32,11 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
-
-from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
-from force_tester_common.core.clock import NS_PER_S  # noqa: E402
-from ft_cli.graph import cpu_seconds  # noqa: E402
+from force_tester_common.core.blocks import BLOCK_SAMPLES
+from force_tester_common.core.clock import NS_PER_S
+from ft_cli.graph import cpu_seconds
 
 RATE_HZ = 50_000.0
 OPS_PER_BLOCK = 9     # null sim: 4 publishes; relay: 2 receipts + 1 publish; null validator: 2 receipts

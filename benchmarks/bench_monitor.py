@@ -28,14 +28,13 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tools'))
-sys.path.insert(0, str(ROOT / 'tests' / 'force_tester_monitor'))
+sys.path.insert(0, str(ROOT / 'tests' / 'force_tester_monitor'))   # the Foxglove client's helpers (fox_client)
 
-from fox_client import LAYOUT, client_command, layout_topics, monitor_port  # noqa: E402
+from fox_client import LAYOUT, client_command, layout_topics, monitor_port
 
-from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
-from force_tester_common.core.clock import stamp_to_ns  # noqa: E402
-from ft_cli.graph import Graph, ScoreCollector, cpu_seconds  # noqa: E402
+from force_tester_common.core.blocks import BLOCK_SAMPLES
+from force_tester_common.core.clock import stamp_to_ns
+from ft_cli.graph import Graph, ScoreCollector, cpu_seconds
 
 
 def run(pulls: int, test_set: int, topics: list | None, logs: Path) -> dict:

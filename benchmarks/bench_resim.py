@@ -1,4 +1,5 @@
-"""Benchmark of the simulation check (issue 12, section 4): time and per-channel gains of re-simulating held-out pulls
+"""Benchmark of the simulation check (README, "What the simulation gets wrong"): time and per-channel gains of
+re-simulating held-out pulls
 with the model of record and with the model of record + extension.
 
     PYTHONPATH=src/force_tester_sim:src/force_discovery:src/force_tester_common:tests/force_discovery \
@@ -17,15 +18,14 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-for sub in ('src/force_tester_sim', 'src/force_discovery', 'src/force_tester_common', 'tests/force_discovery'):
-    sys.path.insert(0, str(ROOT / sub))
+sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generator (./ft puts install/ on the path)
 
-import generator as G  # noqa: E402  (the test generator)
+import generator as G  # the test generator
 
-from force_discovery.core.discovery import prepare  # noqa: E402
-from force_discovery.core.resim import simulation_check  # noqa: E402
-from force_tester_sim.core.departures import departures_from_data  # noqa: E402
-from force_tester_sim.core.params import TRUTH_YAML, load_rig  # noqa: E402
+from force_discovery.core.discovery import prepare
+from force_discovery.core.resim import simulation_check
+from force_tester_sim.core.departures import departures_from_data
+from force_tester_sim.core.params import TRUTH_YAML, load_rig
 
 SINGLE = {
     'effective_mass': {'mass_kg': 1.4},

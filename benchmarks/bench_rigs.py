@@ -33,19 +33,17 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
-
-from force_tester_common.core.blocks import BLOCK_SAMPLES  # noqa: E402
-from force_tester_common.core.channels import (  # noqa: E402
+from force_tester_common.core.blocks import BLOCK_SAMPLES
+from force_tester_common.core.channels import (
     DIAGNOSTICS_TOPIC,
     PULL_EVENT_TOPIC,
     PULL_SCORE_TOPIC,
 )
-from force_tester_common.core.clock import NS_PER_S  # noqa: E402
-from force_tester_common.core.scores import PULL_OK  # noqa: E402
-from force_tester_common.ros import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS  # noqa: E402
-from ft_cli.graph import Graph  # noqa: E402
-from ft_cli.paths import RUNS  # noqa: E402
+from force_tester_common.core.clock import NS_PER_S
+from force_tester_common.core.scores import PULL_OK
+from force_tester_common.ros import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS
+from ft_cli.graph import Graph
+from ft_cli.paths import RUNS
 
 SETS = (1, 2, 3, 4, 5)
 LAYOUTS = ('process', 'composed')

@@ -16,13 +16,12 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'src' / 'force_tester_sim'))
+from force_tester_common.engine import map_pulls
+from force_tester_sim.core import load_rig, nominal_pull_spec, run_pull
+from force_tester_sim.core.campaign import generate_campaign
+from force_tester_sim.core.coupled import run_coupled_pull
 
-from force_tester_common.engine import map_pulls  # noqa: E402
-from force_tester_sim.core import load_rig, nominal_pull_spec, run_pull  # noqa: E402
-from force_tester_sim.core.campaign import generate_campaign  # noqa: E402
-from force_tester_sim.core.coupled import run_coupled_pull  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TRUTH = ROOT / 'src' / 'force_tester_sim' / 'force_tester_sim' / 'config' / 'truth_reference.yaml'
 RT_TARGET = 10.0

@@ -24,22 +24,19 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tools'))
-
-from bag_tools.core.info import bag_info  # noqa: E402
-from bag_tools.core.recording import CHUNK_BYTES, FLUSH_S  # noqa: E402
-from force_tester_common.core.channels import (  # noqa: E402
+from bag_tools.core.info import bag_info
+from bag_tools.core.recording import CHUNK_BYTES, FLUSH_S
+from force_tester_common.core.channels import (
     BLOCK_TYPES,
     CORRECTED_TYPE,
     PULL_EVENT_TOPIC,
     PULL_SCORE_TOPIC,
     SET_SUMMARY_TOPIC,
 )
-from force_tester_common.core.scores import PULL_OK  # noqa: E402
-from ft_cli.commands.demo import rig_params  # noqa: E402
-from ft_cli.graph import Graph, ScoreCollector  # noqa: E402
-from ft_cli.paths import RUNS  # noqa: E402
+from force_tester_common.core.scores import PULL_OK
+from ft_cli.commands.demo import rig_params
+from ft_cli.graph import Graph, ScoreCollector
+from ft_cli.paths import RUNS
 
 PULL_S = 2.0          # seconds of data in one pull (100,000 samples at 50 kHz)
 SETS = (1, 2, 3, 4, 5)

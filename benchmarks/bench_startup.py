@@ -80,7 +80,6 @@ def main() -> int:
     ap.add_argument('--reps', type=int, default=5, help='whole-process runs of each (default 5)')
     ap.add_argument('--baseline', metavar='REV', help='also run REV (a commit) side by side, alternately')
     args = ap.parse_args()
-    sys.path.insert(0, str(Path(__file__).parent))
     bag, seconds = make_bag(args.pulls)
     trees = {'this tree': ROOT}
     if args.baseline:

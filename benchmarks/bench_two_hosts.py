@@ -9,7 +9,7 @@ profile (--discovery picks one for both); both use UDPv4 only. Prints, per run, 
 sim published and those host B's recorder wrote per topic, the pulls scored, and what crossed the
 link: bytes and packets each way, packets lost on the link and datagrams dropped by a receiver's
 full UDP socket buffer, the user data host A sent once and again (the retransmission cost, read
-from the RTPS messages in its outgoing frames by ft_cli/rtps_sniff.py), and the bytes A put on the
+from the RTPS messages in its outgoing frames by netlab/rtps_sniff.py), and the bytes A put on the
 link per byte of payload (each reader in B gets its own copy). Exits 1 if a run did not deliver
 everything.
 """
@@ -20,13 +20,10 @@ import json
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tools'))
-
-from force_tester_common.core.scores import PULL_STATUS_NAMES  # noqa: E402
-from ft_cli.netns import Impairment, probe  # noqa: E402
-from ft_cli.paths import RUNS  # noqa: E402
-from ft_cli.two_hosts import DISCOVERY, LINK_TOPICS, run_two_hosts  # noqa: E402
+from force_tester_common.core.scores import PULL_STATUS_NAMES
+from ft_cli.paths import RUNS
+from netlab.netns import Impairment, probe
+from netlab.two_hosts import DISCOVERY, LINK_TOPICS, run_two_hosts
 
 MB = 1e6
 

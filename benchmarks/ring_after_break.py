@@ -1,4 +1,5 @@
-"""The mount's ringing after the break, coupled drive vs prescribed motion (issue 12, section 4).
+"""The mount's ringing after the break, coupled drive vs prescribed motion (src/force_tester_sim/DRIVE.md,
+"Ringing after the break").
 
 python benchmarks/ring_after_break.py   (~20 s of CPU; prints figures, asserts nothing)
 
@@ -22,18 +23,14 @@ import dataclasses
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / 'src' / 'force_tester_sim'), str(ROOT / 'src' / 'force_tester_common')]
-
-from force_tester_common.core.units import G_M_S2  # noqa: E402
-from force_tester_sim.core import load_rig, run_pull  # noqa: E402
-from force_tester_sim.core.campaign import truth_pull_specs  # noqa: E402
-from force_tester_sim.core.chain import force_move  # noqa: E402
-from force_tester_sim.core.coupled import (  # noqa: E402
+from force_tester_common.core.units import G_M_S2
+from force_tester_sim.core import load_rig, run_pull
+from force_tester_sim.core.campaign import truth_pull_specs
+from force_tester_sim.core.chain import force_move
+from force_tester_sim.core.coupled import (
     chain_tension,
     drive_motion,
     drive_on_grid,
@@ -44,11 +41,11 @@ from force_tester_sim.core.coupled import (  # noqa: E402
     linearised_after_break,
     run_coupled_pull,
 )
-from force_tester_sim.core.drive import DriveControl, DriveSetup  # noqa: E402
-from force_tester_sim.core.errors import SimError  # noqa: E402
-from force_tester_sim.core.integrate import integrate_chain  # noqa: E402
-from force_tester_sim.core.params import TRUTH_YAML  # noqa: E402
-from force_tester_sim.core.pull import chain_params, motion_for, sample_times_s  # noqa: E402
+from force_tester_sim.core.drive import DriveControl, DriveSetup
+from force_tester_sim.core.errors import SimError
+from force_tester_sim.core.integrate import integrate_chain
+from force_tester_sim.core.params import TRUTH_YAML
+from force_tester_sim.core.pull import chain_params, motion_for, sample_times_s
 
 SET, SEED = 3, 7
 WINDOWS_MS = ((0, 20), (20, 300), (20, 40), (40, 80), (80, 150), (150, 300))

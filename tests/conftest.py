@@ -1,13 +1,9 @@
 """Shared fixtures. Tests that talk over DDS get their own ROS domain and localhost-only discovery."""
 import itertools
 import os
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tools'))
 _domains = itertools.count()
 
 

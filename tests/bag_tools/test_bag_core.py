@@ -3,19 +3,14 @@
 from __future__ import annotations
 
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from bag_msgs import MSG_DIR, bag_typestore, force, header
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / 'src' / 'bag_tools'))
-
-from bag_msgs import MSG_DIR, bag_typestore, force, header  # noqa: E402
-
-from bag_tools.core import BagError, BagWriter, bag_info, find_msg_dirs, format_info, make_typestore, open_bag, schedule  # noqa: E402
+from bag_tools.core import BagError, BagWriter, bag_info, find_msg_dirs, format_info, make_typestore, open_bag, schedule
 
 T0 = 1_700_000_000_000_000_000
 FORCE = 'force_tester_msgs/msg/ForceBlock'
@@ -26,8 +21,6 @@ PULL = 'force_tester_msgs/msg/PullEvent'
 @pytest.fixture(scope='module')
 def store():
     return bag_typestore()
-
-
 
 
 def accel(store, ns, seq, n=5):
@@ -273,7 +266,7 @@ def test_empty_bag(tmp_path, store):
         open_bag(path)
     assert_one_line(err, path)
     assert 'no messages' in str(err.value)
-    info = bag_info(path)  # as `ros2 bag info`: a valid bag with 0 messages (issue 13)
+    info = bag_info(path)  # as `ros2 bag info`: a valid bag with 0 messages (docs/reliability.md)
     assert info['message_count'] == 0 and info['topics']['/force']['count'] == 0
 
 

@@ -7,7 +7,6 @@ offline.correct with the fast path vs with it disabled.
 
 from __future__ import annotations
 
-import sys
 import zlib
 from dataclasses import replace
 from pathlib import Path
@@ -17,22 +16,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-REPO = Path(__file__).resolve().parents[2]
-for _d in reversed([REPO / 'src' / p for p in ('bag_tools', 'force_tester_common',
-                                               'force_correction', 'force_tester_sim')]):
-    if str(_d) not in sys.path:
-        sys.path.insert(0, str(_d))
+from bag_tools.core import BagWriter, make_typestore, open_bag
+from bag_tools.core.convert import campaign_to_bag
+from bag_tools.core.daq import write_campaign
+from bag_tools.core.errors import BagError
+from bag_tools.core.fastcdr import FastPathError, decode_blocks, encode_blocks
+from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw
+from force_correction.offline import CorrectionSetup, correct
+from force_correction.offline.scorer import BlockStamps, PullScorer, block_sample_stamps
+from force_correction.offline.stream import segments
+from force_tester_common.core.clock import sample_stamps_ns
 
-from bag_tools.core import BagWriter, make_typestore, open_bag  # noqa: E402
-from bag_tools.core.convert import campaign_to_bag  # noqa: E402
-from bag_tools.core.daq import write_campaign  # noqa: E402
-from bag_tools.core.errors import BagError  # noqa: E402
-from bag_tools.core.fastcdr import FastPathError, decode_blocks, encode_blocks  # noqa: E402
-from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw  # noqa: E402
-from force_correction.offline import CorrectionSetup, correct  # noqa: E402
-from force_correction.offline.scorer import BlockStamps, PullScorer, block_sample_stamps  # noqa: E402
-from force_correction.offline.stream import segments  # noqa: E402
-from force_tester_common.core.clock import sample_stamps_ns  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 MSG_DIR = REPO / 'src' / 'force_tester_msgs' / 'msg'
 BLOCK_TYPES = sorted(f'force_tester_msgs/msg/{p.stem}' for p in MSG_DIR.glob('*Block.msg'))
@@ -319,7 +314,7 @@ def test_encode_blocks_into_a_given_buffer(store, regular):
 def test_stride_runs_and_gathers_match_indexing(steps, counts, kind):
     """Runs cover every message once, each one stride and one count; gathers through them
     equal plain indexing for regular, irregular and overlapping layouts."""
-    from bag_tools.core.fastcdr import _field, _gather_rows, gather_f64, gather_struct, stride_runs
+    from bag_tools.core.fastcdr import gather_f64, gather_rows, gather_struct, row_field, stride_runs
     offs = 64 + np.cumsum([0] + steps[:-1]).astype(np.int64) if steps else np.zeros(0, np.int64)
     offs = offs - min(0, int(offs.min(initial=0))) + 64
     m = offs.size
@@ -334,7 +329,7 @@ def test_stride_runs_and_gathers_match_indexing(steps, counts, kind):
     buf = np.random.default_rng(m).integers(0, 256, int(offs.max(initial=0)) + 64,
                                             dtype=np.uint8)
     want = [buf[o:o + 8].view('<f8')[0] for o in offs.tolist()]
-    np.testing.assert_array_equal(bits(_field(_gather_rows(buf, offs, 8), 0, '<f8')),
+    np.testing.assert_array_equal(bits(row_field(gather_rows(buf, offs, 8), 0, '<f8')),
                                   bits(want))
     vals = [buf[o:o + 8 * c].view('<f8') for o, c in zip(offs.tolist(), cnt.tolist())]
     ref = np.concatenate(vals) if vals else np.zeros(0)
@@ -396,22 +391,26 @@ def test_encode_blocks_absent_fields_and_errors(store):
     assert empty[0] == b'' and empty[1].size == 0
 
 
-def _encode_seq_ok_or_fastpath(store, seqs):
-    flds = fields_of(store, FORCE)
-    try:
-        buf, _st, _ln = encode_blocks([T0], 1.0, seqs, flds, {}, {})
-    except FastPathError:
-        return
-    assert store.deserialize_cdr(buf, FORCE).seq == int(seqs[0])
+def _refuses_seq(store, seqs):
+    """The fast path's seq is int64: a seq the int64 cannot hold raises FastPathError (the caller then
+    takes the generic path, which writes the uint64), never a wrong number."""
+    with pytest.raises(FastPathError):
+        encode_blocks([T0], 1.0, seqs, fields_of(store, FORCE), {}, {})
 
 
 def test_encode_blocks_large_seq_uint64_array(store):
-    """seq is uint64 in the message: seq >= 2**63 must encode right or raise FastPathError."""
-    _encode_seq_ok_or_fastpath(store, np.array([2**63 + 5], dtype=np.uint64))
+    """seq is uint64 in the message: seq >= 2**63 from a uint64 array is refused, not wrapped negative."""
+    _refuses_seq(store, np.array([2**63 + 5], dtype=np.uint64))
 
 
 def test_encode_blocks_large_seq_python_int(store):
-    _encode_seq_ok_or_fastpath(store, [2**63])
+    _refuses_seq(store, [2**63])
+
+
+def test_encode_blocks_largest_int64_seq(store):
+    """The largest seq the fast path takes encodes right."""
+    buf, _st, _ln = encode_blocks([T0], 1.0, [2**63 - 1], fields_of(store, FORCE), {}, {})
+    assert store.deserialize_cdr(buf, FORCE).seq == 2**63 - 1
 
 
 # --------------------------------------------------------------------------- bags

@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
+import bag_msgs
 import pytest
 import yaml
+from bag_msgs import bag_typestore, header
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / 'src' / 'bag_tools'))
-
-import bag_msgs  # noqa: E402
-from bag_msgs import bag_typestore, header  # noqa: E402
-
-from bag_tools.core import BagError, BagWriter, bag_info, open_bag  # noqa: E402
-from bag_tools.core.split_writer import MESSAGE_OVERHEAD_BYTES, SplitBagWriter, open_bag_writer  # noqa: E402
+from bag_tools.core import BagError, BagWriter, bag_info, open_bag
+from bag_tools.core.split_writer import MESSAGE_OVERHEAD_BYTES, SplitBagWriter, open_bag_writer
 
 T0 = 1_700_000_000_000_000_000
 FORCE = 'force_tester_msgs/msg/ForceBlock'

@@ -7,16 +7,12 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from daq_data import MSG_DIR, RATE, SRC_DIRS, T0, N, make_pulls, no_partials, run_cli
+from daq_data import MSG_DIR, RATE, T0, N, make_pulls, no_partials, run_cli
 
-for _d in reversed(SRC_DIRS):
-    if str(_d) not in sys.path:
-        sys.path.insert(0, str(_d))
-
-from bag_tools.core import BagWriter, bag_info, make_typestore, open_bag  # noqa: E402
-from bag_tools.core.convert import bag_to_campaign, campaign_to_bag  # noqa: E402
-from bag_tools.core.daq import CAMPAIGN_FILE, BagError, read_campaign, read_csv, read_tdms, write_campaign, write_csv  # noqa: E402
-from force_tester_common.core.channels import OPTIONAL_CHANNELS, REQUIRED_CHANNELS  # noqa: E402
+from bag_tools.core import BagWriter, bag_info, make_typestore, open_bag
+from bag_tools.core.convert import bag_to_campaign, campaign_to_bag
+from bag_tools.core.daq import CAMPAIGN_FILE, BagError, read_campaign, read_csv, read_tdms, write_campaign, write_csv
+from force_tester_common.core.channels import OPTIONAL_CHANNELS, REQUIRED_CHANNELS
 
 
 @pytest.fixture

@@ -1,6 +1,6 @@
-"""Bags from anywhere (issue 13): bags that look like other people's (tests/bag_tools/foreign.py
-writes them with the mcap library and rosbags) go through every `./ft bag` command. A traceback or
-an "internal error" anywhere is a failure; errors are one short line; what is read is compared
+"""Bags from anywhere (docs/reliability.md, "Bags from elsewhere"): bags that look like other people's
+(tests/bag_tools/foreign.py writes them with the mcap library and rosbags) go through every `./ft bag`
+command. A traceback or an "internal error" anywhere is a failure; errors are one short line; what is read is compared
 with what was written."""
 from __future__ import annotations
 

@@ -12,24 +12,18 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-from daq_data import SRC_DIRS, run_cli
+from bag_msgs import FORCE, bag_typestore, force
+from daq_data import run_cli
 
-for _d in reversed(SRC_DIRS):
-    if str(_d) not in sys.path:
-        sys.path.insert(0, str(_d))
-
-from bag_msgs import FORCE, bag_typestore, force  # noqa: E402
-
-from bag_tools.core.errors import BagError  # noqa: E402
-from bag_tools.core.metadata import METADATA_FILE, load_metadata  # noqa: E402
-from bag_tools.core.reader import open_bag  # noqa: E402
-from bag_tools.core.recording import CHUNK_BYTES, RESERVE_NAME, Recording  # noqa: E402
-from bag_tools.core.reindex import needs_reindex, reindex  # noqa: E402
+from bag_tools.core.errors import BagError
+from bag_tools.core.metadata import METADATA_FILE, load_metadata
+from bag_tools.core.reader import open_bag
+from bag_tools.core.recording import CHUNK_BYTES, RESERVE_NAME, Recording
+from bag_tools.core.reindex import needs_reindex, reindex
 
 T0 = 1_700_000_000_000_000_000
 RECORD_OVERHEAD = 31  # bytes of an MCAP message record besides its data

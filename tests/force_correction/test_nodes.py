@@ -98,8 +98,9 @@ class Loop:
 
     def __enter__(self):
         assert spin_until(self.ex, lambda: self.pub_f.get_subscription_count() and self.pub_a.get_subscription_count()
-                          and self.probe.count_publishers('/force_corrected'))
-        time.sleep(0.3)
+                          and self.probe.count_publishers('/force_corrected')
+                          and self.node.count_subscribers('/force_corrected')
+                          and self.node.count_subscribers('/diagnostics'))
         return self.ex, self.pub_f, self.pub_a, self.out, self.diags
 
     def __exit__(self, *exc):

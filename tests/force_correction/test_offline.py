@@ -9,19 +9,15 @@ import sys
 
 import numpy as np
 import pytest
-from daq_data import MSG_DIR, RATE, SRC_DIRS, T0, N, make_pulls, no_partials, run_cli
+from daq_data import MSG_DIR, RATE, T0, N, make_pulls, no_partials, run_cli
 
-for _d in reversed(SRC_DIRS):
-    if str(_d) not in sys.path:
-        sys.path.insert(0, str(_d))
-
-from bag_tools.core import BagWriter, bag_info, make_typestore, open_bag  # noqa: E402
-from bag_tools.core.convert import campaign_to_bag  # noqa: E402
-from bag_tools.core.daq import read_campaign, write_campaign  # noqa: E402
-from bag_tools.core.errors import BagError  # noqa: E402
-from force_correction.core import CorrectionError, CorrectionParams, SetStatistics, correct_signal, score_pull  # noqa: E402
-from force_correction.offline import CorrectionResult, CorrectionSetup, correct  # noqa: E402
-from force_tester_common.core.units import LBF_N  # noqa: E402
+from bag_tools.core import BagWriter, bag_info, make_typestore, open_bag
+from bag_tools.core.convert import campaign_to_bag
+from bag_tools.core.daq import read_campaign, write_campaign
+from bag_tools.core.errors import BagError
+from force_correction.core import CorrectionError, CorrectionParams, SetStatistics, correct_signal, score_pull
+from force_correction.offline import CorrectionResult, CorrectionSetup, correct
+from force_tester_common.core.units import LBF_N
 
 
 @pytest.fixture

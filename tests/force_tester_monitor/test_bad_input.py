@@ -33,7 +33,10 @@ def test_malformed_client_messages_are_ignored_and_logged_once(tmp_path, ros_dom
         runs = [subprocess.run(client_command(port, '--malformed', '--topics', '/monitor/health',
                                               '--until', '/monitor/health=3', '--timeout', '60'),
                                capture_output=True, text=True, timeout=120) for _ in range(2)]
-        time.sleep(0.5)  # the monitor's next pass logs what the server reported
+        log_file = graph.log_dir / 'monitor_node.log'
+        deadline = time.monotonic() + 30   # the monitor's next pass logs what the server reported
+        while 'reported once' not in log_file.read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert monitor.poll() is None
     finally:
         codes = graph.stop()

@@ -55,7 +55,9 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
         # /encoder because the stalled client watches them (on demand)
         assert collector.wait_for_graph({'/force': 3, '/force_corrected': 3, '/pull_event': 2, '/accel': 2,
                                          '/motor': 1, '/encoder': 1}, timeout=60)
-        time.sleep(1.0)  # both clients subscribed (they connect within milliseconds)
+        # both clients subscribed: the monitor's heartbeat counts them
+        assert collector.spin_until(lambda: bool(got['health']) and got['health'][-1].clients >= 2, timeout=30), \
+            [h.clients for h in got['health']]
         # 1 ms blocks: the message rate this test's counts and the stalled client were sized for
         graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,
                                                      'wait_for_subscribers': 2, 'exit_when_done': True,

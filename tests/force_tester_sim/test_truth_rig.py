@@ -1,6 +1,6 @@
 """The truth reference rig: departures from the model of record, coupon yield, campaign generator.
 
-Run: PYTHONPATH=src/force_tester_sim:src/force_correction python -m pytest tests/test_truth_rig.py
+Run: ./ft test tests/force_tester_sim/test_truth_rig.py
 """
 import dataclasses
 import math

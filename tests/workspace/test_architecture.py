@@ -26,7 +26,10 @@ LAYERS = {
     'force_tester_monitor': {'force_tester_common', 'bag_tools'},
     'ft_cli': {'force_tester_common', 'force_tester_sim', 'bag_tools', 'force_correction',
                'force_discovery', 'force_tester_monitor'},
+    'netlab': {'force_tester_common', 'bag_tools', 'ft_cli'},
 }
+# the network lab's hosts, links and sniffer: standard library only (a Dask cluster may use them as well)
+NETLAB_STDLIB = ('netlab.netns', 'netlab.rtps_sniff')
 ROS_MODULES = {'rclpy', 'rcl_interfaces', 'rosidl_runtime_py', 'force_tester_msgs', 'std_msgs',
                'diagnostic_msgs', 'builtin_interfaces'}
 # ROS-free parts: what they may import from outside the workspace
@@ -40,6 +43,7 @@ ENGINE_THIRD_PARTY = PURE_THIRD_PARTY | {'dask', 'distributed'}
 def package_dirs() -> dict:
     out = {p.name: p / p.name for p in sorted(SRC.iterdir()) if (p / p.name / '__init__.py').is_file()}
     out['ft_cli'] = TOOLS / 'ft_cli'
+    out['netlab'] = TOOLS / 'netlab'
     return out
 
 
@@ -117,6 +121,12 @@ def test_only_the_engine_imports_dask():
         if name != ENGINE:
             bad = [m for m in imports_of(name, path) if m.split('.')[0] in ('dask', 'distributed')]
             assert not bad, f'{name} imports {bad[0]}; campaign work goes through {ENGINE}'
+
+
+def test_the_network_lab_imports_only_the_standard_library():
+    for name in NETLAB_STDLIB:
+        for mod in imports_of(name, MODULES[name]):
+            assert mod.split('.')[0] in sys.stdlib_module_names or mod.startswith('netlab.'), f'{name} imports {mod}'
 
 
 def test_shared_facts_import_only_numpy():
@@ -229,3 +239,94 @@ def test_ruff():
     out = subprocess.run([ruff, 'check', '--no-cache', '--output-format', 'concise', str(ROOT)],
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stdout[-4000:] + out.stderr
+
+
+# ------------------------------------------------------------------ one exception type per package (rule 5)
+PACKAGE_ERRORS = {'force_tester_sim': {'SimError'}, 'bag_tools': {'BagError'}, 'force_correction': {'CorrectionError'},
+                  'force_discovery': {'DiscoveryError'}, 'force_tester_monitor': {'MonitorError'},
+                  'force_tester_common': {'ParameterError', 'EngineError'}}
+# exceptions that never leave their package's code paths: signals caught by the caller that takes another way
+INTERNAL_SIGNALS = {'FastPathError': 'bag_tools.core.fastcdr: the fast path does not apply; the generic path runs',
+                    '_TornChunk': 'bag_tools.core.reindex: a torn chunk ends the scan'}
+
+
+def test_one_exception_type_per_package():
+    found = {}
+    for name, path in MODULES.items():
+        pkg = name.split('.')[0]
+        if pkg not in PACKAGE_ERRORS:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and any(
+                    ast.unparse(b).split('.')[-1].endswith(('Error', 'Exception')) for b in node.bases):
+                found.setdefault(pkg, set()).add(node.name)
+    for pkg, names in found.items():
+        assert names - set(INTERNAL_SIGNALS) == PACKAGE_ERRORS[pkg], \
+            f'{pkg} defines {sorted(names)}; expected {sorted(PACKAGE_ERRORS[pkg])} (ARCHITECTURE.md rule 5)'
+
+
+# ------------------------------------------------------------------ tests mirror the packages (rule 6)
+def test_tests_mirror_the_packages():
+    src_packages = {p for p in package_dirs() if (SRC / p).is_dir()}
+    test_dirs = {p.name for p in (ROOT / 'tests').iterdir() if p.is_dir() and p.name != '__pycache__'}
+    assert src_packages - {'force_tester_msgs'} <= test_dirs, 'each package has its tests/<package>/'
+    assert test_dirs - src_packages == {'workspace'}, 'a tests/ folder is a package, or workspace/'
+
+
+def _private_imports(path: Path) -> list:
+    """``from <workspace module> import _name`` in ``path``: a private used outside its module."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split('.')[0] in LAYERS:
+            out += [f'{path.relative_to(ROOT)}:{node.lineno}: {a.name} from {node.module}'
+                    for a in node.names if a.name.startswith('_') and not a.name.startswith('__')]
+    return out
+
+
+# being split (issue 24 section 1) by its own change: its private imports are left to it
+SPLITTING = ('force_discovery',)
+
+
+def test_privates_stay_in_their_module():
+    """Rule 6's public seams, and one home for code: a name another module or a test imports is public."""
+    paths = [p for n, p in MODULES.items() if n.split('.')[0] not in SPLITTING]
+    paths += [p for p in sorted((ROOT / 'tests').rglob('*.py')) if not set(SPLITTING) & set(p.parts)]
+    paths += sorted((ROOT / 'benchmarks').glob('*.py'))
+    found = [line for p in paths for line in _private_imports(p)]
+    assert not found, '\n'.join(found)
+
+
+# ------------------------------------------------------------------ no dead code
+def _words(paths) -> dict:
+    """How often each identifier occurs in ``paths`` (``__all__`` lists left out: exporting is not using)."""
+    counts: dict = {}
+    for p in paths:
+        text = re.sub(r'__all__\s*=\s*\[[^\]]*\]', '', p.read_text(), flags=re.S)
+        for w in re.findall(r'[A-Za-z_]\w*', text):
+            counts[w] = counts.get(w, 0) + 1
+    return counts
+
+
+def test_every_definition_is_used():
+    """A top-level function or class, or a method, whose name occurs nowhere but in its own definition
+    (anywhere in src/, tools/, tests/, benchmarks/ or a setup.py) is dead. Callbacks a library calls by
+    name (``on_*``) and dunders are not counted."""
+    everywhere = [p for base in ('src', 'tools', 'tests', 'benchmarks') for p in sorted((ROOT / base).rglob('*.py'))
+                  if 'node_modules' not in p.parts]
+    words = _words(everywhere)
+    dead = []
+    for name, path in MODULES.items():
+        if name.split('.')[0] in SPLITTING:
+            continue
+        tree = ast.parse(path.read_text())
+        for node in tree.body:
+            defs = [node] if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) else []
+            if isinstance(node, ast.ClassDef):
+                defs += [n for n in node.body if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]
+            for d in defs:
+                if d.name.startswith(('__', 'on_')):
+                    continue
+                own = len(re.findall(rf'\b{d.name}\b', ast.get_source_segment(path.read_text(), d) or ''))
+                if words.get(d.name, 0) - own <= 0:
+                    dead.append(f'{path.relative_to(ROOT)}:{d.lineno}: {d.name}')
+    assert not dead, 'never used:\n' + '\n'.join(dead)

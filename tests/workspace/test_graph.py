@@ -5,7 +5,6 @@ scores come back over DDS. The recorded bag is then played back by the player pr
 fresh correction + validator pair, which must reproduce the live scores.
 """
 import subprocess
-import time
 
 import pytest
 
@@ -114,7 +113,7 @@ def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
         else:  # both nodes in one executor
             graph.start('force_correction', 'correction_graph')
         assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=30)
-        time.sleep(0.5)  # let the matched readers settle, as the demo does
+        assert collector.spin_until(lambda: collector.node.count_publishers('/pull_score') >= 1, timeout=30)
         graph.start('bag_tools', 'player', extra=[
             str(out / 'bag'), '--topics', '/force', '/accel', '/pull_event', '--wait-for-subscribers', '1'])
         ok = collector.wait(len(live_scores), 120, alive=lambda: not graph.dead())

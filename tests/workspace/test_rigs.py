@@ -1,4 +1,4 @@
-"""Several rigs on one machine (issue 15): each rig's sim, correction and validator under its own
+"""Several rigs on one machine (README, "Running nodes by hand"): each rig's sim, correction and validator under its own
 namespace, as separate processes or with every rig's correction and validator composed in one
 process, through `./ft bench rigs` (real processes over Fast DDS)."""
 import json

@@ -11,8 +11,8 @@ import os
 
 import pytest
 
-from ft_cli.netns import PREFIX, Impairment, namespaces, probe
-from ft_cli.two_hosts import BLOCK_TOPIC_NAMES, LINK_TOPICS, run_two_hosts
+from netlab.netns import PREFIX, Impairment, namespaces, probe
+from netlab.two_hosts import BLOCK_TOPIC_NAMES, LINK_TOPICS, run_two_hosts
 
 pytestmark = pytest.mark.slow
 

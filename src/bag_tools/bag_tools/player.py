@@ -12,7 +12,6 @@ and exit code 2; Ctrl-C stops cleanly with exit code 130.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import time
 from collections import Counter
@@ -21,6 +20,7 @@ from dataclasses import dataclass, field
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from force_tester_common.conversions import message_class
 from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.ros import BLOCK_QOS, ros_init
 
@@ -48,7 +48,7 @@ def parse_remaps(items: list) -> dict:
     return remaps
 
 
-def message_class(type_name: str):
+def installed_class(type_name: str):
     """(class, None) for an installed 'pkg/msg/Type' (or old 'pkg/Type'), else (None, why)."""
     name = normalize_type(type_name)
     parts = name.split('/')
@@ -56,14 +56,13 @@ def message_class(type_name: str):
         return None, f"type name {type_name!r} is malformed; expected 'pkg/msg/Type'"
     pkg, kind, cls = parts
     try:
-        module = importlib.import_module(f'{pkg}.{kind}')
+        return message_class(name), None
     except ImportError:
         return None, f"type {name} is not installed (no Python package '{pkg}')"
+    except AttributeError:
+        return None, f'type {name} is not installed ({pkg}.{kind} has no {cls})'
     except Exception as exc:  # noqa: BLE001 - a broken package is skipped like a missing one
         return None, f'package {pkg} does not load: {brief(exc)}'
-    if not hasattr(module, cls):
-        return None, f'type {name} is not installed ({pkg}.{kind} has no {cls})'
-    return getattr(module, cls), None
 
 
 @dataclass
@@ -97,7 +96,7 @@ def load(args) -> Plan:
             plan.empty = True
             return plan
         for t in selected:
-            cls, why = message_class(topics[t].type_name)
+            cls, why = installed_class(topics[t].type_name)
             if cls is None:
                 plan.skipped[t] = why
             else:

@@ -13,13 +13,13 @@ the recorder stops recording, finishes the bag with what reached the disk, says 
 from __future__ import annotations
 
 import errno
-import importlib
 import os
 import sys
 import threading
 
 from rclpy.node import Node
 
+from force_tester_common.conversions import message_class
 from force_tester_common.core.channels import GRAPH_TOPICS
 from force_tester_common.core.clock import seconds_to_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
@@ -41,12 +41,6 @@ SPECS = [
               'one spans this many seconds; 0 = no duration split', range=(0.0, 1.0e6),
               read_only=True),
 ]
-
-
-def message_class(type_name: str):
-    """The Python class of 'pkg/msg/Type'."""
-    pkg, kind, name = type_name.split('/')
-    return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
 
 
 def check(values: dict) -> dict:

@@ -6,9 +6,9 @@ The channel names are the DAQ export's column names (SI units), so a pull is one
 from __future__ import annotations
 
 import array
+import importlib
 from dataclasses import dataclass
 
-import force_tester_msgs.msg
 import numpy as np
 from builtin_interfaces.msg import Time
 
@@ -25,12 +25,19 @@ class BlockTopic:
     fields: dict  # message field -> channel (DAQ column) name
 
 
-def _msg_class(type_name: str):
-    return getattr(force_tester_msgs.msg, type_name.rsplit('/', 1)[1])
+def message_class(type_name: str):
+    """The Python class of an installed 'pkg/msg/Type' (or 'pkg/srv/Type'): the one place a type name
+    becomes a class. ValueError for a malformed name, ImportError when its package is not installed,
+    AttributeError when the package has no such type."""
+    parts = type_name.split('/')
+    if len(parts) != 3 or not all(parts):
+        raise ValueError(f"type name {type_name!r} is malformed; expected 'pkg/msg/Type'")
+    pkg, kind, name = parts
+    return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
 
 
-BLOCK_TOPICS = tuple(BlockTopic(topic, _msg_class(t), fields) for t, (topic, fields) in BLOCK_TYPES.items())
-CORRECTED_TOPIC = BlockTopic(CORRECTED_TYPE[1][0], _msg_class(CORRECTED_TYPE[0]), CORRECTED_TYPE[1][1])
+BLOCK_TOPICS = tuple(BlockTopic(topic, message_class(t), fields) for t, (topic, fields) in BLOCK_TYPES.items())
+CORRECTED_TOPIC = BlockTopic(CORRECTED_TYPE[1][0], message_class(CORRECTED_TYPE[0]), CORRECTED_TYPE[1][1])
 
 
 def stamp_to_ns(stamp: Time) -> int:
@@ -73,15 +80,6 @@ def block_message(topic: BlockTopic, channels: dict, start: int, stop: int, stam
     """
     arrays = {f: channels[c][start:stop] for f, c in topic.fields.items() if c in channels}
     return fill_block(topic.msg_type(), stamp_ns, sample_rate_hz, seq, arrays)
-
-
-def block_arrays(msg, topic: BlockTopic) -> dict:
-    """The channels of a block message as numpy arrays keyed by channel name."""
-    return {c: to_array(getattr(msg, f)) for f, c in topic.fields.items()}
-
-
-def block_length(msg, topic: BlockTopic) -> int:
-    return max(len(getattr(msg, f)) for f in topic.fields)
 
 
 def message_problem(msg, topic: BlockTopic, required) -> str | None:

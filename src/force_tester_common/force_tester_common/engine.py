@@ -39,13 +39,13 @@ import atexit
 import os
 import threading
 import uuid
-from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, List, Optional, Sequence, Tuple
+
+# the in-process map (``scheduler='inline'``), its result type and failure line live in core.mapping
+from .core.mapping import INLINE, PullMap, map_here, one_line, pull_name
 
 #: Environment variable naming the scheduler when no --scheduler is given (Dask's own name for it).
 SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
-#: ``scheduler`` value that runs the pulls in this process, one after the other, without Dask.
-INLINE = 'inline'
 #: Seconds to wait for a scheduler to answer before giving up (Dask retries a refused connection until then;
 #: a CLI's whole answer, interpreter start included, must come within 10 s).
 CONNECT_TIMEOUT_S = 3.0
@@ -56,32 +56,6 @@ RETRIES = 2
 class EngineError(Exception):
     """The engine cannot run: an unreachable or invalid scheduler address, a lost scheduler. The message
     names the address and what was expected."""
-
-
-@dataclass
-class PullMap:
-    """What ``map_pulls`` did.
-
-    results: one per item, in the order of the items; None for a failed pull (and for every pull
-        when ``keep=False``).
-    failed: (name, one line) per pull that raised or whose workers died too often, in item order.
-    retried: names of the pulls the scheduler reran because a worker died under them, in item order.
-    scheduler: where it ran ('inline', 'embedded LocalCluster ...' or the address and its workers).
-    """
-    results: List[Any] = field(default_factory=list)
-    failed: List[Tuple[str, str]] = field(default_factory=list)
-    retried: List[str] = field(default_factory=list)
-    scheduler: str = INLINE
-
-    @property
-    def ok(self) -> bool:
-        return not self.failed
-
-
-def one_line(exc: BaseException) -> str:
-    """'Type: message' on one line (the exception's type name alone when it has no message)."""
-    msg = ' '.join(str(exc).split())
-    return f'{type(exc).__name__}: {msg}' if msg else type(exc).__name__
 
 
 def resolve_scheduler(scheduler: Optional[str] = None) -> Optional[str]:
@@ -225,7 +199,7 @@ def map_pulls(fn: Callable, items: Iterable, *, names: Optional[Sequence[str]] =
         except TypeError:
             total = 0
     if address == INLINE or (address is None and total and total <= inline_max):
-        return _map_inline(fn, items, names, progress, total, keep, on_result)
+        return map_here(fn, items, names=names, progress=progress, total=total, keep=keep, on_result=on_result)
     client, where = get_client(address, retries=retries, connect_timeout=connect_timeout)
     return _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
 
@@ -257,27 +231,13 @@ class Mapper:
         return self.runs[-1].scheduler if self.runs else 'nothing run'
 
 
-def _name(names, i: int) -> str:
-    return str(names[i]) if names is not None and i < len(names) else f'pull {i + 1}'
-
-
-def _map_inline(fn, items, names, progress, total, keep, on_result) -> PullMap:
-    out = PullMap(scheduler=INLINE)
-    for i, item in enumerate(items):
-        status, value = _run_one(fn, item)
-        _settle(out, i, status, value, names, keep, on_result)
-        if progress:
-            progress(i + 1, total)
-    return out
-
-
 def _settle(out: PullMap, i: int, status: str, value, names, keep, on_result) -> None:
     if status == 'ok':
         if on_result is not None:
             on_result(i, value)
         out.results.append(value if keep else None)
     else:
-        out.failed.append((_name(names, i), value))
+        out.failed.append((pull_name(names, i), value))
         out.results.append(None)
 
 
@@ -405,7 +365,7 @@ def _reran(client, keys: dict, names) -> List[str]:
         for key in (*msg.get('processing-tasks', ()), *msg.get('lost-computed-tasks', ())):
             if key in keys:
                 hit.add(keys[key])
-    return [_name(names, i) for i in sorted(hit)]
+    return [pull_name(names, i) for i in sorted(hit)]
 
 
 __all__ = ['EngineError', 'PullMap', 'Mapper', 'map_pulls', 'add_scheduler_argument', 'resolve_scheduler',

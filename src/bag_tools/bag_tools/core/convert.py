@@ -21,6 +21,7 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 from rosbags.typesys.store import Typestore
 
+from force_tester_common.core.blocks import PullWindows
 from force_tester_common.core.channels import (
     BLOCK_TYPES,
     CORRECTED_TYPE,
@@ -446,7 +447,7 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
             raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
                            '/pull_event START/END messages to cut the pulls')
         cutter = _Cutter(bag_path, warnings)
-        starts: dict = {}
+        pulls = PullWindows()
         closed: list = []   # (start_ns, end_ns, meta), sorted by start
         emitted = 0
         total = sum(topics[t].count for t in [*block_topics, *event_topics])
@@ -459,16 +460,13 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
                         'velocity_fps': float(msg.velocity_m_s) / FT_M,
                         'decel_g': float(msg.decel_m_s2) / G_M_S2,
                         'start_ns': stamp_of(msg), 'pull_id': int(msg.pull_id)}
-                if int(msg.event) == PULL_START:
-                    starts[int(msg.pull_id)] = meta
-                else:
-                    st = starts.pop(int(msg.pull_id), None)
-                    if st is None:
-                        warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns '
-                                        'without its START: skipped')
-                    else:
-                        closed.append((st['start_ns'], stamp_of(msg), st))
-                        closed.sort(key=lambda w: w[0])
+                w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), meta)
+                if w is not None and w.start_ns is None:
+                    warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns '
+                                    'without its START: skipped')
+                elif w is not None:
+                    closed.append((w.start_ns, w.end_ns, w.meta))
+                    closed.sort(key=lambda c: c[0])
             else:
                 cutter.add_block(topic, msg, type_name)
             if progress and k % 20000 == 0:
@@ -482,11 +480,11 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
                     emitted += 1
                     yield pull
             if k % 2000 == 1999 and cutter.newest is not None:
-                keep = [w[0] for w in closed] + [max(m['start_ns'], cutter.newest - MAX_OPEN_NS)
-                                                 for m in starts.values()]
+                keep = [w[0] for w in closed] + [max(start, cutter.newest - MAX_OPEN_NS)
+                                                 for start, _meta in pulls.open.values()]
                 cutter.prune(min(keep) if keep else None)
-        for pid, st in starts.items():
-            warnings.append(f'pull {pid} (START at {st["start_ns"]} ns) has no END: skipped')
+        for pid, (start, _meta) in pulls.open.items():
+            warnings.append(f'pull {pid} (START at {start} ns) has no END: skipped')
         if not cutter.rates:
             raise BagError(f'bag {str(bag_path)!r} has no block samples; expected /force, /accel, '
                            '/encoder blocks')

@@ -29,6 +29,7 @@ import yaml
 
 from force_tester_common.core.channels import CHANNELS, CORRECTED_FIELDS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
 from force_tester_common.core.clock import NS_PER_S
+from force_tester_common.core.mapping import map_here
 
 from .errors import BagError, one_line
 
@@ -395,46 +396,22 @@ def check_rate(fpath, prate: float, rate: float | None) -> float:
     return rate
 
 
-def _run(fn: Callable, item, name: str, skip: bool, failed: list):
-    """fn(item) here; with ``skip`` a bad pull (BagError) is recorded in ``failed`` instead of raised."""
-    try:
-        return fn(item)
-    except BagError as exc:
-        if not skip:
-            raise
-        failed.append((name, f'BagError: {" ".join(str(exc).split())}'))
-        return None
-
-
 def map_pulls_in_order(fn: Callable, items: list, names: list, mapper: Mapper | None,
                        on_result: Callable[[int, Any], None], progress=None) -> list:
     """on_result(i, fn(item)) for each item that succeeds, in item order, keeping no result (through
     ``mapper``, else here). Returns the failed [(name, one line)]; here, only BagErrors are caught."""
     if mapper is not None:
         return list(mapper(fn, items, names=names, progress=progress, keep=False, on_result=on_result).failed)
-    failed: list = []
-    for i, item in enumerate(items):
-        res = _run(fn, item, names[i], True, failed)
-        if res is not None:
-            on_result(i, res)
-        if progress:
-            progress(i + 1, len(items))
-    return failed
+    return map_here(fn, items, names=names, progress=progress, total=len(items), keep=False, on_result=on_result,
+                    catch=BagError).failed
 
 
 def _map(fn: Callable, items: list, names: list, mapper: Mapper | None, progress=None,
          skip: bool = False) -> tuple:
-    """(results, failed): through ``mapper``, or a plain loop here in which the first error is raised
-    (with ``skip``, a BagError is recorded in failed instead)."""
-    if mapper is None:
-        out: list = []
-        failed: list = []
-        for i, item in enumerate(items):
-            out.append(_run(fn, item, names[i], skip, failed))
-            if progress:
-                progress(i + 1, len(items))
-        return out, failed
-    done = mapper(fn, items, names=names, progress=progress)
+    """(results, failed): through ``mapper``, or here, where the first error is raised (with ``skip``,
+    a BagError is recorded in failed instead)."""
+    done = (mapper(fn, items, names=names, progress=progress) if mapper is not None else
+            map_here(fn, items, names=names, progress=progress, total=len(items), catch=BagError if skip else ()))
     return done.results, list(done.failed)
 
 
@@ -557,11 +534,8 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                 yield tmp / meta['file'], data, produce, rate, f'{str(path)}/{meta["file"]}'
 
         if mapper is None:
-            rates = []
-            for job in jobs():
-                rates.append(write_pull(job))
-                if progress:
-                    progress(len(rates), len(pulls) if isinstance(pulls, Sized) else 0)
+            rates = map_here(write_pull, jobs(), progress=progress, total=len(pulls) if isinstance(pulls, Sized) else 0,
+                             catch=()).results
         else:
             done = mapper(write_pull, jobs(), names=names, progress=progress,
                           total=len(pulls) if isinstance(pulls, Sized) else 0)

@@ -14,7 +14,7 @@ byte after the 4-byte encapsulation header:
 
 decode_blocks() decodes many such messages held in one buffer with a few numpy calls per
 field (no per-message Python); encode_blocks() is the inverse. Both equal rosbags'
-deserialize_cdr / serialize_cdr (tests/test_bag_fastcdr.py checks it). Anything that does not
+deserialize_cdr / serialize_cdr (tests/bag_tools/test_bag_fastcdr.py checks it). Anything that does not
 fit (big-endian CDR, inconsistent lengths) raises FastPathError; callers then use the generic
 rosbags path, which reports the problem as before.
 
@@ -69,7 +69,7 @@ def stride_runs(offsets: np.ndarray, *keys: np.ndarray) -> list:
 
 
 # --------------------------------------------------------------------------- gathers
-def _gather_rows(buf: np.ndarray, offs: np.ndarray, width: int,
+def gather_rows(buf: np.ndarray, offs: np.ndarray, width: int,
                  runs: list | None = None) -> np.ndarray:
     """(m, width) uint8: the bytes buf[offs[i]:offs[i] + width] (strided views where regular;
     runs: stride_runs(offs), or of any offsets that differ from offs by a constant)."""
@@ -97,7 +97,7 @@ def gather_struct(buf: np.ndarray, offs: np.ndarray, dtype: np.dtype,
         raise FastPathError('field outside the message buffer')
     runs = stride_runs(offs) if runs is None else runs
     if len(runs) > offs.size // 4 + 8:
-        return _gather_rows(buf, offs, width, runs).view(dtype).reshape(-1)
+        return gather_rows(buf, offs, width, runs).view(dtype).reshape(-1)
     raw = np.dtype((np.void, width))  # copied as whole records (field by field is slower)
     out = np.empty(offs.size, dtype=raw)
     for lo, hi, stride in runs:
@@ -106,7 +106,7 @@ def gather_struct(buf: np.ndarray, offs: np.ndarray, dtype: np.dtype,
     return out.view(dtype)
 
 
-def _field(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
+def row_field(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
     """Column bytes rows[:, at:at + size] as dtype values."""
     size = np.dtype(dtype).itemsize
     return np.ascontiguousarray(rows[:, at:at + size]).view(dtype).reshape(-1)
@@ -276,32 +276,32 @@ def decode_blocks(buf, starts: np.ndarray, lengths: np.ndarray,
 
     def at(rel, width):  # rows of width bytes at starts + rel (rel: int or per message)
         if np.ndim(rel) == 0 or (rel == rel[0]).all():
-            return _gather_rows(b, starts + int(np.ravel(rel)[0]), width, runs)
-        return _gather_rows(b, starts + rel, width)
+            return gather_rows(b, starts + int(np.ravel(rel)[0]), width, runs)
+        return gather_rows(b, starts + rel, width)
 
     head = at(0, 16)  # encapsulation, stamp, frame_id length
-    if (_field(head, 0, '<u2') != 0x0100).any():  # bytes 00 01: CDR_LE
+    if (row_field(head, 0, '<u2') != 0x0100).any():  # bytes 00 01: CDR_LE
         raise FastPathError('not little-endian CDR')
     body = starts + 4
     end = starts + lengths
-    sec = _field(head, 4, '<i4').astype(np.int64)
-    nsec = _field(head, 8, '<u4').astype(np.int64)
-    slen = _field(head, 12, '<u4').astype(np.int64)
+    sec = row_field(head, 4, '<i4').astype(np.int64)
+    nsec = row_field(head, 8, '<u4').astype(np.int64)
+    slen = row_field(head, 12, '<u4').astype(np.int64)
     if (slen < 1).any() or (body + 12 + slen > end).any():
         raise FastPathError('bad frame_id length')
     cur = (12 + slen + 7) & ~7
     if (body + cur + 16 > end).any():
         raise FastPathError('message too short')
     rs = at(4 + cur, 16)
-    rate = _field(rs, 0, '<f8')
-    seq = _field(rs, 8, '<u8')
+    rate = row_field(rs, 0, '<f8')
+    seq = row_field(rs, 8, '<u8')
     cur = cur + 16
     counts, vstarts = {}, {}
     for f in fields:
         cur = (cur + 3) & ~3
         if (body + cur + 4 > end).any():
             raise FastPathError('message too short')
-        n = _field(at(4 + cur, 4), 0, '<u4').astype(np.int64)
+        n = row_field(at(4 + cur, 4), 0, '<u4').astype(np.int64)
         cur = cur + 4
         cur = np.where(n > 0, (cur + 7) & ~7, cur)
         if (body + cur + 8 * n > end).any():

@@ -25,6 +25,7 @@ from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw
 from bag_tools.core.reader import open_bag
 from bag_tools.core.typestore import default_typestore, shared_typestore, type_definition
 from bag_tools.core.writer import BagWriter
+from force_tester_common.core.blocks import PullWindows
 from force_tester_common.core.channels import (
     ACCEL_FIELDS,
     ACCEL_TYPE,
@@ -35,7 +36,6 @@ from force_tester_common.core.channels import (
     PULL_EVENT_TYPE,
     PULL_SCORE_TOPIC,
     PULL_SCORE_TYPE,
-    PULL_START,
     SET_SUMMARY_TOPIC,
     SET_SUMMARY_TYPE,
 )
@@ -65,16 +65,15 @@ class BagRead:
     frame: str
 
 
-def pull_event(msg, starts: dict, windows: list, warnings: list) -> None:
+def pull_event(msg, pulls: PullWindows, windows: list, warnings: list) -> None:
     """A PullEvent: a START opens a pull; its END closes it into (start, end, set, pull_id)."""
-    if int(msg.event) == PULL_START:
-        starts[int(msg.pull_id)] = (stamp_of(msg), int(msg.test_set))
+    w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), int(msg.test_set))
+    if w is None:
         return
-    st = starts.pop(int(msg.pull_id), None)
-    if st is None:
+    if w.start_ns is None:
         warnings.append(f'END of pull {msg.pull_id} without its START; not scored')
     else:
-        windows.append((st[0], stamp_of(msg), st[1], int(msg.pull_id)))
+        windows.append((w.start_ns, w.end_ns, w.meta, w.pull_id))
 
 
 def _topic_of(topics: dict, type_name: str, default: str) -> str | None:
@@ -124,7 +123,7 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     if why is not None:
         raise FastPathError(why)
     store = shared_typestore()
-    starts: dict = {}
+    starts = PullWindows()
     windows: list = []
     notes: list = []  # the warnings, given only once the fast path is sure to apply
     for i in np.flatnonzero(raw.channel >= 2).tolist():  # events (few): generic deserialisation
@@ -136,7 +135,7 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
         raise FastPathError('blocks overlap in time')
     cont = np.zeros(m, dtype=bool)
     cont[1:] = follows(stamps[:-1], n[:-1], fr[:-1], stamps[1:], fr[1:])
-    notes += [f'pull {pid} has no END; not scored' for pid in starts]
+    notes += [f'pull {pid} has no END; not scored' for pid in starts.open]
     warnings += notes
     windows = sorted(windows)
     stream.windows_known(windows, [])
@@ -177,7 +176,7 @@ def read_generic(src: Path, stream: CorrectionStream, warnings: list, progress=N
         pairs: list = []
         run: list = []
         drop_events: list = []
-        starts: dict = {}
+        starts = PullWindows()
         windows: list = []
         frame = ''
 
@@ -228,7 +227,7 @@ def read_generic(src: Path, stream: CorrectionStream, warnings: list, progress=N
             if progress and k % 20000 == 0:
                 progress(k, total)
         flush()
-        for pid in starts:
+        for pid in starts.open:
             warnings.append(f'pull {pid} has no END; not scored')
     if not pairs:
         raise BagError(f'bag {str(src)!r}: no /force block pairs with an /accel block of the '

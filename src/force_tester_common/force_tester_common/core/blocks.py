@@ -7,7 +7,8 @@ dropped, and the node goes on.
 from __future__ import annotations
 
 import math
-from typing import Mapping, Optional, Sequence
+from dataclasses import dataclass
+from typing import Any, Mapping, Optional, Sequence
 
 from .channels import PULL_END, PULL_START
 from .clock import NS_PER_S
@@ -55,3 +56,30 @@ def event_problem(event: int) -> Optional[str]:
     if event not in PULL_EVENT_CODES:
         return f'pull event code {event} is unknown; expected one of {list(PULL_EVENT_CODES)} (START, END)'
     return None
+
+
+@dataclass(frozen=True)
+class PullWindow:
+    """What a pull's END closes: from its START's stamp to the END's, with what the caller kept with
+    the START (``meta``). ``start_ns`` is None for an END without its START."""
+    pull_id: int
+    start_ns: Optional[int]
+    end_ns: int
+    meta: Any = None
+
+
+class PullWindows:
+    """START/END pull events into pull windows, the one rule: a START opens pull ``pull_id``, the next
+    event of that pull that is not a START (its END) closes it. ``open``: pull_id -> (start_ns, meta) of
+    the pulls whose END has not come (in the order their STARTs came)."""
+
+    def __init__(self) -> None:
+        self.open: dict = {}
+
+    def add(self, event: int, pull_id: int, stamp_ns: int, meta: Any = None) -> Optional[PullWindow]:
+        """A START: remembered, None. An END: the window it closes (start_ns None without a START)."""
+        if event == PULL_START:
+            self.open[pull_id] = (stamp_ns, meta)
+            return None
+        start_ns, start_meta = self.open.pop(pull_id, (None, None))
+        return PullWindow(pull_id, start_ns, stamp_ns, start_meta)

@@ -7,7 +7,3 @@ G_M_S2 = 9.80665             # standard gravity, m/s^2
 
 def n_to_lbf(force_n):
     return force_n / LBF_N
-
-
-def m_s_to_fps(speed_m_s):
-    return speed_m_s / FT_M

@@ -20,6 +20,8 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from force_tester_common.core.mapping import map_here
+
 from .errors import SimError
 from .motion import hold_time_s, nominal_slack_m
 from .params import RigParams
@@ -30,7 +32,7 @@ from .pull import (
     SLACK_SCATTER_M,
     SPEED_SCATTER_REL,
     PullSpec,
-    _clipped_normal,
+    clipped_normal,
     make_pull_specs,
 )
 from .simulate import simulate_pull
@@ -112,20 +114,20 @@ def truth_pull_specs(rig: RigParams, test_set: int, n: int, seed: int,
     specs = []
     for i, child in enumerate(ss.spawn(n)):
         rng = np.random.default_rng(child)
-        brk = mean_break * (1.0 + _clipped_normal(rng, COUPON_SCATTER_REL))
+        brk = mean_break * (1.0 + clipped_normal(rng, COUPON_SCATTER_REL))
         specs.append(PullSpec(
             test_set=ts.set,
             coupon_break_n=brk,
-            velocity_m_s=ts.velocity_m_s * (1.0 + _clipped_normal(rng, SPEED_SCATTER_REL)),
-            decel_m_s2=ts.decel_m_s2 * (1.0 + _clipped_normal(rng, DECEL_SCATTER_REL)),
-            slack_m=slack0 + _clipped_normal(rng, SLACK_SCATTER_M),
+            velocity_m_s=ts.velocity_m_s * (1.0 + clipped_normal(rng, SPEED_SCATTER_REL)),
+            decel_m_s2=ts.decel_m_s2 * (1.0 + clipped_normal(rng, DECEL_SCATTER_REL)),
+            slack_m=slack0 + clipped_normal(rng, SLACK_SCATTER_M),
             lanyard_stiffness_n_per_m=cfg.lanyard_stiffness_n_per_m(ts)
-            * (1.0 + _clipped_normal(rng, LANYARD_STIFFNESS_SCATTER_REL)),
+            * (1.0 + clipped_normal(rng, LANYARD_STIFFNESS_SCATTER_REL)),
             break_duration_s=float(rng.uniform(*cfg.break_duration_s)),
             seed=int(child.generate_state(1)[0]),
             pull=i,
             command_velocity_m_s=ts.velocity_m_s,
-            coupon_yield_n=cfg.yield_fraction * brk * (1.0 + _clipped_normal(rng, YIELD_SCATTER_REL)),
+            coupon_yield_n=cfg.yield_fraction * brk * (1.0 + clipped_normal(rng, YIELD_SCATTER_REL)),
             coupon_hardening_n_per_m=hard,
         ))
     return specs
@@ -172,7 +174,7 @@ def generate_campaign(rig: RigParams, sets: Sequence[int] = (1, 2, 3, 4, 5), pul
     """
     jobs = campaign_jobs(rig, sets, pulls, seed, noise)
     if mapper is None:
-        chans = [simulate_campaign_pull(job) for _meta_, job in jobs]
+        chans = map_here(simulate_campaign_pull, [job for _m, job in jobs], catch=()).results
     else:
         done = mapper(simulate_campaign_pull, [job for _m, job in jobs], names=[m['file'] for m, _j in jobs])
         if done.failed:

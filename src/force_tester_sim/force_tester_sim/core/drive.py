@@ -92,7 +92,7 @@ class DriveSetup:
         return self.drive.torque_constant_nm_per_a / self.drive.back_emf_constant_v_s_per_rad
 
 
-def _validate_drive(d: DriveParams) -> None:
+def validate_drive(d: DriveParams) -> None:
     for name in ('armature_resistance_ohm', 'armature_inductance_h', 'torque_constant_nm_per_a',
                  'back_emf_constant_v_s_per_rad', 'gear_ratio', 'pulley_radius_m',
                  'current_limit_a', 'voltage_limit_v'):
@@ -163,14 +163,6 @@ def _as_command(cmd) -> Callable[[float], float]:
     return lambda t: value
 
 
-def ramp_command(velocity_m_s: float, accel_m_s2: float) -> Callable[[float], float]:
-    """A velocity command ramping from 0 at ``accel_m_s2`` to ``velocity_m_s`` and holding."""
-    if not (math.isfinite(velocity_m_s) and math.isfinite(accel_m_s2) and accel_m_s2 > 0):
-        raise SimError(f'ramp ({velocity_m_s!r} m/s, {accel_m_s2!r} m/s^2); expected finite, accel > 0')
-    sign = 1.0 if velocity_m_s >= 0 else -1.0
-    return lambda t: sign * min(abs(velocity_m_s), accel_m_s2 * max(t, 0.0))
-
-
 def simulate_drive(rig: RigParams, command_velocity_m_s, duration_s: float, load=None,
                    control: DriveControl = DriveControl(), overrides: Mapping | None = None,
                    max_step_s: float = 5e-5, sample_dt_s: float = 1e-4, method: str = 'LSODA',
@@ -190,7 +182,7 @@ def simulate_drive(rig: RigParams, command_velocity_m_s, duration_s: float, load
     if load is not None and not callable(load):
         raise SimError(f'load is {load!r}; expected None or a callable (t, x3, v3) -> N')
     drive = apply_overrides(rig.drive, overrides)
-    _validate_drive(drive)
+    validate_drive(drive)
     setup = DriveSetup(drive, control)
     cmd = _as_command(command_velocity_m_s)
     f_load = (lambda t, x3, v3: 0.0) if load is None else load

@@ -3,7 +3,7 @@
 The model is piecewise linear: between events it is one of two LTI systems (lanyard free: T = 0;
 lanyard taut with beta = 1), driven by the carriage kinematics. Those stretches are propagated
 exactly on the sample grid (matrix exponential, first-order hold on the inputs, modal
-decomposition so each mode is one complex first-order recursion run by scipy.signal.lfilter).
+decomposition so each mode is one complex first-order recursion run by scipy.signal.lfilter: core/modal.py).
 Events (lanyard engages / goes slack, F_stat reaches the break force) are located with
 solve_ivp (DOP853, event functions) inside the sample interval where they occur, and the coupon's
 break (beta falling linearly to 0, time varying) is integrated with solve_ivp as well.
@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.integrate import solve_ivp
-from scipy.signal import lfilter
 
 from .chain import ChainParams, chain_rhs, chain_rhs_taut, force_stat, lanyard_drive, linear_matrices
 from .errors import SimError
+from .modal import ModalFOH
 
 FREE, TAUT, BREAKING, BROKEN = 'free', 'taut', 'breaking', 'broken'
 FLOW = 'flow'   # taut, coupon flowing plastically (only when ChainParams.yield_n is finite)
@@ -42,59 +42,17 @@ class ChainTrajectory:
     events: list = field(default_factory=list)   # (time_s, new_mode)
 
 
-class _Linear:
-    """Exact first-order-hold discretisation of x' = A x + B u on step h, in modal form.
-
-    Each mode z' = lam z + b u with u linear over the step gives
-    z1 = e^{lam h} z0 + (e^{lam h} - 1)/lam b u0 + (e^{lam h} - 1 - lam h)/lam^2 b (u1 - u0)/h.
-    """
-
-    def __init__(self, A, B, h, blocks):
-        n = A.shape[0]
-        evs = np.zeros(n, dtype=complex)
-        V = np.zeros((n, n), dtype=complex)
-        for idx in blocks:
-            ev, vec = np.linalg.eig(A[np.ix_(idx, idx)])
-            evs[idx] = ev
-            V[np.ix_(idx, idx)] = vec
-        Vinv = np.linalg.inv(V)
-        err = np.abs(V @ np.diag(evs) @ Vinv - A).max() / max(np.abs(A).max(), 1e-300)
-        if not np.isfinite(err) or err > 1e-9 or np.linalg.cond(V) > 1e8:
-            raise SimError(f'modal decomposition error {err:.3g}; expected < 1e-9 (defective or '
-                           f'critically damped chain?)')
-        # a real system: propagate one mode of each conjugate pair, weight 2 (real modes weight 1)
-        keep = np.flatnonzero(evs.imag >= 0)
-        if 2 * int(np.sum(evs.imag > 0)) + int(np.sum(evs.imag == 0)) != n:
-            raise SimError(f'eigenvalues {evs} are not in conjugate pairs; expected a real system')
-        if np.any(evs == 0):
-            raise SimError('the chain has a free rigid-body mode; expected both cells to have stiffness > 0')
-        lam = evs[keep]
-        e = np.exp(lam * h)
-        g0 = (e - 1.0) / lam
-        g1 = (e - 1.0 - lam * h) / (lam ** 2 * h)
-        b = Vinv[keep] @ B
-        self.lam = e
-        self.V = V[:, keep] * np.where(lam.imag > 0, 2.0, 1.0)
-        self.Vinv = Vinv[keep]
-        self.q0 = (g0 - g1)[:, None] * b       # multiplies u0
-        self.q1 = g1[:, None] * b              # multiplies u1
-
-    def propagate(self, x0, U):
-        """States at every row of U (inputs sampled on the grid), starting with x0 at U[0].
-
-        The (N x few) products are written column by column: as matrix products they go to a
-        multi-threaded BLAS, which on tall, thin arrays is many times slower than this.
-        """
-        z0 = self.Vinv @ x0
-        Z = np.empty((U.shape[0], len(z0)), dtype=complex)
-        Z[0] = z0
-        for i, lam in enumerate(self.lam):
-            q = sum(U[:-1, j] * self.q0[i, j] + U[1:, j] * self.q1[i, j] for j in range(U.shape[1]))
-            Z[1:, i] = lfilter([1.0], [1.0, -lam], q, zi=[lam * z0[i]])[0]
-        X = np.empty((U.shape[0], self.V.shape[0]))
-        for k in range(self.V.shape[0]):
-            X[:, k] = sum((Z[:, i] * self.V[k, i]).real for i in range(Z.shape[1]))
-        return X
+def _chain_linear(A, B, h, blocks) -> ModalFOH:
+    """The exact FOH propagator of one linear piece of the chain (core/modal.py); SimError where it has none."""
+    lin = ModalFOH(A, B, h, blocks)
+    if not lin.decomposed:
+        raise SimError(f'modal decomposition error {lin.error:.3g}; expected < 1e-9 (defective or '
+                       f'critically damped chain?)')
+    if not lin.paired:
+        raise SimError(f'eigenvalues {lin.eigenvalues} are not in conjugate pairs; expected a real system')
+    if np.any(lin.eigenvalues == 0):
+        raise SimError('the chain has a free rigid-body mode; expected both cells to have stiffness > 0')
+    return lin
 
 
 def _inputs(motion, t, beta=1.0):
@@ -191,8 +149,8 @@ def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None, kinematics=N
     U = np.column_stack([xs - p.slack_m, vs, as_])
     ns = p.n_states
     free_blocks = [[0, 1, 4, 5], [2, 3]] if ns == 6 else [[0, 1], [2, 3]]
-    lin = {FREE: _Linear(*linear_matrices(p, False), h, free_blocks),
-           TAUT: _Linear(*linear_matrices(p, True), h, [list(range(ns))])}
+    lin = {FREE: _chain_linear(*linear_matrices(p, False), h, free_blocks),
+           TAUT: _chain_linear(*linear_matrices(p, True), h, [list(range(ns))])}
     lin[BROKEN] = lin[FREE]
     P = {FREE: p, TAUT: p, BROKEN: p}
     Us = {FREE: U, TAUT: U, BROKEN: U}
@@ -200,7 +158,7 @@ def integrate_chain(p: ChainParams, motion, t: np.ndarray, x0=None, kinematics=N
         pf = p.flow_params()
         P[FLOW] = pf
         Us[FLOW] = np.column_stack([xs - pf.slack_m, vs, as_])
-        lin[FLOW] = _Linear(*linear_matrices(pf, True), h, [list(range(ns))])
+        lin[FLOW] = _chain_linear(*linear_matrices(pf, True), h, [list(range(ns))])
     flowed = False
     X = np.empty((n, ns))
     x = np.zeros(ns) if x0 is None else np.asarray(x0, dtype=float)

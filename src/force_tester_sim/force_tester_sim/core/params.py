@@ -142,10 +142,6 @@ class TestSet:
     def measured_stationary_avg_n(self) -> float:
         return self.measured_stationary_avg_lbf * LBF_N
 
-    @property
-    def measured_a2_max_m_s2(self) -> float:
-        return self.measured_a2_max_g * G_M_S2
-
 
 NOMINAL_TEST_SETS = (
     TestSet(1, 200.0, 3.0, 0.0, 20, 212.10, 27.9),

@@ -61,7 +61,7 @@ class PullSpec:
             raise SimError(f'seed is {self.seed!r}; expected an integer >= 0')
 
 
-def _clipped_normal(rng, sigma):
+def clipped_normal(rng, sigma):
     return float(np.clip(rng.standard_normal(), -3.0, 3.0) * sigma)
 
 
@@ -82,12 +82,12 @@ def make_pull_specs(rig: RigParams, test_set: int, n: int, seed: int) -> List[Pu
         rng = np.random.default_rng(child)
         specs.append(PullSpec(
             test_set=ts.set,
-            coupon_break_n=ts.coupon_n * (1.0 + _clipped_normal(rng, COUPON_SCATTER_REL)),
-            velocity_m_s=ts.velocity_m_s * (1.0 + _clipped_normal(rng, SPEED_SCATTER_REL)),
-            decel_m_s2=ts.decel_m_s2 * (1.0 + _clipped_normal(rng, DECEL_SCATTER_REL)),
-            slack_m=slack0 + _clipped_normal(rng, SLACK_SCATTER_M),
+            coupon_break_n=ts.coupon_n * (1.0 + clipped_normal(rng, COUPON_SCATTER_REL)),
+            velocity_m_s=ts.velocity_m_s * (1.0 + clipped_normal(rng, SPEED_SCATTER_REL)),
+            decel_m_s2=ts.decel_m_s2 * (1.0 + clipped_normal(rng, DECEL_SCATTER_REL)),
+            slack_m=slack0 + clipped_normal(rng, SLACK_SCATTER_M),
             lanyard_stiffness_n_per_m=fc.lanyard_stiffness_n_per_m
-            * (1.0 + _clipped_normal(rng, LANYARD_STIFFNESS_SCATTER_REL)),
+            * (1.0 + clipped_normal(rng, LANYARD_STIFFNESS_SCATTER_REL)),
             break_duration_s=float(rng.uniform(*BREAK_DURATION_RANGE_S)),
             seed=int(child.generate_state(1)[0]),
             pull=i,

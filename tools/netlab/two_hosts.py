@@ -15,7 +15,7 @@ shared by the namespaces, so the data could then bypass the link. (With it left 
 crossed the veth, the two namespaces having different addresses; off, it cannot happen.) The veth
 counters and the RTPS packet counter show that the data crossed the link.
 
-``python -m ft_cli.two_hosts watch`` is the watcher: run in host B, it prints every score, the
+``python -m netlab.two_hosts watch`` is the watcher: run in host B, it prints every score, the
 recorder's progress and the readers of the topics that cross the link as JSON lines.
 """
 from __future__ import annotations
@@ -34,10 +34,10 @@ import time
 from pathlib import Path
 
 from force_tester_common.core.channels import BLOCK_TYPES, PULL_EVENT_TOPIC
+from ft_cli.graph import Graph, ScoreCollector, ros_param_args
+from ft_cli.paths import executable
 
-from .graph import Graph, ScoreCollector, ros_param_args
 from .netns import DEV, Host, Impairment, TwoHosts
-from .paths import executable
 
 DISCOVERY = ('static_peers', 'xml')
 SNIFF = Path(__file__).resolve().with_name('rtps_sniff.py')
@@ -222,7 +222,7 @@ def run_two_hosts(out: Path, impairment: Impairment | None = None, discovery: st
         try:
             for package, name in B_NODES:
                 b.start(package, name, {'bag_path': str(bag)} if name == 'recorder_node' else None)
-            watcher = _Lines(b.start_cmd('watcher', [sys.executable, '-m', 'ft_cli.two_hosts', 'watch'],
+            watcher = _Lines(b.start_cmd('watcher', [sys.executable, '-m', 'netlab.two_hosts', 'watch'],
                                          stdout=subprocess.PIPE).stdout)
             deadline = t0 + timeout
             sent, sim = {}, None
@@ -318,5 +318,5 @@ def watch() -> int:
 
 if __name__ == '__main__':
     if sys.argv[1:] != ['watch']:
-        sys.exit('usage: python -m ft_cli.two_hosts watch')
+        sys.exit('usage: python -m netlab.two_hosts watch')
     sys.exit(watch())
