@@ -308,10 +308,8 @@ def test_truth_specs_follow_measured_levels(truth):
 
 @pytest.mark.slow
 def test_full_truth_campaign_100_pulls(truth):
-    t0 = time.time()
+    # its time is a benchmark's business (./ft bench campaign), not a test's: on a busy machine it varies 2x
     camp = generate_campaign(truth, (1, 2, 3, 4, 5), 20, 0, mapper=map_pulls)
-    elapsed = time.time() - t0
-    assert elapsed < 60.0
     thesis8 = {1: 1.5, 2: 12.8, 3: 5.4, 4: 11.1, 5: 32.0}
     thesis9 = {1: 2.5, 2: 5.3, 3: 3.8, 4: 22.2, 5: 16.3}
     for row in campaign_tables(camp):
