@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import importlib
 import logging
-import sys
 import threading
 import time
 from collections import defaultdict, deque
@@ -517,15 +516,7 @@ def _sdk_version() -> str:
         return '?'
 
 
-_main = main_for(MonitorNode)
-
-
-def main(args=None):
-    try:
-        _main(args)
-    except MonitorError as exc:
-        print(f'monitor_node: error: {exc}', file=sys.stderr)
-        sys.exit(2)
+main = main_for(MonitorNode)
 
 
 if __name__ == '__main__':
