@@ -8,6 +8,7 @@ time by default (parameter ``rate`` > 1 runs faster). Changed parameters apply f
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 import threading
 import time
@@ -27,7 +28,7 @@ from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, WARN, Diagn
 from .core.errors import SimError
 from .core.sim_config import SimConfig, block_bounds
 from .core.simulate import simulate_pull
-from .core.worker import exit_with_parent, sigint_ignoring_spawn
+from .core.worker import exit_with_parent, keep_sigint_from_workers
 
 WAIT_TIMEOUT_S = 120.0   # wait_for_subscribers: how long by default before the sim gives up
 FORCE_TOPIC = next(t.topic for t in BLOCK_TOPICS if t.msg_type is ForceBlock)
@@ -157,11 +158,12 @@ class SimNode(Node):
         index = 0  # samples published so far: the sample clock
         seqs = [0] * len(self.block_pubs)
         # the next pull is simulated in a worker process, so the publishing thread keeps its pace
-        # (started with SIGINT ignored: a terminal's Ctrl-C reaches the whole process group, and
-        # shutting the worker down is this node's job)
-        with sigint_ignoring_spawn() as context, ProcessPoolExecutor(
-                max_workers=1, mp_context=context, max_tasks_per_child=WORKER_PULLS,
-                initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
+        # (with SIGINT blocked: a terminal's Ctrl-C reaches the whole process group, and shutting the
+        # worker down is this node's job)
+        keep_sigint_from_workers()
+        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                                 max_tasks_per_child=WORKER_PULLS, initializer=exit_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             def simulate(i):
                 _, rig, spec = pulls[i]
                 return pool.submit(simulate_pull, rig, spec, config.noise, config.drive)

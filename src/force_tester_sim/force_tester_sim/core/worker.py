@@ -4,51 +4,36 @@ It must not outlive the node: a node killed with SIGKILL cannot shut its pool do
 spawned worker would wait on a closed pipe for good, holding a few hundred MB. And it leaves
 shutdown to the node: started from a terminal, it is in the terminal's process group, so Ctrl-C
 (SIGINT) reaches it too, mid-pull or while it is still importing its modules (before: a
-`SpawnProcess-1 ... KeyboardInterrupt` traceback). It starts with SIGINT ignored, and ends when the
-node shuts its pool down (or dies).
+`SpawnProcess-1 ... KeyboardInterrupt` traceback). It never receives that SIGINT, and ends when
+the node shuts its pool down (or dies).
 """
 from __future__ import annotations
 
-import contextlib
-import multiprocessing
 import os
-import shlex
-import sys
-import tempfile
+import signal
 import threading
 import time
-from pathlib import Path
+from multiprocessing import resource_tracker
 
 PARENT_POLL_S = 1.0   # how often the worker looks for its parent
 
 
-@contextlib.contextmanager
-def sigint_ignoring_spawn():
-    """A 'spawn' multiprocessing context whose processes start with SIGINT ignored, from their first
-    instruction on: they are started through a shell that ignores it (`trap '' INT`) and execs
-    Python, and an ignored SIGINT stays ignored across exec and in Python ("SIGINT is translated
-    into a KeyboardInterrupt exception if the parent process has not changed it", the signal
-    module's documentation). The process itself keeps its own Ctrl-C. (Blocking SIGINT in the
-    starting thread does not reach a spawned child: it starts with an empty signal mask.)
-
-    multiprocessing keeps one executable for every 'spawn' process of this process: use this in a
-    process that starts no other (the sim node)."""
-    ctx = multiprocessing.get_context('spawn')
-    with tempfile.TemporaryDirectory(prefix='ft-sim-worker-') as tmp:
-        exe = Path(tmp) / 'python'
-        exe.write_text("#!/bin/sh\n# the sim's worker process: Ctrl-C is for the node, which shuts it down\n"
-                       f"trap '' INT\nexec {shlex.quote(sys.executable)} \"$@\"\n")
-        exe.chmod(0o700)
-        ctx.set_executable(str(exe))
-        try:
-            yield ctx
-        finally:
-            ctx.set_executable(sys.executable)
+def keep_sigint_from_workers() -> None:
+    """Block SIGINT in the calling thread (a thread of the node, not its main thread, which handles
+    Ctrl-C), so that every process it spawns starts with SIGINT blocked, from its first instruction
+    on, and so do the threads it starts (the pool's manager thread, which starts the replacement
+    workers). multiprocessing's resource tracker unblocks SIGINT in the thread that starts it, so it
+    is started first."""
+    resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 
 
 def exit_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
-    """A process-pool initializer: a daemon thread ends this process once ``parent_pid`` is no longer
-    its parent (the parent died and the process was re-parented)."""
+    """A process-pool initializer: ignore SIGINT (the node shuts the pool down; a SIGINT that came
+    while it was blocked is dropped), and end this process once ``parent_pid`` is no longer its
+    parent (the parent died and the process was re-parented), from a daemon thread."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
     def watch():
         while os.getppid() == parent_pid:
             time.sleep(poll_s)
