@@ -279,7 +279,7 @@ def test_play_skips_what_it_cannot_import_and_plays_the_rest(foreign, ros_domain
         # interrupted in its first pass (the 5 messages 1 s apart), it says what it published
         # (before: 0, the count was made when a pass ended)
         before = len(got)
-        p = _bag_process('play', '--rate', '0.002', *topics, bag)
+        p = _bag_process('play', '--wait-for-subscribers', '1', '--rate', '0.002', *topics, bag)
         procs.append(p)
         assert _wait(lambda: len(got) >= before + 2, 60, p), (len(got), p.poll())
         p.send_signal(signal.SIGINT)
