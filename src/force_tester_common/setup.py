@@ -1,3 +1,5 @@
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = 'force_tester_common'
@@ -9,6 +11,9 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        # the rigs' parameter files (README, "Several rigs on one machine"); config/rigs at the
+        # workspace root links here. get_package_share_directory(package_name) + '/config/rigs'
+        ('share/' + package_name + '/config/rigs', glob('config/rigs/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

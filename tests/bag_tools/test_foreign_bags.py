@@ -5,6 +5,7 @@ with what was written."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -274,6 +275,19 @@ def test_play_skips_what_it_cannot_import_and_plays_the_rest(foreign, ros_domain
         clean(out + err)
         assert p.returncode == 130, err
         assert 'interrupted; stopped after' in err
+
+        # interrupted in its first pass (the 5 messages 1 s apart), it says what it published
+        # (before: 0, the count was made when a pass ended)
+        before = len(got)
+        p = _bag_process('play', '--wait-for-subscribers', '1', '--rate', '0.002', *topics, bag)
+        procs.append(p)
+        assert _wait(lambda: len(got) >= before + 2, 60, p), (len(got), p.poll())
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=30)
+        clean(out + err)
+        assert p.returncode == 130, err
+        stopped = re.search(r'interrupted; stopped after (\d+) messages', err)
+        assert stopped and 5 > int(stopped.group(1)) >= len(got) - before >= 2, (err, len(got) - before)
     finally:
         for p in procs:
             if p.poll() is None:

@@ -371,6 +371,32 @@ def test_aligner_starts_a_new_run_and_never_pairs_across_it(how):
         assert 'pending block(s) of the old run discarded' in runs[0].detail
 
 
+@pytest.mark.parametrize('how', ['replay', 'restart_seq_only', 'jump_forward', 'one_channel'])
+def test_a_new_run_is_one_event_not_also_a_discontinuity(how):
+    """A new run is reported once, as new_run: its first pair is not continuous, and is not
+    reported again as a discontinuity from the old run's last pair (each event is a warning of
+    the nodes). 'one_channel': only the second channel starts over (the validator's view of a
+    restarted correction)."""
+    al = BlockAligner(('force', 'accel'), new_run_gap_s=1.0)
+    for i in range(5):
+        for c in ('force', 'accel'):
+            al.push(*blocks_for(c, 5)[i])
+    t0 = {'replay': 10**18, 'restart_seq_only': 10**18 + 5 * DT_NS, 'jump_forward': 10**18 + 5 * NS_PER_S,
+          'one_channel': 10**18 + 5 * DT_NS}[how]
+    seq0 = 5 if how == 'jump_forward' else 0
+    pairs, events = [], []
+    for i in range(5):
+        for c in ('force', 'accel'):
+            ch, t, seq, r, n, pay = blocks_for(c, 5, t0)[i]
+            seq = seq + 5 if how == 'one_channel' and c == 'force' else seq + seq0
+            p, e = al.push(ch, t, seq, r, n, pay)
+            pairs += p
+            events += e
+    kinds = [e.kind for e in events]
+    assert kinds == (['new_run'] if how == 'one_channel' else ['new_run', 'new_run']), events
+    assert len(pairs) == 5 and pairs[0].continuous is False and all(p.continuous for p in pairs[1:])
+
+
 def test_aligner_discards_a_duplicate_block():
     al = BlockAligner(('force', 'accel'))
     b = blocks_for('force', 1)[0]

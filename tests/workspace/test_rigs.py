@@ -1,9 +1,10 @@
-"""Several rigs on one machine (README, "Running nodes by hand"): each rig's sim, correction and validator under its own
+"""Several rigs on one machine (docs/nodes.md, "Running nodes by hand"): each rig's sim, correction and validator under its own
 namespace, as separate processes or with every rig's correction and validator composed in one
 process, through `./ft bench rigs` (real processes over Fast DDS)."""
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import ROOT
@@ -60,3 +61,118 @@ def test_null_rigs_of_the_floor_benchmark_deliver_every_block(tmp_path, ros_doma
     assert run['rigs'] == 2 and run['lost'] == 0
     assert run['received'] >= 2 * 150   # 2 s at 100 blocks/s per rig, from the first block received
     assert run['cpu_total'] > 0 and run['us_per_op'] > 0
+
+
+# ----------------------------------------------------------------------------- the rig recipe
+def readme_rig_recipe() -> list:
+    """The commands of the "Several rigs on one machine" recipe in docs/nodes.md, as written there."""
+    text = (ROOT / 'docs' / 'nodes.md').read_text()
+    section = text[text.index('**Several rigs on one machine.**'):]
+    block = section[section.index('```') + 3:]
+    block = block[:block.index('```')]
+    return [line.split() for line in block.splitlines() if line.startswith('./ft run ')]
+
+
+def test_the_readme_rig_recipe_scores_its_pulls(tmp_path, ros_domain):
+    """The recipe of docs/nodes.md, as written (correction, validator, then the sim, each a process with
+    -r __ns:=/rig1 --params-file config/rigs/rig1.yaml, from the workspace root): the sim does not
+    wait for a reader the recipe never starts, publishes, and the validator scores pull 0 into
+    its state file under $ROS_HOME. Before, rig1.yaml made the sim wait for 2 readers of
+    /rig1/pull_event, which only the validator reads: it waited for good."""
+    import os
+    import signal
+    import time
+
+    from ft_cli.paths import executable
+    recipe = readme_rig_recipe()
+    assert [cmd[2:4] for cmd in recipe] == [['force_correction', 'correction_node'],
+                                             ['force_correction', 'validator_node'],
+                                             ['force_tester_sim', 'sim_node']], recipe
+    env = dict(os.environ, ROS_HOME=str(tmp_path / 'ros_home'))
+    procs, logs = [], []
+    try:
+        for cmd in recipe:
+            log = tmp_path / f'{cmd[3]}.log'
+            logs.append(log)
+            # `./ft run PKG EXE ARGS` runs install/PKG/lib/PKG/EXE ARGS (as `ros2 run` does), here from the root
+            procs.append(subprocess.Popen([str(executable(cmd[2], cmd[3])), *cmd[4:]], cwd=ROOT, env=env,
+                                          stdout=log.open('w'), stderr=subprocess.STDOUT,
+                                          stdin=subprocess.DEVNULL))
+        state = tmp_path / 'ros_home' / 'force_tester' / 'rig1_scores.jsonl'
+        deadline = time.monotonic() + 240
+        while not (state.exists() and state.read_text().count('\n') >= 1):
+            assert all(p.poll() is None for p in procs), [log.read_text()[-2000:] for log in logs]
+            assert time.monotonic() < deadline, [log.read_text()[-2000:] for log in logs]
+            time.sleep(0.2)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        codes = []
+        for p in procs:
+            try:
+                codes.append(p.wait(30))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes.append(p.wait())
+    sim_log = logs[2].read_text()
+    assert 'matched subscribers: /rig1/pull_event 1, /rig1/force 2' in sim_log, sim_log[-2000:]
+    assert 'publishing 10 pull(s)' in sim_log, sim_log[-2000:]
+    first = json.loads(state.read_text().splitlines()[0])
+    assert (first['pull_id'], first['set_id'], first['status']) == (0, 1, 0), first   # PULL_OK
+    assert codes == [0, 0, 0], (codes, [log.read_text()[-2000:] for log in logs])
+
+
+def test_a_sim_whose_readers_never_come_gives_up_with_one_line(ros_domain):
+    """wait_timeout_s: one line naming the resolved topics, the readers they have (and whose),
+    the readers wanted and what to start; exit code 2. A reader of /rig1/force only is here."""
+    import rclpy
+    from force_tester_msgs.msg import ForceBlock
+
+    from force_tester_common.ros import BLOCK_QOS
+    from ft_cli.paths import executable
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('listener', namespace='/rig1', context=ctx)
+    try:
+        node.create_subscription(ForceBlock, '/rig1/force', lambda m: None, BLOCK_QOS)
+        res = subprocess.run([str(executable('force_tester_sim', 'sim_node')), '--ros-args', '-r', '__ns:=/rig1',
+                              '-p', 'wait_for_subscribers:=1', '-p', 'wait_timeout_s:=3.0'],
+                             capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    errors = [ln for ln in res.stderr.splitlines() if 'error' in ln.lower()]
+    assert len(errors) == 1 and errors[0].startswith('sim_node: error: no readers after 3 s'), res.stderr
+    line = errors[0]
+    for text in ('/rig1/pull_event has 0 (no reader)', '/rig1/force has 1 (/rig1/listener)',
+                 'waiting for 1 on each (wait_for_subscribers 1)', 'with -r __ns:=/rig1',
+                 '/rig1/pull_event: a validator_node or a recorder_node'):
+        assert text in line, line
+    assert '/rig1/force:' not in line   # it has its reader
+
+
+def test_the_rig_files_are_installed_where_ros_finds_them():
+    """colcon installs each package's config files into share/<pkg>/config, where
+    get_package_share_directory (ros2 pkg prefix, launch files) finds them: the rig files too.
+    Before, the rig files were not installed, and two packages' config folders were empty (their
+    setup.py globs matched nothing)."""
+    from ament_index_python.packages import get_package_share_directory
+
+    from ft_cli.paths import INSTALL
+    installed_any = False
+    for pkg in sorted(p.name for p in (ROOT / 'src').iterdir() if (p / 'setup.py').is_file()):
+        config = INSTALL / pkg / 'share' / pkg / 'config'
+        sources = sorted(str(f.relative_to(ROOT / 'src' / pkg / 'config')) for f in
+                         (ROOT / 'src' / pkg / 'config').rglob('*.yaml'))
+        sources += sorted(f'{f.name}' for f in (ROOT / 'src' / pkg / pkg / 'config').glob('*.yaml'))
+        if sources or config.exists():   # no empty config folder, nothing left out
+            have = sorted(str(f.relative_to(config)) for f in config.rglob('*.yaml')) if config.exists() else []
+            assert have and have == sorted(sources), (pkg, have, sources)
+            installed_any = True
+    assert installed_any
+    share = Path(get_package_share_directory('force_tester_common'))
+    for f in (ROOT / 'config' / 'rigs').glob('*.yaml'):
+        assert (share / 'config' / 'rigs' / f.name).read_text() == f.read_text(), f.name
+    assert sorted(f.name for f in (share / 'config' / 'rigs').glob('*.yaml')) == ['rig1.yaml', 'rig2.yaml']

@@ -22,7 +22,7 @@ from rclpy.node import Node
 
 from force_tester_common.conversions import message_class
 from force_tester_common.core.clock import NS_PER_S
-from force_tester_common.ros import BLOCK_QOS, ros_init
+from force_tester_common.ros import BLOCK_QOS, ros_init, startup_failure
 
 from .core.errors import BagError, one_line
 from .core.playback import PLAY_DESCRIPTION, add_play_arguments, schedule, take_bag_argument
@@ -130,6 +130,7 @@ class PlayerNode(Node):
         super().__init__('player')
         self.pubs = {t: self.create_publisher(cls, remaps.get(t, t), BLOCK_QOS)
                      for t, cls in classes.items()}
+        self.published = 0   # messages published so far, every pass (what an interrupt reports)
 
     def wait_for_subscribers(self, n: int, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -139,7 +140,8 @@ class PlayerNode(Node):
             time.sleep(0.05)
         return True
 
-    def play(self, msgs, offsets_ns) -> int:
+    def play(self, msgs, offsets_ns) -> None:
+        """Publish one pass; ``published`` counts each message as it goes out."""
         t0 = time.monotonic_ns()
         for msg, offset in zip(msgs, offsets_ns):
             delay = (t0 + offset - time.monotonic_ns()) / NS_PER_S
@@ -153,7 +155,7 @@ class PlayerNode(Node):
                 if not self.context.ok():
                     raise KeyboardInterrupt from None
                 raise
-        return len(msgs)
+            self.published += 1
 
 
 def run(args, ros_args=(), prog: str = 'player') -> int:
@@ -174,10 +176,11 @@ def run(args, ros_args=(), prog: str = 'player') -> int:
     if plan.empty:
         say('', f'bag {args.bag} has no messages on the selected topics; nothing to play')
         return 0
-    played = 0
+    node, started = None, False
     try:
         with ros_init([prog, *ros_args]):
             node = PlayerNode(plan.classes, plan.remaps)
+            started = True
             try:
                 if args.wait_for_subscribers and not node.wait_for_subscribers(
                         args.wait_for_subscribers, args.wait_timeout):
@@ -185,7 +188,7 @@ def run(args, ros_args=(), prog: str = 'player') -> int:
                         f'{args.wait_timeout} s')
                     return 2
                 while True:
-                    played += node.play(plan.msgs, plan.offsets_ns)
+                    node.play(plan.msgs, plan.offsets_ns)
                     skipped = f'; skipped {len(plan.skipped)} topic(s): ' \
                         f'{", ".join(plan.skipped)}' if plan.skipped else ''
                     say('', f'played {len(plan.msgs)} messages on {len(plan.classes)} topic(s) '
@@ -200,8 +203,14 @@ def run(args, ros_args=(), prog: str = 'player') -> int:
                     if node.context.ok():
                         raise
     except (KeyboardInterrupt, ExternalShutdownException):
-        say('', f'interrupted; stopped after {played} messages')
+        say('', f'interrupted; stopped after {node.published if node is not None else 0} messages')
         return EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - while starting (rclpy refusing --ros-args): one line
+        if started:
+            raise
+        code, line = startup_failure(exc)
+        say('error: ', line)
+        return code
     return 0
 
 

@@ -48,6 +48,10 @@ def check(values: dict) -> dict:
         raise BagError("bag_path '' is empty; expected the directory of a new bag")
     if os.path.exists(values['bag_path']):
         raise BagError(f"bag_path {values['bag_path']!r} exists already; expected a new directory name")
+    parent = os.path.dirname(os.path.abspath(values['bag_path']))
+    if not os.path.isdir(parent):
+        raise BagError(f"bag_path {values['bag_path']!r}: its directory {parent!r} does not exist; expected "
+                       'a new directory in an existing one')
     if not values['topics']:
         raise BagError('topics [] is empty; expected one or more topic names')
     for name in ('max_bag_size_mb', 'max_bag_duration_s'):

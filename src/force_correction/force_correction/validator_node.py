@@ -2,8 +2,10 @@
 
 Subscribes /force_corrected, /force (for the stationary cell) and /pull_event; publishes
 /pull_score after each pull (eq 1 at the peaks for the raw, m*a-corrected and filtered signals,
-RMS error over the loaded window) and /set_summary (per-set mean and standard deviation, like
-thesis Tables 8 and 9; latched with depth 1, so a late joiner gets the current summary).
+RMS error over the loaded window; latched, the last 1000), the same score on /pull_score_latest
+(latched with depth 1: a late joiner asking for one score gets the newest) and /set_summary
+(per-set mean and standard deviation, like thesis Tables 8 and 9; latched with depth 1, so a late
+joiner gets the current summary).
 
 Every incoming message is checked before use; a bad one is counted, reported on /diagnostics and
 dropped. Each score has a status (PullScore.msg): a restarted or replayed source is a new run, and
@@ -31,7 +33,13 @@ from force_tester_common.conversions import (
 )
 from force_tester_common.core import correction as C
 from force_tester_common.core.blocks import event_problem, stamp_problem
-from force_tester_common.core.channels import PULL_EVENT_TOPIC, PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC
+from force_tester_common.core.channels import (
+    PULL_EVENT_TOPIC,
+    PULL_SCORE_LATEST_TOPIC,
+    PULL_SCORE_TOPIC,
+    SET_SUMMARY_TOPIC,
+)
+from force_tester_common.core.ros_home import under_ros_home
 from force_tester_common.core.scores import (
     PULL_ABORTED,
     PULL_OK,
@@ -45,6 +53,7 @@ from force_tester_common.ros import (
     BLOCK_QOS,
     ERROR,
     EVENT_QOS,
+    LATEST_SCORE_QOS,
     OK,
     SCORE_QOS,
     SUMMARY_QOS,
@@ -80,7 +89,8 @@ SPECS = [
                                                     'is closed as aborted (the source stopped mid-pull)',
               C.ABORT_TIMEOUT_RANGE_S, read_only=True),
     ParamSpec('state_file', '', 'JSON-lines file the scores are appended to; a restarted validator republishes '
-                                'them and its set summaries go on from them ("" = keep nothing)', read_only=True),
+                                'them and its set summaries go on from them ("" = keep nothing; a relative path '
+                                'is under $ROS_HOME, default ~/.ros)', read_only=True),
     ParamSpec('correction_node', 'correction', 'name of the correction node whose parameter changes mark the '
                                                'pulls in progress RECONFIGURED (relative: in this node\'s '
                                                'namespace)', read_only=True),
@@ -114,6 +124,8 @@ class ValidatorNode(Node):
         self.counts = {'scores': 0, 'bad_messages': 0, 'runs': 0, 'aborted': 0}
         self._source_restarted = False   # a /force new run whose /force_corrected new run is still to come
         self.score_pub = self.create_publisher(PullScore, in_namespace(PULL_SCORE_TOPIC), SCORE_QOS)
+        # the newest score alone, latched: what a late `ros2 topic echo ... --once` wants
+        self.latest_pub = self.create_publisher(PullScore, in_namespace(PULL_SCORE_LATEST_TOPIC), LATEST_SCORE_QOS)
         self.summary_pub = self.create_publisher(SetSummary, in_namespace(SET_SUMMARY_TOPIC), SUMMARY_QOS)
         for channel, topic in (('corrected', CORRECTED_TOPIC), ('force', FORCE)):
             self.create_subscription(topic.msg_type, in_namespace(topic.topic), guarded(
@@ -125,7 +137,8 @@ class ValidatorNode(Node):
         self.create_subscription(ParameterEvent, '/parameter_events',
                                  guarded(self.diag, '/parameter_events', self._on_parameters), EVENT_QOS)
         self.create_timer(TICK_S, self._tick)
-        self.log = ScoreLog(self.params.values['state_file']) if self.params.values['state_file'] else None
+        state_file = self.params.values['state_file']
+        self.log = ScoreLog(under_ros_home(state_file)) if state_file else None
         if self.log is not None:
             self._restore()
 
@@ -218,7 +231,7 @@ class ValidatorNode(Node):
             msg = PullScore(pull_id=acc.pull_id, test_set=acc.set_id, dropped_blocks=acc.dropped_blocks,
                             status=status, detail=detail, **{k: math.nan for k in PULL_SCORE_FIELDS})
             msg.header.stamp = ns_to_stamp(acc.start_ns)
-            self.score_pub.publish(msg)
+            self._send(msg)
             self.counts['scores'] += 1
             self.counts['aborted'] += status == PULL_ABORTED
             self.diag.report(ERROR, f'pull {acc.pull_id} (set {acc.set_id}) {PULL_STATUS_NAMES[status]}: '
@@ -226,6 +239,10 @@ class ValidatorNode(Node):
             return
         status, detail = pull_status(acc.dropped_blocks, notes, aborted=bool(f.aborted))
         self._publish(LoggedScore(acc.pull_id, acc.set_id, acc.start_ns, status, detail, s), save=True)
+
+    def _send(self, msg: PullScore) -> None:
+        self.score_pub.publish(msg)
+        self.latest_pub.publish(msg)
 
     def _publish(self, logged: LoggedScore, save: bool):
         """Append one score to the log (save), then publish it (and, for an OK pull, its set's new summary)."""
@@ -239,7 +256,7 @@ class ValidatorNode(Node):
             except OSError as exc:
                 self.diag.report(ERROR, f'score of pull {logged.pull_id} not saved to {self.log.path}: {exc}',
                                  key='log')
-        self.score_pub.publish(msg)
+        self._send(msg)
         self.counts['scores'] += 1
         if save:
             if status == PULL_ABORTED:

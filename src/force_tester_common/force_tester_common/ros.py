@@ -22,12 +22,16 @@ from .node_params import ParameterError
 # 10 s of 1 ms blocks: a receiver may stall that long without a block being overwritten.
 BLOCK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 EVENT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-# Scores are kept for late joiners (a monitor started after a pull still gets its score).
+# /pull_score: the history of scores is kept for late joiners (a monitor started after a pull still
+# gets its score; `ros2 topic echo /pull_score --qos-durability transient_local --qos-depth 1000`).
 SCORE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# A set summary is cumulative: a late joiner needs the current one only, not a backlog.
-SUMMARY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+# Latched, the newest message only (as /tf_static, /map): a late joiner that asks for one message
+# (`ros2 topic echo --once`) gets the current one, not one of a backlog.
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SUMMARY_QOS = LATCHED_QOS        # a set summary is cumulative: the current one only, not a backlog
+LATEST_SCORE_QOS = LATCHED_QOS   # /pull_score_latest: the newest score
 
 # How a node process spins its nodes: $FT_EXECUTOR (make_executor). ./ft bench rigs compares them.
 EXECUTOR_ENV = 'FT_EXECUTOR'
@@ -112,10 +116,23 @@ class Diagnostics:
         self._pub.publish(arr)
 
 
+def _init(args):
+    """rclpy.init(args=...), quiet when it fails: rcl logs "Failed to parse global arguments" before
+    it raises, and the error (startup_failure) is the one line a node prints."""
+    from rclpy.logging import LoggingSeverity, set_logger_level
+    set_logger_level('rcl', LoggingSeverity.FATAL)
+    try:
+        ret = rclpy.init(args=args)
+    finally:
+        if not any('rcl:=' in str(a) for a in (sys.argv if args is None else args)):   # --log-level rcl:=...
+            set_logger_level('rcl', LoggingSeverity.UNSET)
+    return ret
+
+
 @contextlib.contextmanager
 def ros_init(args=None):
     """``with rclpy.init(args=...)``: Kilted's init() is a context manager; Jazzy's returns None."""
-    ret = rclpy.init(args=args)
+    ret = _init(args)
     if ret is not None:
         with ret:
             yield
@@ -189,29 +206,66 @@ def release(executor, nodes) -> None:
         node.destroy_node()
 
 
+def startup_failure(exc: BaseException) -> tuple:
+    """(exit code, one line) for an error raised while a node process starts: 2 for bad input
+    (ParameterError, and the packages' own error types, which are ValueErrors), 1 for anything
+    else (an I/O failure, rclpy refusing its --ros-args). The line quotes the error's message,
+    on one line, with its type when that is not one of ours."""
+    text = ' '.join(str(exc).split())
+    if isinstance(exc, (ParameterError, ValueError, OSError)) and text:
+        line = text
+    else:
+        line = f'{type(exc).__name__}: {text}' if text else type(exc).__name__
+    return (2 if isinstance(exc, ValueError) else 1), line
+
+
+def _close(node) -> None:
+    close = getattr(node, 'close', None)
+    if close is not None:
+        close()
+
+
 def spin_nodes(*node_factories, args=None) -> int:
     """Create the nodes in one process, add them to one executor (make_executor) and spin until
-    shut down. An invalid parameter at start-up ends the process: one line on stderr, exit code 2."""
+    shut down. Any error while the process starts (rclpy.init refusing the --ros-args, an invalid
+    parameter, a bag directory that cannot be made) ends it with one line on stderr and a non-zero
+    exit (startup_failure). A node that stops itself for good sets ``failure`` (an exception) and
+    shuts the context down: the process ends the same way."""
+    prog = os.path.basename(sys.argv[0])
+    started, failure = False, None
     try:
         with ros_init(args):
             ex = make_executor()
-            nodes = [factory() for factory in node_factories]
+            nodes = []
+            try:
+                for factory in node_factories:
+                    nodes.append(factory())
+            except BaseException:
+                for node in nodes:   # those made before the one that failed
+                    _close(node)
+                    node.destroy_node()
+                raise
+            started = True
             for node in nodes:
                 ex.add_node(node)
             try:
                 spin(ex)
             finally:
                 for node in nodes:   # first what matters: a node's data (the recorder's bag) is closed
-                    close = getattr(node, 'close', None)
-                    if close is not None:
-                        close()
+                    _close(node)
                 release(ex, nodes)
+            failure = next((n.failure for n in nodes if getattr(n, 'failure', None) is not None), None)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ParameterError as exc:
-        print(f'{os.path.basename(sys.argv[0])}: error: {exc}', file=sys.stderr)
-        return 2
-    return 0
+    except Exception as exc:  # noqa: BLE001 - while starting, whatever it is: one line
+        if started:
+            raise
+        failure = exc
+    if failure is None:
+        return 0
+    code, line = startup_failure(failure)
+    print(f'{prog}: error: {line}', file=sys.stderr)
+    return code
 
 
 def main_for(node_factory):

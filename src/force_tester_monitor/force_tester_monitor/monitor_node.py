@@ -20,7 +20,6 @@ reading costs memory that is bounded and nothing else. The arithmetic is in ``co
 from __future__ import annotations
 
 import logging
-import sys
 import time
 from collections import defaultdict
 
@@ -316,15 +315,7 @@ class MonitorNode(Node):
         self.bridge.close()
 
 
-_main = main_for(MonitorNode)
-
-
-def main(args=None):
-    try:
-        _main(args)
-    except MonitorError as exc:
-        print(f'monitor_node: error: {exc}', file=sys.stderr)
-        sys.exit(2)
+main = main_for(MonitorNode)
 
 
 if __name__ == '__main__':

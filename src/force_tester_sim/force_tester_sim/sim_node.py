@@ -14,7 +14,7 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-from force_tester_msgs.msg import PullEvent
+from force_tester_msgs.msg import ForceBlock, PullEvent
 from rclpy.duration import Duration
 from rclpy.node import Node
 
@@ -25,9 +25,16 @@ from force_tester_common.core.clock import sample_stamp_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import BLOCK_QOS, ERROR, EVENT_QOS, OK, WARN, Diagnostics, in_namespace, main_for
 
+from .core.errors import SimError
 from .core.sim_config import SimConfig, block_bounds
 from .core.simulate import simulate_pull
-from .core.worker import exit_with_parent
+from .core.worker import exit_with_parent, keep_sigint_from_workers
+
+WAIT_TIMEOUT_S = 120.0   # wait_for_subscribers: how long by default before the sim gives up
+FORCE_TOPIC = next(t.topic for t in BLOCK_TOPICS if t.msg_type is ForceBlock)
+# what reads each topic the sim waits on (the hint when its readers do not come)
+READERS = {PULL_EVENT_TOPIC: 'a validator_node or a recorder_node',
+           FORCE_TOPIC: 'a correction_node, a validator_node or a recorder_node'}
 
 SPECS = [
     ParamSpec('test_sets', [1, 2, 3, 4, 5], 'test sets to run, in order (thesis Table 4: 1..5)'),
@@ -44,6 +51,10 @@ SPECS = [
     ParamSpec('wait_for_subscribers', 1, 'before publishing, wait until /force and /pull_event each have this '
                                          'many matched subscribers, and no more match for SETTLE_S (0: at once)',
               (0, 100)),
+    ParamSpec('wait_timeout_s', WAIT_TIMEOUT_S, 'wait_for_subscribers: give up after this many seconds '
+                                                'without the readers: the node exits (code 2) with one line '
+                                                'naming the topics, their readers and what to start (0: wait '
+                                                'for good)', (0.0, 86400.0)),
     ParamSpec('exit_when_done', False, 'shut the node down after the last pull (once the '
               'subscribers have acknowledged every block, at most ACK_TIMEOUT_S)'),
 ]
@@ -65,6 +76,7 @@ class SimNode(Node):
     def __init__(self, **kwargs):
         super().__init__('sim', **kwargs)
         self.params = NodeParams(self, SPECS, config_from)
+        self.failure = None   # why the node stopped itself (spin_nodes prints it and exits non-zero)
         self.progress = {'pulls': 0, 'blocks_per_topic': 0}   # published so far: the heartbeat's counters
         self.diag = Diagnostics(self, 'simulator', counters=lambda: self.progress)
         self.block_pubs = [(t, self.create_publisher(t.msg_type, in_namespace(t.topic), BLOCK_QOS))
@@ -87,29 +99,57 @@ class SimNode(Node):
         try:
             self._publish_all()
         except Exception as exc:  # keep the node alive and say what went wrong
+            if self._stop.is_set():   # the node is shutting down (Ctrl-C): its pool and context go away
+                return
             self.diag.report(ERROR, f'simulation stopped: {exc}', latch=True)
 
-    def _wait_for_subscribers(self, want: int) -> bool:
+    def _wait_for_subscribers(self, want: int, timeout_s: float) -> bool:
         """Wait until the block and event publishers have ``want`` matched subscribers each and
         the counts have not changed for SETTLE_S (readers discovered together all match; a pull
-        event sent before a reader matched would be lost to it). False if the node stops."""
+        event sent before a reader matched would be lost to it). False if the node stops, or
+        after ``timeout_s`` (0: no limit): then the node fails (``failure``, one line)."""
         if not want:
             return True
-        pubs = [self.event_pub] + [p for t, p in self.block_pubs if t.topic == '/force']
-        counts, since = None, time.monotonic()
+        pubs = [self.event_pub] + [p for t, p in self.block_pubs if t.topic == FORCE_TOPIC]
+        counts, start = None, time.monotonic()
+        since = start
         while True:
             now = [p.get_subscription_count() for p in pubs]
             if now != counts:
                 counts, since = now, time.monotonic()
-                self.get_logger().info(f'matched subscribers: {PULL_EVENT_TOPIC} {now[0]}, /force {now[1]} '
-                                       f'(waiting for {want} each)')
+                self.get_logger().info('matched subscribers: ' + ', '.join(
+                    f'{p.topic_name} {n}' for p, n in zip(pubs, now)) + f' (waiting for {want} each)')
             if min(now) >= want and time.monotonic() - since >= SETTLE_S:
                 return True
+            if timeout_s and time.monotonic() - start >= timeout_s:
+                self._give_up(pubs, now, want, timeout_s)
+                return False
             if self._stop.wait(0.05):
                 return False
 
+    def _give_up(self, pubs, counts, want: int, timeout_s: float) -> None:
+        """The readers never came: one line saying which topics (resolved names), the readers they
+        have, the readers wanted and what to start; then the node shuts down (spin_nodes prints it)."""
+        have = []
+        for pub, n in zip(pubs, counts):
+            nodes = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                            for i in self.get_subscriptions_info_by_topic(pub.topic_name)})
+            have.append(f"{pub.topic_name} has {n} ({', '.join(nodes) or 'no reader'})")
+        short = [(pub.topic_name, topic) for pub, n, topic in zip(pubs, counts, (PULL_EVENT_TOPIC, FORCE_TOPIC))
+                 if n < want]
+        start = '; '.join(f'{name}: {READERS[topic]}' for name, topic in short)
+        namespace = self.get_namespace()
+        where = f' with -r __ns:={namespace}' if namespace != '/' else ''
+        self.failure = SimError(
+            f'no readers after {timeout_s:g} s (wait_timeout_s): {"; ".join(have)}; waiting for {want} on each '
+            f'(wait_for_subscribers {want}). Start the missing reader(s){where} ({start}), or set '
+            f'wait_for_subscribers to the readers you run')
+        self.diag.report(ERROR, str(self.failure), log=False, latch=True)
+        self.context.try_shutdown()
+
     def _publish_all(self):
-        if not self._wait_for_subscribers(self.params.values['wait_for_subscribers']):
+        if not self._wait_for_subscribers(self.params.values['wait_for_subscribers'],
+                                          self.params.values['wait_timeout_s']):
             return
         config = self.params.config
         pulls = list(self._schedule(config))
@@ -118,6 +158,9 @@ class SimNode(Node):
         index = 0  # samples published so far: the sample clock
         seqs = [0] * len(self.block_pubs)
         # the next pull is simulated in a worker process, so the publishing thread keeps its pace
+        # (with SIGINT blocked: a terminal's Ctrl-C reaches the whole process group, and shutting the
+        # worker down is this node's job)
+        keep_sigint_from_workers()
         with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
                                  max_tasks_per_child=WORKER_PULLS, initializer=exit_with_parent,
                                  initargs=(os.getpid(),)) as pool:

@@ -19,7 +19,13 @@ import threading
 import time
 from pathlib import Path
 
-from force_tester_common.core.channels import CORRECTED_TYPE, PULL_EVENT_TOPIC, PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC
+from force_tester_common.core.channels import (
+    CORRECTED_TYPE,
+    PULL_EVENT_TOPIC,
+    PULL_SCORE_LATEST_TOPIC,
+    PULL_SCORE_TOPIC,
+    SET_SUMMARY_TOPIC,
+)
 from force_tester_common.core.correction import WINDOW
 from force_tester_common.core.units import LBF_N
 
@@ -90,7 +96,8 @@ def extension_args(extension: Path) -> dict:
                                extra=['--ros-args', '-r', '__node:=correction_extension', *remap(CORRECTED_TOPIC)]),
             'validator': dict(key='validator_extension',
                               extra=['--ros-args', '-r', '__node:=validator_extension',
-                                     *remap(CORRECTED_TOPIC, PULL_SCORE_TOPIC, SET_SUMMARY_TOPIC)])}
+                                     *remap(CORRECTED_TOPIC, PULL_SCORE_TOPIC, PULL_SCORE_LATEST_TOPIC,
+                                            SET_SUMMARY_TOPIC)])}
 
 
 def resolve_extension(choice: str, say=print) -> Path | None:

@@ -17,7 +17,8 @@ rate. Anything that cannot be paired is discarded and reported as an :class:`Ali
 - ``rate_mismatch`` / ``length_mismatch``: blocks with the same stamp disagree; all discarded.
 - ``discontinuity``: an emitted pair does not follow the previous pair without a gap (see
   :func:`follows`). The pair carries ``continuous=False``; callers should reset filter state.
-  (Not reported for the first pair, which is also ``continuous=False``.)
+  (Not reported for the first pair, nor for the first pair of a new run: both are also
+  ``continuous=False``, and the new run was reported once, as ``new_run``.)
 
 The rules are also exported as functions on arrays (:func:`rates_equal`, :func:`follows`,
 :func:`clean_pairing`), so a reader that decodes whole topics at once (offline ``correct``'s
@@ -143,6 +144,7 @@ class _Block:
     rate_hz: float
     n: int
     payload: Any
+    run: int = 0     # the channel's run the block belongs to (_Channel.run when it came)
 
 
 @dataclass
@@ -150,6 +152,7 @@ class _Channel:
     last_seq: Optional[int] = None
     last_stamp: Optional[int] = None
     last_end: Optional[int] = None   # where the previous block's samples end (its end stamp)
+    run: int = 0                     # new runs seen on this channel
     pending: "OrderedDict[int, _Block]" = field(default_factory=OrderedDict)
 
 
@@ -186,6 +189,7 @@ class BlockAligner:
         self._new_run_gap_ns = seconds_to_ns(new_run_gap_s)
         self._ch: Dict[str, _Channel] = {c: _Channel() for c in names}
         self._last_pair: Optional[AlignedPair] = None
+        self._last_runs: Optional[Tuple[int, ...]] = None   # the runs of the last pair's blocks
         self.pairs_emitted = 0
         self.event_counts: Dict[str, int] = {k: 0 for k in EVENT_KINDS}
 
@@ -200,6 +204,7 @@ class BlockAligner:
         """Forget all pending blocks and sequence history."""
         self._ch = {c: _Channel() for c in self._names}
         self._last_pair = None
+        self._last_runs = None
 
     def _channel(self, channel: str) -> _Channel:
         try:
@@ -241,12 +246,14 @@ class BlockAligner:
                             f"seq {seq} stamp {stamp_ns} ns received twice; block discarded")
                 return pairs, events
             if seq <= ch.last_seq or stamp_ns <= ch.last_stamp:
+                ch.run += 1
                 old = len(ch.pending)
                 ch.pending.clear()
                 self._event(events, 'new_run', channel, seq, stamp_ns,
                             f"seq {seq} stamp {stamp_ns} ns after seq {ch.last_seq} stamp {ch.last_stamp} ns: "
                             f"the source restarted or replays; {old} pending block(s) of the old run discarded")
             elif stamp_ns - ch.last_end > self._new_run_gap_ns:
+                ch.run += 1
                 self._event(events, 'new_run', channel, seq, stamp_ns,
                             f"stamp {stamp_ns} ns is {(stamp_ns - ch.last_end) / NS_PER_S:.3f} s after the previous "
                             f"block ended (new_run_gap_s {self._new_run_gap_ns / NS_PER_S:g})")
@@ -256,7 +263,7 @@ class BlockAligner:
                             f"{seq - ch.last_seq - 1} block(s) missing")
         ch.last_seq, ch.last_stamp = seq, stamp_ns
         ch.last_end = end_stamp_ns(stamp_ns, n_samples, rate)
-        blk = _Block(stamp_ns, seq, rate, n_samples, payload)
+        blk = _Block(stamp_ns, seq, rate, n_samples, payload, ch.run)
 
         # 2. match against the other channels
         others = [c for c in self._names if c != channel]
@@ -313,8 +320,10 @@ class BlockAligner:
     def _make_pair(self, group: Dict[str, _Block], events) -> AlignedPair:
         ref = group[self._names[0]]
         prev = self._last_pair
+        runs = tuple(group[c].run for c in self._names)
         continuous = False
-        if prev is not None:
+        # the first pair of a new run follows nothing: its new_run event said so, once
+        if prev is not None and runs == self._last_runs:
             continuous = bool(follows(prev.stamp_ns, prev.n_samples, prev.sample_rate_hz,
                                       ref.stamp_ns, ref.rate_hz))
             if not continuous:
@@ -329,6 +338,6 @@ class BlockAligner:
             payloads={c: group[c].payload for c in self._names},
             seqs={c: group[c].seq for c in self._names},
             continuous=continuous)
-        self._last_pair = pair
+        self._last_pair, self._last_runs = pair, runs
         self.pairs_emitted += 1
         return pair

@@ -36,7 +36,8 @@ PULL_START = 0
 PULL_END = 1
 
 PULL_SCORE_TYPE = 'force_tester_msgs/msg/PullScore'
-PULL_SCORE_TOPIC = '/pull_score'
+PULL_SCORE_TOPIC = '/pull_score'          # every score, latched: the history (the last SCORE_QOS depth)
+PULL_SCORE_LATEST_TOPIC = '/pull_score_latest'   # the newest score only, latched (depth 1): for late joiners
 SET_SUMMARY_TYPE = 'force_tester_msgs/msg/SetSummary'
 SET_SUMMARY_TOPIC = '/set_summary'
 DIAGNOSTICS_TOPIC = '/diagnostics'
