@@ -1,4 +1,4 @@
-"""Benchmark of `discover` (README, "What the simulation gets wrong"): identification and false-alarm rates,
+"""Benchmark of `discover` (docs/discovery.md): identification and false-alarm rates,
 and the time of a 100-pull
 analysis with its split (the stages, and the re-simulation of the held-out pulls).
 

@@ -1,4 +1,4 @@
-"""Benchmark of the simulation check (README, "What the simulation gets wrong"): time and per-channel gains of
+"""Benchmark of the simulation check (docs/discovery.md): time and per-channel gains of
 re-simulating held-out pulls
 with the model of record and with the model of record + extension.
 

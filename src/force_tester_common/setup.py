@@ -11,7 +11,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        # the rigs' parameter files (README, "Several rigs on one machine"); config/rigs at the
+        # the rigs' parameter files (docs/nodes.md, "Several rigs on one machine"); config/rigs at the
         # workspace root links here. get_package_share_directory(package_name) + '/config/rigs'
         ('share/' + package_name + '/config/rigs', glob('config/rigs/*.yaml')),
     ],

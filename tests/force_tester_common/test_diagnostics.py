@@ -1,4 +1,4 @@
-"""Every node stays visibly alive on /diagnostics (README, "Watching live"): the heartbeat of
+"""Every node stays visibly alive on /diagnostics (docs/monitoring.md): the heartbeat of
 force_tester_common.ros.Diagnostics, and the node states of force_tester_common.core.health."""
 import time
 

@@ -1,4 +1,4 @@
-"""Campaigns on Dask (README, "Campaigns on Dask"): the same campaign generated, imported, exported and corrected on a
+"""Campaigns on Dask (docs/campaigns.md): the same campaign generated, imported, exported and corrected on a
 distributed.LocalCluster with 2 worker processes gives the same bytes as the default path; a scheduler that
 does not answer, a corrupt pull file and a worker killed mid-campaign are reported by the CLIs."""
 from __future__ import annotations

@@ -12,7 +12,7 @@ from typing import Dict
 
 from .clock import NS_PER_S, seconds_to_ns
 
-#: every node publishes its status on /diagnostics at least this often (>= 1 Hz: README, "Watching live")
+#: every node publishes its status on /diagnostics at least this often (>= 1 Hz: docs/monitoring.md)
 HEARTBEAT_S = 1.0
 #: a status older than this is STALE (a viewer's usual timeout is a few heartbeats)
 STALE_S = 3.0
