@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from ft_cli.paths import ROOT
 
 
 @pytest.mark.slow
