@@ -25,6 +25,7 @@ def test_without_ros_home_it_is_dot_ros_in_the_home_directory(tmp_path, monkeypa
 def test_the_shipped_rig_files_keep_their_scores_under_ros_home():
     """A relative state_file in config/rigs (the README recipe runs from any directory)."""
     import yaml
+
     from ft_cli.paths import ROOT
     for f in sorted((ROOT / 'config' / 'rigs').glob('*.yaml')):
         for node, section in yaml.safe_load(f.read_text()).items():

@@ -1,4 +1,4 @@
-"""Several rigs on one machine (docs/nodes.md, "Running nodes by hand"): each rig's sim, correction and validator under its own
+"""Several rigs on one machine (docs/nodes.md): each rig's sim, correction and validator under its own
 namespace, as separate processes or with every rig's correction and validator composed in one
 process, through `./ft bench rigs` (real processes over Fast DDS)."""
 import json
@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from ft_cli.paths import ROOT
 
 
