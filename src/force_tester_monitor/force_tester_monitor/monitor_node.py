@@ -37,7 +37,6 @@ from force_tester_common.ros import EVENT_QOS, OK, SCORE_QOS, SUMMARY_QOS, WARN,
 
 from .core import params as P
 from .core.batch import decode_batch
-from .core.errors import MonitorError
 from .core.health import TopicStats, recorder_counts
 from .core.live import SIGNALS, ForceJoin, LiveTrace, PullTraces
 from .foxglove_bridge import FoxgloveBridge, sdk_version
