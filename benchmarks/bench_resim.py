@@ -22,7 +22,7 @@ for sub in ('src/force_tester_sim', 'src/force_discovery', 'src/force_tester_com
 
 import generator as G  # noqa: E402  (the test generator)
 
-from force_discovery.core.discovery import prepare  # noqa: E402
+from force_discovery.core.prep import prepare  # noqa: E402
 from force_discovery.core.resim import simulation_check  # noqa: E402
 from force_tester_sim.core.departures import departures_from_data  # noqa: E402
 from force_tester_sim.core.params import TRUTH_YAML, load_rig  # noqa: E402

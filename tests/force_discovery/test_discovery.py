@@ -167,7 +167,9 @@ def test_stages_leave_their_inputs_unchanged(tmp_path):
     import copy
 
     from force_discovery.core import report as R
-    from force_discovery.core.discovery import Analysis, Decision, analyse, decide, leftover
+    from force_discovery.core.decision import Decision, decide
+    from force_discovery.core.in_memory import analyse, leftover
+    from force_discovery.core.stages import Analysis
     camp = make_campaign({'mains_hum': {'frequency_hz': 50.0, 'amplitude_n': 3.0}}, seed=11, sets=(3,), pulls=4)
     channels = [{k: np.array(v, copy=True) for k, v in ch.items()} for _, ch in camp]
     rig = load_rig()
@@ -188,7 +190,7 @@ def test_stages_leave_their_inputs_unchanged(tmp_path):
 
 
 def test_non_finite_samples_are_counted_and_quoted():
-    from force_discovery.core.discovery import check_quality
+    from force_discovery.core.prep import check_quality
     meta, ch = make_campaign(None, seed=8, sets=(2,), pulls=1)[0]
     ch = dict(ch, accel_axial_m_s2=np.array(ch['accel_axial_m_s2'], float))
     ch['accel_axial_m_s2'][[10, 20, 30]] = np.nan
@@ -206,7 +208,8 @@ def _tolerant_rig(**tol):
 def test_verdict_follows_the_tolerance_band():
     """One campaign with a 5 % gain departure; the user's tolerance decides: named outside the band, within
     tolerance inside it, inconclusive when the interval straddles the edge (with the pulls that would settle it)."""
-    from force_discovery.core.discovery import analyse, decide
+    from force_discovery.core.decision import decide
+    from force_discovery.core.in_memory import analyse
     camp = make_campaign({'moving_cell_gain': {'gain': 1.05}}, seed=21, sets=(2, 3), pulls=4)
     analysis = analyse(camp, load_rig())
     c = analysis.candidates['moving_cell_gain']

@@ -17,8 +17,8 @@ import numpy as np
 from generator import make_campaign
 
 from force_discovery import cli as discover_cmd
-from force_discovery.core.discovery import Pull
 from force_discovery.core.pipeline import discover, discover_in_memory
+from force_discovery.core.prep import Pull
 from force_tester_sim.core.params import load_rig
 
 STREAMED = {'scheduler', 'failed_pulls', 'retried_pulls', 'plots'}   # keys that say how it ran, not what it found
@@ -66,7 +66,7 @@ def test_streamed_report_is_the_one_pass_report(tmp_path):
     import yaml
 
     from force_discovery.core import report as R
-    from force_discovery.core.discovery import decide
+    from force_discovery.core.decision import decide
     from force_discovery.core.stream import Stream
     from force_tester_common.engine import Mapper
     deps = {'mount_resonance': {'frequency_hz': 1100.0, 'damping_ratio': 0.02}, 'coulomb_friction': {'force_n': 120.0},

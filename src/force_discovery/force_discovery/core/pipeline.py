@@ -10,8 +10,10 @@ from typing import Callable, Optional
 from force_tester_sim.core.departures import departures_from_data
 
 from . import report as R
-from .discovery import TERMS, analyse, decide, leftover
+from .decision import decide
 from .errors import DiscoveryError
+from .force_model import TERMS
+from .in_memory import analyse, leftover
 from .resim import simulation_check
 from .stream import discover_stream
 

@@ -12,11 +12,18 @@ import numpy as np
 
 from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
 
-from . import discovery as D
 from . import quality as Q
+from . import stages
+from .decision import NONLIN_SHARE, Decision
+from .force_model import TERMS, ForceModel, fit_terms
+from .leftover import UNEXPLAINED_SHARE
+from .prep import Pull
+from .ringing import MOUNT_MAX_FRACTION, cell_modes, damped_basis, mount_from_observed
+from .significance import MIN_REL_REDUCTION, MIN_T
+from .stages import CATALOG_PARAMS, MIN_PULLS, Analysis
 from .uncertainty import INCONCLUSIVE, WITHIN
 
-FORCE_CHANNEL = ('mains_hum',) + D.TERMS
+FORCE_CHANNEL = ('mains_hum',) + TERMS
 PLOT_FFT = 2 ** 15   # points of the residual spectra in residuals.png
 
 
@@ -48,7 +55,7 @@ class ErrorPart:
     plot: Optional[dict] = None        # the residuals themselves ('pull', 't', 'dt', 'base', 'ext'), when kept
 
 
-def error_part(p: D.Pull, base: np.ndarray, ext: np.ndarray, keep: bool = False) -> ErrorPart:
+def error_part(p: Pull, base: np.ndarray, ext: np.ndarray, keep: bool = False) -> ErrorPart:
     """ErrorPart of held-out pull p from its residuals on W (ForceModel.resid), which it zeroes where masked;
     keep: keep the residuals for the plot."""
     bad = ~p.usable(p.w0, p.w1)    # masked (repaired) samples are no evidence: zero residual
@@ -82,14 +89,14 @@ class ForceErrors:
         return _rms(self.base_sse, self.samples), _rms(self.ext_sse, self.samples)
 
 
-def force_errors(analysis: D.Analysis, named, rig) -> ForceErrors:
+def force_errors(analysis: Analysis, named, rig) -> ForceErrors:
     """Held-out force-channel residual per pull: baseline (model of record) and extended (named causes)."""
     pulls, fit, held = analysis.pulls, analysis.fit, analysis.held
     m2 = rig.force_chain.m2
-    fm0 = D.ForceModel(pulls, m2)
-    fm1 = D.ForceModel(pulls, m2, analysis.hums if 'mains_hum' in named else None)
-    terms = set(n for n in named if n in D.TERMS)
-    coef, d = D.fit_terms(fm1, terms, fit)
+    fm0 = ForceModel(pulls, m2)
+    fm1 = ForceModel(pulls, m2, analysis.hums if 'mains_hum' in named else None)
+    terms = set(n for n in named if n in TERMS)
+    coef, d = fit_terms(fm1, terms, fit)
     out = ForceErrors()
     for k, j in enumerate(held):
         out.add(error_part(pulls[j], fm0.resid(set(), {}, 0.0, j), fm1.resid(terms, coef, d, j), keep=k == 0))
@@ -126,7 +133,7 @@ def _rms(sses, n: int) -> float:
     return float(math.sqrt(sum(sses) / n))
 
 
-def candidates(analysis: D.Analysis, decision: D.Decision) -> dict:
+def candidates(analysis: Analysis, decision: Decision) -> dict:
     """The analysis's candidates with the decision's verdicts filled in."""
     out = {}
     for n, c in analysis.candidates.items():
@@ -140,12 +147,12 @@ def candidates(analysis: D.Analysis, decision: D.Decision) -> dict:
 
 def _entry(n: str, c: dict) -> dict:
     """A candidate as listed in report.json: parameters, their 95 % intervals, the tolerance verdict."""
-    return {'name': n, 'parameters': {k: float(c['parameters'][k]) for k in D.CATALOG_PARAMS[n]},
-            'parameters_ci95': {k: [float(v) for v in c['parameters_ci95'][k]] for k in D.CATALOG_PARAMS[n]},
+    return {'name': n, 'parameters': {k: float(c['parameters'][k]) for k in CATALOG_PARAMS[n]},
+            'parameters_ci95': {k: [float(v) for v in c['parameters_ci95'][k]] for k in CATALOG_PARAMS[n]},
             'tolerance': c['tolerance']}
 
 
-def build_report(analysis: D.Analysis, decision: D.Decision, errors: ForceErrors, left, rig) -> dict:
+def build_report(analysis: Analysis, decision: Decision, errors: ForceErrors, left, rig) -> dict:
     """The report (JSON-ready). errors: force_errors() of the analysis and the named causes."""
     named = decision.named
     cand = candidates(analysis, decision)
@@ -161,7 +168,7 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: ForceErrors
             'dominant_frequency_hz': left['dominant_frequency_hz'], 'correlated_channel': left['correlated_channel'],
             'share_of_residual_variance': left['share_of_residual_variance']},
             'evidence': {'statistic': 'residual variance share above the quiet-record floor',
-                         'value': left['share_of_residual_variance'], 'threshold': D.UNEXPLAINED_SHARE,
+                         'value': left['share_of_residual_variance'], 'threshold': UNEXPLAINED_SHARE,
                          'rule': left['rule']}, 'gain': 1.0})
     if primary in ('mount_resonance', 'coulomb_friction') and not any(n in FORCE_CHANNEL for n in named):
         # RMS on the cause's own channel (held-out); no other channel changes
@@ -195,13 +202,13 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: ForceErrors
         'held_out_pulls': analysis.held_out_pulls,
         'significance_rule': (f'a candidate is named when, on the held-out pulls, removing it from the extended '
                               f'model raises the summed squared residual of its channel by >= '
-                              f'{100 * D.MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {D.MIN_T:g}, '
+                              f'{100 * MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {MIN_T:g}, '
                               f'AND its 95 % interval (jackknife or bootstrap over pulls) lies wholly outside '
                               f'its tolerance band (rig tolerances:); inside the band it is within_tolerance, '
                               f'across an edge inconclusive; '
-                              f'a mount mode must also lie below {D.MOUNT_MAX_FRACTION} x the cell mode; '
+                              f'a mount mode must also lie below {MOUNT_MAX_FRACTION} x the cell mode; '
                               f'force-channel causes are withheld when a T^2 term removes > '
-                              f'{100 * D.NONLIN_SHARE:g} % of the held-out force residual left by them'),
+                              f'{100 * NONLIN_SHARE:g} % of the held-out force residual left by them'),
         'candidates': {n: {'parameters': c['parameters'], 'parameters_ci95': c['parameters_ci95'],
                            'tolerance': c['tolerance'], 'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
@@ -214,14 +221,14 @@ def build_report(analysis: D.Analysis, decision: D.Decision, errors: ForceErrors
     return _clean(report)
 
 
-def run_section(analysis: D.Analysis) -> dict:
+def run_section(analysis: Analysis) -> dict:
     """report.json: the pulls that could not be analysed (failed_pulls: name and why), those rerun after a worker
     died (retried_pulls), and where the per-pull stages ran (scheduler)."""
     return {'failed_pulls': [{'pull': n, 'error': e} for n, e in analysis.failed],
             'retried_pulls': list(analysis.retried), 'scheduler': analysis.scheduler or None}
 
 
-def quality_section(analysis: D.Analysis) -> list:
+def quality_section(analysis: Analysis) -> list:
     """report.json data_quality: every defect found, {pull, channel, kind, t_start_s, t_end_s, detail}, and one
     entry (kind 'excluded') per pull the screen left out."""
     rows = Q.defect_dicts(analysis.screens)
@@ -239,13 +246,13 @@ def add_simulation(report: dict, check) -> None:
     report['simulation_check'] = None if check is None else _clean(check.details())
 
 
-def unusable_report(analysis: D.Analysis, rig) -> dict:
+def unusable_report(analysis: Analysis, rig) -> dict:
     """The report when the data-quality stage leaves too few pulls: unexplained, data_quality says why."""
     return _clean({
         'cause': 'unexplained',
         'causes': [{'name': 'unexplained', 'parameters': {}, 'gain': None,
                     'evidence': {'statistic': 'pulls usable after the data-quality screen',
-                                 'value': len(analysis.quality) - len(analysis.excluded), 'threshold': D.MIN_PULLS,
+                                 'value': len(analysis.quality) - len(analysis.excluded), 'threshold': MIN_PULLS,
                                  'rule': 'defects leave too few pulls to fit and hold out; see data_quality'}}],
         'baseline_error': None, 'extended_error': None, 'gain': None, 'metric': 'none: no pulls to score',
         'within_tolerance': [], 'inconclusive': [], 'candidates': {}, 'leftover': None,
@@ -254,7 +261,7 @@ def unusable_report(analysis: D.Analysis, rig) -> dict:
         'data_quality': quality_section(analysis), 'notes': list(analysis.notes), **run_section(analysis)})
 
 
-def _ring_rms(analysis: D.Analysis, rig):
+def _ring_rms(analysis: Analysis, rig):
     ring = analysis.ring
     b = e = n = 0.0
     for sb, se, ns in zip(ring['sse_base'], ring['sse_ext'], ring['samples']):
@@ -264,12 +271,12 @@ def _ring_rms(analysis: D.Analysis, rig):
     return math.sqrt(b / n), math.sqrt(e / n)
 
 
-def _current_rms(analysis: D.Analysis, rig, fcf):
+def _current_rms(analysis: Analysis, rig, fcf):
     fr = analysis.friction
     return math.sqrt(sum(fr['sse_base']) / sum(fr['samples'])), math.sqrt(sum(fr['sse_ext']) / sum(fr['samples']))
 
 
-def named_extension(analysis: D.Analysis, decision: D.Decision, rig) -> dict:
+def named_extension(analysis: Analysis, decision: Decision, rig) -> dict:
     """extension() of the report build_report() will write, from the named causes alone (it needs nothing else
     of the report): the stream re-simulates with it before the report exists."""
     cand = candidates(analysis, decision)
@@ -282,14 +289,14 @@ def extension(report, rig) -> dict:
     The mount is identified as the mode seen in the measured channels; the sim's mount_resonance parameters
     are the mount's own, mapped from it through the carriage-mount-bracket-cell-m2 chain with an assumed
     bracket mass (stated in extension.yaml, key assumptions)."""
-    deps = {c['name']: dict(c['parameters']) for c in report['causes'] if c['name'] in D.CATALOG_PARAMS}
+    deps = {c['name']: dict(c['parameters']) for c in report['causes'] if c['name'] in CATALOG_PARAMS}
     fc = rig.force_chain
     m2 = float(deps.get('effective_mass', {}).get('mass_kg', fc.m2))
     assumptions = {}
     if 'mount_resonance' in deps:
         obs = deps['mount_resonance']
         mb = MOUNT_BASE_MASS_FRACTION * m2
-        f, z = D.mount_from_observed(obs['frequency_hz'], obs['damping_ratio'], m2, fc.load_cell_stiffness_n_per_m,
+        f, z = mount_from_observed(obs['frequency_hz'], obs['damping_ratio'], m2, fc.load_cell_stiffness_n_per_m,
                                      fc.load_cell_damping_ratio, mb)
         deps['mount_resonance'] = {'frequency_hz': f, 'damping_ratio': z, 'base_mass_kg': mb}
         assumptions['mount_resonance'] = (
@@ -310,7 +317,7 @@ def extension(report, rig) -> dict:
     return out
 
 
-def write_outputs(report, analysis: D.Analysis, errors: Optional[ForceErrors], named, rig, out: Path, check=None,
+def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], named, rig, out: Path, check=None,
                   ext: dict | None = None) -> None:
     """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
     simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png; ext: extension()
@@ -406,7 +413,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
     for note in r['notes']:
         L.append(f'- note: {note}')
     L += [''] + Q.markdown_lines(screens, excluded) + run_lines(r)
-    L += ['## Method', '', D.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
+    L += ['## Method', '', stages.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
     L += simulation_lines(r)
     if r.get('leftover'):
         lo = r['leftover']
@@ -506,7 +513,7 @@ def _simulation_plot(check, out: Path) -> list:
     return [str(path)]
 
 
-def _plots(analysis: D.Analysis, errors: Optional[ForceErrors], named, rig, out: Path):
+def _plots(analysis: Analysis, errors: Optional[ForceErrors], named, rig, out: Path):
     try:
         import matplotlib
         matplotlib.use('Agg')
@@ -543,9 +550,9 @@ def _plots(analysis: D.Analysis, errors: Optional[ForceErrors], named, rig, out:
         tt = np.arange(len(seg)) * dt * 1e3
         fig, ax = plt.subplots(figsize=(8, 3.5))
         ax.plot(tt, seg, lw=0.6, label='measured a2 - a3 after the break')
-        for lab, modes in (('model of record (cell mode)', D.cell_modes(fc)),
-                           ('extended (mount mode)', D.cell_modes(fc) + [(ring['fo'], ring['zo'])])):
-            X = np.hstack([D.damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
+        for lab, modes in (('model of record (cell mode)', cell_modes(fc)),
+                           ('extended (mount mode)', cell_modes(fc) + [(ring['fo'], ring['zo'])])):
+            X = np.hstack([damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
             c, *_ = np.linalg.lstsq(X, seg, rcond=None)
             ax.plot(tt, seg - X @ c, lw=0.6, label=f'residual, {lab}')
         ax.set_xlabel('ms after the break')
