@@ -8,6 +8,7 @@ from typing import Tuple
 
 from force_tester_sim.core.tolerances import BAND_PARAMETER, band
 
+from .candidate import Candidate
 from .force_model import TERMS
 from .stages import Analysis
 from .uncertainty import NAMED, verdict
@@ -32,23 +33,23 @@ CAUSE_ORDER = ('mains_hum', 'moving_cell_gain', 'effective_mass', 'accel_delay',
                'mount_resonance', 'coulomb_friction')
 
 
-def _admissible(name: str, c: dict) -> bool:
-    if not c['evidence'].get('significant'):
+def _admissible(name: str, c: Candidate) -> bool:
+    if not c.evidence.significant:
         return False
     if name == 'coulomb_friction':
-        return c['parameters']['force_n'] > 0   # the catalog's dry friction opposes the motion
+        return c.parameters['force_n'] > 0   # the catalog's dry friction opposes the motion
     if name == 'ac_coupling':
-        tau = c['parameters']['time_constant_s']
+        tau = c.parameters['time_constant_s']
         return tau > 0 and math.isfinite(tau)
     return True
 
 
-def tolerance_input(name: str, c: dict) -> Tuple[float, Tuple[float, float]]:
+def tolerance_input(name: str, c: Candidate) -> Tuple[float, Tuple[float, float]]:
     """(estimate, 95 % interval) of the quantity the cause's tolerance band applies to."""
     par = BAND_PARAMETER[name][0]
-    if par in c['parameters']:
-        return c['parameters'][par], tuple(c['parameters_ci95'][par])
-    return c['evidence'][par], tuple(c['evidence'][par + '_ci95'])
+    if par in c.parameters:
+        return c.parameters[par], tuple(c.parameters_ci95[par])
+    return c.evidence.value(par), tuple(c.evidence.value(par + '_ci95'))
 
 
 def decide(analysis: Analysis, rig) -> Decision:
@@ -61,10 +62,10 @@ def decide(analysis: Analysis, rig) -> Decision:
         if n in cand:
             est, ci = tolerance_input(n, cand[n])
             verdicts[n] = verdict(est, ci, band(n, rig.tolerances, rig.force_chain.m2), _admissible(n, cand[n]),
-                                  cand[n]['ci_pulls'])
+                                  cand[n].ci_pulls)
     named = [n for n, v in verdicts.items() if v['verdict'] == NAMED]
     rejected, notes = {}, []
-    nl = cand['moving_cell_gain']['evidence']['t_squared_rel_reduction']
+    nl = cand['moving_cell_gain'].evidence.t_squared_rel_reduction
     if nl > NONLIN_SHARE:
         for n in named:
             if n in TERMS:
@@ -73,5 +74,5 @@ def decide(analysis: Analysis, rig) -> Decision:
         named = [n for n in named if n not in TERMS]
         notes.append('the moving cell departs from T non-linearly (T^2 term significant); the force-channel '
                      'catalog entries do not explain it')
-    named.sort(key=lambda n: -cand[n]['evidence']['rel_sse_reduction'])
+    named.sort(key=lambda n: -cand[n].evidence.rel_sse_reduction)
     return Decision(tuple(named), verdicts, rejected, tuple(notes))

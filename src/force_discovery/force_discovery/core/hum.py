@@ -31,7 +31,8 @@ def few_pulls(fit: Sequence[int]) -> list:
 
 
 def hum_frequency_from(pres: Sequence[Tuple[np.ndarray, np.ndarray]], dt: float) -> Tuple[float, dict]:
-    """fit_hum_frequency() on the pulls' pre-pull residuals pres = [(t, r)] (pre_residual), dt: the first one's."""
+    """The hum frequency: the one maximizing the summed (per-pull, free phase) line power of the pre-pull residuals
+    pres = [(t, r)] (pre_residual), 45-65 Hz; dt: the first one's sample interval."""
     def power(f):
         tot = 0.0
         for t, r in pres:
@@ -56,7 +57,7 @@ def hum_frequency_from(pres: Sequence[Tuple[np.ndarray, np.ndarray]], dt: float)
 
 
 def hum_frequency_near(t: np.ndarray, r: np.ndarray, f0: float) -> float:
-    """hum_frequency_per_pull() on the pull's pre-pull residual (t, r)."""
+    """One pull's own least-squares hum frequency near f0, from its pre-pull residual (t, r) (pre_residual)."""
     from scipy.optimize import minimize_scalar
 
     def neg_power(f):

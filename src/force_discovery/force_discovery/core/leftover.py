@@ -30,8 +30,8 @@ class LeftoverPart:
 
 
 def leftover_part(p: Pull, hum: Optional[np.ndarray], r: np.ndarray, rig) -> LeftoverPart:
-    """One held-out pull's share of leftover(): r is its force residual on W after the extension (ForceModel.resid),
-    hum its hum estimate when the hum is significant (else None)."""
+    """One held-out pull's share of the structure check: r is its force residual on W after the extension
+    (ForceModel.resid), hum its hum estimate when the hum is significant (else None)."""
     ok = p.usable(p.w0, p.w1)
     # masked (repaired) samples are zeroed before the band limit: a repaired span's residual would otherwise
     # ring through the brick-wall filter into the samples kept
@@ -69,7 +69,7 @@ class LeftoverSum:
             self.corr.setdefault(nm, []).append(c)
 
     def result(self, dt: float) -> dict:
-        """The structure check (see leftover()); dt: the campaign's sample interval."""
+        """The structure check (module docstring); dt: the campaign's sample interval."""
         vw, vq, spec, corr = self.vw, self.vq, self.spec, self.corr
         share = 1.0 - float(np.mean(vq)) / float(np.mean(vw)) if np.mean(vw) > 0 else 0.0
         f = np.fft.rfftfreq(2 ** 16, dt)
@@ -83,7 +83,7 @@ class LeftoverSum:
 
 
 def leftover_from(parts: Iterable[LeftoverPart], dt: float) -> dict:
-    """leftover() from the held-out pulls' leftover_part()s, in pull order."""
+    """The structure check from the held-out pulls' leftover_part()s, in pull order."""
     acc = LeftoverSum()
     for part in parts:
         acc.add(part)

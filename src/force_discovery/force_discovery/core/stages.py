@@ -28,16 +28,19 @@ Ranked by the held-out relative reduction of their channel's squared residual --
 structure (force residual variance in W, below 4 kHz, away from the load/break steps, vs the at-rest floor) with
 nothing named gives `unexplained`.
 """
+# This module's docstring is the Method section of report.md (markdown.py): keep it the method as run.
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Optional, Sequence, Tuple
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
 from force_tester_sim.core.departures import CATALOG
 
+from .candidate import Candidate, Evidence
 from .force_model import TERMS, force_params, force_params_ci
 from .friction import friction_stat
 from .hum import hum_frequency_near
@@ -57,26 +60,45 @@ def split(pulls: Sequence):
 
 
 @dataclass(frozen=True)
+class PullInfo:
+    """A usable pull as the Analysis keeps it (no arrays)."""
+
+    name: str
+    dt: float
+    samples: int
+    w0: int
+    w1: int
+
+
+@dataclass(frozen=True)
+class HumScales:
+    """Analysis.hums: the hum frequency and the factor on each pull's own hum estimate (hum.hum_per_pull; 1 on a
+    fitted pull, the fitted pulls' mean amplitude over the pull's own on a held-out one)."""
+
+    frequency_hz: float
+    scales: tuple
+
+
+@dataclass(frozen=True)
 class Analysis:
     """Everything the stages measured (no files, nothing decided yet)."""
 
-    pulls: tuple                 # per usable pull: its Pull (analyse) or PullInfo (stream.analyse_stream)
+    pulls: Tuple[PullInfo, ...]  # per usable pull, in campaign order
     quality: tuple               # PullQuality per campaign pull
     fit: tuple                   # list positions of the fitted pulls
     held: tuple                  # list positions of the held-out pulls
-    hums: Optional[tuple]        # the mains hum per pull when it is significant (analyse: the arrays; the stream:
-    #                              HumScales), else None
-    candidates: dict             # catalog name -> {'parameters', 'evidence', 'channel', ...}
+    hums: Optional[HumScales]    # the mains hum when it is significant, else None
+    candidates: Dict[str, Candidate]   # catalog name -> what its stage found
     force: dict                  # the full force model: coef, delay_s, held-out SSE
     ring: Optional[dict]         # the observed free-decay mode, its held-out scores and one segment, if any
     notes: tuple = ()
     screens: tuple = ()          # quality.PullScreen per campaign pull (the data-quality stage)
     excluded: dict = field(default_factory=dict)   # pull name -> why the data-quality stage left it out
-    cells: Optional[dict] = None  # calibrate_cells(): the cells' damping ratio measured, and whether T used it
-    friction: Optional[dict] = None   # current_stage(): held-out squared current residuals without/with friction
+    cells: Optional[dict] = None  # cells.cell_calibration(): the cells' damping ratio measured, and whether T used it
+    friction: Optional[dict] = None   # held-out squared current residuals without/with friction, and their samples
     failed: tuple = ()           # (pull name, one line) per pull whose file could not be read or analysed
     retried: tuple = ()          # names of the pulls rerun because a worker died under them
-    scheduler: str = ''          # where the per-pull stages ran ('' for analyse(): in this process, one pass)
+    scheduler: str = ''          # where the per-pull stages ran
 
     @property
     def fitted_pulls(self) -> list:
@@ -91,53 +113,54 @@ FORCE_CHANNEL_TEXT = 'force_moving_n - (T + m2 a2), analysis window'
 
 
 def hum_candidate(f_hum: float, pres: Sequence[Tuple[np.ndarray, np.ndarray]], amps: Sequence[float], a_fit: float,
-                  fm_h, fm_0, fit, held) -> Tuple[dict, bool]:
+                  fm_h, fm_0, fit, held) -> Tuple[Candidate, bool]:
     """(the mains-hum candidate, whether it is significant) from the hum frequency f_hum, the few pulls' pre-pull
     residuals pres (for its interval), every pull's hum amplitude, and the full force model with (fm_h) and without
     (fm_0) the hum: a ForceModel or a ForceStats."""
     c_h, _, d_h = fm_h.fit_delay(set(TERMS), fit)
     c_0, _ = fm_0.fit(set(TERMS), fit, d_h)
     sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
-    sig['rms_gain_alone'] = significance(fm_0.sse_per_pull(set(), {}, 0.0, held),
-                                         fm_h.sse_per_pull(set(), {}, 0.0, held))['rms_gain']
+    alone = significance(fm_0.sse_per_pull(set(), {}, 0.0, held), fm_h.sse_per_pull(set(), {}, 0.0, held)).rms_gain
     ci = {'frequency_hz': list(bootstrap_ci([hum_frequency_near(t, r, f_hum) for t, r in pres], np.mean)),
           'amplitude_n': list(bootstrap_ci([amps[k] for k in fit], np.mean))}
-    cand = {'parameters': {'frequency_hz': f_hum, 'amplitude_n': a_fit}, 'parameters_ci95': ci, 'ci_pulls': len(fit),
-            'evidence': sig,
-            'channel': FORCE_CHANNEL_TEXT, 'where': f'whole record; line at {f_hum:.2f} Hz'}
-    return cand, bool(sig['significant'])
+    cand = Candidate({'frequency_hz': f_hum, 'amplitude_n': a_fit}, ci, len(fit),
+                     dataclasses.replace(sig, rms_gain_alone=alone), FORCE_CHANNEL_TEXT)
+    return cand, bool(sig.significant)
 
 
-def force_stage_from(fm_, fit, held, m2) -> Tuple[dict, dict]:
-    """force_stage() on a force model: a ForceModel (the pulls' arrays) or a ForceStats (their sufficient
-    statistics)."""
+def force_stage_from(fm_, fit, held, m2) -> Tuple[Dict[str, Candidate], dict]:
+    """The force-channel candidates (each tested by dropping it from the full model) and the full model, from a
+    force model: a ForceStats (the pulls' sufficient statistics) or a ForceModel (their arrays)."""
     full = set(TERMS)
     coef_full, _, d_full = fm_.fit_delay(full, fit)
     sse_full = fm_.sse_per_pull(full, coef_full, d_full, held)
     base_sse = fm_.sse_per_pull(set(), {}, 0.0, held)
     params_full = force_params(coef_full, d_full, m2)
     ci = force_params_ci(fm_.loo_fits(full, fit), coef_full, d_full, m2)
-    cand = {}
+    evidence = {}
     for term in TERMS:
         d = 0.0 if term == 'accel_delay' else d_full
         c, _ = fm_.fit(full - {term}, fit, d)
         sig = significance(fm_.sse_per_pull(full - {term}, c, d, held), sse_full)
         c1, _, d1 = (fm_.fit_delay({term}, fit) if term == 'accel_delay' else (*fm_.fit({term}, fit), 0.0))
-        sig['rms_gain_alone'] = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held))['rms_gain']
-        cand[term] = {'parameters': params_full[term], 'parameters_ci95': ci[term], 'ci_pulls': len(fit),
-                      'evidence': sig, 'channel': FORCE_CHANNEL_TEXT}
+        alone = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held)).rms_gain
+        evidence[term] = dataclasses.replace(sig, rms_gain_alone=alone)
     # non-linearity check for the gain: would T^2 explain more than a linear gain?
-    cand['moving_cell_gain']['evidence']['t_squared_rel_reduction'] = fm_.t2_reduction(coef_full, d_full, fit, held)
+    t2 = fm_.t2_reduction(coef_full, d_full, fit, held)
+    evidence['moving_cell_gain'] = dataclasses.replace(evidence['moving_cell_gain'], t_squared_rel_reduction=t2)
+    cand = {term: Candidate(params_full[term], ci[term], len(fit), evidence[term], FORCE_CHANNEL_TEXT)
+            for term in TERMS}
     force = {'coef': coef_full, 'delay_s': d_full, 'sse_base_held': base_sse.tolist(),
              'sse_full_held': sse_full.tolist()}
     return cand, force
 
 
 def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[RingPart]], names: Sequence[str],
-                    dt: float, fc) -> Tuple[Optional[dict], Optional[dict]]:
+                    dt: float, fc) -> Tuple[Optional[Candidate], Optional[dict]]:
     """The mount-resonance candidate (None, None without a free-decay mode) from the few fitted pulls'
     free_decay_mode() and the held-out pulls' ring_part() (with the observed_mode() of those modes); names: the
-    held-out pulls' names."""
+    held-out pulls' names. The mode is identified as it appears in the measured channels (extension.yaml maps it
+    to the mount: report's extension())."""
     obs = observed_mode(modes)
     if obs is None:
         return None, None
@@ -148,20 +171,18 @@ def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[R
     b = np.array([pt.sse_base for _, pt in ok])
     e = np.array([pt.sse_ext for _, pt in ok])
     r2n = np.array([pt.ring_to_noise for _, pt in ok])
-    sig = significance(b, e) if len(ok) >= 2 else {'significant': False, 'rel_sse_reduction': 0.0, 't': 0.0,
-                                                   'rms_gain': 1.0}
-    sig.update(observed_frequency_hz=fo, observed_damping_ratio=zo, cell_mode_hz=f_cell,
-               frequency_rule=f'observed < {MOUNT_MAX_FRACTION} x cell mode ({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)')
-    if fo >= MOUNT_MAX_FRACTION * f_cell:
-        sig['significant'] = False
+    sig = significance(b, e) if len(ok) >= 2 else Evidence(rel_sse_reduction=0.0, t=0.0, significant=False,
+                                                           rms_gain=1.0)
     ci = {'frequency_hz': list(bootstrap_ci([m[0] for m in modes])),
           'damping_ratio': list(bootstrap_ci([m[1] for m in modes]))}
-    sig['ring_to_noise'] = float(np.median(r2n)) if len(r2n) else 0.0
-    sig['ring_to_noise_ci95'] = list(bootstrap_ci(r2n)) if len(r2n) else [0.0, math.inf]
-    cand = {'parameters': {'frequency_hz': fo, 'damping_ratio': zo}, 'parameters_ci95': ci, 'ci_pulls': len(ok),
-            'evidence': sig,
-            'channel': 'accel_axial - a3(encoder), 0.2-30 ms after the break',
-            'identified': 'the mode as it appears in the measured channels (extension.yaml maps it to the mount)'}
+    sig = dataclasses.replace(
+        sig, significant=sig.significant and fo < MOUNT_MAX_FRACTION * f_cell,
+        observed_frequency_hz=fo, observed_damping_ratio=zo, cell_mode_hz=f_cell,
+        frequency_rule=f'observed < {MOUNT_MAX_FRACTION} x cell mode ({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)',
+        ring_to_noise=float(np.median(r2n)) if len(r2n) else 0.0,
+        ring_to_noise_ci95=tuple(bootstrap_ci(r2n)) if len(r2n) else (0.0, math.inf))
+    cand = Candidate({'frequency_hz': fo, 'damping_ratio': zo}, ci, len(ok), sig,
+                     'accel_axial - a3(encoder), 0.2-30 ms after the break')
     first = next(((n, pt) for n, pt in ok if pt.segment is not None), (None, None))
     ring = {'fo': fo, 'zo': zo, 'segment': first[1].segment if first[1] else None, 'segment_pull': first[0],
             'segment_dt': dt, 'sse_base': [pt.own_base for _, pt in ok], 'sse_ext': [pt.own_ext for _, pt in ok],
@@ -169,12 +190,11 @@ def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[R
     return cand, ring
 
 
-def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int) -> dict:
+def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int) -> Candidate:
     """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf, and the held-out
     pulls' friction_sse() without (b) and with (e) it."""
-    return {'parameters': {'force_n': fcf}, 'parameters_ci95': {'force_n': list(bootstrap_ci(rows, friction_stat))},
-            'ci_pulls': n_fit, 'evidence': significance(b, e),
-            'channel': 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)'}
+    return Candidate({'force_n': fcf}, {'force_n': list(bootstrap_ci(rows, friction_stat))}, n_fit,
+                     significance(b, e), 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)')
 
 
 def unusable_analysis(usable: int, total: int, quality: tuple, screens: tuple, excluded: dict, **run) -> Analysis:
@@ -184,15 +204,17 @@ def unusable_analysis(usable: int, total: int, quality: tuple, screens: tuple, e
                      f'at least {MIN_PULLS} are needed',), screens, excluded, **run)
 
 
-def candidate_notes(cand: dict, mount: Optional[dict], friction: Optional[dict]) -> list:
-    """Adds the mount and friction candidates to cand; the notes on the ones that could not be tested."""
-    notes = []
+def candidate_notes(cand: Dict[str, Candidate], mount: Optional[Candidate],
+                    friction: Optional[Candidate]) -> Tuple[Dict[str, Candidate], list]:
+    """(cand with the mount and friction candidates added when there are, the notes on the ones that could not be
+    tested)."""
+    notes, more = [], {}
     if mount is None:
         notes.append('no free decay after the break to analyse for a mount resonance')
     else:
-        cand['mount_resonance'] = mount
+        more['mount_resonance'] = mount
     if friction is None:
         notes.append('coulomb_friction not tested: the data has no motor_current_a channel')
     else:
-        cand['coulomb_friction'] = friction
-    return notes
+        more['coulomb_friction'] = friction
+    return {**cand, **more}, notes

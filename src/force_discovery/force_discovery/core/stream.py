@@ -1,13 +1,15 @@
-"""discover() with the pulls streamed (issue 16): memory does not grow with the number of pulls. ROS-free.
+"""The driver: discover() with the pulls streamed (issue 16): memory does not grow with the number of pulls.
+ROS-free.
 
-analyse() (discovery.py) holds every pull's arrays at once. Here each pull is read, prepared and reduced to a
-few small results, one pull at a time per worker, and only those results meet: the decision needs per-pull
+Each pull is read, prepared and reduced to a few small results, one pull at a time per worker, and only those
+results meet: the decision needs per-pull
 numbers (quality verdicts, free-decay ratios, hum amplitudes, friction offsets, squared residuals), the force
 model's sufficient statistics (force_stats.py) and a few arrays of a few pulls (the hum's pre-pull records of
-up to 12 fitted pulls, one free-decay segment and one pull's residuals and traces for the plots). The stages and
-their arithmetic are analyse()'s, shared with it (hum_candidate, force_stage_from, ring_stage_from,
-friction_candidate, leftover_part, error_part, resim_pull); only the force model's fits are made from the
-statistics instead of the stacked samples, which changes the order of the additions (agreement to rounding).
+up to 12 fitted pulls, one free-decay segment and one pull's residuals and traces for the plots). The arithmetic
+is the stages' (stages.py: hum_candidate, force_stage_from, ring_stage_from, friction_candidate; leftover_part,
+error_part, resim_pull); the force model's fits are made from the statistics (force_stats.ForceStats) instead of
+the stacked samples (force_model.ForceModel). tests/force_discovery/one_pass.py does the same work with every pull
+in memory: the oracle the stream is checked against (to rounding: the order of the additions differs).
 
 The per-pull work is four passes, each a top-level function of (pull, small settings) mapped over the pulls with
 the campaign engine (force_tester_common.engine.map_pulls: Dask, or inline); a pass needs what the earlier ones
@@ -47,23 +49,28 @@ import numpy as np
 
 from force_tester_sim.core.departures import departures_from_data
 
-from . import report as R
 from .cells import CAL_PULLS, calibration_note, cell_calibration, cell_damping_from, cell_zeta, with_tension
 from .decision import Decision, decide
 from .errors import DiscoveryError
+from .extension import named_extension
+from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
 from .friction import friction_row, friction_rows, friction_sse, friction_stat
 from .hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
 from .leftover import LeftoverPart, LeftoverSum, leftover_part
+from .outputs import write_outputs
 from .prep import Pull, PullQuality, check_quality, prepare
 from .quality import PullScreen, screen_pull
+from .report import add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
 from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
 from .source import PullRef, campaign_refs, load_channels, memory_refs
 from .stages import (
     MIN_PULLS,
     Analysis,
+    HumScales,
+    PullInfo,
     candidate_notes,
     force_stage_from,
     friction_candidate,
@@ -80,24 +87,13 @@ SPILL_SCALARS = ('dt', 'w0', 'w1', 'pre1', 'load0', 'brk', 'peak')
 
 # ------------------------------------------------------------------------------------------ per-pull results
 @dataclass(frozen=True)
-class PullInfo:
-    """A pull as the streamed Analysis keeps it (no arrays)."""
-
-    name: str
-    dt: float
-    samples: int
-    w0: int
-    w1: int
-
-
-@dataclass(frozen=True)
 class Survey:
     """What pass 1 found in one pull."""
 
     name: str
     quality: Optional[PullQuality] = None
     screen: Optional[PullScreen] = None
-    rejected: Optional[str] = None     # the pull is not analysable (DiscoveryError): the campaign stops, as analyse()
+    rejected: Optional[str] = None     # the pull is not analysable (DiscoveryError): the campaign stops
     excluded: Optional[str] = None     # why the data-quality screen leaves it out
     info: Optional[PullInfo] = None
     friction: Optional[tuple] = None   # friction.friction_row
@@ -153,16 +149,8 @@ class HeldOut:
     """Pass 4, one held-out pull."""
 
     leftover: LeftoverPart
-    errors: R.ErrorPart
+    errors: ErrorPart
     resim: Optional[ResimPart]
-
-
-@dataclass(frozen=True)
-class HumScales:
-    """The streamed Analysis.hums: the hum frequency and the factor on each pull's own hum estimate."""
-
-    frequency_hz: float
-    scales: tuple
 
 
 @dataclass(frozen=True)
@@ -262,7 +250,7 @@ def held_out(item) -> HeldOut:
     terms, coef, d = job.left_fit
     left = leftover_part(p, h_left, ForceModel([p], m2, [h_left]).resid(set(terms), coef, d, 0), rig)
     terms, coef, d = job.err_fit
-    err = R.error_part(p, ForceModel([p], m2).resid(set(), {}, 0.0, 0),
+    err = error_part(p, ForceModel([p], m2).resid(set(), {}, 0.0, 0),
                        ForceModel([p], m2, [h_err]).resid(set(terms), coef, d, 0), keep=job.keep)
     sim = resim_pull(p, job.setup, trace=job.keep) if job.setup is not None else None
     return HeldOut(left, err, sim)
@@ -322,7 +310,7 @@ class Stream:
         return out.results
 
     def analyse(self) -> Analysis:
-        """Passes 1-3: the streamed counterpart of discovery.analyse()."""
+        """Passes 1-3: every stage's candidates (stages.py), nothing decided yet."""
         refs, rig = self.refs, self.rig
         if len(refs) < MIN_PULLS:
             raise DiscoveryError(f'campaign has {len(refs)} pulls; expected at least {MIN_PULLS} '
@@ -396,9 +384,7 @@ class Stream:
         hum, significant = hum_candidate(f_hum, pres, amps, a_fit, fm_h, fm_0, fit, held)
         self.f_hum, self.scales = f_hum, scales
         self.fm_h, self.fm_0 = fm_h, fm_0
-        cand = {'mains_hum': hum}
         force_cand, force = force_stage_from(fm_h if significant else fm_0, fit, held, m2)
-        cand.update(force_cand)
         mount, ring = ring_stage_from(modes, [stats[j].ring for j in held], [names[j] for j in held], dt,
                                         rig.force_chain) if mode is not None else (None, None)
         friction = friction_sses = None
@@ -407,7 +393,8 @@ class Stream:
             e = [stats[j].friction[1] for j in held]
             friction = friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit))
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
-        notes += candidate_notes(cand, mount, friction)
+        cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
+        notes += more
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
         run = {'failed': tuple(self.failed), 'retried': tuple(self.retried), 'scheduler': self.where}
@@ -441,7 +428,7 @@ class Stream:
         setup = resim_setup(rig, departures_from_data(ext['departures']), cal)
         jobs = [HeldJob(self.f_hum, self.scales[j] if hum_on else None, self.scales[j] if err_hum else None,
                         left_fit, err_fit, k < TRACE_PULLS, setup) for k, j in enumerate(held)]
-        lsum, errors, sims = LeftoverSum(), R.ForceErrors(), ResimSum(setup)
+        lsum, errors, sims = LeftoverSum(), ForceErrors(), ResimSum(setup)
 
         def add(k, res):
             lsum.add(res.leftover)
@@ -475,18 +462,18 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
         decision = decide(analysis, rig)
         out = Path(out_dir)
         if not analysis.pulls:
-            report = R.unusable_report(analysis, rig)
-            R.write_outputs(report, analysis, None, (), rig, out)
+            report = unusable_report(analysis, rig)
+            write_outputs(report, analysis, None, (), rig, out)
             return report
-        ext = R.named_extension(analysis, decision, rig)
+        ext = named_extension(analysis, decision, rig)
         left, errors, check = st.held_out_results(analysis, decision, ext)
         analysis = _with_run(analysis, st)
-        report = R.build_report(analysis, decision, errors, left, rig)
+        report = build_report(analysis, decision, errors, left, rig)
         if isinstance(check, DiscoveryError):
             report['notes'].append(f'no simulation check: {check}')
             check = None
-        R.add_simulation(report, check)
-        R.write_outputs(report, analysis, errors, decision.named, rig, out, check, ext)
+        add_simulation(report, check)
+        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext)
         return report
     finally:
         if spill is not None:
@@ -497,5 +484,5 @@ def _with_run(analysis: Analysis, st: Stream) -> Analysis:
     return dataclasses.replace(analysis, failed=tuple(st.failed), retried=tuple(st.retried), scheduler=st.where)
 
 
-__all__ = ['HumScales', 'PullInfo', 'Stream', 'discover_stream', 'held_out', 'hum_record', 'load_pull',
+__all__ = ['Stream', 'discover_stream', 'held_out', 'hum_record', 'load_pull',
            'map_stage', 'pull_stats', 'survey']
