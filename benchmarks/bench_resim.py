@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generat
 
 import generator as G  # the test generator
 
-from force_discovery.core.discovery import prepare
+from force_discovery.core.prep import prepare
 from force_discovery.core.resim import simulation_check
 from force_tester_sim.core.departures import departures_from_data
 from force_tester_sim.core.params import TRUTH_YAML, load_rig

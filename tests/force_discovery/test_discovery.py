@@ -162,23 +162,27 @@ def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
 
 
 def test_stages_leave_their_inputs_unchanged(tmp_path):
-    """analyse -> decide -> leftover -> report: each stage returns a typed result and changes
+    """analyse -> decide -> held-out checks -> report: each stage returns a typed result and changes
     neither the measured channels nor an earlier stage's result."""
     import copy
 
-    from force_discovery.core import report as R
-    from force_discovery.core.discovery import Analysis, Decision, analyse, decide, leftover
+    from force_discovery.core.decision import Decision, decide
+    from force_discovery.core.extension import named_extension
+    from force_discovery.core.report import build_report
+    from force_discovery.core.stages import Analysis
+    from force_discovery.core.stream import Stream
+    from force_tester_common.engine import Mapper
     camp = make_campaign({'mains_hum': {'frequency_hz': 50.0, 'amplitude_n': 3.0}}, seed=11, sets=(3,), pulls=4)
     channels = [{k: np.array(v, copy=True) for k, v in ch.items()} for _, ch in camp]
     rig = load_rig()
-    analysis = analyse(camp, rig)
+    st = Stream(camp, rig, Mapper('inline'))
+    analysis = st.analyse()
     assert isinstance(analysis, Analysis) and analysis.hums is not None
     before = copy.deepcopy(analysis.candidates)
     decision = decide(analysis, rig)
     assert isinstance(decision, Decision) and 'mains_hum' in decision.named
-    left = leftover(analysis, decision.named, rig)
-    errors = R.force_errors(analysis, decision.named, rig)
-    R.build_report(analysis, decision, errors, left, rig)
+    left, errors, _check = st.held_out_results(analysis, decision, named_extension(analysis, decision, rig))
+    build_report(analysis, decision, errors, left, rig)
     assert repr(analysis.candidates) == repr(before)
     for (_, ch), orig in zip(camp, channels):
         for k, v in orig.items():
@@ -188,7 +192,7 @@ def test_stages_leave_their_inputs_unchanged(tmp_path):
 
 
 def test_non_finite_samples_are_counted_and_quoted():
-    from force_discovery.core.discovery import check_quality
+    from force_discovery.core.prep import check_quality
     meta, ch = make_campaign(None, seed=8, sets=(2,), pulls=1)[0]
     ch = dict(ch, accel_axial_m_s2=np.array(ch['accel_axial_m_s2'], float))
     ch['accel_axial_m_s2'][[10, 20, 30]] = np.nan
@@ -206,12 +210,14 @@ def _tolerant_rig(**tol):
 def test_verdict_follows_the_tolerance_band():
     """One campaign with a 5 % gain departure; the user's tolerance decides: named outside the band, within
     tolerance inside it, inconclusive when the interval straddles the edge (with the pulls that would settle it)."""
-    from force_discovery.core.discovery import analyse, decide
+    from force_discovery.core.decision import decide
+    from force_discovery.core.stream import Stream
+    from force_tester_common.engine import Mapper
     camp = make_campaign({'moving_cell_gain': {'gain': 1.05}}, seed=21, sets=(2, 3), pulls=4)
-    analysis = analyse(camp, load_rig())
+    analysis = Stream(camp, load_rig(), Mapper('inline')).analyse()
     c = analysis.candidates['moving_cell_gain']
-    lo, hi = c['parameters_ci95']['gain']
-    assert lo < c['parameters']['gain'] < hi and hi - lo < 0.01
+    lo, hi = c.parameters_ci95['gain']
+    assert lo < c.parameters['gain'] < hi and hi - lo < 0.01
     verdicts = {}
     for rel in (0.005, 0.2, 0.05):   # 0.05: the band edge at the truth, inside the interval
         d = decide(analysis, _tolerant_rig(moving_cell_gain_rel=rel))

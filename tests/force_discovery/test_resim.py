@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from generator import draw_nuisance, make_campaign, observed_mount_mode, rig_with
 
-from force_discovery.core.discovery import _filtered, prepare
+from force_discovery.core.prep import _filtered, prepare
 from force_discovery.core.resim import fit_pull_quantities, resimulate, simulation_check
 from force_tester_sim.core.campaign import truth_pull_specs
 from force_tester_sim.core.departures import NO_DEPARTURES, departures_from_data

@@ -15,10 +15,11 @@ import tracemalloc
 
 import numpy as np
 from generator import make_campaign
+from one_pass import discover_in_memory
 
 from force_discovery import cli as discover_cmd
-from force_discovery.core.discovery import Pull
-from force_discovery.core.pipeline import discover, discover_in_memory
+from force_discovery.core.pipeline import discover
+from force_discovery.core.prep import Pull
 from force_tester_sim.core.params import load_rig
 
 STREAMED = {'scheduler', 'failed_pulls', 'retried_pulls', 'plots'}   # keys that say how it ran, not what it found
@@ -65,8 +66,8 @@ def test_streamed_report_is_the_one_pass_report(tmp_path):
     path (force statistics, free decay, current, hum, re-simulation) is compared."""
     import yaml
 
-    from force_discovery.core import report as R
-    from force_discovery.core.discovery import decide
+    from force_discovery.core.decision import decide
+    from force_discovery.core.report import clean
     from force_discovery.core.stream import Stream
     from force_tester_common.engine import Mapper
     deps = {'mount_resonance': {'frequency_hz': 1100.0, 'damping_ratio': 0.02}, 'coulomb_friction': {'force_n': 120.0},
@@ -99,9 +100,9 @@ def test_streamed_report_is_the_one_pass_report(tmp_path):
     st = Stream(camp, rig, Mapper('inline'), str(tmp_path / 'spill'))
     analysis = st.analyse()
     _left, _errors, check = st.held_out_results(analysis, decide(analysis, rig), ext)
-    assert R._clean(check.as_dict()) == one['simulation']
-    assert R._clean(check.details())['quantities'] == one['simulation_check']['quantities']
-    assert R._clean(check.ring) == one['simulation_check']['ring']
+    assert clean(check.as_dict()) == one['simulation']
+    assert clean(check.details())['quantities'] == one['simulation_check']['quantities']
+    assert clean(check.ring) == one['simulation_check']['ring']
     on_disk = json.loads((tmp_path / 'streamed' / 'report.json').read_text())
     assert _differences(on_disk, streamed, rtol=0.0, skip={'plots'}) == []
     assert (tmp_path / 'streamed' / 'ringing.png').is_file() and (tmp_path / 'streamed' / 'residuals.png').is_file()

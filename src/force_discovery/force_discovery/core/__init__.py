@@ -1,1 +1,27 @@
-"""ROS-free core of force_discovery: what the model of record gets wrong in measured data."""
+"""ROS-free core of force_discovery: what the model of record gets wrong in measured data.
+
+One module an idea, in the order a discovery runs (pipeline.discover -> stream.py, the one driver):
+
+- source.py       where a campaign's pulls come from (a folder read pull by pull, or channels in memory)
+- quality.py      the data-quality screen (defects found, repaired and masked; pulls left out)
+- prep.py         per-pull preparation: T, the low-passed channels, carriage motion, the analysis window
+- cells.py        cell-damping calibration: the cells' damping ratio from the free decay, T recomputed with it
+- hum.py          mains hum: the line's frequency, each pull's amplitude and phase
+- force_model.py  the force model F_move - hum = g T + M a2(t + d) - k C, fitted on samples (ForceModel)
+- force_stats.py  ... the same fits from per-pull sufficient statistics (ForceStats: what the stream uses)
+- ringing.py      ringing: the free decay after the break (matrix pencil), the mount mapping
+- friction.py     friction: the motor current against the force balance
+- significance.py the held-out significance test
+- uncertainty.py  intervals (jackknife, bootstrap) and the tolerance verdict
+- candidate.py    Candidate and Evidence: what a stage says about one cause (frozen)
+- stages.py       the stages: each turns its channel's per-pull results into Candidates; Analysis; the method
+- decision.py     the decision: named, within tolerance, inconclusive, withheld
+- leftover.py     the leftover structure no catalog entry explains
+- force_errors.py the held-out force-channel error, model of record vs extended
+- resim.py        closing the loop: the held-out pulls re-simulated with and without the extension
+- stream.py       the driver: the per-pull passes on the campaign engine, memory flat in the number of pulls
+- pipeline.py     discover(): the entry point
+- report.py       report.json (the one place Candidates become dicts); markdown.py report.md; extension.py
+                  extension.yaml; plots.py the figures; outputs.py writes the folder whole
+- errors.py       DiscoveryError
+"""

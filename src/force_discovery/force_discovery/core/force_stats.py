@@ -1,6 +1,6 @@
 """The force model's sufficient statistics, one pull at a time (issue 16: discovery in bounded memory). ROS-free.
 
-discovery.ForceModel fits F_move - hum = g T + M a2(t + d) - k C over every fitted pull's analysis window W at
+force_model.ForceModel fits F_move - hum = g T + M a2(t + d) - k C over every fitted pull's analysis window W at
 once, with the accelerometer delay d applied to the force side by linear interpolation. Everything it computes --
 least-squares fits over any set of pulls, held-out squared residuals, leave-one-pull-out refits, the delay search,
 the T^2 check -- depends on a pull's samples only through inner products of its columns. So each pull is reduced
@@ -8,7 +8,7 @@ to small matrices once (``force_blocks``) and ``ForceStats`` answers every quest
 
 Why this is exact (up to rounding): a delay of d = (k + f) dt is linear interpolation between the integer shifts
 k and k + 1,
-    x_d = (1 - f) x_k + f x_(k+1)        (discovery.fractional_delay, and the first sample held before W),
+    x_d = (1 - f) x_k + f x_(k+1)        (departures.fractional_delay, and the first sample held before W),
 so every column of every design at any delay in [k dt, (k + 1) dt] is a fixed linear combination of BASE columns
 on W (the usable samples): F_move, T, C_F = integral of F_move, the pull's own hum estimate H and its integral
 C_H, each at shifts k and k + 1; a2 (never delayed); and T_k^2, T_k T_(k+1), T_(k+1)^2 (for the T^2 check at
@@ -31,8 +31,9 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .discovery import TERMS, ForceModel, Pull
 from .errors import DiscoveryError
+from .force_model import TERMS, ForceModel
+from .prep import Pull
 
 DELAY_MAX_S = 200e-6   # the delay search's range (ForceModel.delay_grid's default)
 LEAD = 16              # samples before W that a delay may reach (ForceModel.at's lead-in)
@@ -47,7 +48,7 @@ def delay_pairs(dt: float, d_max: float = DELAY_MAX_S) -> int:
 
 def force_blocks(p: Pull, hum: np.ndarray, d_max: float = DELAY_MAX_S) -> np.ndarray:
     """The pull's sufficient statistics: R_k for k = 0 .. delay_pairs - 1 (shape (pairs, 14, 14)), see the module
-    docstring. hum: the pull's own hum estimate over the whole record (discovery.hum_per_pull), unscaled."""
+    docstring. hum: the pull's own hum estimate over the whole record (hum.hum_per_pull), unscaled."""
     n = p.w1 - p.w0
     m = min(p.w0, LEAD)
     ok = p.usable(p.w0, p.w1)

@@ -8,7 +8,7 @@ Per pull, from that pull's own measured channels only:
   through a ``SampledMotion`` (no motion model, no commanded speed);
 - the per-pull quantities (``PullQuantities``): lanyard slack and stiffness, coupon yield and hardening (when the
   tension shows a plastic flow), break instant and duration, fitted by least squares to the measured lanyard
-  tension T (stationary cell + m1 a1, discovery.prepare) with a quasi-static chain: in the taut pieces the cells
+  tension T (stationary cell + m1 a1, prep.prepare) with a quasi-static chain: in the taut pieces the cells
   (and a mount, when the model has one) are springs in series with the lanyard,
       T_el   = (K_L (x3 - slack) + c_L v3) / (1 + K_L C),        C = 1/K_LC1 + 1/K_LC2 (+ 1/k_mount)
       T_flow = (k_p (x3 - slack + F_y/H) + c_p v3) / (1 + k_p C), k_p = K_L H/(K_L + H), c_p = c_L H/(K_L + H)
@@ -52,18 +52,12 @@ from force_tester_sim.core.errors import SimError
 from force_tester_sim.core.motion import SampledMotion
 from force_tester_sim.core.pull import PullSpec, run_pull_with_motion
 
-from .discovery import (
-    MOUNT_MAX_FRACTION,
-    STILL_M_S,
-    Pull,
-    _filtered,
-    cell_damping_ratio,
-    drive_force_balance,
-    hum_per_pull,
-    matrix_pencil,
-    ring_segment,
-)
+from .cells import cell_damping_ratio
 from .errors import DiscoveryError
+from .friction import STILL_M_S, drive_force_balance
+from .hum import hum_per_pull
+from .prep import Pull, _filtered
+from .ringing import MOUNT_MAX_FRACTION, matrix_pencil, ring_segment
 
 SIM_CHANNELS = ('force_moving_n', 'force_stationary_n', 'accel_axial_m_s2', 'motor_current_a')
 FORCE_CHANNELS = SIM_CHANNELS[:2]
@@ -384,7 +378,7 @@ class ResimSetup:
 
 def resim_setup(rig, departures: Departures, cal: Optional[tuple] = None) -> ResimSetup:
     """ResimSetup for the rig (model of record) and the extension's departures; cal: (damping ratio, pulls) of
-    the cells measured on the pulls checked (discovery.cell_damping_ratio), or None to keep the rig's."""
+    the cells measured on the pulls checked (cells.cell_damping_ratio), or None to keep the rig's."""
     fc = rig.force_chain
     damping = {'rig': fc.load_cell_damping_ratio, 'used': fc.load_cell_damping_ratio, 'pulls': 0}
     if cal is not None:

@@ -1,13 +1,15 @@
-"""discover() with the pulls streamed (issue 16): memory does not grow with the number of pulls. ROS-free.
+"""The driver: discover() with the pulls streamed (issue 16): memory does not grow with the number of pulls.
+ROS-free.
 
-analyse() (discovery.py) holds every pull's arrays at once. Here each pull is read, prepared and reduced to a
-few small results, one pull at a time per worker, and only those results meet: the decision needs per-pull
+Each pull is read, prepared and reduced to a few small results, one pull at a time per worker, and only those
+results meet: the decision needs per-pull
 numbers (quality verdicts, free-decay ratios, hum amplitudes, friction offsets, squared residuals), the force
 model's sufficient statistics (force_stats.py) and a few arrays of a few pulls (the hum's pre-pull records of
-up to 12 fitted pulls, one free-decay segment and one pull's residuals and traces for the plots). The stages and
-their arithmetic are analyse()'s, shared with it (hum_candidate, force_stage_from, ring_stage_from,
-friction_candidate, leftover_part, error_part, resim_pull); only the force model's fits are made from the
-statistics instead of the stacked samples, which changes the order of the additions (agreement to rounding).
+up to 12 fitted pulls, one free-decay segment and one pull's residuals and traces for the plots). The arithmetic
+is the stages' (stages.py: hum_candidate, force_stage_from, ring_stage_from, friction_candidate; leftover_part,
+error_part, resim_pull); the force model's fits are made from the statistics (force_stats.ForceStats) instead of
+the stacked samples (force_model.ForceModel). tests/force_discovery/one_pass.py does the same work with every pull
+in memory: the oracle the stream is checked against (to rounding: the order of the additions differs).
 
 The per-pull work is four passes, each a top-level function of (pull, small settings) mapped over the pulls with
 the campaign engine (force_tester_common.engine.map_pulls: Dask, or inline); a pass needs what the earlier ones
@@ -47,13 +49,36 @@ import numpy as np
 
 from force_tester_sim.core.departures import departures_from_data
 
-from . import discovery as D
-from . import report as R
+from .cells import CAL_PULLS, calibration_note, cell_calibration, cell_damping_from, cell_zeta, with_tension
+from .decision import Decision, decide
 from .errors import DiscoveryError
+from .extension import named_extension
+from .force_errors import ErrorPart, ForceErrors, error_part
+from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
+from .friction import friction_row, friction_rows, friction_sse, friction_stat
+from .hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
+from .leftover import LeftoverPart, LeftoverSum, leftover_part
+from .outputs import write_outputs
+from .prep import Pull, PullQuality, check_quality, prepare
 from .quality import PullScreen, screen_pull
+from .report import add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
+from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
 from .source import PullRef, campaign_refs, load_channels, memory_refs
+from .stages import (
+    MIN_PULLS,
+    Analysis,
+    HumScales,
+    PullInfo,
+    candidate_notes,
+    force_stage_from,
+    friction_candidate,
+    hum_candidate,
+    ring_stage_from,
+    split,
+    unusable_analysis,
+)
 
 TRACE_PULLS = 2    # held-out pulls (the first ones) that keep their residuals and traces for the plots
 SPILL_ARRAYS = ('t', 'fm', 'fs', 'a2', 'T', 'x3', 'v3', 'a3', 'current', 'ok')
@@ -62,27 +87,16 @@ SPILL_SCALARS = ('dt', 'w0', 'w1', 'pre1', 'load0', 'brk', 'peak')
 
 # ------------------------------------------------------------------------------------------ per-pull results
 @dataclass(frozen=True)
-class PullInfo:
-    """A pull as the streamed Analysis keeps it (no arrays)."""
-
-    name: str
-    dt: float
-    samples: int
-    w0: int
-    w1: int
-
-
-@dataclass(frozen=True)
 class Survey:
     """What pass 1 found in one pull."""
 
     name: str
-    quality: Optional[D.PullQuality] = None
+    quality: Optional[PullQuality] = None
     screen: Optional[PullScreen] = None
-    rejected: Optional[str] = None     # the pull is not analysable (DiscoveryError): the campaign stops, as analyse()
+    rejected: Optional[str] = None     # the pull is not analysable (DiscoveryError): the campaign stops
     excluded: Optional[str] = None     # why the data-quality screen leaves it out
     info: Optional[PullInfo] = None
-    friction: Optional[tuple] = None   # discovery.friction_row
+    friction: Optional[tuple] = None   # friction.friction_row
     spill: Optional[str] = None        # where the prepared pull was spilled
 
 
@@ -114,7 +128,7 @@ class PullStats:
     dt: float
     blocks: np.ndarray
     friction: Optional[tuple] = None    # (squared current residual without, with the friction)
-    ring: Optional[D.RingPart] = None
+    ring: Optional[RingPart] = None
 
 
 @dataclass(frozen=True)
@@ -134,17 +148,9 @@ class HeldJob:
 class HeldOut:
     """Pass 4, one held-out pull."""
 
-    leftover: D.LeftoverPart
-    errors: R.ErrorPart
+    leftover: LeftoverPart
+    errors: ErrorPart
     resim: Optional[ResimPart]
-
-
-@dataclass(frozen=True)
-class HumScales:
-    """The streamed Analysis.hums: the hum frequency and the factor on each pull's own hum estimate."""
-
-    frequency_hz: float
-    scales: tuple
 
 
 @dataclass(frozen=True)
@@ -156,35 +162,35 @@ class Source:
 
 
 # ------------------------------------------------------------------------------------------ loading
-def _write_spill(p: D.Pull, path: str) -> None:
+def _write_spill(p: Pull, path: str) -> None:
     arrays = {k: getattr(p, k) for k in SPILL_ARRAYS if getattr(p, k) is not None}
     with open(path, 'wb') as fh:
         np.savez(fh, name=np.array(p.name), scalars=np.array([float(getattr(p, k)) for k in SPILL_SCALARS]),
                  **arrays)
 
 
-def _read_spill(path: str) -> D.Pull:
+def _read_spill(path: str) -> Pull:
     with np.load(path) as z:
         sc = dict(zip(SPILL_SCALARS, z['scalars'].tolist()))
         arrays = {k: (z[k] if k in z.files else None) for k in SPILL_ARRAYS}
         name = str(z['name'])
     ints = {k: int(sc[k]) for k in ('w0', 'w1', 'pre1', 'load0', 'brk')}
-    return D.Pull(name, arrays['t'], sc['dt'], arrays['fm'], arrays['fs'], arrays['a2'], arrays['T'], arrays['x3'],
+    return Pull(name, arrays['t'], sc['dt'], arrays['fm'], arrays['fs'], arrays['a2'], arrays['T'], arrays['x3'],
                   arrays['v3'], arrays['a3'], arrays['current'], peak=sc['peak'], ok=arrays['ok'], **ints)
 
 
 def prepare_ref(ref: PullRef, rig):
     """(PullQuality, PullScreen, Pull) of one pull from its data (DiscoveryError when it cannot be analysed)."""
     meta, ch = load_channels(ref)
-    q = D.check_quality(meta, ch)
+    q = check_quality(meta, ch)
     sc = screen_pull(q.name, ch)
-    return q, sc, D.prepare(meta, ch, rig, q, sc)
+    return q, sc, prepare(meta, ch, rig, q, sc)
 
 
-def load_pull(src: Source, rig, c1: Optional[float]) -> D.Pull:
+def load_pull(src: Source, rig, c1: Optional[float]) -> Pull:
     """The prepared pull (from the spill when there is one), T with the cells' calibration c1 (None: the rig's)."""
     p = _read_spill(src.spill) if src.spill is not None and os.path.exists(src.spill) else prepare_ref(src.ref, rig)[2]
-    return D.with_tension(p, rig, c1)
+    return with_tension(p, rig, c1)
 
 
 # ------------------------------------------------------------------------------------------ the passes
@@ -201,33 +207,33 @@ def survey(item) -> Survey:
         return Survey(p.name, q, sc, excluded=why, info=info)
     if spill is not None:
         _write_spill(p, spill)
-    return Survey(p.name, q, sc, None, None, info, D.friction_row(p, rig), spill)
+    return Survey(p.name, q, sc, None, None, info, friction_row(p, rig), spill)
 
 
 def cell_record(item) -> Optional[float]:
-    """Pass 1b: item = (Source, rig); discovery.cell_zeta of the pull (its T does not matter)."""
+    """Pass 1b: item = (Source, rig); cells.cell_zeta of the pull (its T does not matter)."""
     src, rig = item
-    return D.cell_zeta(load_pull(src, rig, None), rig)
+    return cell_zeta(load_pull(src, rig, None), rig)
 
 
 def hum_record(item) -> HumRecord:
     """Pass 2: item = (Source, rig, c1)."""
     src, rig, c1 = item
     p = load_pull(src, rig, c1)
-    t, r = D.pre_residual(p, rig.force_chain.m2)
-    return HumRecord(t, r, D.free_decay_mode(p))
+    t, r = pre_residual(p, rig.force_chain.m2)
+    return HumRecord(t, r, free_decay_mode(p))
 
 
 def pull_stats(item) -> PullStats:
     """Pass 3: item = (Source, rig, c1, StatsJob)."""
     src, rig, c1, job = item
     p = load_pull(src, rig, c1)
-    amp, hum = D.hum_per_pull(p, job.f_hum, rig.force_chain.m2)
+    amp, hum = hum_per_pull(p, job.f_hum, rig.force_chain.m2)
     friction = ring = None
     if job.held and job.fcf is not None and p.current is not None:
-        friction = (D.friction_sse(p, rig, 0.0), D.friction_sse(p, rig, job.fcf))
+        friction = (friction_sse(p, rig, 0.0), friction_sse(p, rig, job.fcf))
     if job.held and job.mode is not None:
-        ring = D.ring_part(p, job.dt, D.cell_modes(rig.force_chain), job.mode, keep=True)
+        ring = ring_part(p, job.dt, cell_modes(rig.force_chain), job.mode, keep=True)
     return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring)
 
 
@@ -238,14 +244,14 @@ def held_out(item) -> HeldOut:
     m2 = rig.force_chain.m2
     hum = None
     if job.left_scale is not None or job.err_scale is not None:
-        hum = D.hum_per_pull(p, job.f_hum, m2)[1]
+        hum = hum_per_pull(p, job.f_hum, m2)[1]
     h_left = None if job.left_scale is None else hum * job.left_scale
     h_err = None if job.err_scale is None else hum * job.err_scale
     terms, coef, d = job.left_fit
-    left = D.leftover_part(p, h_left, D.ForceModel([p], m2, [h_left]).resid(set(terms), coef, d, 0), rig)
+    left = leftover_part(p, h_left, ForceModel([p], m2, [h_left]).resid(set(terms), coef, d, 0), rig)
     terms, coef, d = job.err_fit
-    err = R.error_part(p, D.ForceModel([p], m2).resid(set(), {}, 0.0, 0),
-                       D.ForceModel([p], m2, [h_err]).resid(set(terms), coef, d, 0), keep=job.keep)
+    err = error_part(p, ForceModel([p], m2).resid(set(), {}, 0.0, 0),
+                       ForceModel([p], m2, [h_err]).resid(set(terms), coef, d, 0), keep=job.keep)
     sim = resim_pull(p, job.setup, trace=job.keep) if job.setup is not None else None
     return HeldOut(left, err, sim)
 
@@ -303,11 +309,11 @@ class Stream:
                                  f'({why}); expected every usable pull to finish it')
         return out.results
 
-    def analyse(self) -> D.Analysis:
-        """Passes 1-3: the streamed counterpart of discovery.analyse()."""
+    def analyse(self) -> Analysis:
+        """Passes 1-3: every stage's candidates (stages.py), nothing decided yet."""
         refs, rig = self.refs, self.rig
-        if len(refs) < D.MIN_PULLS:
-            raise DiscoveryError(f'campaign has {len(refs)} pulls; expected at least {D.MIN_PULLS} '
+        if len(refs) < MIN_PULLS:
+            raise DiscoveryError(f'campaign has {len(refs)} pulls; expected at least {MIN_PULLS} '
                                  '(half are fitted, half held out)')
         spills = [None if self.spill_dir is None else str(Path(self.spill_dir) / f'{i:06d}.npz')
                   for i in range(len(refs))]
@@ -326,8 +332,8 @@ class Stream:
         excluded = {s.name: s.excluded for s in surveys if s.excluded}
         usable = [s for s in surveys if not s.excluded]
         run = {'failed': tuple(self.failed), 'retried': tuple(self.retried), 'scheduler': self.where}
-        if len(usable) < D.MIN_PULLS:
-            out = D.unusable_analysis(len(usable), len(refs), quality, screens, excluded, **run)
+        if len(usable) < MIN_PULLS:
+            out = unusable_analysis(len(usable), len(refs), quality, screens, excluded, **run)
             if self.failed:
                 out = dataclasses.replace(out, notes=out.notes + (f'{len(self.failed)} pulls could not be read or '
                                                                   'analysed (failed_pulls)',))
@@ -336,25 +342,25 @@ class Stream:
         self.usable = usable
         names = [s.name for s in usable]
         m2 = rig.force_chain.m2
-        fit, held = D._split(usable)
+        fit, held = split(usable)
         held_set = set(held)
         notes = []
         self.zetas = self._cell_zetas(names, held)
-        self.c1, cells = D.cell_calibration(D.cell_damping_from(self.zetas), rig)
-        if D.calibration_note(cells):
-            notes.append(D.calibration_note(cells))
+        self.c1, cells = cell_calibration(cell_damping_from(self.zetas), rig)
+        if calibration_note(cells):
+            notes.append(calibration_note(cells))
         dt = usable[0].info.dt
         self.dt = dt
-        rows = D.friction_rows(usable[j].friction for j in fit)
-        fcf = None if rows is None else D._friction_stat(rows)
+        rows = friction_rows(usable[j].friction for j in fit)
+        fcf = None if rows is None else friction_stat(rows)
         # pass 2: the few fitted pulls' pre-pull records and free-decay modes
-        few = D.few_pulls(fit)
+        few = few_pulls(fit)
         recs = self._strict('hum', self._map('hum', hum_record, [(self.sources[j], rig, self.c1) for j in few],
                                              [names[j] for j in few]))
         pres = [(r.t, r.r) for r in recs]
-        f_hum, _power = D.hum_frequency_from(pres, usable[few[0]].info.dt)
+        f_hum, _power = hum_frequency_from(pres, usable[few[0]].info.dt)
         modes = [r.mode for r in recs]
-        mode = D.observed_mode(modes)
+        mode = observed_mode(modes)
         del recs
         # pass 3: every usable pull's statistics
         stats, kept = [None] * len(usable), []
@@ -372,58 +378,57 @@ class Stream:
                                              on_result=keep))
         amps = [st.amp for st in stats]
         a_fit = float(np.mean([amps[k] for k in fit]))
-        scales = [D.hum_scale(amps, a_fit, j) if j in held_set else 1.0 for j in range(len(usable))]
+        scales = [hum_scale(amps, a_fit, j) if j in held_set else 1.0 for j in range(len(usable))]
         blocks, dts_ = [st.blocks for st in stats], [st.dt for st in stats]
         fm_h, fm_0 = ForceStats(blocks, dts_, m2, scales), ForceStats(blocks, dts_, m2)
-        hum, significant = D.hum_candidate(f_hum, pres, amps, a_fit, fm_h, fm_0, fit, held)
+        hum, significant = hum_candidate(f_hum, pres, amps, a_fit, fm_h, fm_0, fit, held)
         self.f_hum, self.scales = f_hum, scales
         self.fm_h, self.fm_0 = fm_h, fm_0
-        cand = {'mains_hum': hum}
-        force_cand, force = D.force_stage_from(fm_h if significant else fm_0, fit, held, m2)
-        cand.update(force_cand)
-        mount, ring = D.ring_stage_from(modes, [stats[j].ring for j in held], [names[j] for j in held], dt,
+        force_cand, force = force_stage_from(fm_h if significant else fm_0, fit, held, m2)
+        mount, ring = ring_stage_from(modes, [stats[j].ring for j in held], [names[j] for j in held], dt,
                                         rig.force_chain) if mode is not None else (None, None)
         friction = friction_sses = None
         if fcf is not None and all(stats[j].friction is not None for j in held):
             b = [stats[j].friction[0] for j in held]
             e = [stats[j].friction[1] for j in held]
-            friction = D.friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit))
+            friction = friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit))
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
-        notes += D.candidate_notes(cand, mount, friction)
+        cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
+        notes += more
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
         run = {'failed': tuple(self.failed), 'retried': tuple(self.retried), 'scheduler': self.where}
-        return D.Analysis(infos, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens,
+        return Analysis(infos, quality, tuple(fit), tuple(held), hums, cand, force, ring, tuple(notes), screens,
                           excluded, cells, friction_sses, **run)
 
     def _cell_zetas(self, names, held) -> list:
-        """discovery.cell_zeta of the usable pulls in order, as far as the calibrations need them: until CAL_PULLS
+        """cells.cell_zeta of the usable pulls in order, as far as the calibrations need them: until CAL_PULLS
         were measured over all pulls and over the held-out ones (cell_damping_from takes the first CAL_PULLS), in
         batches of 2 CAL_PULLS pulls."""
         zetas, held = [], list(held)
         while len(zetas) < len(self.sources):
             found = [z for z in zetas if z is not None]
             held_found = [zetas[j] for j in held if j < len(zetas) and zetas[j] is not None]
-            if len(found) >= D.CAL_PULLS and (len(held_found) >= D.CAL_PULLS or held[-1] < len(zetas)):
+            if len(found) >= CAL_PULLS and (len(held_found) >= CAL_PULLS or held[-1] < len(zetas)):
                 break
-            todo = range(len(zetas), min(len(self.sources), len(zetas) + 2 * D.CAL_PULLS))
+            todo = range(len(zetas), min(len(self.sources), len(zetas) + 2 * CAL_PULLS))
             zetas += self._strict('cells', self._map('cells', cell_record, [(self.sources[j], self.rig) for j in todo],
                                                      [names[j] for j in todo]))
         return zetas
 
-    def held_out_results(self, analysis: D.Analysis, decision: D.Decision, ext: dict):
+    def held_out_results(self, analysis: Analysis, decision: Decision, ext: dict):
         """Pass 4: (structure check, ForceErrors, SimulationCheck or the DiscoveryError that stopped it)."""
         rig, held, fit = self.rig, analysis.held, analysis.fit
         hum_on = analysis.hums is not None
-        left_fit = (frozenset(D.TERMS), *D.fit_terms(self.fm_h if hum_on else self.fm_0, set(D.TERMS), fit))
-        terms = set(n for n in decision.named if n in D.TERMS)
+        left_fit = (frozenset(TERMS), *fit_terms(self.fm_h if hum_on else self.fm_0, set(TERMS), fit))
+        terms = set(n for n in decision.named if n in TERMS)
         err_hum = hum_on and 'mains_hum' in decision.named
-        err_fit = (frozenset(terms), *D.fit_terms(self.fm_h if err_hum else self.fm_0, terms, fit))
-        cal = D.cell_damping_from(self.zetas[j] for j in held if j < len(self.zetas))
+        err_fit = (frozenset(terms), *fit_terms(self.fm_h if err_hum else self.fm_0, terms, fit))
+        cal = cell_damping_from(self.zetas[j] for j in held if j < len(self.zetas))
         setup = resim_setup(rig, departures_from_data(ext['departures']), cal)
         jobs = [HeldJob(self.f_hum, self.scales[j] if hum_on else None, self.scales[j] if err_hum else None,
                         left_fit, err_fit, k < TRACE_PULLS, setup) for k, j in enumerate(held)]
-        lsum, errors, sims = D.LeftoverSum(), R.ForceErrors(), ResimSum(setup)
+        lsum, errors, sims = LeftoverSum(), ForceErrors(), ResimSum(setup)
 
         def add(k, res):
             lsum.add(res.leftover)
@@ -454,30 +459,30 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
     try:
         st = Stream(campaign, rig, mapper, spill, progress)
         analysis = st.analyse()
-        decision = D.decide(analysis, rig)
+        decision = decide(analysis, rig)
         out = Path(out_dir)
         if not analysis.pulls:
-            report = R.unusable_report(analysis, rig)
-            R.write_outputs(report, analysis, None, (), rig, out)
+            report = unusable_report(analysis, rig)
+            write_outputs(report, analysis, None, (), rig, out)
             return report
-        ext = R.named_extension(analysis, decision, rig)
+        ext = named_extension(analysis, decision, rig)
         left, errors, check = st.held_out_results(analysis, decision, ext)
         analysis = _with_run(analysis, st)
-        report = R.build_report(analysis, decision, errors, left, rig)
+        report = build_report(analysis, decision, errors, left, rig)
         if isinstance(check, DiscoveryError):
             report['notes'].append(f'no simulation check: {check}')
             check = None
-        R.add_simulation(report, check)
-        R.write_outputs(report, analysis, errors, decision.named, rig, out, check, ext)
+        add_simulation(report, check)
+        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext)
         return report
     finally:
         if spill is not None:
             shutil.rmtree(spill, ignore_errors=True)
 
 
-def _with_run(analysis: D.Analysis, st: Stream) -> D.Analysis:
+def _with_run(analysis: Analysis, st: Stream) -> Analysis:
     return dataclasses.replace(analysis, failed=tuple(st.failed), retried=tuple(st.retried), scheduler=st.where)
 
 
-__all__ = ['HumScales', 'PullInfo', 'Stream', 'discover_stream', 'held_out', 'hum_record', 'load_pull',
+__all__ = ['Stream', 'discover_stream', 'held_out', 'hum_record', 'load_pull',
            'map_stage', 'pull_stats', 'survey']

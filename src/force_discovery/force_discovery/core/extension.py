@@ -1,0 +1,64 @@
+"""extension.yaml: the named causes as the sim's departures catalog takes them and what the correction node can
+undo (extension), from the report or, before the report exists, from the decision (named_extension). ROS-free."""
+from __future__ import annotations
+
+from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
+
+from .decision import Decision
+from .report import candidates, clean, entry
+from .ringing import mount_from_observed
+from .stages import CATALOG_PARAMS, Analysis
+
+HEAD = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig '
+        'YAML,\n# reproduces the behaviour with load_rig; the correction section is what the correction node '
+        'can undo\n# (the correction node and `./ft bag correct --extension` divide F_move by '
+        'moving_cell_gain, undo the\n# AC coupling, notch the hum, delay F_move by accel_delay_s to line it '
+        'up with a2, then subtract\n# mass_kg * a2). assumptions: what a mapping to the sim needed that the '
+        'data do not identify.\n')
+
+
+def named_extension(analysis: Analysis, decision: Decision, rig) -> dict:
+    """extension() of the report build_report() will write, from the named causes alone (it needs nothing else
+    of the report): the stream re-simulates with it before the report exists."""
+    cand = candidates(analysis, decision)
+    return extension(clean({'causes': [entry(n, cand[n]) for n in decision.named]}), rig)
+
+
+def extension(report, rig) -> dict:
+    """departures: the named causes as the sim's catalog takes them; correction: what correction_node undoes.
+
+    The mount is identified as the mode seen in the measured channels; the sim's mount_resonance parameters
+    are the mount's own, mapped from it through the carriage-mount-bracket-cell-m2 chain with an assumed
+    bracket mass (stated in extension.yaml, key assumptions)."""
+    deps = {c['name']: dict(c['parameters']) for c in report['causes'] if c['name'] in CATALOG_PARAMS}
+    fc = rig.force_chain
+    m2 = float(deps.get('effective_mass', {}).get('mass_kg', fc.m2))
+    assumptions = {}
+    if 'mount_resonance' in deps:
+        obs = deps['mount_resonance']
+        mb = MOUNT_BASE_MASS_FRACTION * m2
+        f, z = mount_from_observed(obs['frequency_hz'], obs['damping_ratio'], m2, fc.load_cell_stiffness_n_per_m,
+                                     fc.load_cell_damping_ratio, mb)
+        deps['mount_resonance'] = {'frequency_hz': f, 'damping_ratio': z, 'base_mass_kg': mb}
+        assumptions['mount_resonance'] = (
+            f'observed mode {obs["frequency_hz"]:.2f} Hz, zeta {obs["damping_ratio"]:.4f} (the identified '
+            f'quantities) mapped to the mount through the carriage-mount-bracket-cell-m2 chain with an assumed '
+            f'bracket mass base_mass_kg = {MOUNT_BASE_MASS_FRACTION} x m2 = {mb:.4f} kg (not identifiable from '
+            f'these channels); another bracket mass gives other mount parameters and the same observed mode')
+    corr = {'mass_kg': m2,
+            'accel_delay_s': float(deps.get('accel_delay', {}).get('delay_s', 0.0)),
+            'moving_cell_gain': float(deps.get('moving_cell_gain', {}).get('gain', 1.0))}
+    if 'ac_coupling' in deps:
+        corr['ac_coupling_time_constant_s'] = deps['ac_coupling']['time_constant_s']
+    if 'mains_hum' in deps:
+        corr['mains_hum_hz'] = deps['mains_hum']['frequency_hz']
+    out = {'departures': deps, 'correction': corr}
+    if assumptions:
+        out['assumptions'] = assumptions
+    return out
+
+
+def extension_yaml(ext: dict) -> str:
+    """The text of extension.yaml: HEAD, then ext."""
+    import yaml
+    return HEAD + yaml.safe_dump(clean(ext), sort_keys=False)

@@ -1,0 +1,80 @@
+"""Mains hum: the line's frequency (a few fitted pulls' pre-pull records), and each pull's amplitude and phase
+(its own pre-pull record). ROS-free."""
+from __future__ import annotations
+
+import math
+from typing import Sequence, Tuple
+
+import numpy as np
+
+from .prep import Pull
+
+HUM_BAND_HZ = (45.0, 65.0)
+FEW_PULLS = 12               # the hum frequency and the free-decay modes come from this many fitted pulls
+
+
+def _hum_design(t, f):
+    return np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
+
+
+def pre_residual(p: Pull, m2: float) -> Tuple[np.ndarray, np.ndarray]:
+    """(t, r): the pull's pre-pull residual F_move - T - m2 a2 (usable samples), the hum's data."""
+    i0 = int(0.02 / p.dt)
+    ok = p.usable(i0, p.pre1)
+    return p.t[i0:p.pre1][ok], (p.fm - p.T - m2 * p.a2)[i0:p.pre1][ok]
+
+
+def few_pulls(fit: Sequence[int]) -> list:
+    """The fitted pulls (list positions) that the hum frequency and the free-decay modes are measured on: up to
+    FEW_PULLS, spread evenly over the fitted ones."""
+    return list(fit[::max(1, len(fit) // FEW_PULLS)][:FEW_PULLS])
+
+
+def hum_frequency_from(pres: Sequence[Tuple[np.ndarray, np.ndarray]], dt: float) -> Tuple[float, dict]:
+    """The hum frequency: the one maximizing the summed (per-pull, free phase) line power of the pre-pull residuals
+    pres = [(t, r)] (pre_residual), 45-65 Hz; dt: the first one's sample interval."""
+    def power(f):
+        tot = 0.0
+        for t, r in pres:
+            A = _hum_design(t, f)
+            c, *_ = np.linalg.lstsq(A, r, rcond=None)
+            tot += float(np.sum((A[:, :2] @ c[:2]) ** 2))
+        return tot
+    nfft = 2 ** 19   # zero-padded periodogram (about 0.1 Hz bins) summed over pulls, then a local LS refinement
+    spec = 0.0
+    for _t, r in pres:
+        spec = spec + np.abs(np.fft.rfft((r - r.mean()) * np.hanning(len(r)), nfft)) ** 2
+    fgrid = np.fft.rfftfreq(nfft, dt)
+    band = (fgrid >= HUM_BAND_HZ[0]) & (fgrid <= HUM_BAND_HZ[1])
+    pw = spec[band]
+    f0 = float(fgrid[band][int(np.argmax(pw))])
+    from scipy.optimize import minimize_scalar
+    res = minimize_scalar(lambda f: -power(f), bounds=(f0 - 0.15, f0 + 0.15), method='bounded',
+                          options={'xatol': 1e-3})
+    f = float(res.x)
+    # spectral contrast: peak power vs the median over the band
+    return f, {'peak_power': float(-res.fun), 'median_power': float(np.median(pw))}
+
+
+def hum_frequency_near(t: np.ndarray, r: np.ndarray, f0: float) -> float:
+    """One pull's own least-squares hum frequency near f0, from its pre-pull residual (t, r) (pre_residual)."""
+    from scipy.optimize import minimize_scalar
+
+    def neg_power(f):
+        A = _hum_design(t, f)
+        c, *_ = np.linalg.lstsq(A, r, rcond=None)
+        return -float(np.sum((A[:, :2] @ c[:2]) ** 2))
+    return float(minimize_scalar(neg_power, bounds=(f0 - 0.3, f0 + 0.3), method='bounded',
+                                 options={'xatol': 1e-3}).x)
+
+
+def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
+    """(amplitude, hum over the whole record) with the phase/amplitude fitted on the pre-pull record only."""
+    t, r = pre_residual(p, m2)
+    c, *_ = np.linalg.lstsq(_hum_design(t, f), r, rcond=None)
+    return float(math.hypot(c[0], c[1])), c[0] * np.sin(2 * np.pi * f * p.t) + c[1] * np.cos(2 * np.pi * f * p.t)
+
+
+def hum_scale(amps: Sequence[float], a_fit: float, j: int) -> float:
+    """The factor on held-out pull j's own hum estimate: its amplitude comes from the fitted pulls (a_fit)."""
+    return a_fit / max(amps[j], 1e-12)

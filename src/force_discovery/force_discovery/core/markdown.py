@@ -1,0 +1,137 @@
+"""report.md: report.json told for a reader (markdown), with the data-quality section, the pulls not analysed, the
+method and the simulation check. ROS-free."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import quality as Q
+from . import stages
+
+
+def _num(v) -> str:
+    """A report number (None: the JSON form of an infinite bound)."""
+    return 'inf' if v is None else f'{v:.5g}'
+
+
+def _fmt_params(p):
+    return ', '.join(f'{k} = {v:.4g}' if isinstance(v, (int, float)) else f'{k} = {v}' for k, v in p.items())
+
+
+def markdown(r, plots, screens=(), excluded=None) -> str:
+    if r['gain'] is None and not r['fitted_pulls']:
+        return '\n'.join(['# Discovery report', '', f'**Primary cause: `{r["cause"]}`.** {r["notes"][0]}.', '']
+                         + Q.markdown_lines(screens, excluded) + run_lines(r)) + '\n'
+    L = ['# Discovery report', '',
+         f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, '
+         f'extended {r["extended_error"]:.4g}, '
+         f'gain {r["gain"]:.3g}x' if r['gain'] else f'**Primary cause: `{r["cause"]}`.**', '',
+         f'Metric: {r["metric"]}.', '',
+         f'Fitted on {len(r["fitted_pulls"])} pulls (every other pull: list positions 0, 2, 4, ...), '
+         f'scored on {len(r["held_out_pulls"])} held-out pulls.',
+         f'Moving-cell prediction residual (held-out, analysis window): {r["force_channel"]["baseline_rms_n"]:.3g} N '
+         f'with the model of record, {r["force_channel"]["extended_rms_n"]:.3g} N with the extension.', '',
+         '## What disagreed and the causes named (strongest first)', '']
+    if not r['causes']:
+        L.append('Nothing significant: the model of record explains the data to the noise floor.')
+    for c in r['causes']:
+        ev = c['evidence']
+        ci = '; '.join(f'{k} in [{_num(lo)}, {_num(hi)}]' for k, (lo, hi) in c.get('parameters_ci95', {}).items())
+        L.append(f'- **{c["name"]}**: {_fmt_params(c["parameters"])}' + (f' (95 %: {ci})' if ci else '')
+                 + f'; channel: {c.get("channel", "force_moving_n")}; '
+                 + (f'held-out SSE reduction {100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f} '
+                    f'({ev["threshold"]}); gain {c["gain"]:.3g}x (held-out RMS without / with it). '
+                    f'Where: {c.get("where", "")}' if 'rel_sse_reduction' in ev
+                    else f'{ev["statistic"]}: {ev["value"]:.2f} (threshold {ev["threshold"]})'))
+    L += ['', '## Departures within tolerance, and inconclusive ones', '']
+    for kind, rows in (('within tolerance', r['within_tolerance']), ('inconclusive', r['inconclusive'])):
+        for c in rows:
+            v = c['tolerance']
+            more = (f'; about {c["pulls_to_settle"]} pulls would settle it' if c.get('pulls_to_settle')
+                    else '')
+            L.append(f'- {c["name"]} ({kind}): {v["band"]["parameter"]} = {_num(v["estimate"])}, 95 % interval '
+                     f'[{_num(v["ci95"][0])}, {_num(v["ci95"][1])}] against the band [{_num(v["band"]["lo"])}, '
+                     f'{_num(v["band"]["hi"])}]{more}')
+    if not (r['within_tolerance'] or r['inconclusive']):
+        L.append('(none)')
+    L += ['', '## Candidates ruled out', '']
+    n_out = len(L)
+    names = {c['name'] for c in r['causes'] + r['within_tolerance'] + r['inconclusive']}
+    for n, c in r['candidates'].items():
+        if n in names:
+            continue
+        ev = c['evidence']
+        why = ev.get('rejected') or (f'held-out SSE reduction {100 * ev.get("rel_sse_reduction", 0):.3f} %, '
+                                     f't = {ev.get("t", 0):.1f}: below {ev.get("threshold", "the rule")}')
+        if n == 'mount_resonance' and 'observed_frequency_hz' in ev:
+            why += (f'; dominant free-decay mode {ev["observed_frequency_hz"]:.0f} Hz (cell mode '
+                    f'{ev["cell_mode_hz"]:.0f} Hz; {ev["frequency_rule"]})')
+        L.append(f'- {n}: {why}')
+    if len(L) == n_out:
+        L.append('(none: every candidate passed)')
+    for note in r['notes']:
+        L.append(f'- note: {note}')
+    L += [''] + Q.markdown_lines(screens, excluded) + run_lines(r)
+    L += ['## Method', '', stages.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
+    L += simulation_lines(r)
+    if r.get('leftover'):
+        lo = r['leftover']
+        L += ['## Residual left after the extension', '',
+              f'share of residual variance above the quiet floor {lo["share_of_residual_variance"]:.2f}, dominant '
+              f'frequency {lo["dominant_frequency_hz"]:.1f} Hz, most correlated with {lo["correlated_channel"]} '
+              f'(|r| = {lo["correlation"]:.2f}).', '']
+    if plots:
+        L += ['## Plots', ''] + [f'![{Path(p).stem}]({Path(p).name})' for p in plots]
+    else:
+        L += ['(matplotlib not importable: no plots)']
+    return '\n'.join(L) + '\n'
+
+
+def run_lines(r) -> list:
+    """report.md: the pulls that failed (by name, with why) or were rerun after a worker died, and where the
+    per-pull stages ran."""
+    failed, retried = r.get('failed_pulls') or [], r.get('retried_pulls') or []
+    L = ['## Pulls not analysed, pulls rerun', '']
+    if failed:
+        L += [f'{len(failed)} pulls could not be read or analysed and are left out:', '']
+        L += [f'- {f["pull"]}: {f["error"]}' for f in failed] + ['']
+    if retried:
+        L += [f'Rerun because the worker running them died (the results are the rerun\'s): {", ".join(retried)}.', '']
+    if not (failed or retried):
+        L += ['Every pull was read and analysed; none was rerun.', '']
+    if r.get('scheduler'):
+        L += [f'Per-pull stages ran on: {r["scheduler"]}.', '']
+    return L
+
+
+CHANNEL_LABELS = {'force_moving_n': ('moving cell', 'N'), 'force_stationary_n': ('stationary cell', 'N'),
+                  'accel_axial_m_s2': ('accelerometer', 'm/s^2'), 'motor_current_a': ('motor current', 'A')}
+
+
+def simulation_lines(r) -> list:
+    """report.md: the simulator with and without the extension, against the measured held-out pulls."""
+    sim, how = r.get('simulation'), r.get('simulation_check')
+    L = ['## Closing the loop: the simulator with and without the extension', '']
+    if not sim:
+        return L + ['(no simulation check: see the notes)', '']
+    L += [f'Each of the {len(how["pulls"])} held-out pulls re-simulated twice, driven by its measured carriage '
+          'motion with its own slack, lanyard stiffness and coupon break fitted from its measured tension: with the '
+          'model of record (baseline) and with the model of record plus extension.yaml (extended). RMS of measured '
+          'minus simulated over the analysis window, after the discovery low-pass; gain = baseline / extended.', '',
+          '| channel | baseline RMS | extended RMS | gain |', '|---|---|---|---|']
+    for ch, v in sim.items():
+        name, unit = CHANNEL_LABELS.get(ch, (ch, ''))
+        L.append(f'| {name} | {v["baseline_rms"]:.4g} {unit} | {v["extended_rms"]:.4g} {unit} | '
+                 + ('inf' if v['gain'] is None else f'{v["gain"]:.3g}') + 'x |')
+    ring = how.get('ring')
+    if ring:
+        L += ['', (f'Mount ringing: measured {_num(ring["measured_hz"])} Hz, extended sim '
+                   f'{_num(ring["extended_sim_hz"])} Hz ({100 * ring["rel_error"]:.2f} % off; tolerance '
+                   f'{100 * ring["tolerance"]:g} %: {"met" if ring["within_tolerance"] else "NOT met"}).')
+              if ring['measured_hz'] else 'Mount ringing: no free decay to compare.']
+    cd = how.get('cell_damping') or {}
+    if cd.get('pulls'):
+        L += ['', f'Both sims use the cells\' damping ratio measured on {cd["pulls"]} pulls\' free decay, '
+                  f'{cd["used"]:.4g} (the rig says {cd["rig"]:.4g}).']
+    if how.get('skipped'):
+        L += ['', 'Not re-simulated: ' + '; '.join(f'{k}: {v}' for k, v in how['skipped'].items())]
+    return L + ['']

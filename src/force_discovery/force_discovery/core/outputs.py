@@ -1,0 +1,39 @@
+"""The discovery's output folder: extension.yaml, report.json, report.md and the plots, written whole or not at
+all. ROS-free."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+from .extension import extension, extension_yaml
+from .force_errors import ForceErrors
+from .markdown import markdown
+from .plots import residual_plots, simulation_plot
+from .stages import Analysis
+
+
+def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], named, rig, out: Path, check=None,
+                  ext: dict | None = None) -> None:
+    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
+    simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png; ext: extension()
+    of the report when the caller has it already.
+
+    Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
+    leaves a half-written report."""
+    import shutil
+    import tempfile
+
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
+    try:
+        ext = extension(report, rig) if ext is None else ext
+        (stage / 'extension.yaml').write_text(extension_yaml(ext))
+        plots = residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
+        report['plots'] = [str(out / Path(q).name) for q in plots]
+        (stage / 'report.json').write_text(json.dumps(report, indent=1))
+        (stage / 'report.md').write_text(markdown(report, report['plots'], analysis.screens, analysis.excluded))
+        for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):   # report.json last
+            f.replace(out / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)

@@ -1,0 +1,102 @@
+"""The discovery's plots (matplotlib, when importable): residuals.png (the held-out force residual and its
+spectrum), ringing.png (the free decay with and without the mount mode), simulation.png (measured and
+re-simulated). ROS-free."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from .force_errors import PLOT_FFT, ForceErrors
+from .markdown import CHANNEL_LABELS
+from .ringing import cell_modes, damped_basis
+from .stages import Analysis
+
+
+def simulation_plot(check, out: Path) -> list:
+    """simulation.png: measured, nominal-sim and extended-sim channels of one held-out pull, from the load to
+    30 ms after the break."""
+    if check is None or not check.trace:
+        return []
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    tr = check.trace
+    chans = [ch for ch in CHANNEL_LABELS if ch in tr]
+    t = tr['t']
+    lo, hi = tr['focus_s']
+    sel = (t >= lo) & (t <= hi)
+    fig, axes = plt.subplots(len(chans), 1, figsize=(8, 2.2 * len(chans)), sharex=True, squeeze=False)
+    for ax, ch in zip(axes[:, 0], chans):
+        name, unit = CHANNEL_LABELS[ch]
+        for kind, style in (('measured', dict(color='k', lw=0.8)), ('baseline', dict(color='tab:blue', lw=0.6)),
+                            ('extended', dict(color='tab:orange', lw=0.6, ls='--'))):
+            label = {'baseline': 'sim, model of record', 'extended': 'sim, with extension'}.get(kind, kind)
+            ax.plot(1e3 * (t[sel] - lo), tr[ch][kind][sel], label=label, **style)
+        ax.set_ylabel(f'{name}, {unit}')
+    axes[0, 0].legend(fontsize=7)
+    axes[0, 0].set_title(f'held-out pull {tr["pull"]}: measured and re-simulated')
+    axes[-1, 0].set_xlabel('ms from 5 ms before the load')
+    fig.tight_layout()
+    path = out / 'simulation.png'
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return [str(path)]
+
+
+def residual_plots(analysis: Analysis, errors: Optional[ForceErrors], named, rig, out: Path):
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    if errors is None or errors.plot is None:
+        return []
+    pl = errors.plot
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6))
+    ax[0].plot(pl['t'], pl['base'], lw=0.6, label='model of record')
+    ax[0].plot(pl['t'], pl['ext'], lw=0.6, label='extended')
+    ax[0].set_xlabel('time, s')
+    ax[0].set_ylabel('F_move residual, N')
+    ax[0].legend()
+    ax[0].set_title(f'held-out pull {pl["pull"]}')
+    for lab, P in (('model of record', errors.base_spectrum), ('extended', errors.ext_spectrum)):
+        P = P / errors.pulls
+        f = np.fft.rfftfreq(PLOT_FFT, pl['dt'])
+        ax[1].semilogy(f[1:], P[1:], lw=0.6, label=lab)
+    ax[1].set_xlabel('frequency, Hz')
+    ax[1].set_ylabel('residual power')
+    ax[1].legend()
+    ax[1].set_xlim(0, 10000)
+    fig.tight_layout()
+    path = out / 'residuals.png'
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    paths = [str(path)]
+    ring = analysis.ring
+    if ring and 'mount_resonance' in named and ring.get('segment') is not None:
+        fc = rig.force_chain
+        seg, dt = ring['segment'], ring['segment_dt']
+        tt = np.arange(len(seg)) * dt * 1e3
+        fig, ax = plt.subplots(figsize=(8, 3.5))
+        ax.plot(tt, seg, lw=0.6, label='measured a2 - a3 after the break')
+        for lab, modes in (('model of record (cell mode)', cell_modes(fc)),
+                           ('extended (mount mode)', cell_modes(fc) + [(ring['fo'], ring['zo'])])):
+            X = np.hstack([damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
+            c, *_ = np.linalg.lstsq(X, seg, rcond=None)
+            ax.plot(tt, seg - X @ c, lw=0.6, label=f'residual, {lab}')
+        ax.set_xlabel('ms after the break')
+        ax.set_ylabel('m/s^2')
+        ax.legend(fontsize=7)
+        ax.set_title(f'held-out pull {ring["segment_pull"]}: free decay')
+        fig.tight_layout()
+        p2 = out / 'ringing.png'
+        fig.savefig(p2, dpi=90)
+        plt.close(fig)
+        paths.append(str(p2))
+    return paths

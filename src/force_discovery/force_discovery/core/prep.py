@@ -1,0 +1,146 @@
+"""Per-pull preparation: the data-quality check of one pull's channels and the derived signals and windows the
+stages fit (T, the low-passed channels, the carriage motion from the encoder, the analysis window). ROS-free."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from force_tester_common.core.channels import REQUIRED_CHANNELS as REQUIRED
+
+from .errors import DiscoveryError
+from .quality import repair
+
+LOWPASS_HZ = (7000.0, 9000.0)   # every force/accel channel is low-passed alike (zero phase) before the regressions
+
+
+def _lowpass_w(f: np.ndarray) -> np.ndarray:
+    lo, hi = LOWPASS_HZ
+    w = np.ones_like(f)
+    mid = (f > lo) & (f < hi)
+    w[mid] = 0.5 * (1 + np.cos(np.pi * (f[mid] - lo) / (hi - lo)))
+    w[f >= hi] = 0.0
+    return w
+
+
+def _filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
+    """Zero-phase low-pass of x, optionally times a frequency response h(omega) (end trend removed first)."""
+    n = len(x)
+    trend = np.linspace(x[0], x[-1], n)
+    X = np.fft.rfft(x - trend)
+    f = np.fft.rfftfreq(n, dt)
+    H = _lowpass_w(f)
+    if h is None:
+        return np.fft.irfft(H * X, n) + trend
+    return np.fft.irfft(H * h(2 * np.pi * f) * X, n)
+
+
+def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:
+    """T = F_stat + m1 a1 (eq 21/23) with a1 from F_stat = K u1 + c1 v1 (exact in the frequency domain)."""
+    return _filtered(fs, dt) + _filtered(fs, dt, lambda w: -m1 * w ** 2 / (k1 + 1j * c1 * w))
+
+
+@dataclass(frozen=True)
+class Pull:
+    """One prepared pull: filtered channels, derived signals and window indices (never changed)."""
+
+    name: str
+    t: np.ndarray
+    dt: float
+    fm: np.ndarray
+    fs: np.ndarray
+    a2: np.ndarray
+    T: np.ndarray
+    x3: np.ndarray
+    v3: np.ndarray
+    a3: np.ndarray
+    current: Optional[np.ndarray]
+    w0: int
+    w1: int
+    pre1: int
+    load0: int
+    brk: int
+    peak: float
+    ok: Optional[np.ndarray] = None   # usable samples (the data-quality screen's mask, grown by MASK_GROW_S); None: all
+
+    def usable(self, i0: int = 0, i1: Optional[int] = None) -> np.ndarray:
+        i1 = len(self.t) if i1 is None else i1
+        return np.ones(i1 - i0, bool) if self.ok is None else self.ok[i0:i1]
+
+
+MASK_GROW_S = 0.5e-3             # masked spans grow by this much: the low-pass and the 2 ms Savitzky-Golay spread
+MIN_SAMPLES = 2000               # a pull record shorter than this is not a full record
+QUALITY_CHANNELS = ('force_stationary_n', 'force_moving_n', 'accel_axial_m_s2', 'encoder_position_m')
+
+
+@dataclass(frozen=True)
+class PullQuality:
+    """What the data-quality stage found in one pull's channels (before anything is fitted)."""
+
+    name: str
+    samples: int
+    dt: float
+    nonfinite: dict          # channel -> count of NaN/inf samples (the channels the analysis uses)
+    peak_n: float            # stationary-cell peak
+    noise_n: float           # stationary-cell standard deviation on the first tenth of the record
+    has_current: bool
+
+    @property
+    def usable(self) -> bool:
+        return self.peak_n > max(20.0, 20 * self.noise_n)
+
+
+def check_quality(meta: dict, ch: dict) -> PullQuality:
+    """The data-quality stage for one pull; DiscoveryError (quoting the value) if it is unusable."""
+    name = str(meta.get('file', '?'))
+    for k in REQUIRED:
+        if k not in ch:
+            raise DiscoveryError(f'pull {name!r} has no {k!r} channel; expected {", ".join(REQUIRED)}')
+    t = np.asarray(ch['time_s'], float)
+    n = len(t)
+    if n < MIN_SAMPLES:
+        raise DiscoveryError(f'pull {name!r} has {n} samples; expected a full record (>= {MIN_SAMPLES})')
+    fs = np.asarray(ch['force_stationary_n'], float)
+    finite = np.isfinite(fs)
+    head = fs[: max(10, n // 10)]
+    q = PullQuality(name, n, float(np.nanmedian(np.diff(t))),
+                    {k: int(np.count_nonzero(~np.isfinite(np.asarray(ch[k], float)))) for k in QUALITY_CHANNELS},
+                    float(np.max(fs[finite])) if finite.any() else float('nan'),
+                    float(np.nanstd(head)) if np.isfinite(head).any() else float('nan'), 'motor_current_a' in ch)
+    if not q.usable:
+        raise DiscoveryError(f'pull {name!r}: stationary peak {q.peak_n:.3g} N is not a pull; '
+                             'expected a loaded record')
+    return q
+
+
+def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None, screen=None) -> Pull:
+    """The prepare stage: derived signals and windows of one pull that passed check_quality(); with a data-quality
+    screen (quality.screen_pull), its defects are repaired (interpolated) first and masked out of every fit."""
+    from scipy.signal import savgol_filter
+    q = check_quality(meta, ch) if q is None else q
+    ok = None
+    if screen is not None and screen.spans:
+        ch = repair(ch, screen)
+        ok = screen.combined(grow_s=MASK_GROW_S)
+    t = np.asarray(ch['time_s'], float)
+    n, dt = q.samples, q.dt
+    fc = rig.force_chain
+    fs = np.asarray(ch['force_stationary_n'], float)
+    x = np.asarray(ch['encoder_position_m'], float)
+    T = tension_from_stationary(fs, dt, fc.m1, fc.load_cell_stiffness_n_per_m, fc.c1)
+    fm = _filtered(np.asarray(ch['force_moving_n'], float), dt)
+    a2 = _filtered(np.asarray(ch['accel_axial_m_s2'], float), dt)
+    win = max(5, int(round(2e-3 / dt)) | 1)
+    x3 = savgol_filter(x, win, 3)
+    v3 = savgol_filter(x, win, 3, deriv=1, delta=dt)
+    a3 = savgol_filter(x, win, 3, deriv=2, delta=dt)
+    cur = ch.get('motor_current_a')
+    cur = None if cur is None else np.asarray(cur, float)
+    peak = q.peak_n
+    load0 = int(np.flatnonzero(fs > 0.1 * peak)[0])
+    brk = int(np.flatnonzero(T > 0.05 * peak)[-1])
+    w0 = max(0, load0 - int(0.05 / dt))
+    w1 = min(n, brk + int(0.15 / dt))
+    pre1 = max(0, load0 - int(0.03 / dt))
+    return Pull(q.name, t, dt, fm, fs, a2, T, x3, v3, a3, cur, w0, w1, pre1, load0, brk, peak, ok)

@@ -1,0 +1,159 @@
+"""Ringing: the free decay after the break (matrix pencil), scored with the cell mode alone and with the observed
+mode, and the observed mode mapped to the mount through the carriage-mount-base-cell-m2 chain. ROS-free."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .prep import Pull
+
+MOUNT_MAX_FRACTION = 0.7      # a free-decay mode below 0.7 x the cell mode is not the cell
+
+
+def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float, float, float]]:
+    """Damped modes of y: [(frequency Hz, damping ratio, rms amplitude share)], strongest first."""
+    n = len(y)
+    L = n // 2
+    Y = np.lib.stride_tricks.sliding_window_view(y, L + 1)
+    U, s, Vh = np.linalg.svd(Y, full_matrices=False)
+    V = Vh[:order].conj().T
+    V1, V2 = V[:-1], V[1:]
+    z = np.linalg.eigvals(np.linalg.pinv(V1) @ V2)
+    z = z[np.abs(z) > 1e-6]
+    Z = np.vander(z, n, increasing=True).T
+    amp, *_ = np.linalg.lstsq(Z, y.astype(complex), rcond=None)
+    out = []
+    for zi, ai in zip(z, amp):
+        lam = np.log(zi) / dt
+        w = abs(lam)
+        f = abs(lam.imag) / (2 * np.pi)
+        if f < 1.0:
+            continue
+        zeta = -lam.real / w
+        e = float(np.sum(np.abs(ai * zi ** np.arange(n)) ** 2))
+        out.append((float(f), float(zeta), e))
+    # merge conjugate pairs: keep positive-frequency energies summed by frequency
+    out.sort(key=lambda m: -m[2])
+    merged = []
+    for f, zt, e in out:
+        for m in merged:
+            if abs(m[0] - f) < 1e-6 * max(1.0, f):
+                m[2] += e
+                break
+        else:
+            merged.append([f, zt, e])
+    merged.sort(key=lambda m: -m[2])
+    return [tuple(m) for m in merged]
+
+
+def ring_segment(p: Pull, length_s: float = 0.03) -> Optional[np.ndarray]:
+    i0 = p.brk + int(2e-4 / p.dt)
+    i1 = min(len(p.t), i0 + int(length_s / p.dt))
+    if i1 - i0 < 200 or not p.usable(i0, i1).all():
+        return None
+    y = (p.a2 - p.a3)[i0:i1]
+    return y - np.mean(y)
+
+
+def damped_basis(n: int, dt: float, f: float, zeta: float) -> np.ndarray:
+    t = np.arange(n) * dt
+    w = 2 * np.pi * f
+    e = np.exp(-zeta * w * t)
+    wd = w * math.sqrt(max(1e-12, 1 - zeta ** 2))
+    return np.column_stack([e * np.sin(wd * t), e * np.cos(wd * t)])
+
+
+def ring_sse(seg: np.ndarray, dt: float, modes: Sequence[Tuple[float, float]]) -> float:
+    """Squared residual of seg after a per-pull amplitude/phase fit of the given (f, zeta) modes."""
+    if not modes:
+        return float(seg @ seg)
+    X = np.hstack([damped_basis(len(seg), dt, f, z) for f, z in modes] + [np.ones((len(seg), 1))])
+    c, *_ = np.linalg.lstsq(X, seg, rcond=None)
+    r = seg - X @ c
+    return float(r @ r)
+
+
+def ring_to_noise(p: Pull, seg: np.ndarray, cell: Sequence[Tuple[float, float]], mode: Tuple[float, float]) -> float:
+    """RMS of the fitted mode's ringing in seg over the noise rms of a2 - a3 on the quiet pre-pull record."""
+    X = np.hstack([damped_basis(len(seg), p.dt, f, z) for f, z in cell] + [np.ones((len(seg), 1)),
+                                                                          damped_basis(len(seg), p.dt, *mode)])
+    c, *_ = np.linalg.lstsq(X, seg, rcond=None)
+    ring = X[:, -2:] @ c[-2:]
+    q = (p.a2 - p.a3)[int(0.02 / p.dt):p.pre1]
+    noise = float(np.std(q - np.polyval(np.polyfit(np.arange(len(q)), q, 1), np.arange(len(q))))) if len(q) > 100 \
+        else 0.0
+    return float(np.sqrt(np.mean(ring ** 2)) / max(noise, 1e-12))
+
+
+def mount_from_observed(f_obs: float, zeta_obs: float, m2: float, k_cell: float, zeta_cell: float, mb: float):
+    """Mount (frequency_hz, damping_ratio) whose carriage-mount-base(mb)-cell-m2 chain has the observed lowest pole
+    (the sim's mount_resonance parameters, departures.py)."""
+    from scipy.optimize import fsolve
+    c2 = 2 * zeta_cell * math.sqrt(k_cell * m2)
+    M = np.diag([mb, m2])
+
+    def pole(fm, zm):
+        km = (2 * np.pi * fm) ** 2 * (mb + m2)
+        cm = 2 * zm * math.sqrt(km * (mb + m2))
+        K = np.array([[km + k_cell, -k_cell], [-k_cell, k_cell]])
+        C = np.array([[cm + c2, -c2], [-c2, c2]])
+        A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+        ev = np.linalg.eigvals(A)
+        ev = ev[ev.imag > 0]
+        lam = ev[np.argmin(np.abs(ev))]
+        return abs(lam.imag) / (2 * np.pi), -lam.real / abs(lam)
+
+    def eq(v):
+        f, z = pole(v[0], v[1])
+        return [f / f_obs - 1.0, z / max(zeta_obs, 1e-6) - 1.0]
+    sol = fsolve(eq, [f_obs / 0.95, max(zeta_obs, 1e-4)], full_output=True)
+    return float(sol[0][0]), float(sol[0][1])
+
+
+def free_decay_mode(p: Pull) -> Optional[Tuple[float, float, float]]:
+    """The strongest mode (frequency, damping ratio, energy) of the pull's free decay after the break, or None."""
+    seg = ring_segment(p)
+    if seg is None:
+        return None
+    mm = [m for m in matrix_pencil(seg[:800], p.dt) if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
+    return mm[0] if mm else None
+
+
+def cell_modes(fc) -> list:
+    """The model of record's only mode after the break: the moving cell on m2, [(frequency, damping ratio)]."""
+    return [(math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi), fc.load_cell_damping_ratio)]
+
+
+def observed_mode(modes: Sequence[Optional[tuple]]) -> Optional[Tuple[float, float]]:
+    """(frequency, damping ratio): the medians of the few fitted pulls' free_decay_mode() (None: none had one)."""
+    modes = [m for m in modes if m is not None]
+    if not modes:
+        return None
+    return float(np.median([m[0] for m in modes])), float(np.median([m[1] for m in modes]))
+
+
+@dataclass(frozen=True)
+class RingPart:
+    """One held-out pull's free decay scored with the cell mode alone (base) and with the observed mode (ext)."""
+
+    sse_base: float          # with the campaign's sample interval (the ring stage's)
+    sse_ext: float
+    ring_to_noise: float
+    samples: int
+    own_base: float          # with the pull's own sample interval (the report's RMS)
+    own_ext: float
+    segment: Optional[np.ndarray] = None
+
+
+def ring_part(p: Pull, dt: float, cell: list, mode: Tuple[float, float], keep: bool = False) -> Optional[RingPart]:
+    """RingPart of the held-out pull p (None: no clean free decay); dt: the campaign's sample interval; keep: keep
+    the segment (for the plot)."""
+    seg = ring_segment(p)
+    if seg is None:
+        return None
+    b, e = ring_sse(seg, dt, cell), ring_sse(seg, dt, cell + [mode])
+    ob, oe = (b, e) if p.dt == dt else (ring_sse(seg, p.dt, cell), ring_sse(seg, p.dt, cell + [mode]))
+    return RingPart(b, e, ring_to_noise(p, seg, cell, mode), len(seg), ob, oe, seg if keep else None)
