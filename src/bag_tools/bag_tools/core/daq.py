@@ -37,6 +37,7 @@ from force_tester_common.core.channels import (
 from force_tester_common.core.clock import NS_PER_S
 
 from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of this module's interface
+    FORMATS,
     NOTHING_TO_CORRECT,
     ChannelMap,
     apply_map,
@@ -584,8 +585,9 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                 if meta['file'] in used:
                     raise BagError(f'{str(path)!r}: file {meta["file"]!r} used by two pulls')
                 used.add(meta['file'])
-                if not meta['file'].lower().endswith('.csv'):
-                    meta['file'] += '.csv'
+                if not meta['file'].lower().endswith('.csv'):   # a lab's rec1.lvm is written as rec1.csv
+                    stem, dot, suffix = meta['file'].rpartition('.')
+                    meta['file'] = (stem if dot and '.' + suffix.lower() in FORMATS else meta['file']) + '.csv'
                 entry = {k: meta[k] for k in META_REQUIRED}
                 for k in META_OPTIONAL:
                     if meta.get(k) is not None:

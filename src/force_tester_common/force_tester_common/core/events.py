@@ -11,6 +11,9 @@ import numpy as np
 EVENT_LEVEL = 0.2
 #: Stretches closer than this are one event, s.
 EVENT_GAP_S = 0.005
+#: An event's peak excursion must exceed this many robust standard deviations (1.4826 MAD) of the record:
+#: a record of noise alone has no event.
+EVENT_SNR = 8.0
 #: Level at which an event's duration is measured (full width at half of its peak excursion).
 WIDTH_LEVEL = 0.5
 
@@ -24,7 +27,8 @@ def event_spans(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float 
     dev = np.abs(x - np.median(x[ok]))
     dev[~ok] = 0.0
     peak = dev.max()
-    if not peak > 0:
+    noise = 1.4826 * np.median(dev[ok])
+    if not peak > 0 or peak < EVENT_SNR * noise:
         return []
     idx = np.flatnonzero(dev > level * peak)
     gap = max(1, int(round(gap_s * rate_hz)))
