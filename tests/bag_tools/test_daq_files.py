@@ -234,3 +234,14 @@ def test_rate_from_the_map_when_the_file_has_none(tmp_path):
     r = run_cli('import', tmp_path / 'a.csv', '--channels', m, '--dry-run')
     assert r.returncode == 0, r.stderr
     assert '1 pull(s) at 100000 Hz' in r.stdout and 'duration 0.03 s' in r.stdout
+
+
+def test_example_channel_map_reads_the_lab_files(tmp_path):
+    from pathlib import Path
+    example = Path(__file__).resolve().parents[2] / 'config' / 'channel_maps' / 'drop_impactor.yaml'
+    cmap = load_channel_map(example)
+    assert cmap.absent == ('encoder_position_m', 'force_stationary_n') and cmap.sample_rate_hz == 100_000.0
+    si, volts = impact_record(100_000.0, 3000, 4)
+    from bag_tools.core.daqfiles import apply_map
+    out, _absent, _used = apply_map(read_records(write_mf4(tmp_path / 'x.mf4', volts, 100_000.0))[0], cmap, 'x')
+    np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-12, atol=1e-9)
