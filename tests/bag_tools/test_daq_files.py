@@ -245,3 +245,33 @@ def test_example_channel_map_reads_the_lab_files(tmp_path):
     from bag_tools.core.daqfiles import apply_map
     out, _absent, _used = apply_map(read_records(write_mf4(tmp_path / 'x.mf4', volts, 100_000.0))[0], cmap, 'x')
     np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-12, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- campaign CSV at disk speed
+def test_fast_csv_writer_writes_reprs_bytes(tmp_path):
+    from bag_tools.core.daq import write_csv
+    rng = np.random.default_rng(5)
+    n = 40_000
+    mag = 10.0 ** rng.uniform(-12, 18, n) * rng.choice([-1.0, 1.0], n) * rng.uniform(1, 10, n)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 5e-324, 1e-310, 1.7976931348623157e308, 1e-5, 1e-4,
+                        9.999999999999999e-05, 1e16, 9999999999999998.0, 123456789012345.0, 2e-05, 1.0, -3.0])
+    mag[:special.size] = special
+    ch = {'time_s': np.arange(n) / 100_000.0, 'x': mag, 'whole': np.round(mag * 1e-10),
+          'few': rng.choice([0.0, -0.0, 4.572, 1e-7, np.nan], n)}      # few distinct values: formatted once each
+    write_csv(tmp_path / 'a.csv', ch)
+    expect = 'time_s,x,whole,few\n' + ''.join(
+        ','.join(map(repr, row)) + '\n' for row in zip(*(v.tolist() for v in ch.values())))
+    assert (tmp_path / 'a.csv').read_text() == expect
+
+
+def test_fast_csv_reader_reads_what_float_reads(tmp_path):
+    from bag_tools.core.daq import read_csv
+    rows = ['1.5,nan,', '-0.0,inf,2e-05', '5e-324,-inf,NaN', '0.1,1e+16,3']
+    (tmp_path / 'a.csv').write_text('a,b,c\n' + '\n'.join(rows) + '\n')
+    got = read_csv(tmp_path / 'a.csv')
+    for j, name in enumerate('abc'):
+        want = np.array([float(r.split(',')[j]) if r.split(',')[j] else np.nan for r in rows])
+        assert got[name].tobytes() == want.tobytes(), name
+    (tmp_path / 'b.csv').write_text('a,b\n1.0,2.0\n3.0,x\n')       # refused by pyarrow: the line is named
+    with pytest.raises(BagError, match="line 3: value 'x' is not a number"):
+        read_csv(tmp_path / 'b.csv')

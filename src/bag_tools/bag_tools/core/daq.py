@@ -229,6 +229,12 @@ def format_column(a: np.ndarray):
     import pyarrow as pa  # noqa: PLC0415 - only where CSV is written
     import pyarrow.compute as pc  # noqa: PLC0415
     v = np.ascontiguousarray(a, dtype=np.float64)
+    sample = v.view(np.int64)[::max(1, v.size // 2048)]
+    if v.size > 64 and np.unique(sample).size <= sample.size // 2:
+        # a column of few distinct values (a command, a quantised encoder, zeros): each formatted once
+        bits, inverse = np.unique(v.view(np.int64), return_inverse=True)   # by bits: -0.0 is not 0.0
+        if bits.size <= v.size // 4:
+            return format_column(bits.view(np.float64)).take(pa.array(inverse.astype(np.int32)))
     s = pc.cast(pa.array(v), pa.string())
     mag = np.abs(v)
     fin = np.isfinite(v)
