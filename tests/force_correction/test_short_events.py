@@ -85,3 +85,13 @@ def test_correct_names_short_events_and_the_bandwidth_option(tmp_path):
     r = run_cli('correct', folder, tmp_path / 'out3', module='force_correction.offline.cli')
     assert r.returncode == 0, r.stderr
     assert r.stderr.count('the moving average cuts its peak by') == 2
+
+
+def test_correct_on_a_bag_without_stationary_cell_finds_them_too(tmp_path):
+    from bag_tools.core.convert import campaign_to_bag
+    folder, _truth = lvm_campaign(tmp_path, n=10_000, records=2)
+    bag = campaign_to_bag(folder, tmp_path / 'bag')
+    res = correct(bag, tmp_path / 'out', CorrectionSetup())
+    assert sum('cuts its peak by' in w for w in res.warnings) == 2
+    assert sum('not scored' in w for w in res.warnings) == 1            # one line, not one per pull
+    assert [e['pull_id'] for e in res.short_events] == [1, 2]

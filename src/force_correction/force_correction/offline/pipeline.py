@@ -100,7 +100,12 @@ def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = No
     res = _correct(src, dst, setup, kind, to, path, progress, mapper, skip_failed)
     if res.short_events:
         return res
-    found = _events_of(src, kind, setup.params, mapper, skip_failed) if kind == 'campaign' or any(
+    unscored = [w for w in res.warnings if 'but stationary has 0' in w]   # a bag of a rig with no stationary cell
+    if unscored:
+        res = replace(res, warnings=(*(w for w in res.warnings if w not in unscored),
+                                     f'{len(unscored)} pull(s) have no stationary cell samples: corrected but not '
+                                     'scored'))
+    found = _events_of(src, kind, setup.params, mapper, skip_failed) if kind == 'campaign' or unscored or any(
         _lossy(p.score) for p in res.pulls) else []
     scores = dst / 'scores.json'
     if found and scores.is_file():   # a corrected campaign's report names them too
