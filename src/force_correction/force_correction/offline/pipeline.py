@@ -105,7 +105,9 @@ def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = No
         res = replace(res, warnings=(*(w for w in res.warnings if w not in unscored),
                                      f'{len(unscored)} pull(s) have no stationary cell samples: corrected but not '
                                      'scored'))
-    found = _events_of(src, kind, setup.params, mapper, skip_failed) if kind == 'campaign' or unscored or any(
+    # the pulls are read again only where an event may be short: unscored pulls, or a filtered peak below the
+    # corrected one (a pull of seconds loses nothing to the average, and is not read again)
+    found = _events_of(src, kind, setup.params, mapper, skip_failed) if unscored or not res.pulls or any(
         _lossy(p.score) for p in res.pulls) else []
     scores = dst / 'scores.json'
     if found and scores.is_file():   # a corrected campaign's report names them too
@@ -137,7 +139,8 @@ def _events_of(src: Path, kind: str, params: CorrectionParams, mapper, skip_fail
     """[(pull_id, ShortEvent, rate)] of every pull: m*a on the moving cell (no moving average) against
     the same with ``params.window``."""
     if kind == 'campaign':
-        camp = read_campaign(src, mapper=mapper, skip_failed=skip_failed)
+        # here, not on the mapper: it counts its failed pulls, and the correction has reported those already
+        camp = read_campaign(src, mapper=None, skip_failed=True)
         rate, pulls = camp.sample_rate_hz, [(p.meta.get('pull_id') or i + 1, p.channels)
                                             for i, p in enumerate(camp.pulls)]
     else:
