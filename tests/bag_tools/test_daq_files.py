@@ -275,3 +275,17 @@ def test_fast_csv_reader_reads_what_float_reads(tmp_path):
     (tmp_path / 'b.csv').write_text('a,b\n1.0,2.0\n3.0,x\n')       # refused by pyarrow: the line is named
     with pytest.raises(BagError, match="line 3: value 'x' is not a number"):
         read_csv(tmp_path / 'b.csv')
+
+
+def test_lvm_of_several_segments_imports_a_pull_each(tmp_path):
+    records = [impact_record(100_000.0, 5000, k) for k in range(3)]
+    one = write_lvm(tmp_path / 'one.lvm', records[0][1], 100_000.0).read_text()
+    head, seg = one.split('***End_of_Header***\t\n', 1)      # the file header, then '\t' + a segment
+    segs = [write_lvm(tmp_path / f's{k}.lvm', v, 100_000.0).read_text().split('***End_of_Header***\t\n', 1)[1]
+            for k, (_si, v) in enumerate(records)]
+    f = tmp_path / 'three.lvm'
+    f.write_text(head + '***End_of_Header***\t\n' + ''.join(segs))
+    assert len(read_records(f)) == 3
+    r = run_cli('import', f, '--channels', write_map(tmp_path / 'map.yaml'), '--dry-run')
+    assert r.returncode == 0, r.stderr
+    assert '3 pull(s) at 100000 Hz' in r.stdout and 'duration 0.15 s, 3 event(s)' in r.stdout
