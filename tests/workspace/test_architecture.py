@@ -34,7 +34,8 @@ ROS_MODULES = {'rclpy', 'rcl_interfaces', 'rosidl_runtime_py', 'force_tester_msg
                'diagnostic_msgs', 'builtin_interfaces'}
 # ROS-free parts: what they may import from outside the workspace
 PURE_THIRD_PARTY = {'numpy', 'scipy', 'yaml'}
-BAG_THIRD_PARTY = PURE_THIRD_PARTY | {'rosbags', 'mcap', 'ruamel', 'nptdms', 'matplotlib'}
+BAG_THIRD_PARTY = PURE_THIRD_PARTY | {'rosbags', 'mcap', 'ruamel', 'nptdms', 'matplotlib',
+                                      'lvm_read', 'asammdf', 'pyuff', 'pyarrow'}   # DAQ files (issue 26)
 # the campaign engine: ROS-free, so the ROS-free parts may map their pulls with it; it alone imports Dask
 ENGINE = 'force_tester_common.engine'
 ENGINE_THIRD_PARTY = PURE_THIRD_PARTY | {'dask', 'distributed'}

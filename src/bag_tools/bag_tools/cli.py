@@ -161,26 +161,91 @@ def cmd_export(args) -> int:
     return report_engine('export', mapper)
 
 
+def file_campaign(src: str, args) -> tuple:
+    """(Campaign, [(channel, source, file unit, how)]) of one DAQ file: one pull per record."""
+    from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_tdms
+    from .core.daqfiles import ChannelMap, apply_map, file_format, load_channel_map, read_records
+    suffix = file_format(src)
+    if not os.path.isfile(src):
+        raise BagError(f'DAQ file {src!r} does not exist')
+    cmap = load_channel_map(args.channels) if args.channels else None
+    if args.rate is not None:
+        cmap = ChannelMap('--rate', {}, (), args.rate) if cmap is None else \
+            ChannelMap(cmap.path, cmap.specs, cmap.absent, cmap.sample_rate_hz or args.rate)
+    warnings: list = []
+    if suffix == '.tdms' and cmap is None or args.map:
+        if suffix != '.tdms':
+            raise BagError(f'--map applies to a .tdms source, not {src!r}; use --channels MAP.yaml')
+        raws = [(read_tdms(src, parse_mapping(args.map or []), args.rate), (), [])]
+    else:
+        records = read_records(src)
+        raws = []
+        for k, rec in enumerate(records):
+            where = src if len(records) == 1 else f'{src} record {k + 1}'
+            raws.append(apply_map(rec, cmap, where))
+    pulls, absent, rate = [], (), None
+    used = raws[0][2]
+    for k, (raw, absent, _used) in enumerate(raws):
+        channels, rate = check_channels(raw, src, rate, warnings, absent)
+        pid = args.pull_id if args.pull_id is not None or len(raws) == 1 else k + 1
+        meta = check_meta({'file': os.path.basename(src) + (f'#{k + 1}' if len(raws) > 1 else ''),
+                           'set': args.set, 'coupon_lbf': args.coupon_lbf, 'velocity_fps': args.velocity_fps,
+                           'decel_g': args.decel_g, 'start_ns': args.start_ns if k == 0 else None,
+                           'pull_id': pid}, src, k)
+        pulls.append(DaqPull(meta, channels))
+    return Campaign(Path(src).parent, rate, pulls, None, warnings, [], absent), used
+
+
+def describe_campaign(camp, used=None) -> str:
+    """What --dry-run prints: the channels (source, file unit, conversion, SI unit), the absent ones, the
+    rate, the duration and the events found in the moving cell, per pull."""
+    from force_tester_common.core.channels import CHANNELS
+    from force_tester_common.core.events import event_spans
+    from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT
+    lines = [f'{len(camp.pulls)} pull(s) at {camp.sample_rate_hz:g} Hz']
+    src = {ch: (s, u, how) for ch, s, u, how in (used or [])}
+    present = [c for c in CHANNELS[1:] if any(c in p.channels for p in camp.pulls)]
+    lines.append('channels:')
+    for c in present:
+        s, u, how = src.get(c, (c, None, ''))
+        frm = f' <- {s!r}' + (f' in {u}' if u else '') + (f', {how.strip()}' if how.strip() else '')
+        lines.append(f'  {c} [{SI_UNIT[CHANNEL_DIMENSION[c]]}]{frm if s != c or u or how else ""}')
+    if camp.absent:
+        lines.append(f'absent: {", ".join(camp.absent)}')
+    total = 0
+    for p in camp.pulls:
+        n = len(p.channels['time_s'])
+        ev = len(event_spans(p.channels['force_moving_n'], camp.sample_rate_hz))
+        total += ev
+        lines.append(f'  {p.meta["file"]}: {n} samples, {n / camp.sample_rate_hz:.6g} s, {ev} event(s)')
+    lines.append(f'duration {sum(len(p.channels["time_s"]) for p in camp.pulls) / camp.sample_rate_hz:.6g} s, '
+                 f'{total} event(s)')
+    return '\n'.join(lines)
+
+
 def cmd_import(args) -> int:
     mapper = engine_for(args)
     from .core.convert import campaign_to_bag
-    from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_tdms
+    from .core.daq import read_campaign
+    from .core.daqfiles import load_channel_map
     warnings: list = []
     src = args.src
-    if src.lower().endswith('.tdms'):
-        if not os.path.isfile(src):
-            raise BagError(f'TDMS file {src!r} does not exist')
-        raw = read_tdms(src, parse_mapping(args.map or []), args.rate)
-        tdms_warnings: list = []
-        channels, rate = check_channels(raw, src, args.rate, tdms_warnings)
-        meta = check_meta({'file': os.path.basename(src), 'set': args.set,
-                           'coupon_lbf': args.coupon_lbf, 'velocity_fps': args.velocity_fps,
-                           'decel_g': args.decel_g, 'start_ns': args.start_ns,
-                           'pull_id': args.pull_id}, src, 0)
-        src = Campaign(Path(src).parent, rate, [DaqPull(meta, channels)], None, tdms_warnings)
+    used = None
+    if not os.path.isdir(src):
+        src, used = file_campaign(src, args)
     elif args.map:
         raise BagError('--map applies to a .tdms source; a campaign folder maps its TDMS '
                        "files with a 'map:' entry per pull in campaign.yaml")
+    elif args.channels or args.dry_run:
+        cmap = load_channel_map(args.channels) if args.channels else None
+        src = read_campaign(src, mapper=mapper if not args.dry_run else None, skip_failed=not args.dry_run,
+                            channel_map=cmap)
+    if args.dry_run:
+        warn('import', src.warnings)
+        print(describe_campaign(src, used))
+        return 0
+    if args.bag is None:
+        raise BagError('import needs BAG, the bag directory to create (or --dry-run)')
     prog = Progress('import', 'pulls')
     info: dict = {}
     try:   # a folder's pulls are read on the engine's workers and written as they come, in order
@@ -253,18 +318,26 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     add_scheduler_argument(e)
     e.set_defaults(func=cmd_export)
 
-    im = sub.add_parser('import', help='DAQ campaign folder or .tdms file -> bag',
+    im = sub.add_parser('import', help='DAQ campaign folder or DAQ file (.csv .tdms .lvm .mf4 .uff) -> bag',
                         description='Write the block messages and PullEvents of a campaign '
-                        '(or of one TDMS file) into a new bag.')
-    im.add_argument('src', help='campaign folder (campaign.yaml) or a .tdms file')
-    im.add_argument('bag', help='bag directory to create (must not exist)')
+                        '(or of one DAQ file: TDMS, LabVIEW LVM, ASAM MDF4, UFF 58, CSV; one pull per '
+                        'record) into a new bag. A channel map (--channels) says which file channel is '
+                        'which of ours, in which unit and sensitivity, which sign, and which are absent.')
+    im.add_argument('src', help='campaign folder (campaign.yaml) or a DAQ file')
+    im.add_argument('bag', nargs='?', default=None, help='bag directory to create (must not exist)')
+    im.add_argument('--channels', metavar='MAP.yaml', default=None,
+                    help='channel map: file channel -> workspace channel, unit, sensitivity or scale, sign, '
+                    'absent channels, sample rate (see src/bag_tools/README.md)')
+    im.add_argument('--dry-run', action='store_true',
+                    help='read and convert, write nothing: print the channels, units, rate, duration and '
+                    'events understood')
     im.add_argument('--block-size', type=int, default=50, help='samples per block (default 50)')
     add_scheduler_argument(im)
-    tg = im.add_argument_group('TDMS source (one pull)')
+    tg = im.add_argument_group('DAQ file source (a pull per record)')
     tg.add_argument('--map', action='append', metavar='COLUMN=CHANNEL',
-                    help="DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
+                    help="TDMS only: DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
     tg.add_argument('--rate', type=positive_float('--rate'), default=None,
-                    help='sample rate, Hz, when the file has no time_s channel')
+                    help='sample rate, Hz, when the file gives none')
     tg.add_argument('--set', type=int, default=0, help='test set (default 0: unknown)')
     tg.add_argument('--coupon-lbf', type=float, default=0.0)
     tg.add_argument('--velocity-fps', type=float, default=0.0)

@@ -26,6 +26,7 @@ from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, i
 from .core.extension import Extension, ForcePrefilter
 from .core.pairing import BlockAligner
 from .core.params import CorrectionParams
+from .core.short_events import ShortEventMonitor, advice
 from .core.streaming import InertialCorrector
 
 SPECS = [
@@ -68,13 +69,15 @@ class CorrectionNode(Node):
                 self.diag, topic.topic, lambda m, c=channel, t=topic: self._on_block(c, t, m)), BLOCK_QOS,
                 event_callbacks=qos_watch(self.diag, topic.topic))
         self.seq = 0
-        self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0, 'bad_messages': 0, 'runs': 0}
+        self.counts = {'pairs': 0, 'nan_samples': 0, 'events': 0, 'bad_messages': 0, 'runs': 0,
+                       'short_events': 0}
 
     def _reconfigure(self, config):
         params, ext = config
         self.corrector = InertialCorrector(params)
         self.extension = ext
         self.prefilters = {}  # sample rate -> ForcePrefilter
+        self.monitors = {}    # sample rate -> ShortEventMonitor
         self.diag.report(OK, f'correction (re)started with m = {params.mass_kg} kg, N = {params.window}, '
                              f'extension {ext}')
 
@@ -107,11 +110,21 @@ class CorrectionNode(Node):
     def _correct(self, pair):
         force, accel = pair['force'], pair['accel']
         prefilter = self._prefilter(pair.sample_rate_hz)
+        rate = pair.sample_rate_hz
+        monitor = self.monitors.get(rate)
+        if monitor is None:
+            monitor = self.monitors[rate] = ShortEventMonitor(self.corrector.params.window, rate)
         if not pair.continuous:
             self.corrector.reset()
             prefilter.reset()
+            monitor.reset()
         raw = to_array(force.moving_n)
         out = self.corrector.process(prefilter.process(raw), to_array(accel.axial_m_s2))
+        for event in monitor.add(raw, out.corrected_n):   # impacts narrower than a few windows
+            self.counts['short_events'] += 1
+            self.diag.report(WARN, f'{event.line(rate)}; {advice(self.extension != Extension())}',
+                             key='short_event', loss_pct=round(100 * event.loss, 1),
+                             bandwidth_window=event.bandwidth_window)
         if out.nan_count:
             self.counts['nan_samples'] += out.nan_count
             self.diag.report(WARN, f'{out.nan_count} NaN sample(s) in the block stamped {pair.stamp_ns} ns; '

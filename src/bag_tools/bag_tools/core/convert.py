@@ -23,7 +23,9 @@ from rosbags.typesys.store import Typestore
 
 from force_tester_common.core.blocks import PullWindows
 from force_tester_common.core.channels import (
+    ABSENTABLE_CHANNELS,
     BLOCK_TYPES,
+    CORE_CHANNELS,
     CORRECTED_TYPE,
     OPTIONAL_CHANNELS,
     PULL_END,
@@ -50,6 +52,7 @@ from .daq import (
     Campaign,
     DaqPull,
     Mapper,
+    campaign_channels,
     campaign_index,
     check_rate,
     csv_columns,
@@ -60,6 +63,7 @@ from .daq import (
     time_column,
     write_campaign,
 )
+from .daqfiles import NOTHING_TO_CORRECT
 from .errors import BagError
 from .reader import open_bag
 from .typestore import default_typestore
@@ -235,10 +239,11 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
     store = typestore or default_typestore()
     if not isinstance(src, Campaign):
         path, rate, _rig, entries = campaign_index(src)
+        cmap, absent = campaign_channels(path)
         columns = [csv_columns(path / meta['file']) for meta, _entry in entries]
-        if all(c is not None for c in columns):
+        if cmap is None and all(c is not None for c in columns):
             return _stream_to_bag(path, rate, entries, columns, bag_path, block_size, store, progress,
-                                  warnings, mapper, skip_failed, info)
+                                  warnings, mapper, skip_failed, info, absent)
         src = read_campaign(src, mapper=mapper, skip_failed=skip_failed)   # TDMS pulls: read them first
     camp = src
     warnings.extend(camp.warnings)
@@ -258,11 +263,11 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
 
 
 def _stream_to_bag(path: Path, rate, entries: list, columns: list, bag_path, block_size: int, store,
-                   progress, warnings: list, mapper, skip_failed: bool, info: dict) -> Path:
+                   progress, warnings: list, mapper, skip_failed: bool, info: dict, absent=()) -> Path:
     topics = campaign_topics(columns)
     seqs = {t[0]: 0 for t in topics}
     state: dict = {'rate': rate, 'place': None, 'pulls': 0}
-    jobs = [(path / meta['file'], entry.get('map'), rate) for meta, entry in entries]
+    jobs = [(path / meta['file'], entry.get('map'), rate, None, absent) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
     with BagWriter(bag_path, store) as writer:
         def write(i: int, result: tuple) -> None:
@@ -419,7 +424,11 @@ class _Cutter:
                 self.warnings.append(f'pull {meta["pull_id"]}: {n - got} of {n} samples of {col} '
                                      'missing (dropped blocks); written as NaN')
             ch[col] = out
-        missing = [c for c in REQUIRED_CHANNELS if c not in ch]
+        core = [c for c in CORE_CHANNELS if c not in ch]
+        if core:
+            raise BagError(f'pull {meta["pull_id"]} in bag {str(self.bag_path)!r} has no samples of '
+                           f'{core[0]!r}; {NOTHING_TO_CORRECT}')
+        missing = [c for c in REQUIRED_CHANNELS if c not in ch and c not in ABSENTABLE_CHANNELS]
         if missing:
             raise BagError(f'pull {meta["pull_id"]} in bag {str(self.bag_path)!r} has no samples of '
                            f'required column {missing[0]!r}; expected its block topic in the bag')
@@ -529,8 +538,11 @@ def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progres
 
     it = pulls()
     first = next(it)   # the rate is known once the first pull is
+    absent = [c for c in ABSENTABLE_CHANNELS if c not in first.channels]   # the bag has none of them
+    if absent:
+        warnings.append(f'bag has no samples of {", ".join(absent)}: named absent in campaign.yaml')
     out = write_campaign(out_dir, itertools.chain([first], it), sample_rate_hz=state['sample_rate_hz'],
-                         mapper=mapper)   # progress: the reader's, by messages
+                         mapper=mapper, absent=absent)   # progress: the reader's, by messages
     absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')

@@ -13,7 +13,6 @@ scoring uses nanmax), so keeping them changes no finite value and hides nothing.
 
 from __future__ import annotations
 
-import io
 import itertools
 import math
 import numbers
@@ -27,10 +26,28 @@ from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sized
 import numpy as np
 import yaml
 
-from force_tester_common.core.channels import CHANNELS, CORRECTED_FIELDS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.channels import (
+    ABSENTABLE_CHANNELS,
+    CHANNELS,
+    CORE_CHANNELS,
+    CORRECTED_FIELDS,
+    OPTIONAL_CHANNELS,
+    REQUIRED_CHANNELS,
+)
 from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.core.mapping import map_here
 
+from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of this module's interface
+    FORMATS,
+    NOTHING_TO_CORRECT,
+    ChannelMap,
+    apply_map,
+    file_format,
+    load_channel_map,
+    read_csv,
+    read_records,
+    time_column,
+)
 from .errors import BagError, one_line
 
 CAMPAIGN_FILE = 'campaign.yaml'
@@ -65,6 +82,8 @@ class Campaign:
     rig: str | None = None
     warnings: list = field(default_factory=list)
     failed: list = field(default_factory=list)  # [(file, one line)]: pulls left out by read_campaign
+    #: required channels this campaign does not have (campaign.yaml ``absent:``): never NaN columns
+    absent: tuple = ()
 
     def missing_optional(self) -> list:
         """Optional channels absent from at least one pull."""
@@ -73,11 +92,6 @@ class Campaign:
 
 
 # --------------------------------------------------------------------------- helpers
-def time_column(n: int, rate_hz: float) -> np.ndarray:
-    """time_s = k / rate exactly (float64 division, as the sim does)."""
-    return np.arange(n) / rate_hz
-
-
 def _is_int(x) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool)
 
@@ -121,16 +135,37 @@ def check_meta(meta: Mapping, where: str, index: int) -> dict:
 
 
 # --------------------------------------------------------------------------- validation
+def check_absent(absent, where: str) -> tuple:
+    """A validated ``absent:`` list: channels of ABSENTABLE_CHANNELS or OPTIONAL_CHANNELS, never a core one."""
+    if absent is None:
+        return ()
+    if isinstance(absent, str) or not isinstance(absent, (list, tuple)):
+        raise BagError(f'{where}: absent {absent!r} is invalid; expected a list of channels, some of '
+                       f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
+    for c in absent:
+        if c in CORE_CHANNELS:
+            raise BagError(f'{where}: absent names {c!r}; {NOTHING_TO_CORRECT}')
+        if c not in CHANNELS:
+            raise BagError(f'{where}: absent channel {c!r} is not a workspace channel; expected some of '
+                           f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
+    return tuple(c for c in CHANNELS if c in absent)
+
+
 def check_channels(channels: Mapping[str, Any], where: str, rate_hz: float | None,
-                   warnings: list | None = None) -> tuple[dict, float]:
+                   warnings: list | None = None, absent: Iterable = ()) -> tuple[dict, float]:
     """Validate one pull's channels; returns (float64 channels, sample rate).
 
-    rate_hz None: the rate is taken from the time column.
+    rate_hz None: the rate is taken from the time column. absent: required channels the campaign
+    names as absent (they may be missing; the core channels never may).
     """
-    missing = [c for c in REQUIRED_CHANNELS if c not in channels]
+    core = [c for c in CORE_CHANNELS[1:] if c not in channels]
+    if core:
+        raise BagError(f'{where}: required column {core[0]!r} is missing; {NOTHING_TO_CORRECT}')
+    missing = [c for c in REQUIRED_CHANNELS if c not in channels and c not in absent]
     if missing:
         raise BagError(f'{where}: required column {missing[0]!r} is missing; expected columns '
-                       f'{", ".join(REQUIRED_CHANNELS)} (found {", ".join(channels) or "none"})')
+                       f'{", ".join(REQUIRED_CHANNELS)} (found {", ".join(channels) or "none"}), or '
+                       f"the channel named in campaign.yaml's absent: list")
     out = {}
     n = None
     for name, values in channels.items():
@@ -182,67 +217,72 @@ def check_channels(channels: Mapping[str, Any], where: str, rate_hz: float | Non
 
 
 # --------------------------------------------------------------------------- CSV
-def read_csv(path: Path) -> dict:
-    """One pull CSV -> {column: float64 array}. Header row, comma separated."""
-    try:
-        with open(path, encoding='utf-8', newline='') as fh:
-            header = fh.readline()
-            body = fh.read()
-    except OSError as exc:
-        raise BagError(f'cannot read {str(path)!r}: {one_line(exc)}') from None
-    names = [h.strip() for h in header.strip().split(',')]
-    if not header.strip() or any(not h for h in names):
-        raise BagError(f'{str(path)!r}: header row {header.strip()!r} is invalid; expected '
-                       f'comma-separated column names like {",".join(REQUIRED_CHANNELS)}')
-    dup = sorted({h for h in names if names.count(h) > 1})
-    if dup:
-        raise BagError(f'{str(path)!r}: column {dup[0]!r} appears twice in the header')
-    if not body.strip():
-        raise BagError(f'{str(path)!r} has a header but no data rows; expected one row per sample')
-    try:
-        data = np.loadtxt(io.StringIO(body), delimiter=',', dtype=np.float64, ndmin=2)
-    except ValueError:
-        data = _read_csv_slow(path, body, len(names))
-    if data.shape[1] != len(names):
-        raise BagError(f'{str(path)!r}: rows have {data.shape[1]} values but the header names '
-                       f'{len(names)} columns')
-    return {name: np.ascontiguousarray(data[:, i]) for i, name in enumerate(names)}
-
-
-def _read_csv_slow(path: Path, body: str, ncol: int) -> np.ndarray:
-    """Row by row: empty fields become NaN; anything else unparsable is an error."""
-    rows = []
-    for lineno, line in enumerate(body.splitlines(), start=2):
-        if not line.strip():
-            continue
-        parts = line.split(',')
-        if len(parts) != ncol:
-            raise BagError(f'{str(path)!r} line {lineno} has {len(parts)} values; expected '
-                           f'{ncol} (one per header column)')
-        row = []
-        for p in parts:
-            p = p.strip()
-            try:
-                row.append(float(p) if p else math.nan)
-            except ValueError:
-                raise BagError(f'{str(path)!r} line {lineno}: value {p!r} is not a number') \
-                    from None
-        rows.append(row)
-    return np.asarray(rows, dtype=np.float64).reshape(-1, ncol)
-
-
 def _fmt_column(a: np.ndarray) -> list:
     # repr of a Python float is the shortest string that reads back to the same double.
     return list(map(repr, a.tolist()))
 
 
+def format_column(a: np.ndarray):
+    """A column as Python's repr of each value (the shortest string that reads back to the same double), as a
+    pyarrow string array, formatted in C++: pyarrow casts to the same shortest digits but lays some out
+    differently, and those are mended here: integers gain '.0', exponents two digits (1e-5 -> 1e-05), and
+    what is left (fixed notation below 1e-4, exponents from 1e-4 to 1e16: a few in a pull) is repr'd."""
+    import pyarrow as pa  # noqa: PLC0415 - only where CSV is written
+    import pyarrow.compute as pc  # noqa: PLC0415
+    v = np.ascontiguousarray(a, dtype=np.float64)
+    sample = v.view(np.int64)[::max(1, v.size // 2048)]
+    if v.size > 64 and np.unique(sample).size <= sample.size // 2:
+        # a column of few distinct values (a command, a quantised encoder, zeros): each formatted once
+        bits, inverse = np.unique(v.view(np.int64), return_inverse=True)   # by bits: -0.0 is not 0.0
+        if bits.size <= v.size // 4:
+            return format_column(bits.view(np.float64)).take(pa.array(inverse.astype(np.int32)))
+    s = pc.cast(pa.array(v), pa.string())
+    mag = np.abs(v)
+    fin = np.isfinite(v)
+    dot = pc.match_substring(s, '.').to_numpy(zero_copy_only=False)
+    exp = pc.match_substring(s, 'e').to_numpy(zero_copy_only=False)
+    sci = (mag < 1e-4) | (mag >= 1e16)        # where repr writes an exponent
+    whole = ~dot & ~exp & fin & ~sci          # '12' -> '12.0'
+    short = exp & fin & sci                   # '1e-5' -> '1e-05'
+    other = fin & ~((dot & ~exp & ~sci) | whole | short)
+    for mask, mend in ((whole, lambda x: pc.binary_join_element_wise(x, '.0', '')),
+                       (short, lambda x: pc.replace_substring_regex(x, r'e([+-])(\d)$', r'e\10\2'))):
+        if mask.any():
+            m = pa.array(mask)
+            s = pc.replace_with_mask(s, m, mend(pc.filter(s, m)))
+    if other.any():
+        s = pc.replace_with_mask(s, pa.array(other), pa.array(_fmt_column(v[other]), pa.string()))
+    return s
+
+
 def write_csv(path: Path, channels: Mapping[str, np.ndarray]) -> None:
+    """One pull CSV: a header row, then a row per sample of repr'd floats (lossless). Formatted in C++ by
+    pyarrow (format_column) when it is installed: the same bytes as the plain Python below."""
     names = list(channels)
-    cols = [_fmt_column(np.asarray(channels[c], dtype=np.float64)) for c in names]
-    with open(path, 'w', encoding='utf-8', newline='') as fh:
-        fh.write(','.join(names) + '\n')
-        fh.write('\n'.join(map(','.join, zip(*cols))))
-        fh.write('\n')
+    try:
+        import pyarrow.compute as pc  # noqa: PLC0415
+    except ImportError:
+        pc = None
+    cols = {c: np.asarray(channels[c], dtype=np.float64) for c in names}
+    n = len(cols[names[0]]) if names else 0
+    if pc is None or n == 0:
+        text = [_fmt_column(cols[c]) for c in names]
+        with open(path, 'w', encoding='utf-8', newline='') as fh:
+            fh.write(','.join(names) + '\n')
+            fh.write('\n'.join(map(','.join, zip(*text))))
+            fh.write('\n')
+        return
+    with open(path, 'wb') as fh:
+        fh.write((','.join(names) + '\n').encode('utf-8'))
+        for k in range(0, n, CSV_ROWS):   # 1M rows a time keeps pyarrow's 32-bit string offsets in range
+            rows = pc.binary_join_element_wise(*[format_column(cols[c][k:k + CSV_ROWS]) for c in names], ',')
+            rows = pc.binary_join_element_wise(rows, '', '\n')      # each row and its newline, end to end
+            offsets = np.frombuffer(rows.buffers()[1], dtype=np.int32)[rows.offset:rows.offset + len(rows) + 1]
+            fh.write(memoryview(rows.buffers()[2])[int(offsets[0]):int(offsets[-1])])
+
+
+#: Rows formatted at once by write_csv.
+CSV_ROWS = 1_000_000
 
 
 # --------------------------------------------------------------------------- TDMS
@@ -361,23 +401,66 @@ def campaign_index(path: str | Path) -> tuple:
     return path, rate, rig, entries
 
 
+def campaign_channels(path: str | Path) -> tuple:
+    """(channel map or None, absent channels) of a campaign folder: campaign.yaml's ``channels:`` (a
+    channel map YAML file in the folder) and ``absent:`` (with the map's own absent channels)."""
+    path = Path(path)
+    cfile = path / CAMPAIGN_FILE
+    try:
+        doc = yaml.safe_load(cfile.read_text(encoding='utf-8'))
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'{str(cfile)!r} is not valid YAML: {one_line(exc)}') from None
+    absent = list(check_absent(doc.get('absent'), str(cfile)))
+    cmap = None
+    if doc.get('channels') is not None:
+        name = doc['channels']
+        if not isinstance(name, str) or not (path / name).is_file():
+            raise BagError(f'{str(cfile)!r}: channels {name!r} is not a file in the campaign folder; expected '
+                           'the channel map YAML')
+        cmap = load_channel_map(path / name)
+        absent += [c for c in cmap.absent if c not in absent]
+    return cmap, tuple(c for c in CHANNELS if c in absent)
+
+
 def read_pull(job: tuple) -> tuple:
     """One pull file, read and validated (the per-pull step of read_campaign, run on a worker).
 
-    job: (file path, TDMS channel map or None, campaign.yaml's sample rate or None).
+    job: (file path, TDMS channel map or None, campaign.yaml's sample rate or None[, channel map or None
+    [, absent channels]]). A file of a lab's format (LVM, MDF4, UFF), or any file when a channel map is
+    given, goes through the channel map (daqfiles.apply_map) and must hold one record.
     Returns (channels, sample rate, warnings)."""
-    fpath, mapping, rate = job
+    fpath, mapping, rate = job[:3]
+    cmap = job[3] if len(job) > 3 else None
+    absent = tuple(job[4]) if len(job) > 4 else ()
     fpath = Path(fpath)
-    raw = read_tdms(fpath, mapping, rate) if fpath.suffix.lower() == '.tdms' else read_csv(fpath)
+    suffix = file_format(fpath)
     warnings: list = []
-    channels, prate = check_channels(raw, str(fpath), rate, warnings)
+    if cmap is not None or suffix not in ('.csv', '.tdms'):
+        raw, absent = pull_from_file(fpath, cmap, rate, absent)
+    else:
+        raw = read_tdms(fpath, mapping, rate) if suffix == '.tdms' else read_csv(fpath)
+    channels, prate = check_channels(raw, str(fpath), rate, warnings, absent)
     return channels, prate, warnings
+
+
+def pull_from_file(fpath: Path, cmap: ChannelMap | None, rate: float | None = None, absent=()) -> tuple:
+    """(channels in SI, absent channels) of a one-record DAQ file through a channel map."""
+    records = read_records(fpath)
+    if len(records) != 1:
+        raise BagError(f'{str(fpath)!r} holds {len(records)} records; expected one per pull file (import the '
+                       'file alone to make one pull of each)')
+    if rate is not None and cmap is not None and cmap.sample_rate_hz is None and records[0].rate_hz is None:
+        cmap = ChannelMap(cmap.path, cmap.specs, cmap.absent, rate)
+    elif rate is not None and cmap is None and records[0].rate_hz is None:
+        cmap = ChannelMap('campaign.yaml', {}, (), rate)
+    raw, map_absent, _used = apply_map(records[0], cmap, str(fpath))
+    return raw, tuple(c for c in CHANNELS if c in absent or c in map_absent)
 
 
 def csv_columns(path: Path) -> set | None:
     """The column names in a CSV pull's header row (empty when unreadable: reading the pull says why);
-    None for a TDMS file (its columns are known once it is read)."""
-    if Path(path).suffix.lower() == '.tdms':
+    None for any other file (its columns are known once it is read)."""
+    if Path(path).suffix.lower() != '.csv':
         return None
     try:
         with open(path, encoding='utf-8', newline='') as fh:
@@ -423,21 +506,26 @@ def failed_line(failed: list) -> str:
 
 
 def read_campaign(path: str | Path, mapper: Mapper | None = None, skip_failed: bool = False,
-                  progress: Callable[[int, int], None] | None = None) -> Campaign:
+                  progress: Callable[[int, int], None] | None = None,
+                  channel_map: ChannelMap | None = None) -> Campaign:
     """Read and validate a campaign folder. Raises BagError; warnings in Campaign.warnings.
 
     mapper: reads the pull files in parallel (force_tester_common.engine.map_pulls). skip_failed: a pull
     file that fails to read is left out, named in Campaign.failed and in a warning, instead of failing
-    the whole campaign (BagError when no pull is left)."""
+    the whole campaign (BagError when no pull is left). channel_map: replaces campaign.yaml's ``channels:``."""
     path, rate, rig, entries = campaign_index(path)
-    jobs = [(path / meta['file'], entry.get('map'), rate) for meta, entry in entries]
+    cmap, absent = campaign_channels(path)
+    if channel_map is not None:
+        cmap = channel_map
+        absent = tuple(c for c in CHANNELS if c in absent or c in channel_map.absent)
+    jobs = [(path / meta['file'], entry.get('map'), rate, cmap, absent) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
     results, failed = _map(read_pull, jobs, names, mapper, progress, skip_failed)
     if failed and not skip_failed:
         raise BagError(f'campaign {str(path)!r}: {failed_line(failed)}')
     warnings: list = []
     pulls = []
-    for (meta, _entry), (fpath, _m, _r), res in zip(entries, jobs, results):
+    for (meta, _entry), (fpath, *_rest), res in zip(entries, jobs, results):
         if res is None:
             continue
         channels, prate, pull_warnings = res
@@ -448,7 +536,7 @@ def read_campaign(path: str | Path, mapper: Mapper | None = None, skip_failed: b
         warnings.append(f'pull {name!r} skipped: {why}')
     if not pulls:
         raise BagError(f'campaign {str(path)!r}: every pull failed; {failed_line(failed)}')
-    camp = Campaign(path, rate, pulls, rig, warnings, failed)
+    camp = Campaign(path, rate, pulls, rig, warnings, failed, absent)
     miss = camp.missing_optional()
     if miss:
         warnings.append(f'campaign {str(path)!r}: optional column(s) {", ".join(miss)} missing '
@@ -471,9 +559,10 @@ def write_pull(job: tuple) -> float:
 
     job: (CSV path, channels or produce's argument, produce or None, rate or None, name for messages).
     produce(argument) -> channels makes the pull where it is written (a simulation, for example)."""
-    dest, data, produce, rate, where = job
+    dest, data, produce, rate, where = job[:5]
+    absent = job[5] if len(job) > 5 else ()
     channels = produce(data) if produce is not None else data
-    chans, prate = check_channels(channels, where, rate)
+    chans, prate = check_channels(channels, where, rate, absent=absent)
     rate = prate if rate is None else rate
     n = len(chans['time_s'])
     ordered = {'time_s': time_column(n, rate)}
@@ -486,7 +575,8 @@ def write_pull(job: tuple) -> float:
 def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | None = None,
                    sample_rate_hz: float | None = None, extra: Mapping | None = None,
                    progress: Callable[[int, int], None] | None = None,
-                   mapper: Mapper | None = None, produce: Callable | None = None) -> Path:
+                   mapper: Mapper | None = None, produce: Callable | None = None,
+                   absent: Iterable = ()) -> Path:
     """Write a campaign folder atomically (temp folder beside it, renamed when complete).
 
     pulls: (meta, channels) pairs (a list or any iterable, read once); meta needs META_REQUIRED except
@@ -500,8 +590,10 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
     produce: pulls are (meta, x) and each pull's channels are produce(x), computed where the pull is
     written (the campaign is never whole in this process); its rate is then its own, and every pull's
     must agree.
+    absent: required channels the pulls do not have, written as campaign.yaml's ``absent:``.
     """
     path = Path(path)
+    absent = check_absent(list(absent), str(path))
     tmp = _atomic_dir(path)
     try:
         entries: list = []
@@ -513,7 +605,8 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
         if first is None:
             raise BagError(f'no pulls to write to {str(path)!r}')
         if rate is None and produce is None:  # the first pull's rate, for all
-            rate = check_channels(first[1], f'{str(path)}/{first[0].get("file", "pull_0001.csv")}', None)[1]
+            rate = check_channels(first[1], f'{str(path)}/{first[0].get("file", "pull_0001.csv")}', None,
+                                  absent=absent)[1]
 
         def jobs():
             for i, (meta, data) in enumerate(itertools.chain([first], items)):
@@ -523,15 +616,16 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                 if meta['file'] in used:
                     raise BagError(f'{str(path)!r}: file {meta["file"]!r} used by two pulls')
                 used.add(meta['file'])
-                if not meta['file'].lower().endswith('.csv'):
-                    meta['file'] += '.csv'
+                if not meta['file'].lower().endswith('.csv'):   # a lab's rec1.lvm is written as rec1.csv
+                    stem, dot, suffix = meta['file'].rpartition('.')
+                    meta['file'] = (stem if dot and '.' + suffix.lower() in FORMATS else meta['file']) + '.csv'
                 entry = {k: meta[k] for k in META_REQUIRED}
                 for k in META_OPTIONAL:
                     if meta.get(k) is not None:
                         entry[k] = int(meta[k])
                 entries.append(entry)
                 names.append(meta['file'])
-                yield tmp / meta['file'], data, produce, rate, f'{str(path)}/{meta["file"]}'
+                yield tmp / meta['file'], data, produce, rate, f'{str(path)}/{meta["file"]}', absent
 
         if mapper is None:
             rates = map_here(write_pull, jobs(), progress=progress, total=len(pulls) if isinstance(pulls, Sized) else 0,
@@ -549,6 +643,8 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                     raise BagError(f'{str(path)}/{name}: sample rate {r!r} Hz differs from {rate!r} Hz '
                                    'of the first pull; expected one rate per campaign')
         doc: dict = {'format': FORMAT, 'sample_rate_hz': float(rate)}
+        if absent:
+            doc['absent'] = list(absent)
         if rig is not None:
             rig = Path(rig)
             if not rig.is_file():

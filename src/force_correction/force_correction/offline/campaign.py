@@ -13,6 +13,7 @@ import numpy as np
 from bag_tools.core import daq
 from bag_tools.core.convert import place_pulls, read_bag_pulls
 from bag_tools.core.daq import Campaign, DaqPull, Mapper, write_campaign
+from force_tester_common.core.channels import ABSENTABLE_CHANNELS
 from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, record_stamps_ns
 
 from .stream import CorrectionStream
@@ -41,7 +42,8 @@ def correct_runs(camp: Campaign, stream: CorrectionStream) -> tuple:
         out = stream.add(np.concatenate([record_stamps_ns(s, n, rate) for s, n, _ in g]),
                          np.concatenate([c['force_moving_n'] for c in ch]),
                          np.concatenate([c['accel_axial_m_s2'] for c in ch]),
-                         np.concatenate([c['force_stationary_n'] for c in ch]), rate)
+                         np.concatenate([c['force_stationary_n'] if 'force_stationary_n' in c   # absent: unscored
+                                         else np.full(len(c['time_s']), np.nan) for c in ch]), rate)
         pos = 0
         for _s, n, _p in g:
             columns.append({c: getattr(out, c)[pos:pos + n] for c, _ in CORRECTED_COLUMNS})
@@ -72,7 +74,8 @@ def bag_pulls_with_columns(src: Path, arrays: dict) -> tuple:
 
 def write_corrected_campaign(dst: Path, pulls: list, rate: float, rig, scores: dict,
                              mapper: Mapper | None = None) -> None:
-    write_campaign(dst, pulls, rig=rig, sample_rate_hz=rate, mapper=mapper,
+    absent = [c for c in ABSENTABLE_CHANNELS if pulls and c not in pulls[0].channels]
+    write_campaign(dst, pulls, rig=rig, sample_rate_hz=rate, mapper=mapper, absent=absent,
                    extra={'scores.json': json.dumps(scores, indent=1, default=_json) + '\n'})
 
 

@@ -47,6 +47,9 @@ def _correct_arguments(p) -> None:
                         "(its mass_kg replaces --mass-kg)")
     p.add_argument('--loaded-fraction', type=float, default=LOADED_FRACTION,
                    help=f'RMS window: stationary > this x its peak (default {LOADED_FRACTION})')
+    p.add_argument('--window-from-bandwidth', action='store_true',
+                   help='choose the moving average from the bandwidth of the short events (impacts narrower '
+                   'than a few windows) instead of --window; not the default')
     p.add_argument('--to', choices=('bag', 'campaign'), default=None,
                    help='output kind (default: the kind of SRC)')
     add_scheduler_argument(p)
@@ -56,7 +59,8 @@ def run_correct(args) -> int:
     mapper = engine_for(args)   # a bad address fails first
     from .pipeline import CorrectionSetup, correct
     setup = CorrectionSetup.build(args.mass_kg, args.window, args.extension,
-                                  loaded_fraction=args.loaded_fraction)
+                                  loaded_fraction=args.loaded_fraction,
+                                  window_from_bandwidth=args.window_from_bandwidth)
     prog = Progress('correct', 'messages')
     try:
         result = correct(args.src, args.dst, setup, to=args.to, progress=prog, mapper=mapper,

@@ -7,6 +7,7 @@ campaign (plus inertial_n, corrected_n, filtered_n columns and scores.json).
 """
 from __future__ import annotations
 
+import json
 import shutil
 import tempfile
 from contextlib import nullcontext
@@ -14,7 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
-from bag_tools.core.convert import campaign_to_bag, source_kind
+from bag_tools.core.convert import campaign_to_bag, read_bag_pulls, source_kind
 from bag_tools.core.daq import DaqPull, Mapper, read_campaign
 from bag_tools.core.fastcdr import FastPathError
 from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE, MASS_KG, MAX_PENDING, WINDOW
@@ -23,6 +24,8 @@ from ..core.errors import CorrectionError
 from ..core.extension import Extension
 from ..core.pairing import BlockAligner
 from ..core.params import CorrectionParams
+from ..core.short_events import advice, bandwidth_window, short_events
+from ..core.streaming import correct_signal
 from . import bag as bagio
 from .campaign import bag_pulls_with_columns, correct_runs, write_corrected_campaign
 from .result import CorrectionResult
@@ -44,6 +47,8 @@ class CorrectionSetup:
     loaded_fraction: float = LOADED_FRACTION
     max_pending: int = MAX_PENDING
     segment_samples: int = SEGMENT_SAMPLES
+    #: choose the moving average from the short events' bandwidth (short_events.bandwidth_window)
+    window_from_bandwidth: bool = False
 
     def __post_init__(self):
         lo, hi = LOADED_FRACTION_RANGE
@@ -82,6 +87,74 @@ def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = No
     setup = CorrectionSetup() if setup is None else setup
     src, dst = Path(src), Path(dst)
     kind = source_kind(src)
+    if setup.window_from_bandwidth and not dst.exists():   # the events decide the window, then correct
+        events = _events_of(src, kind, setup.params, mapper, skip_failed)
+        window = bandwidth_window([e for _pid, e, _rate in events], setup.params.window)
+        chosen = replace(setup, params=replace(setup.params, window=window), window_from_bandwidth=False)
+        res = correct(src, dst, chosen, to=to, path=path, progress=progress, mapper=mapper,
+                      skip_failed=skip_failed)
+        note = (f'window {window} samples chosen from the bandwidth of {len(events)} short event(s) '
+                f'(instead of {setup.params.window})' if events else
+                f'no short event: window {setup.params.window} kept')
+        return replace(res, warnings=(note, *res.warnings))
+    res = _correct(src, dst, setup, kind, to, path, progress, mapper, skip_failed)
+    if res.short_events:
+        return res
+    unscored = [w for w in res.warnings if 'but stationary has 0' in w]   # a bag of a rig with no stationary cell
+    if unscored:
+        res = replace(res, warnings=(*(w for w in res.warnings if w not in unscored),
+                                     f'{len(unscored)} pull(s) have no stationary cell samples: corrected but not '
+                                     'scored'))
+    # the pulls are read again only where an event may be short: unscored pulls, or a filtered peak below the
+    # corrected one (a pull of seconds loses nothing to the average, and is not read again)
+    found = _events_of(src, kind, setup.params, mapper, skip_failed) if unscored or not res.pulls or any(
+        _lossy(p.score) for p in res.pulls) else []
+    scores = dst / 'scores.json'
+    if found and scores.is_file():   # a corrected campaign's report names them too
+        doc = json.loads(scores.read_text())
+        doc['short_events'] = [_event_dict(pid, e) for pid, e, _r in found]
+        scores.write_text(json.dumps(doc, indent=1) + '\n')
+    return replace(res, short_events=tuple(_event_dict(pid, e) for pid, e, _r in found),
+                   warnings=(*res.warnings, *(f'pull {pid}: {e.line(rate)}' for pid, e, rate in found),
+                             *([advice(setup.extension is not None)] if found else [])))
+
+
+#: A pull whose filtered peak is below its corrected peak by more than this share is searched for short events.
+LOSSY = 0.02
+
+
+def _lossy(score) -> bool:
+    c, f = abs(float(score.corrected_peak_n)), abs(float(score.filtered_peak_n))
+    return not (f >= (1 - LOSSY) * c) if c > 0 else False
+
+
+def _event_dict(pid, e) -> dict:
+    return {'pull_id': int(pid), 'start_s': e.start_s, 'width_s': e.width_s, 'window': e.window,
+            'peak_n': e.peak_n, 'filtered_peak_n': e.filtered_peak_n, 'loss': e.loss,
+            'bandwidth_hz': e.bandwidth_hz, 'bandwidth_window': e.bandwidth_window,
+            'bandwidth_loss': e.bandwidth_loss}
+
+
+def _events_of(src: Path, kind: str, params: CorrectionParams, mapper, skip_failed) -> list:
+    """[(pull_id, ShortEvent, rate)] of every pull: m*a on the moving cell (no moving average) against
+    the same with ``params.window``."""
+    if kind == 'campaign':
+        # here, not on the mapper: it counts its failed pulls, and the correction has reported those already
+        camp = read_campaign(src, mapper=None, skip_failed=True)
+        rate, pulls = camp.sample_rate_hz, [(p.meta.get('pull_id') or i + 1, p.channels)
+                                            for i, p in enumerate(camp.pulls)]
+    else:
+        rate, bag_pulls = read_bag_pulls(src, [], None)
+        pulls = [(p.meta['pull_id'], p.channels) for p in bag_pulls]
+    out = []
+    for pid, ch in pulls:
+        corr = correct_signal(ch['force_moving_n'], ch['accel_axial_m_s2'], params).corrected_n
+        out += [(pid, e, rate) for e in short_events(ch['force_moving_n'], corr, rate, params.window)]
+    return out
+
+
+def _correct(src: Path, dst: Path, setup: CorrectionSetup, kind: str, to, path: str, progress, mapper,
+             skip_failed) -> CorrectionResult:
     to = to or kind
     if to not in ('bag', 'campaign'):
         raise CorrectionError(f'output kind {to!r} is invalid; expected bag or campaign')
@@ -159,6 +232,9 @@ def _correct_campaign(src: Path, dst: Path, setup: CorrectionSetup, mapper, skip
     stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction)
     windows, columns = correct_runs(camp, stream)
     pulls, stats, warnings = stream.scores(windows, [])
+    if 'force_stationary_n' in camp.absent:   # one line, not one per pull
+        warnings = [w for w in warnings if 'stationary peak nan' not in w]
+        warnings.append('no stationary cell (absent in campaign.yaml): the pulls are corrected but not scored')
     result = _result(setup, pulls, stats, stream, 'campaign', [*camp.warnings, *warnings])
     camp_pulls = [DaqPull(p.meta, {**p.channels, **c}) for p, c in zip(camp.pulls, columns)]
     rig = (camp.path / camp.rig) if camp.rig else None

@@ -44,6 +44,9 @@ class CorrectionResult:
     runs: int
     path: str
     warnings: tuple = ()
+    #: events narrower than a few moving-average windows: ({'pull_id', 'start_s', 'width_s', 'window',
+    #: 'peak_n', 'filtered_peak_n', 'loss', 'bandwidth_hz', 'bandwidth_window', 'bandwidth_loss'}, ...)
+    short_events: tuple = ()
 
     @property
     def dropped_blocks(self) -> int:
@@ -56,4 +59,4 @@ class CorrectionResult:
                 'pulls': [p.as_dict() for p in self.pulls],
                 'sets': [dataclasses.asdict(s) for s in self.sets],
                 'nan_samples': self.nan_samples, 'runs': self.runs, 'path': self.path,
-                'warnings': list(self.warnings)}
+                'short_events': list(self.short_events), 'warnings': list(self.warnings)}

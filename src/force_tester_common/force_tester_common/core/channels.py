@@ -8,6 +8,11 @@ REQUIRED_CHANNELS = ('time_s', 'encoder_position_m', 'accel_axial_m_s2', 'force_
 OPTIONAL_CHANNELS = ('motor_current_a', 'motor_voltage_v', 'motor_velocity_cmd_m_s', 'accel_lateral_m_s2',
                      'accel_vertical_m_s2')
 CHANNELS = REQUIRED_CHANNELS + OPTIONAL_CHANNELS
+#: What the correction cannot do without: the moving cell and the carriage acceleration (m*a), on a time base.
+CORE_CHANNELS = ('time_s', 'accel_axial_m_s2', 'force_moving_n')
+#: Required channels a campaign may name as absent (campaign.yaml ``absent:``, a channel map's ``absent``):
+#: another lab's rig may have no stationary reference cell and no encoder.
+ABSENTABLE_CHANNELS = tuple(c for c in REQUIRED_CHANNELS if c not in CORE_CHANNELS)
 
 MOTOR_TYPE = 'force_tester_msgs/msg/MotorBlock'
 ENCODER_TYPE = 'force_tester_msgs/msg/EncoderBlock'

@@ -14,3 +14,6 @@ ABORT_TIMEOUT_S = 10.0             # validator: a pull without data and without 
 ABORT_TIMEOUT_RANGE_S = (0.1, 3600.0)
 LOADED_FRACTION = 0.1              # RMS window: stationary force above this share of its peak
 LOADED_FRACTION_RANGE = (0.01, 0.99)
+SHORT_EVENT_WINDOWS = 3.0          # an event narrower (FWHM) than this many moving-average windows is "short"
+EVENT_BANDWIDTH_ENERGY = 0.95      # an event's bandwidth: the frequency below which this share of its energy lies
+MA_HALF_POWER = 0.4429             # a W-point moving average passes half the power at MA_HALF_POWER * rate / W

@@ -1,0 +1,523 @@
+"""DAQ files as labs write them, and the channel map that turns their channels into ours.
+
+Formats (``FORMATS``): the campaign CSV, NI TDMS (npTDMS), NI LabVIEW ``.lvm`` text (lvm-read), ASAM
+MDF4 ``.mf4`` (asammdf) and UFF 58 ``.uff``/``.unv`` (pyuff). Each reader gives the file's records
+(``Record``: its channels by the file's own names, their units when the file says, its sample rate
+when the file says); ``apply_map`` turns one record into workspace channels in SI with a channel map.
+
+A channel map (YAML; see the bag_tools README) says, per workspace channel, which file channel it is,
+the file's unit, the sensitivity (``0.225 mV/N``) or scale (``4444 N/V``), an offset, the sign
+convention (``tension`` or ``compression`` positive), which channels the rig does not have
+(``absent``) and the sample rate when the file lacks it. The libraries are imported lazily, only for
+their own format (asammdf alone takes about 2 s to import). ROS-free.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, NamedTuple
+
+import numpy as np
+import yaml
+
+from force_tester_common.core.channels import ABSENTABLE_CHANNELS, CHANNELS, CORE_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT, UNITS, unit
+
+from .errors import BagError, one_line
+
+#: suffix -> format name, the formats ``./ft bag import`` reads.
+FORMATS = {'.csv': 'campaign CSV', '.tdms': 'NI TDMS', '.lvm': 'LabVIEW LVM', '.mf4': 'ASAM MDF4',
+           '.mdf': 'ASAM MDF4', '.uff': 'UFF 58', '.unv': 'UFF 58'}
+#: Sign conventions a channel map may name: the direction the file's positive values point.
+SIGNS = {'tension': 1.0, 'compression': -1.0, 1: 1.0, -1: -1.0, '+1': 1.0, '-1': -1.0}
+MAP_KEYS = ('source', 'unit', 'sensitivity', 'scale', 'offset', 'sign')
+#: Rates within this relative tolerance of an integer are that integer (a 1e-5 s increment stored in binary).
+RATE_SNAP = 1e-6
+NOTHING_TO_CORRECT = 'there is nothing to correct (the correction needs force_moving_n and accel_axial_m_s2)'
+
+
+def known_formats() -> str:
+    return ', '.join(FORMATS)
+
+
+def file_format(path: str | Path) -> str:
+    """The suffix of a DAQ file ``./ft bag import`` reads; BagError listing the known ones otherwise."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise BagError(f'unknown DAQ file format {suffix or "(no suffix)"!r} of {Path(path).name!r}; known '
+                       f'formats: {known_formats()}')
+    return suffix
+
+
+def snap_rate(rate: float) -> float:
+    if abs(round(rate) - rate) <= RATE_SNAP * rate:
+        return float(round(rate))
+    return float(rate)
+
+
+class Record(NamedTuple):
+    """One record of a DAQ file: channels {file name: float64 array}, units {file name: unit or None},
+    the file's sample rate (None when it gives none) and its time column (None when it has none)."""
+
+    channels: dict
+    units: dict
+    rate_hz: float | None
+    time: np.ndarray | None
+
+
+# --------------------------------------------------------------------------- readers
+def time_column(n: int, rate_hz: float) -> np.ndarray:
+    """time_s = k / rate exactly (float64 division, as the sim does)."""
+    return np.arange(n) / rate_hz
+
+
+def _missing(pip: str) -> BagError:
+    return BagError(f'reading this format needs {pip}: pip install {pip} (see requirements.txt)')
+
+
+def read_lvm(path: Path) -> list:
+    """LabVIEW Measurement File (text): one Record per segment. X_Value columns give time; Delta_X the
+    rate; Y_Unit_Label the units; a Comment column is dropped."""
+    try:
+        import lvm_read  # noqa: PLC0415 - imported only for its format
+    except ImportError:
+        raise _missing('lvm-read') from None
+    try:
+        doc = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot read LVM file {str(path)!r}: {one_line(exc)}') from None
+    records = []
+    for s in range(int(doc.get('Segments', 0))):
+        seg = doc[s]
+        data = np.asarray(seg.get('data'), dtype=np.float64)
+        names = list(seg.get('Channel names', []))
+        if data.ndim != 2 or not names:
+            raise BagError(f'LVM file {str(path)!r} segment {s + 1} has no data; expected a header with '
+                           'X_Value and channel names, then rows of numbers')
+        labels = seg.get('Y_Unit_Label') or []
+        dx = [d for d in seg.get('Delta_X', []) if isinstance(d, float) and math.isfinite(d) and d > 0]
+        chans, units, time, k = {}, {}, None, 0
+        for i, name in enumerate(names):
+            name = name.strip()
+            if i >= data.shape[1] or name == 'Comment':
+                continue
+            if name == 'X_Value':
+                if time is None and np.isfinite(data[:, i]).all():
+                    time = data[:, i].copy()
+                continue
+            chans.setdefault(name, np.ascontiguousarray(data[:, i]))
+            lab = labels[k].strip() if k < len(labels) else ''
+            units.setdefault(name, lab or None)
+            k += 1
+        records.append(Record(chans, units, snap_rate(1.0 / dx[0]) if dx else None, time))
+    if not records:
+        raise BagError(f'LVM file {str(path)!r} has no data segment')
+    return records
+
+
+def read_mdf(path: Path) -> list:
+    """ASAM MDF4: one Record; every non-master channel, its unit; the rate from its timestamps."""
+    try:
+        import asammdf  # noqa: PLC0415 - imported only for its format
+    except ImportError:
+        raise _missing('asammdf') from None
+    try:
+        mdf = asammdf.MDF(str(path))
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot read MDF4 file {str(path)!r}: {one_line(exc)}') from None
+    chans, units, stamps = {}, {}, {}
+    try:
+        for sig in mdf.iter_channels():
+            if sig.name in chans:
+                continue
+            chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
+            units[sig.name] = sig.unit or None
+            stamps[sig.name] = np.asarray(sig.timestamps, dtype=np.float64)
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot read MDF4 file {str(path)!r}: {one_line(exc)}') from None
+    finally:
+        mdf.close()
+    time = next(iter(stamps.values()), None)
+    rate = None
+    if time is not None and time.size > 1 and time[-1] > time[0]:
+        rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
+    return [Record(chans, units, rate, time)]
+
+
+def read_uff(path: Path) -> list:
+    """UFF 58 (universal file, function at nodes): one Record of every type-58 set, named by id1."""
+    try:
+        import pyuff  # noqa: PLC0415 - imported only for its format
+    except ImportError:
+        raise _missing('pyuff') from None
+    try:
+        sets = pyuff.UFF(str(path)).read_sets()
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot read UFF file {str(path)!r}: {one_line(exc)}') from None
+    sets = [sets] if isinstance(sets, dict) else list(sets)
+    chans, units, rate = {}, {}, None
+    for s in sets:
+        if s.get('type') != 58:
+            continue
+        name = str(s.get('id1', '')).strip() or f'{s.get("rsp_node")}{s.get("rsp_dir")}'
+        chans.setdefault(name, np.real(np.asarray(s['data'])).astype(np.float64))
+        units.setdefault(name, str(s.get('ordinate_axis_units_lab', '')).strip() or None)
+        inc = float(s.get('abscissa_inc') or 0)
+        if rate is None and inc > 0:
+            rate = snap_rate(1.0 / inc)
+    if not chans:
+        raise BagError(f'UFF file {str(path)!r} has no dataset 58 (a function); expected time records')
+    return [Record(chans, units, rate, None)]
+
+
+def read_tdms_raw(path: Path) -> list:
+    """NI TDMS: one Record; channels as 'Group/Channel' (and 'Channel'), unit_string, wf_increment."""
+    try:
+        import nptdms  # noqa: PLC0415 - imported only for its format
+    except ImportError:
+        raise _missing('npTDMS') from None
+    try:
+        tdms = nptdms.TdmsFile.read(str(path))
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
+    chans, units, rate = {}, {}, None
+    for group in tdms.groups():
+        for ch in group.channels():
+            a = np.asarray(ch[:], dtype=np.float64)
+            u = ch.properties.get('unit_string') or None
+            for name in (f'{group.name}/{ch.name}', ch.name):
+                chans.setdefault(name, a)
+                units.setdefault(name, u)
+            inc = ch.properties.get('wf_increment')
+            if inc and rate is None:
+                rate = snap_rate(1.0 / float(inc))
+    return [Record(chans, units, rate, None)]
+
+
+def read_csv(path: Path) -> dict:
+    """One pull CSV -> {column: float64 array}. Header row, comma separated.
+
+    pyarrow's multithreaded-capable C++ reader (correctly rounded, so bit for bit what float() gives)
+    reads a well-formed file; anything it refuses (a short row, a word, spaces) is read again by numpy
+    and row by row, which name the line and the value."""
+    try:
+        with open(path, 'rb') as fh:
+            header = fh.readline().decode('utf-8')
+            body_at = fh.tell()
+            has_body = bool(fh.read(4096).strip())
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BagError(f'cannot read {str(path)!r}: {one_line(exc)}') from None
+    names = [h.strip() for h in header.strip().split(',')]
+    if not header.strip() or any(not h for h in names):
+        raise BagError(f'{str(path)!r}: header row {header.strip()!r} is invalid; expected '
+                       f'comma-separated column names like {",".join(REQUIRED_CHANNELS)}')
+    dup = sorted({h for h in names if names.count(h) > 1})
+    if dup:
+        raise BagError(f'{str(path)!r}: column {dup[0]!r} appears twice in the header')
+    fast = _read_csv_arrow(path, names, body_at) if has_body else None
+    if fast is not None:
+        return fast
+    try:
+        with open(path, encoding='utf-8', newline='') as fh:
+            fh.readline()
+            body = fh.read()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BagError(f'cannot read {str(path)!r}: {one_line(exc)}') from None
+    if not body.strip():
+        raise BagError(f'{str(path)!r} has a header but no data rows; expected one row per sample')
+    try:
+        data = np.loadtxt(io.StringIO(body), delimiter=',', dtype=np.float64, ndmin=2)
+    except ValueError:
+        data = _read_csv_slow(path, body, len(names))
+    if data.shape[1] != len(names):
+        raise BagError(f'{str(path)!r}: rows have {data.shape[1]} values but the header names '
+                       f'{len(names)} columns')
+    return {name: np.ascontiguousarray(data[:, i]) for i, name in enumerate(names)}
+
+
+#: What the fast reader reads as NaN (as float() and the slow reader do): empty fields and nan.
+_NAN_FIELDS = ['', 'nan', 'NaN', 'NAN', '-nan', '+nan']
+
+
+def _read_csv_arrow(path: Path, names: list, body_at: int) -> dict | None:
+    """The columns by pyarrow.csv, or None when pyarrow is missing or refuses the file."""
+    try:
+        import pyarrow as pa  # noqa: PLC0415 - ~0.1 s to import: only where CSV is read
+        import pyarrow.csv as pcsv  # noqa: PLC0415
+    except ImportError:
+        return None
+    try:
+        with open(path, 'rb') as fh:
+            fh.seek(body_at)
+            table = pcsv.read_csv(fh, read_options=pcsv.ReadOptions(column_names=names, use_threads=False),
+                                  parse_options=pcsv.ParseOptions(delimiter=','),
+                                  convert_options=pcsv.ConvertOptions(
+                                      column_types={n: pa.float64() for n in names}, null_values=_NAN_FIELDS,
+                                      strings_can_be_null=False, quoted_strings_can_be_null=False))
+    except (pa.ArrowException, OSError, ValueError):
+        return None
+    if table.num_rows == 0:
+        return None
+    out = {}
+    for name in names:
+        col = table.column(name)
+        a = col.to_numpy() if col.null_count == 0 else col.fill_null(np.nan).to_numpy()
+        out[name] = np.ascontiguousarray(a, dtype=np.float64)
+    return out
+
+
+def _read_csv_slow(path: Path, body: str, ncol: int) -> np.ndarray:
+    """Row by row: empty fields become NaN; anything else unparsable is an error."""
+    rows = []
+    for lineno, line in enumerate(body.splitlines(), start=2):
+        if not line.strip():
+            continue
+        parts = line.split(',')
+        if len(parts) != ncol:
+            raise BagError(f'{str(path)!r} line {lineno} has {len(parts)} values; expected '
+                           f'{ncol} (one per header column)')
+        row = []
+        for p in parts:
+            p = p.strip()
+            try:
+                row.append(float(p) if p else math.nan)
+            except ValueError:
+                raise BagError(f'{str(path)!r} line {lineno}: value {p!r} is not a number') \
+                    from None
+        rows.append(row)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, ncol)
+
+
+def read_csv_raw(path: Path) -> list:
+    chans = read_csv(path)
+    time = chans.pop('time_s', None)
+    return [Record(chans, {}, None, time)]
+
+
+READERS = {'.csv': read_csv_raw, '.tdms': read_tdms_raw, '.lvm': read_lvm, '.mf4': read_mdf, '.mdf': read_mdf,
+           '.uff': read_uff, '.unv': read_uff}
+
+
+def read_records(path: str | Path) -> list:
+    """The Records of a DAQ file of any known format."""
+    path = Path(path)
+    suffix = file_format(path)
+    if not path.is_file():
+        raise BagError(f'DAQ file {str(path)!r} does not exist')
+    return READERS[suffix](path)
+
+
+# --------------------------------------------------------------------------- the channel map
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One workspace channel of a channel map: si = sign * (file value - offset) * factor."""
+
+    channel: str
+    source: str
+    unit: str | None
+    factor: float | None     # None: the file's unit decides (see resolve)
+    offset: float
+    sign: float
+    how: str                 # 'sensitivity 0.225 mV/N', 'scale 4444 N/V' or ''
+
+
+@dataclass
+class ChannelMap:
+    path: str
+    specs: dict = field(default_factory=dict)      # channel -> ChannelSpec
+    absent: tuple = ()
+    sample_rate_hz: float | None = None
+
+
+def _quantity(text, key: str, where: str) -> tuple:
+    """'0.225 mV/N' -> (0.225, 'mV', 'N'); a bare number -> (x, None, None)."""
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        return float(text), None, None
+    parts = str(text).split(None, 1)
+    try:
+        value = float(parts[0])
+    except (ValueError, IndexError):
+        raise BagError(f'{where}: {key} {text!r} is not a number with a unit; expected e.g. '
+                       "'0.225 mV/N'") from None
+    if len(parts) == 1:
+        return value, None, None
+    ratio = parts[1].replace(' ', '').replace('(', '').replace(')', '')
+    for i, ch in enumerate(ratio):
+        if ch == '/' and unit(ratio[:i]) and unit(ratio[i + 1:]):
+            return value, ratio[:i], ratio[i + 1:]
+    raise BagError(f'{where}: {key} unit {parts[1]!r} is not UNIT/UNIT of known units; known units: '
+                   f'{", ".join(UNITS)}')
+
+
+def _spec(channel: str, entry, where: str) -> ChannelSpec:
+    if isinstance(entry, str):
+        entry = {'source': entry}
+    if not isinstance(entry, Mapping):
+        raise BagError(f'{where}: {channel} is {entry!r}; expected a file channel name, '
+                       f'absent, or a mapping with keys {", ".join(MAP_KEYS)}')
+    bad = [k for k in entry if k not in MAP_KEYS]
+    if bad:
+        raise BagError(f'{where}: {channel} key {bad[0]!r} is not known; expected '
+                       f'{", ".join(MAP_KEYS)}')
+    src = entry.get('source', channel)
+    if not isinstance(src, (str, int)) or isinstance(src, bool) or str(src) == '':
+        raise BagError(f'{where}: {channel} source {src!r} is invalid; expected the name of '
+                       "a channel in the file")
+    dim = CHANNEL_DIMENSION[channel]
+    u = entry.get('unit')
+    if u is not None and unit(u) is None:
+        raise BagError(f'{where}: {channel} unit {u!r} is not a unit I can convert; known: {", ".join(UNITS)}')
+    sign_text = entry.get('sign', 'tension')
+    if sign_text not in SIGNS:
+        raise BagError(f'{where}: {channel} sign {sign_text!r} is invalid; expected tension or '
+                       'compression (the direction the file counts positive) or +1/-1')
+    offset = entry.get('offset', 0.0)
+    if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not math.isfinite(offset):
+        raise BagError(f'{where}: {channel} offset {offset!r} is invalid; expected a finite '
+                       'number in the file unit')
+    if 'sensitivity' in entry and 'scale' in entry:
+        raise BagError(f'{where}: {channel} gives both sensitivity and scale; expected one')
+    factor, how = None, ''
+    for key in ('sensitivity', 'scale'):
+        if key not in entry:
+            continue
+        value, num, den = _quantity(entry[key], key, f'{where}: {channel}')
+        if not math.isfinite(value) or value == 0:
+            raise BagError(f'{where}: {channel} {key} {entry[key]!r} is invalid; expected a '
+                           'finite non-zero number')
+        if u is None:
+            raise BagError(f'{where}: {channel} has a {key} but no unit; expected unit: the unit '
+                           "of the file's values (e.g. V)")
+        ud, uf = UNITS[u.strip()]
+        if num is None:      # bare number: a scale in SI per file unit, a sensitivity in file unit per SI
+            si = value if key == 'scale' else 1.0 / value
+        else:
+            nd, nf = UNITS[num]
+            dd, df = UNITS[den]
+            want = (ud, dim) if key == 'sensitivity' else (dim, ud)
+            if (nd, dd) != want:
+                raise BagError(f'{where}: {channel} {key} {entry[key]!r} is in {num}/{den}; '
+                               f'expected {SI_UNIT[want[0]]}/{SI_UNIT[want[1]]} or units of the same kind '
+                               f'(the file unit is {u!r}, the channel is in {SI_UNIT[dim]})')
+            si = value * nf / df
+            si = 1.0 / si if key == 'sensitivity' else si
+        factor, how = uf * si, f'{key} {entry[key]}'
+    if factor is None and u is not None:
+        ud, uf = UNITS[u.strip()]
+        if ud != CHANNEL_DIMENSION[channel]:
+            raise BagError(f'{where}: {channel} unit {u!r} ({ud}) cannot be converted to '
+                           f'{SI_UNIT[dim]} without a sensitivity or scale; expected a {dim} unit or '
+                           'sensitivity: e.g. 0.225 mV/N')
+        factor = uf
+    return ChannelSpec(channel, str(src), None if u is None else u.strip(), factor, float(offset),
+                       SIGNS[sign_text], how)
+
+
+def load_channel_map(source) -> ChannelMap:
+    """A channel map from a YAML file path (or an already parsed mapping); BagError naming key and value."""
+    if isinstance(source, Mapping):
+        doc, where = source, 'channel map'
+    else:
+        where = f'channel map {Path(source).name}'
+        try:
+            doc = yaml.safe_load(Path(source).read_text(encoding='utf-8'))
+        except OSError as exc:
+            raise BagError(f'cannot read {where}: {one_line(exc)}') from None
+        except yaml.YAMLError as exc:
+            raise BagError(f'{where} is not valid YAML: {one_line(exc)}') from None
+    if not isinstance(doc, Mapping) or not isinstance(doc.get('channels'), Mapping):
+        raise BagError(f'{where} has no channels mapping; expected channels: {{force_moving_n: '
+                       '{source: ..., unit: V, sensitivity: 0.225 mV/N}, ...}')
+    bad = [k for k in doc if k not in ('channels', 'absent', 'sample_rate_hz')]
+    if bad:
+        raise BagError(f'{where}: key {bad[0]!r} is not known; expected channels, absent, sample_rate_hz')
+    cmap = ChannelMap(where)
+    absent = doc.get('absent') or []
+    absent = [absent] if isinstance(absent, str) else list(absent)
+    for channel, entry in doc['channels'].items():
+        if channel not in CHANNELS or channel == 'time_s' and entry == 'absent':
+            raise BagError(f'{where}: {channel} is not a workspace channel; expected one of '
+                           f'{", ".join(CHANNELS)}')
+        if entry == 'absent' or entry is None:
+            absent.append(channel)
+            continue
+        cmap.specs[channel] = _spec(channel, entry, where)
+    for channel in absent:
+        if channel in CORE_CHANNELS:
+            raise BagError(f'{where}: {channel} is named absent; {NOTHING_TO_CORRECT}')
+        if channel not in CHANNELS:
+            raise BagError(f'{where}: absent channel {channel!r} is not a workspace channel; expected some '
+                           f'of {", ".join(ABSENTABLE_CHANNELS)} and the optional channels')
+    cmap.absent = tuple(c for c in CHANNELS if c in absent)
+    rate = doc.get('sample_rate_hz')
+    if rate is not None:
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+            raise BagError(f'{where}: sample_rate_hz {rate!r} is invalid; expected a finite rate > 0 Hz')
+        cmap.sample_rate_hz = float(rate)
+    return cmap
+
+
+def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
+    """(channels in SI with time_s, absent channels, [(channel, source, file unit, how)]) of one record."""
+    out: dict = {}
+    used: list = []
+    specs = dict(cmap.specs) if cmap else {}
+    absent = cmap.absent if cmap else ()
+    names = ', '.join(sorted(record.channels)) or 'none'
+    for ch in CHANNELS[1:]:
+        spec = specs.get(ch)
+        if spec is None:
+            if ch in record.channels and ch not in absent:   # a column already named as ours, in SI
+                out[ch] = record.channels[ch]
+                used.append((ch, ch, record.units.get(ch), ''))
+            continue
+        if spec.source not in record.channels:
+            raise BagError(f'{where}: channel map {ch}: source {spec.source!r} is not a channel of the file; '
+                           f'its channels: {names}')
+        raw = record.channels[spec.source]
+        factor, u = spec.factor, spec.unit
+        if factor is None:      # no unit in the map: the file's own unit, else SI already
+            u = record.units.get(spec.source)
+            if u and unit(u) is None:
+                raise BagError(f'{where}: channel {spec.source!r} ({ch}) has unit {u!r}, not one I can '
+                               f'convert; give unit: and a sensitivity or scale in the channel map')
+            factor = 1.0
+            if u:
+                ud, factor = unit(u)
+                if ud != CHANNEL_DIMENSION[ch]:
+                    raise BagError(f'{where}: channel {spec.source!r} ({ch}) is in {u!r}, not a '
+                                   f'{CHANNEL_DIMENSION[ch]} unit; give a sensitivity or scale in the channel map')
+        out[ch] = spec.sign * (raw - spec.offset) * factor if (spec.sign, spec.offset, factor) != (1.0, 0.0, 1.0) \
+            else raw
+        used.append((ch, spec.source, u, spec.how + (' compression positive' if spec.sign < 0 else '')))
+    for ch in CORE_CHANNELS[1:]:
+        if ch not in out:
+            raise BagError(f'{Path(where).name}: no {ch} channel; {NOTHING_TO_CORRECT}; file channels: {names}')
+    file_rate = record.rate_hz
+    map_rate = cmap.sample_rate_hz if cmap else None
+    if file_rate and map_rate and abs(file_rate - map_rate) > RATE_SNAP * map_rate:
+        raise BagError(f'{where}: channel map sample_rate_hz {map_rate!r} disagrees with the file\'s '
+                       f'{file_rate!r} Hz; expected the map to give a rate only when the file lacks one')
+    n = len(next(iter(out.values())))
+    rate = file_rate or map_rate
+    tspec = specs.get('time_s')
+    if tspec is not None:
+        if tspec.source not in record.channels:
+            raise BagError(f'{where}: channel map time_s: source {tspec.source!r} is not a channel of the file; '
+                           f'its channels: {names}')
+        out = {'time_s': (record.channels[tspec.source] - tspec.offset) * (tspec.factor or 1.0), **out}
+    elif rate:
+        out = {'time_s': time_column(n, rate), **out}
+    elif record.time is not None:
+        out = {'time_s': record.time, **out}
+    else:
+        raise BagError(f'{where}: the file gives no sample rate and no time; expected sample_rate_hz in the '
+                       'channel map (or --rate)')
+    missing = [c for c in REQUIRED_CHANNELS if c not in out and c not in absent]
+    if missing:
+        raise BagError(f'{where}: required channel {missing[0]!r} is not in the file (its channels: {names}); '
+                       "expected it in the channel map, or named absent (absent: [" + missing[0] + '])')
+    return out, tuple(c for c in absent if c not in out), used
