@@ -27,7 +27,6 @@ import numpy as np
 import yaml
 
 from force_tester_common.core.channels import (
-    ABSENTABLE_CHANNELS,
     CHANNELS,
     CORE_CHANNELS,
     CORRECTED_FIELDS,
@@ -42,6 +41,7 @@ from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of thi
     NOTHING_TO_CORRECT,
     ChannelMap,
     apply_map,
+    check_absent,
     file_format,
     load_channel_map,
     read_csv,
@@ -135,22 +135,6 @@ def check_meta(meta: Mapping, where: str, index: int) -> dict:
 
 
 # --------------------------------------------------------------------------- validation
-def check_absent(absent, where: str) -> tuple:
-    """A validated ``absent:`` list: channels of ABSENTABLE_CHANNELS or OPTIONAL_CHANNELS, never a core one."""
-    if absent is None:
-        return ()
-    if isinstance(absent, str) or not isinstance(absent, (list, tuple)):
-        raise BagError(f'{where}: absent {absent!r} is invalid; expected a list of channels, some of '
-                       f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
-    for c in absent:
-        if c in CORE_CHANNELS:
-            raise BagError(f'{where}: absent names {c!r}; {NOTHING_TO_CORRECT}')
-        if c not in CHANNELS:
-            raise BagError(f'{where}: absent channel {c!r} is not a workspace channel; expected some of '
-                           f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
-    return tuple(c for c in CHANNELS if c in absent)
-
-
 def check_channels(channels: Mapping[str, Any], where: str, rate_hz: float | None,
                    warnings: list | None = None, absent: Iterable = ()) -> tuple[dict, float]:
     """Validate one pull's channels; returns (float64 channels, sample rate).

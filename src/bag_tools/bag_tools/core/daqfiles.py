@@ -23,7 +23,13 @@ from typing import Mapping, NamedTuple
 import numpy as np
 import yaml
 
-from force_tester_common.core.channels import ABSENTABLE_CHANNELS, CHANNELS, CORE_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.channels import (
+    ABSENTABLE_CHANNELS,
+    CHANNELS,
+    CORE_CHANNELS,
+    OPTIONAL_CHANNELS,
+    REQUIRED_CHANNELS,
+)
 from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT, UNITS, unit
 
 from .errors import BagError, one_line
@@ -37,6 +43,22 @@ MAP_KEYS = ('source', 'unit', 'sensitivity', 'scale', 'offset', 'sign')
 #: Rates within this relative tolerance of an integer are that integer (a 1e-5 s increment stored in binary).
 RATE_SNAP = 1e-6
 NOTHING_TO_CORRECT = 'there is nothing to correct (the correction needs force_moving_n and accel_axial_m_s2)'
+
+
+def check_absent(absent, where: str) -> tuple:
+    """A validated ``absent:`` list: channels of ABSENTABLE_CHANNELS or OPTIONAL_CHANNELS, never a core one."""
+    if absent is None:
+        return ()
+    if isinstance(absent, str) or not isinstance(absent, (list, tuple)):
+        raise BagError(f'{where}: absent {absent!r} is invalid; expected a list of channels, some of '
+                       f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
+    for c in absent:
+        if c in CORE_CHANNELS:
+            raise BagError(f'{where}: absent names {c!r}; {NOTHING_TO_CORRECT}')
+        if c not in CHANNELS:
+            raise BagError(f'{where}: absent channel {c!r} is not a workspace channel; expected some of '
+                           f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
+    return tuple(c for c in CHANNELS if c in absent)
 
 
 def known_formats() -> str:
@@ -445,13 +467,7 @@ def load_channel_map(source) -> ChannelMap:
             absent.append(channel)
             continue
         cmap.specs[channel] = _spec(channel, entry, where)
-    for channel in absent:
-        if channel in CORE_CHANNELS:
-            raise BagError(f'{where}: {channel} is named absent; {NOTHING_TO_CORRECT}')
-        if channel not in CHANNELS:
-            raise BagError(f'{where}: absent channel {channel!r} is not a workspace channel; expected some '
-                           f'of {", ".join(ABSENTABLE_CHANNELS)} and the optional channels')
-    cmap.absent = tuple(c for c in CHANNELS if c in absent)
+    cmap.absent = check_absent(absent, where)
     rate = doc.get('sample_rate_hz')
     if rate is not None:
         if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
