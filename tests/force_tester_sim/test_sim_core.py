@@ -27,6 +27,7 @@ from force_tester_sim.core import (
     simulate_pull,
 )
 from force_tester_sim.core import pull as pull_mod
+from force_tester_sim.core.params import rig_from_dict
 
 PKG = Path(__file__).resolve().parents[2] / 'src' / 'force_tester_sim' / 'force_tester_sim'
 PROJECT_YAML = PKG / 'config' / 'nominal.yaml'
@@ -79,7 +80,37 @@ def test_defaults_equal_nominal_yaml(params):
     assert len(rig.test_sets) == len(data['test_sets'])
     for ts, raw in zip(rig.test_sets, data['test_sets']):
         assert dataclasses.asdict(ts) == raw
-    assert set(data) == {'daq', 'drive', 'force_chain', 'sensors', 'test_sets', 'tolerances'}
+    assert set(data) == {'daq', 'drive', 'force_chain', 'sensors', 'test_sets', 'tolerances', 'uncertainty'}
+    # the nominal YAML states every constant's uncertainty, and states the default fractions of rig.uncertainty
+    assert rig.uncertainty.as_dict().keys() == data['uncertainty'].keys()
+    for section, keys in rig.uncertainty.as_dict().items():
+        assert keys == pytest.approx(data['uncertainty'][section], rel=1e-12, abs=0), section
+
+
+def test_uncertainties_scale_with_another_rig_and_stated_ones_win():
+    heavy = rig_from_dict({'force_chain': {'moving_side_mass_kg': 4.0}})
+    assert heavy.uncertainty.u('force_chain.moving_side_mass_kg') == pytest.approx(0.04)
+    stated = rig_from_dict({'force_chain': {'moving_side_mass_kg': 4.0},
+                            'uncertainty': {'force_chain': {'moving_side_mass_kg': 0.2}}})
+    assert stated.uncertainty.u('force_chain.moving_side_mass_kg') == 0.2
+    assert stated.uncertainty.relative('force_chain.moving_side_mass_kg', 4.0) == pytest.approx(0.05)
+    assert stated.uncertainty.u('daq.record_length_s') == 0.0
+
+
+@pytest.mark.parametrize('section, value, words', [
+    ({'force_chain': {'moving_side_mass_kg': -0.01}}, '-0.01', 'finite number >= 0'),
+    ({'force_chain': {'moving_side_mass_kg': None}}, 'None', 'finite number >= 0'),
+    ({'force_chain': {'moving_side_mass_kg': 2.0}}, '2.0', 'larger than the value 1.152'),
+    ({'sensors': {'accelerometer_band_hz': 1.0}}, 'accelerometer_band_hz', 'not a constant of sensors'),
+    ({'optics': {'focus_m': 1.0}}, 'optics', 'unknown section'),
+])
+def test_bad_uncertainty_is_refused_naming_key_and_value(section, value, words):
+    with pytest.raises(SimError) as exc:
+        rig_from_dict({'uncertainty': section})
+    msg = str(exc.value)
+    assert value in msg and words in msg and '\n' not in msg
+    if 'unknown' not in words and 'not a constant' not in words:
+        assert 'uncertainty.force_chain.moving_side_mass_kg' in msg
 
 
 def test_test_set_si_properties(rig):

@@ -14,6 +14,7 @@ from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 from .departures import NO_DEPARTURES, Departures, departures_from_data
 from .errors import SimError
 from .tolerances import Tolerances, tolerances_from_data
+from .uncertainty import Uncertainties, overrides_from_data, uncertainties
 
 NOMINAL_YAML = Path(__file__).resolve().parent.parent / 'config' / 'nominal.yaml'
 #: the truth reference rig: the datasheet rig plus documented departures (the sim README)
@@ -161,6 +162,12 @@ class RigParams:
     test_sets: tuple = NOMINAL_TEST_SETS
     departures: Departures = NO_DEPARTURES   # empty = the nominal rig (str() gives 'none')
     tolerances: Tolerances = field(default_factory=Tolerances)   # practical significance (core/tolerances.py)
+    uncertainty_stated: tuple = ()   # the YAML's uncertainty: entries, ((section.key, u), ...) (core/uncertainty.py)
+
+    @property
+    def uncertainty(self) -> Uncertainties:
+        """The standard uncertainty (k = 1) of every constant: as stated, else the default fraction of it."""
+        return uncertainties(self, self.uncertainty_stated)
 
     def test_set(self, n: int) -> TestSet:
         for ts in self.test_sets:
@@ -213,10 +220,10 @@ def rig_from_dict(data: Mapping) -> RigParams:
         raise SimError(f'rig description is {type(data).__name__}; expected a mapping')
     sections = {'daq': DaqParams, 'drive': DriveParams, 'force_chain': ForceChainParams,
                 'sensors': SensorParams}
-    unknown = sorted(set(data) - set(sections) - {'test_sets', 'departures', 'tolerances'})
+    others = ['departures', 'test_sets', 'tolerances', 'uncertainty']
+    unknown = sorted(set(data) - set(sections) - set(others))
     if unknown:
-        raise SimError(f'rig description has unknown section(s) {unknown}; '
-                       f'expected only {sorted(sections) + ["departures", "test_sets", "tolerances"]}')
+        raise SimError(f'rig description has unknown section(s) {unknown}; expected only {sorted(sections) + others}')
     kwargs = {name: _build(cls, data[name], name) for name, cls in sections.items() if name in data}
     if 'test_sets' in data:
         raw = data['test_sets']
@@ -231,6 +238,8 @@ def rig_from_dict(data: Mapping) -> RigParams:
         kwargs['departures'] = departures_from_data(data['departures'])
     if 'tolerances' in data:
         kwargs['tolerances'] = tolerances_from_data(data['tolerances'])
+    if 'uncertainty' in data:
+        kwargs['uncertainty_stated'] = overrides_from_data(data['uncertainty'])
     rig = RigParams(**kwargs)
     validate_rig(rig)
     return rig
@@ -255,6 +264,7 @@ def validate_rig(rig: RigParams) -> None:
                     ('force_chain.lanyard_damping_ratio', rig.force_chain.lanyard_damping_ratio)]:
         if not 0 <= v < 1:
             raise SimError(f'{name} is {v!r}; expected a damping ratio in [0, 1)')
+    uncertainties(rig, rig.uncertainty_stated)   # refuses a stated uncertainty above its constant
 
 
 def load_rig(path: str | Path | None = None) -> RigParams:
