@@ -14,6 +14,9 @@ setup(
         # the rigs' parameter files (docs/nodes.md, "Several rigs on one machine"); config/rigs at the
         # workspace root links here. get_package_share_directory(package_name) + '/config/rigs'
         ('share/' + package_name + '/config/rigs', glob('config/rigs/*.yaml')),
+        # ros2 launch force_tester_common graph.launch.xml | rig.launch.xml (docs/nodes.md) and their defaults
+        ('share/' + package_name + '/launch', glob('launch/*.launch.xml')),
+        ('share/' + package_name + '/config/launch', glob('config/launch/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -90,8 +90,8 @@ def format_table(scores: list) -> str:
 def extension_args(extension: Path) -> dict:
     """Graph.start arguments of the extension pair: a second correction node with ``extension`` and a second
     validator, their topics remapped under EXT_NS (node names too, so their parameters and logs stay apart)."""
-    def remap(*topics):
-        return [a for topic in topics for a in ('-r', f'{topic}:={EXT_NS}{topic}')]
+    def remap(*topics):   # relative rules, so that the pair works under a rig's namespace too (graph.launch.xml)
+        return [a for topic in topics for a in ('-r', f'{topic.lstrip("/")}:={EXT_NS.lstrip("/")}{topic}')]
     return {'correction': dict(params={'extension_file': str(extension)}, key='correction_extension',
                                extra=['--ros-args', '-r', '__node:=correction_extension', *remap(CORRECTED_TOPIC)]),
             'validator': dict(key='validator_extension',
