@@ -47,7 +47,9 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
         graph.start('force_correction', 'validator_node')
         monitor = graph.start('force_tester_monitor', 'monitor_node', {'port': 0})
         port = monitor_port(graph.log_dir / 'monitor_node.log', monitor)
-        reader = subprocess.Popen(client_command(port, '--topics', '/force_corrected,/pull_score',
+        # the reader is an old client: it offers only foxglove.websocket.v1 (FoxgloveClient's own default), which
+        # the SDK's server alone refuses; the stalled client offers foxglove.sdk.v1
+        reader = subprocess.Popen(client_command(port, '--legacy', '--topics', '/force_corrected,/pull_score',
                                                  '--until', f'/pull_score={PULLS}', '--timeout', '150'),
                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         stalled = subprocess.Popen(client_command(port, '--topics', BLOCK_TOPICS, '--stall', '--timeout', '300'),
@@ -87,8 +89,8 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
     assert reader.returncode == 0, (out[-2000:], err[-2000:])
     records = lines(out)
 
-    # the client spoke foxglove.sdk.v1 and saw ROS-typed channels, as in our bags
-    assert records[0] == {'kind': 'open', 'protocol': 'foxglove.sdk.v1'}
+    # the old client spoke foxglove.websocket.v1 and saw ROS-typed channels, as in our bags
+    assert records[0] == {'kind': 'open', 'protocol': 'foxglove.websocket.v1'}
     channels = {r['topic']: r for r in records if r['kind'] == 'channel'}
     for topic, name in (('/force_corrected', 'force_tester_msgs/msg/CorrectedForceBlock'),
                         ('/pull_score', 'force_tester_msgs/msg/PullScore'),

@@ -5,7 +5,7 @@
 //
 //   node client.mjs --url ws://127.0.0.1:8765 --topics /force_corrected,/pull_score
 //        [--until /pull_score=3] [--keep /force_corrected=200] [--timeout 60]
-//        [--stall] [--malformed] [--get-params] [--set-param NAME=JSON]
+//        [--stall] [--malformed] [--get-params] [--set-param NAME=JSON] [--legacy]
 //
 // Lines: {"kind":"open","protocol":...}, {"kind":"serverInfo",...}, {"kind":"channel",...} per
 // advertised channel, {"kind":"message","topic":...,"logTime":...,"data":{...}} per decoded
@@ -16,6 +16,8 @@
 // --get-params: ask for every parameter (as the Parameters panel does), print
 // {"kind":"parameters",...} and stop. --set-param: set one parameter (JSON value), subscribe to
 // its updates, print each {"kind":"parameters",...}, and stop once it has the value that was set.
+// --legacy: offer only the protocol's old name, FoxgloveClient's own default (foxglove.websocket.v1), as
+// Foxglove Studio 1.48 and older Lichtblick do; without it the client offers foxglove.sdk.v1.
 import rosmsg from "@foxglove/rosmsg";
 import rosmsg2 from "@foxglove/rosmsg2-serialization";
 import wsProtocol from "@foxglove/ws-protocol";
@@ -44,6 +46,7 @@ function args(argv) {
     else if (a === "--stall") out.stall = true;
     else if (a === "--malformed") out.malformed = true;
     else if (a === "--get-params") out.getParams = true;
+    else if (a === "--legacy") out.legacy = true;
     else if (a === "--set-param") {
       const s = next();
       const k = s.indexOf("=");
@@ -72,7 +75,7 @@ function plain(value) {
 const say = (obj) => process.stdout.write(JSON.stringify(obj) + "\n");
 
 const opt = args(process.argv.slice(2));
-const ws = new WebSocket(opt.url, [SUBPROTOCOL]);
+const ws = new WebSocket(opt.url, [opt.legacy ? FoxgloveClient.SUPPORTED_SUBPROTOCOL : SUBPROTOCOL]);
 const client = new FoxgloveClient({ ws });
 const readers = new Map(); // channel id -> {topic, reader}
 const subscriptions = new Map(); // subscription id -> channel id

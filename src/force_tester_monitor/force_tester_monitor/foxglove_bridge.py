@@ -22,6 +22,7 @@ from bag_tools.core.typestore import default_typestore
 
 from .core import params as P
 from .core.errors import MonitorError
+from .core.subprotocol import SubprotocolGate
 
 INVALID_CLIENT_MESSAGE = 'Invalid message'  # how the SDK's log line about a malformed client message starts
 
@@ -108,15 +109,21 @@ class FoxgloveBridge:
             self.channels[topic] = foxglove.Channel(
                 topic, message_encoding='cdr',
                 schema=foxglove.Schema(name=type_name, encoding='ros2msg', data=definition.encode()))
+        # the SDK's server on a loopback port of its own; clients connect through the gate on ``port``, which
+        # also accepts the protocol's old name (core/subprotocol.py says why and what it costs)
+        self.gate = None
         try:
             self.server = foxglove.start_server(
-                name='force tester monitor', host=P.HOST, port=port, server_listener=_Listener(self),
+                name='force tester monitor', host='127.0.0.1', port=0, server_listener=_Listener(self),
                 capabilities=[Capability.Parameters], message_backlog_size=backlog)
         except RuntimeError as exc:
-            reason = 'is already in use' if 'in use' in str(exc) else f'cannot be opened ({exc})'
-            raise MonitorError(f'port {port} on {P.HOST} {reason}; expected a free port '
-                               f'(-p port:=<another>, or 0 for any)') from None
-        self.port = self.server.port
+            raise MonitorError(f'the Foxglove server cannot start ({exc}); expected a free loopback port') from None
+        try:
+            self.gate = SubprotocolGate(P.HOST, port, self.server.port)
+        except MonitorError:
+            self.server.stop()
+            raise
+        self.port = self.gate.port
 
     def request(self, fn: Callable[[], None]) -> None:
         """Queue ``fn`` for the node's thread (safe from any thread)."""
@@ -140,6 +147,8 @@ class FoxgloveBridge:
         self.server.publish_parameter_values(parameters)
 
     def close(self) -> None:
+        if self.gate is not None:
+            self.gate.close()
         self.server.stop()
 
 
