@@ -98,34 +98,21 @@ def correct(src: str | Path, dst: str | Path, setup: CorrectionSetup | None = No
                 f'no short event: window {setup.params.window} kept')
         return replace(res, warnings=(note, *res.warnings))
     res = _correct(src, dst, setup, kind, to, path, progress, mapper, skip_failed)
-    if res.short_events:
-        return res
     unscored = [w for w in res.warnings if 'but stationary has 0' in w]   # a bag of a rig with no stationary cell
     if unscored:
         res = replace(res, warnings=(*(w for w in res.warnings if w not in unscored),
                                      f'{len(unscored)} pull(s) have no stationary cell samples: corrected but not '
                                      'scored'))
-    # the pulls are read again only where an event may be short: unscored pulls, or a filtered peak below the
-    # corrected one (a pull of seconds loses nothing to the average, and is not read again)
-    found = _events_of(src, kind, setup.params, mapper, skip_failed) if unscored or not res.pulls or any(
-        _lossy(p.score) for p in res.pulls) else []
-    scores = dst / 'scores.json'
-    if found and scores.is_file():   # a corrected campaign's report names them too
-        doc = json.loads(scores.read_text())
-        doc['short_events'] = [_event_dict(pid, e) for pid, e, _r in found]
-        scores.write_text(json.dumps(doc, indent=1) + '\n')
-    return replace(res, short_events=tuple(_event_dict(pid, e) for pid, e, _r in found),
-                   warnings=(*res.warnings, *(f'pull {pid}: {e.line(rate)}' for pid, e, rate in found),
-                             *([advice(setup.extension is not None)] if found else [])))
+    return res
 
 
-#: A pull whose filtered peak is below its corrected peak by more than this share is searched for short events.
-LOSSY = 0.02
-
-
-def _lossy(score) -> bool:
-    c, f = abs(float(score.corrected_peak_n)), abs(float(score.filtered_peak_n))
-    return not (f >= (1 - LOSSY) * c) if c > 0 else False
+def _with_short_events(result: CorrectionResult, found: list, setup: CorrectionSetup) -> CorrectionResult:
+    """The result naming the short events ``found`` ([(pull_id, ShortEvent, rate)]), one warning each."""
+    if not found:
+        return result
+    return replace(result, short_events=tuple(_event_dict(pid, e) for pid, e, _r in found),
+                   warnings=(*result.warnings, *(f'pull {pid}: {e.line(rate)}' for pid, e, rate in found),
+                             advice(setup.extension is not None)))
 
 
 def _event_dict(pid, e) -> dict:
@@ -180,9 +167,11 @@ def _correct(src: Path, dst: Path, setup: CorrectionSetup, kind: str, to, path: 
 
 
 def _result(setup, pulls, stats, stream, path, warnings) -> CorrectionResult:
-    return CorrectionResult(setup.params, setup.loaded_fraction, pulls,
-                            tuple(stats.summary(s) for s in sorted(stats.sets())),
-                            stream.nan_count, stream.runs, path, tuple(warnings))
+    """The result, with the short events the scorer found in the pulls it held (scorer.PullScorer)."""
+    return _with_short_events(CorrectionResult(setup.params, setup.loaded_fraction, pulls,
+                                               tuple(stats.summary(s) for s in sorted(stats.sets())),
+                                               stream.nan_count, stream.runs, path, tuple(warnings)),
+                              stream.scorer.events, setup)
 
 
 def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: str,

@@ -3,7 +3,9 @@
 A pull window is (start_ns, end_ns, set, pull_id) on the sample clock, from the PullEvent
 START/END pair. The scorer holds the samples of open windows only, scores a window once a sample
 at or after its end has been seen (or at finish), and gives the same result as slicing the whole
-recording with searchsorted: what the validator node's PullAccumulator does live.
+recording with searchsorted: what the validator node's PullAccumulator does live. With
+``short_window`` it also searches each pull that the moving average cuts (or that cannot be scored) for
+events shorter than a few windows, on the samples it holds anyway: no second read of the recording.
 """
 from __future__ import annotations
 
@@ -15,24 +17,35 @@ from force_tester_common.core.clock import sample_stamps_ns
 
 from ..core.errors import CorrectionError
 from ..core.scoring import SetStatistics, score_pull
+from ..core.short_events import short_events
 from .result import PullRecord
 
 SCORED = ('stationary', 'raw', 'corrected', 'filtered')
+#: a pull whose filtered peak is below its corrected peak by more than this share is searched for short events
+LOSSY = 0.02
+
+
+def lossy(score) -> bool:
+    c, f = abs(float(score.corrected_peak_n)), abs(float(score.filtered_peak_n))
+    return not (f >= (1 - LOSSY) * c) if c > 0 else False
 
 
 class PullScorer:
     """Scores windows over pieces {'t', 'stationary', 'raw', 'corrected', 'filtered'} fed in time
     order; ``drops`` are the stamps of blocks lost upstream (counted into their pull)."""
 
-    def __init__(self, windows: list, drops: list, loaded_fraction: float) -> None:
+    def __init__(self, windows: list, drops: list, loaded_fraction: float, short_window: int = 0) -> None:
         self.windows = list(windows)
+        self.short_window = short_window
+        self.rates: dict = {}     # window -> the sample rate of its first piece
+        self.events: list = []    # (pull_id, ShortEvent, rate_hz) in the order the pulls were scored
         by_start = sorted(range(len(self.windows)), key=lambda i: self.windows[i][:2])
         self.open = {i: [] for i in by_start}  # stays in start order
         self.outcome: dict = {}
         self.drops = np.array(sorted(drops), dtype=np.int64)
         self.loaded_fraction = loaded_fraction
 
-    def add(self, piece: dict) -> None:
+    def add(self, piece: dict, rate_hz: float = 0.0) -> None:
         t = piece['t']
         if not t.size:
             return
@@ -44,6 +57,7 @@ class PullScorer:
             lo, hi = t.searchsorted([start, end])
             if hi > lo:
                 self.open[i].append({k: piece[k][lo:hi] for k in SCORED})
+                self.rates.setdefault(i, rate_hz)
             if last >= end:
                 self._score(i)
 
@@ -59,6 +73,10 @@ class PullScorer:
             self.outcome[i] = score_pull(*arrays, loaded_fraction=self.loaded_fraction)
         except CorrectionError as exc:
             self.outcome[i] = f'pull {pull_id} (set {set_id}) not scored: {exc}'
+        rate = self.rates.get(i, 0.0)
+        if self.short_window and rate > 0 and (isinstance(self.outcome[i], str) or lossy(self.outcome[i])):
+            self.events += [(int(pull_id), e, rate) for e in short_events(arrays[1], arrays[2], rate,
+                                                                          self.short_window)]
 
     def finish(self) -> tuple:
         """(PullRecords in window order, SetStatistics, warnings)."""

@@ -40,9 +40,10 @@ class CorrectionStream:
         self.seq = 0
         self._state = None
         self._prefilter = None
+        self.rate_hz = 0.0
 
     def windows_known(self, windows: list, drops: list) -> None:
-        self.scorer = PullScorer(windows, drops, self.loaded_fraction)
+        self.scorer = PullScorer(windows, drops, self.loaded_fraction, short_window=self.params.window)
 
     def write_to(self, sink: Sink) -> None:
         self.sink = sink
@@ -52,6 +53,7 @@ class CorrectionStream:
             frame: str = '') -> Any:
         """Correct one piece; ``blocks`` = (stamps, sample counts, rates) of its blocks, needed
         when writing to a sink."""
+        self.rate_hz = rate_hz
         if new_run:
             self.runs += 1
             self._state = initial_state(self.params)
@@ -65,7 +67,7 @@ class CorrectionStream:
         piece = dict(zip(PIECE_KEYS, (stamps, stationary, measured, out.inertial_n,
                                       out.corrected_n, out.filtered_n)))
         if self.scorer is not None:
-            self.scorer.add(piece)
+            self.scorer.add(piece, rate_hz)
         if self.sink is not None:
             self.sink(piece, blocks, frame, self.seq)
         self.seq += len(blocks[0]) if blocks is not None else 0
@@ -85,7 +87,7 @@ class CorrectionStream:
         windows were known first, else from the kept arrays."""
         if self.scorer is None:
             self.windows_known(windows, drops)
-            self.scorer.add(self.arrays())
+            self.scorer.add(self.arrays(), self.rate_hz)
         return self.scorer.finish()
 
 
