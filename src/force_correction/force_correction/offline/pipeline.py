@@ -7,7 +7,6 @@ campaign (plus inertial_n, corrected_n, filtered_n columns and scores.json).
 """
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 from contextlib import nullcontext
