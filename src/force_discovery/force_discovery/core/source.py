@@ -10,7 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
-from bag_tools.core.daq import campaign_index, read_pull
+from bag_tools.core.daq import campaign_channels, campaign_index, read_pull
+from force_tester_common.core.channels import REQUIRED_CHANNELS
 
 
 @dataclass(frozen=True)
@@ -49,4 +50,15 @@ def load_channels(ref: PullRef) -> Tuple[dict, dict]:
     return ref.meta, channels
 
 
-__all__ = ['PullRef', 'campaign_refs', 'memory_refs', 'load_channels']
+def campaign_absent(refs: Sequence[PullRef]) -> tuple:
+    """The required channels a campaign does not have: campaign.yaml's absent: (with its channel map's) for pulls
+    of a folder; for pulls in memory, the required channels the first pull lacks."""
+    if not refs:
+        return ()
+    r = refs[0]
+    if r.channels is not None:
+        return tuple(c for c in REQUIRED_CHANNELS if c not in r.channels)
+    return tuple(campaign_channels(r.folder)[1]) if r.folder else ()
+
+
+__all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels']

@@ -65,7 +65,8 @@ from .quality import PullScreen, screen_pull
 from .report import add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
 from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
-from .source import PullRef, campaign_refs, load_channels, memory_refs
+from .free import check_core_channels, discover_free, needs_reference_free
+from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs
 from .stages import (
     MIN_PULLS,
     Analysis,
@@ -455,9 +456,14 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
     scheduler then); progress(stage, done, total)."""
     from force_tester_common.engine import Mapper
     mapper = Mapper(scheduler) if mapper is None else mapper
+    refs = pull_refs(campaign)
+    absent = campaign_absent(refs)
+    check_core_channels(absent)
+    if needs_reference_free(absent):   # no stationary cell or no encoder: what the remaining channels support
+        return discover_free(refs, absent, rig, out_dir, mapper, progress)
     spill = tempfile.mkdtemp(prefix='ft_discover_spill_') if spills_locally(mapper.scheduler) else None
     try:
-        st = Stream(campaign, rig, mapper, spill, progress)
+        st = Stream(refs, rig, mapper, spill, progress)
         analysis = st.analyse()
         decision = decide(analysis, rig)
         out = Path(out_dir)
