@@ -98,7 +98,7 @@ def _reference_free(report: dict, out: Path) -> int:
     if 'gain_mass_product' in c:
         g, d = c['gain_mass_product'], c['accel_delay']
         print(f'g m2 = {g["parameters"]["gain_mass_kg"]:.5g} kg, accelerometer delay '
-              f'{1e6 * d["parameters"]["delay_s"]:.3g} us' + (f'; modes: ' + ', '.join(
+              f'{1e6 * d["parameters"]["delay_s"]:.3g} us' + ('; modes: ' + ', '.join(
                   f'{m["frequency_hz"]:.1f} Hz' for m in report['modes'][:3]) if report.get('modes') else ''))
     print('not identifiable: ' + '; '.join(f'{q["quantity"]} ({q["reason"].split(":")[0]})'
                                            for q in report['not_identifiable']))

@@ -806,6 +806,9 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
     dts = {round(s.pull.dt, 12) for _r, s in usable}
     if len(dts) > 1:
         raise DiscoveryError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
+    from bag_tools.core.daqfiles import NOTHING_TO_CORRECT
+    if not usable and failed and all(NOTHING_TO_CORRECT in why for _n, why in failed):
+        raise DiscoveryError(failed[0][1].split(': ', 1)[-1])       # no moving cell in any pull: one line
     if not usable:
         notes.append(f'0 of {len(refs)} pulls are usable (excluded_pulls, failed_pulls say why)')
         rep = free_report(None, [], absent, screens, excluded, failed, rig, notes)

@@ -24,6 +24,8 @@ class PullRef:
     entry: Optional[dict] = None         # ... as written (a TDMS file's channel map is in it)
     rate_hz: Optional[float] = None      # campaign.yaml's sample_rate_hz (None: from the time column)
     channels: Optional[dict] = None      # in-memory pulls: column -> array
+    channel_map: Optional[object] = None  # the campaign's channel map (bag_tools ChannelMap: lab files in volts)
+    absent: tuple = ()                   # required channels the campaign does not have (campaign.yaml absent:)
 
     def __repr__(self) -> str:
         return f'PullRef({self.name!r})'
@@ -33,7 +35,9 @@ def campaign_refs(folder) -> list:
     """PullRef per pull of a campaign folder (campaign.yaml read and checked as read_campaign checks it; no pull
     data read). BagError for a missing or malformed campaign.yaml or a missing pull file."""
     path, rate, _rig, entries = campaign_index(folder)
-    return [PullRef(meta['file'], str(Path(path).resolve()), meta, dict(entry), rate) for meta, entry in entries]
+    cmap, absent = campaign_channels(path)
+    return [PullRef(meta['file'], str(Path(path).resolve()), meta, dict(entry), rate, None, cmap, tuple(absent))
+            for meta, entry in entries]
 
 
 def memory_refs(campaign_pulls: Sequence) -> list:
@@ -46,7 +50,7 @@ def load_channels(ref: PullRef) -> Tuple[dict, dict]:
     if ref.channels is not None:
         return ref.meta, ref.channels
     channels, _rate, _warnings = read_pull((Path(ref.folder) / ref.meta['file'], (ref.entry or {}).get('map'),
-                                            ref.rate_hz))
+                                            ref.rate_hz, ref.channel_map, ref.absent))
     return ref.meta, channels
 
 
@@ -58,7 +62,7 @@ def campaign_absent(refs: Sequence[PullRef]) -> tuple:
     r = refs[0]
     if r.channels is not None:
         return tuple(c for c in REQUIRED_CHANNELS if c not in r.channels)
-    return tuple(campaign_channels(r.folder)[1]) if r.folder else ()
+    return tuple(r.absent)
 
 
 __all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels']
