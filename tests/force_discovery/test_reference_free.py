@@ -5,7 +5,6 @@ event, sample rates 10-100 kHz, a sensor overload, and our own rig with its refe
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

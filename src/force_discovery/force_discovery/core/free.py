@@ -38,13 +38,13 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from force_tester_common.core.channels import CHANNELS, OPTIONAL_CHANNELS, REQUIRED_CHANNELS
+from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 from force_tester_common.core.events import event_spans
 
 from . import quality as Q
@@ -134,6 +134,31 @@ def identifiability(absent: Sequence[str], computed: Sequence[str] = COMPUTED) -
                        'reason': f'its channels are here, but the analysis with a reference needs '
                                  f'{" and ".join(REFERENCE_CHANNELS)} together: {what}'})
     return yes, no
+
+
+def full_identifiability(tested: Sequence[str]) -> Tuple[list, list]:
+    """(identifiable, not_identifiable) of a campaign with its reference: the catalog causes tested (``tested``)
+    and the simulation check; coulomb_friction without a motor current channel is not identifiable."""
+    yes = [{'quantity': q, 'needs': list(needs), 'what': what} for q, needs, what in QUANTITIES
+           if q in tested or q in ('data_quality', 'simulation_check', 'cell_damping')]
+    yes += [{'quantity': q, 'needs': list(REFERENCE_CHANNELS + FREE_CHANNELS), 'what': 'catalog cause'}
+            for q in tested if q not in {y['quantity'] for y in yes}]
+    no = [] if 'coulomb_friction' in tested else [
+        {'quantity': 'coulomb_friction', 'needs': ['motor_current_a', 'encoder_position_m'],
+         'missing': ['motor_current_a'], 'reason': 'needs motor_current_a (absent): the drive\'s force balance'}]
+    return yes, no
+
+
+def identifiability_lines(report: dict) -> list:
+    """report.md's lines on what the channels identify (both paths)."""
+    if 'identifiable' not in report:
+        return []
+    out = ['## Identifiable from these channels', '',
+           ', '.join(q['quantity'] for q in report['identifiable']) or '-', '']
+    if report['not_identifiable']:
+        out += ['Not identifiable:', ''] + [f'- {q["quantity"]}: {q["reason"]}' for q in report['not_identifiable']]
+        out.append('')
+    return out
 
 
 # ------------------------------------------------------------------------------------------ per pull
@@ -476,8 +501,6 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     # held-out SSE of each pull under the nested models
     if n >= 2:
         base = np.array([_sse(stats[j], g0, 0.0, 'nohum') for j in allj])
-        g_only = np.array([_sse(stats[j], _pooled(stats, [k for k in allj if k != j], 'nohum')[0], 0.0, 'nohum')
-                           for j in allj])
         lo = [_pooled(stats, [k for k in allj if k != j], 'nohum') for j in allj]
         full_nohum = np.array([_sse(stats[j], *lo[j], 'nohum') for j in allj])
         full = np.array([_sse(stats[j], *loo[j], 'hum') for j in allj])
@@ -485,7 +508,7 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
                              for j in allj])
     else:
         base = np.array([_sse(stats[0], g0, 0.0, 'nohum')])
-        g_only = full_nohum = np.array([_sse(stats[0], G, d, 'nohum')])
+        full_nohum = np.array([_sse(stats[0], G, d, 'nohum')])
         full = np.array([_sse(stats[0], G, d, 'hum')])
         no_delay = np.array([_sse(stats[0], _gain_at(stats, [0], 0.0), 0.0, 'hum')])
     # the G cause: nominal g m2 vs fitted G (delay fitted in both); the delay: G alone vs G and d; hum: without/with
@@ -526,7 +549,7 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     if mount is not None:
         cell = [(f_cell, fc.load_cell_damping_ratio)]
         b, e, r2n = [], [], []
-        for j, p in enumerate(pulls):
+        for p in pulls:
             if p.ring is None:
                 continue
             others = [v for k, v in mount['per_pull'].items() if k != p.name] if n >= 2 else \

@@ -455,7 +455,7 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray]) -> PullScreen:
             found.append((c, c, SPIKE, i0, i1, f'{peak:+.4g} from the signal interpolated across it, over '
                           f'{_ms(i1 - i0, dt)} {detail}'))
     devs = {c: np.abs(xw - np.median(xw)) for c, (xw, _r, _s) in rough.items()}
-    for c, (xw, r, sigma_r) in rough.items():
+    for c, (xw, _r, sigma_r) in rough.items():
         others = [devs[o] for o in COINCIDENCE_CHANNELS if o != c and o in devs]
         for i0, i1, peak, ratio in _overloads(xw, devs[c], sigma_r / R_PER_SIGMA, others, dt):
             found.append((c, c, OVERLOAD, i0, i1, f'a burst of {peak:+.4g} over {_ms(i1 - i0, dt)}, {ratio:.3g} x '

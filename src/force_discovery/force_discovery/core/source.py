@@ -13,6 +13,8 @@ from typing import Optional, Sequence, Tuple
 from bag_tools.core.daq import campaign_channels, campaign_index, read_pull
 from force_tester_common.core.channels import REQUIRED_CHANNELS
 
+from .errors import DiscoveryError
+
 
 @dataclass(frozen=True)
 class PullRef:
@@ -60,9 +62,16 @@ def campaign_absent(refs: Sequence[PullRef]) -> tuple:
     if not refs:
         return ()
     r = refs[0]
-    if r.channels is not None:
-        return tuple(c for c in REQUIRED_CHANNELS if c not in r.channels)
-    return tuple(r.absent)
+    if r.channels is None:
+        return tuple(r.absent)
+    absent = tuple(c for c in REQUIRED_CHANNELS if c not in r.channels)
+    for o in refs[1:]:
+        diff = [c for c in REQUIRED_CHANNELS if (c in absent) != (o.channels is not None and c not in o.channels)]
+        if diff:
+            have, lack = (o, r) if diff[0] in absent else (r, o)
+            raise DiscoveryError(f'pull {lack.name!r} has no {diff[0]!r} channel but pull {have.name!r} has; expected '
+                                 'the same channels in every pull (a channel the rig lacks is absent from all)')
+    return absent
 
 
 __all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels']
