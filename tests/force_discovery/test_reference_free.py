@@ -151,3 +151,16 @@ def test_our_rig_without_its_reference_channels(tmp_path):
     f_obs = observed_mount_mode(truth)[0]
     assert any(abs(m['frequency_hz'] / f_obs - 1) < 0.02 for m in rep['modes']), (rep['modes'], f_obs)
     assert np.isfinite(rep['baseline_error'])
+
+
+def test_nothing_hidden_names_nothing_in_the_force_channel(tmp_path):
+    """The lab's rig YAML right (m2, gain 1, no delay, hum well below the 1 N tolerance): g m2, the delay and the
+    hum are within tolerance, none named (the structure's own mode is a mode all the same)."""
+    imp = Impactor(m2_kg=0.30, accel_delay_s=0.0, hum_n=0.2, record_s=0.06)
+    rep = run(memory_campaign(imp, 4), lab_rig(tmp_path, imp), tmp_path / 'out')
+    c = rep['candidates']
+    named = {x['name'] for x in rep['causes']}
+    assert not named & {'gain_mass_product', 'accel_delay', 'mains_hum'}, named
+    assert c['gain_mass_product']['verdict'] == 'within_tolerance'
+    assert c['accel_delay']['verdict'] in ('within_tolerance', 'not_significant')
+    assert c['mains_hum']['verdict'] in ('within_tolerance', 'not_significant')
