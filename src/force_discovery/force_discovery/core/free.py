@@ -57,7 +57,7 @@ FORCE, ACCEL = 'force_moving_n', 'accel_axial_m_s2'
 FREE_CHANNELS = (FORCE, ACCEL)
 REFERENCE_CHANNELS = ('force_stationary_n', 'encoder_position_m')
 MIN_NAMED_PULLS = 4            # held-out pulls needed before a cause can meet t >= MIN_T
-FREE_MIN_SAMPLES = 500         # a record shorter than this is not a full record
+FREE_MIN_SAMPLES = 200         # a record shorter than this is not a full record (40 ms at 5 kHz)
 EDGE_S = 1e-3                  # the record's first and last ms are not fitted (the FFT filters' edges)
 FREE_MARGIN_S = 2e-3           # first pass: free phases start this far (or a quarter event) from an event
 EVENT_Z = 6.0                  # second pass: |F_move - G a2| above this many robust sd is in the event
@@ -65,7 +65,9 @@ EVENT_PAD_S = 0.5e-3           # ... grown by this much on each side (the low-pa
 EVENT_GAP_S = 1e-3             # event samples closer than this are one event
 MIN_FREE_SHARE = 0.05          # a pull with fewer free samples (of the record) cannot be fitted
 DELAY_MAX_S = 200e-6
-DELAY_STEP_SHARE = 0.25        # the delay grid's step, in samples
+DELAY_STEP_SHARE = 0.25        # the delay grid's step, in samples ...
+DELAY_STEP_MIN_S = 2.5e-6      # ... but not finer than this (a parabola refines the minimum)
+DELAY_LOCAL_STEPS = 8          # refits search this many steps either side of the first estimate(s)
 RING_S = 0.03                  # the free decay analysed after the last event (at most RING_SAMPLES samples)
 RING_SAMPLES = 800
 RING_MIN_SAMPLES = 100
@@ -193,17 +195,23 @@ class FreeStats:
     samples: int
 
 
-HUM_KEEP = 5000
+HUM_KEEP = 2000
 
 
-def _shift(x: np.ndarray, dt: float, d: float, X: Optional[np.ndarray] = None) -> np.ndarray:
-    """x(t + d), band-limited (exact in the frequency domain; the end trend removed first and put back)."""
-    n = len(x)
-    trend = np.linspace(x[0], x[-1], n)
-    if X is None:
-        X = np.fft.rfft(x - trend)
-    w = 2 * np.pi * np.fft.rfftfreq(n, dt)
-    return np.fft.irfft(X * np.exp(1j * w * d), n) + trend + (x[-1] - x[0]) * d / (dt * (n - 1))
+class Shifter:
+    """x(t + d) for any d, band-limited (exact in the frequency domain; the end trend removed first and put
+    back): the spectrum computed once."""
+
+    def __init__(self, x: np.ndarray, dt: float):
+        n = len(x)
+        self.n, self.dt = n, dt
+        self.trend = np.linspace(x[0], x[-1], n)
+        self.slope = (x[-1] - x[0]) / (dt * (n - 1))
+        self.X = np.fft.rfft(x - self.trend)
+        self.w = 2 * np.pi * np.fft.rfftfreq(n, dt)
+
+    def __call__(self, d: float) -> np.ndarray:
+        return np.fft.irfft(self.X * np.exp(1j * self.w * d), self.n) + self.trend + self.slope * d
 
 
 def _events(fm: np.ndarray, rate: float) -> list:
@@ -224,19 +232,26 @@ def _grow(mask: np.ndarray, k: int) -> np.ndarray:
     return c > 0.5
 
 
-def _fit(fm: np.ndarray, a: np.ndarray, w: np.ndarray, extra: Optional[np.ndarray] = None) -> Tuple[float, float]:
-    """(G, SSE) of fm = G a + offset (+ extra columns) on the samples w."""
-    cols = [a[w], np.ones(int(w.sum()))] + ([] if extra is None else [e[w] for e in extra])
-    X = np.column_stack(cols)
-    c, *_ = np.linalg.lstsq(X, fm[w], rcond=None)
-    r = fm[w] - X @ c
-    return float(c[0]), float(r @ r)
+def _fit(fm: np.ndarray, a: np.ndarray, w: np.ndarray) -> Tuple[float, float]:
+    """(G, SSE) of fm = G a + offset on the samples w (least squares, closed form)."""
+    f = fm[w] - np.mean(fm[w])
+    x = a[w] - np.mean(a[w])
+    xx, xf = float(x @ x), float(x @ f)
+    g = xf / xx if xx > 0 else 0.0
+    return g, float(f @ f) - g * xf
 
 
-def _delay_grid(dt: float) -> np.ndarray:
-    step = DELAY_STEP_SHARE * dt
+def _delay_grid(dt: float, around: Sequence[float] = ()) -> np.ndarray:
+    """The delays tried: +/-DELAY_MAX_S in steps of DELAY_STEP_SHARE samples (at least DELAY_STEP_MIN_S); with
+    ``around``, only from DELAY_LOCAL_STEPS steps below the least of them and 0 to as far above the largest."""
+    step = max(DELAY_STEP_SHARE * dt, DELAY_STEP_MIN_S)
     k = int(math.floor(DELAY_MAX_S / step))
-    return np.arange(-k, k + 1) * step
+    grid = np.arange(-k, k + 1) * step
+    if len(around):
+        lo = min(min(around), 0.0) - DELAY_LOCAL_STEPS * step
+        hi = max(max(around), 0.0) + DELAY_LOCAL_STEPS * step
+        grid = grid[(grid >= lo) & (grid <= hi)]
+    return grid
 
 
 def _best_on_grid(delays: np.ndarray, sse: np.ndarray) -> float:
@@ -288,11 +303,10 @@ def free_pull(name: str, ch: dict, screen: Q.PullScreen) -> FreePull:
     if free.sum() < MIN_FREE_SHARE * n:
         raise DiscoveryError(f'pull {name!r}: {int(free.sum())} free-phase samples; expected at least '
                              f'{MIN_FREE_SHARE:.0%} of the record outside the events')
-    A = np.fft.rfft(a2 - np.linspace(a2[0], a2[-1], n))
-    delays = _delay_grid(dt)
-    g, d = _own_fit(fm, a2, A, dt, free, delays)
+    A = Shifter(a2, dt)
+    g, d = _own_fit(fm, A, free, _delay_grid(dt))
     # second pass: the event is where the force departs from what the accelerometer explains
-    r = fm - g * _shift(a2, dt, d, A)
+    r = fm - g * A(d)
     base = np.median(r[free])
     sd = 1.4826 * float(np.median(np.abs(r[free] - base)))
     out = np.abs(r - base) > EVENT_Z * max(sd, 1e-12)
@@ -315,8 +329,8 @@ def free_pull(name: str, ch: dict, screen: Q.PullScreen) -> FreePull:
     if free.sum() < MIN_FREE_SHARE * n:
         raise DiscoveryError(f'pull {name!r}: {int(free.sum())} free-phase samples; expected at least '
                              f'{MIN_FREE_SHARE:.0%} of the record outside the events')
-    g, d = _own_fit(fm, a2, A, dt, free, delays)
-    r = fm - g * _shift(a2, dt, d, A)
+    g, d = _own_fit(fm, A, free, _delay_grid(dt, [d]))
+    r = fm - g * A(d)
     events = []
     for a, b in _runs(ev):
         seg = raw[a:b] - np.median(raw)
@@ -343,14 +357,14 @@ def _spans_mask(spans, n):
     return m
 
 
-def _own_fit(fm, a2, A, dt, free, delays) -> Tuple[float, float]:
+def _own_fit(fm, A: Shifter, free, delays) -> Tuple[float, float]:
     """(G, d) of one pull: the delay minimizing the SSE on the grid (parabola refined), G there. G keeps the sign
     it has at d = 0: past half a period of the ringing, a delay with G of the other sign fits as well."""
-    fits = [_fit(fm, _shift(a2, dt, d, A), free) for d in delays]
-    sign = np.sign(fits[len(delays) // 2][0]) or 1.0
+    fits = [_fit(fm, A(d), free) for d in delays]
+    sign = np.sign(fits[int(np.argmin(np.abs(delays)))][0]) or 1.0
     sse = np.array([e if np.sign(g) == sign else np.inf for g, e in fits])
     d = _best_on_grid(delays, sse)
-    return _fit(fm, _shift(a2, dt, d, A), free)[0], d
+    return _fit(fm, A(d), free)[0], d
 
 
 def _ring(a2: np.ndarray, ok: np.ndarray, last: int, dt: float):
@@ -368,8 +382,10 @@ def _ring(a2: np.ndarray, ok: np.ndarray, last: int, dt: float):
     return y, tuple(mm[:MODES_PER_PULL])
 
 
-def free_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, fp: FreePull) -> FreeStats:
-    """Pass 2 of one pull: the normal equations per delay (with and without the hum at f_hum)."""
+def free_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, fp: FreePull,
+               delays: np.ndarray) -> FreeStats:
+    """Pass 2 of one pull: the normal equations per delay of the grid ``delays`` (the campaign's: every pull's
+    delay and 0 inside it), with and without the hum at f_hum."""
     t, dt, fm, a2, ok, raw = _prepared(name, ch, screen)
     n = len(t)
     # the same free phases as pass 1: outside the events it found
@@ -377,8 +393,7 @@ def free_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, fp: Free
     for e in fp.events:
         ev[(t >= e['start_s']) & (t <= e['end_s'])] = True
     free = ok & ~ev
-    A = np.fft.rfft(a2 - np.linspace(a2[0], a2[-1], n))
-    delays = _delay_grid(dt)
+    A = Shifter(a2, dt)
     tf = t[free]
     one = np.ones(len(tf))
     hum_cols = np.column_stack([one, np.sin(2 * np.pi * f_hum * tf), np.cos(2 * np.pi * f_hum * tf)])
@@ -388,11 +403,11 @@ def free_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, fp: Free
         f = fm[free] - Qn @ (Qn.T @ fm[free])
         rows = []
         for d in delays:
-            a = _shift(a2, dt, d, A)[free]
+            a = A(d)[free]
             a = a - Qn @ (Qn.T @ a)
             rows.append((float(f @ f), float(f @ a), float(a @ a)))
         out[key] = np.array(rows)
-    r = fm[free] - fp.gain_mass * _shift(a2, dt, fp.delay_s, A)[free]
+    r = fm[free] - fp.gain_mass * A(fp.delay_s)[free]
     c, *_ = np.linalg.lstsq(hum_cols, r, rcond=None)
     return FreeStats(delays, out['hum'], out['nohum'], float(math.hypot(c[1], c[2])), int(free.sum()))
 
@@ -403,7 +418,7 @@ def _pooled(stats: Sequence[FreeStats], idx: Sequence[int], key: str = 'hum') ->
     delays = stats[idx[0]].delays
     tab = sum(getattr(stats[j], key) for j in idx)
     sse = tab[:, 0] - tab[:, 1] ** 2 / np.maximum(tab[:, 2], 1e-300)
-    sign = np.sign(tab[len(delays) // 2, 1]) or 1.0      # G's sign at d = 0 (see _own_fit)
+    sign = np.sign(tab[int(np.argmin(np.abs(delays))), 1]) or 1.0      # G's sign at d = 0 (see _own_fit)
     sse = np.where(np.sign(tab[:, 1]) == sign, sse, np.inf)
     d = _best_on_grid(delays, sse)
     ff, fa, aa = _interp_stats(delays, tab, d)
@@ -763,15 +778,20 @@ def hum_frequency(pres: Sequence[Tuple[np.ndarray, np.ndarray]]) -> float:
     from scipy.optimize import minimize_scalar
     pres = list(pres)[:HUM_PULLS]
 
-    def power(f):
-        tot = 0.0
+    def power_many(fs):
+        tot = np.zeros(len(fs))
         for t, r in pres:
-            X = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
-            c, *_ = np.linalg.lstsq(X, r, rcond=None)
-            tot += float(np.sum((X[:, :2] @ c[:2]) ** 2))
+            ph = 2 * np.pi * np.outer(fs, t)
+            X = np.stack([np.sin(ph), np.cos(ph), np.ones_like(ph)], axis=2)      # (f, n, 3)
+            XtX = np.einsum('fni,fnj->fij', X, X)
+            c = np.linalg.solve(XtX, np.einsum('fni,n->fi', X, r)[..., None])[..., 0]
+            tot += np.einsum('fi,fij,fj->f', c[:, :2], XtX[:, :2, :2], c[:, :2])
         return tot
+
+    def power(f):
+        return float(power_many(np.array([f]))[0])
     grid = np.arange(HUM_BAND_HZ[0], HUM_BAND_HZ[1] + HUM_STEP_HZ / 2, HUM_STEP_HZ)
-    f0 = float(grid[int(np.argmax([power(f) for f in grid]))])
+    f0 = float(grid[int(np.argmax(np.concatenate([power_many(grid[k:k + 50]) for k in range(0, len(grid), 50)])))])
     return float(minimize_scalar(lambda f: -power(f), bounds=(f0 - HUM_STEP_HZ, f0 + HUM_STEP_HZ), method='bounded',
                                  options={'xatol': 1e-3}).x)
 
@@ -805,11 +825,11 @@ def free_survey(ref) -> FreeSurvey:
 
 
 def free_pass2(item) -> FreeStats:
-    """Pass 2 (mapped over the usable pulls): item = (PullRef, FreeSurvey, hum frequency)."""
+    """Pass 2 (mapped over the usable pulls): item = (PullRef, FreeSurvey, hum frequency, the delay grid)."""
     from .source import load_channels
-    ref, sv, f_hum = item
+    ref, sv, f_hum, delays = item
     _meta, ch = load_channels(ref)
-    return free_stats(ref.name, ch, sv.screen, f_hum, sv.pull)
+    return free_stats(ref.name, ch, sv.screen, f_hum, sv.pull, delays)
 
 
 def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None) -> dict:
@@ -840,7 +860,8 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
     pulls = [s.pull for _r, s in usable]
     pres = [(p.hum_t, p.hum_r) for p in pulls if len(p.hum_t) > 100]
     f_hum = hum_frequency(pres) if pres else float(np.mean(HUM_BAND_HZ))
-    res2 = run('statistics', free_pass2, [(r, s, f_hum) for r, s in usable], [p.name for p in pulls])
+    grid = _delay_grid(pulls[0].dt, [p.delay_s for p in pulls])
+    res2 = run('statistics', free_pass2, [(r, s, f_hum, grid) for r, s in usable], [p.name for p in pulls])
     if res2.failed:
         name, why = res2.failed[0]
         raise DiscoveryError(f'pull {name!r} failed in the statistics stage ({why}); expected every usable pull '
