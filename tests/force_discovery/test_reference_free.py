@@ -164,3 +164,40 @@ def test_nothing_hidden_names_nothing_in_the_force_channel(tmp_path):
     assert c['gain_mass_product']['verdict'] == 'within_tolerance'
     assert c['accel_delay']['verdict'] in ('within_tolerance', 'not_significant')
     assert c['mains_hum']['verdict'] in ('within_tolerance', 'not_significant')
+
+
+def test_heavier_carriage_at_25_khz_with_and_without_its_reference(tmp_path):
+    """Section 4's second rig: our rig with an 80 kg carriage sampled at 25 kHz, a 60 us accelerometer delay hidden.
+    The code sees the data and that rig's YAML (25 kHz, 80 kg, no departures). With every channel the full path
+    names the delay; with the stationary cell and encoder left out the reference-free path finds it too."""
+    from force_tester_sim.core.campaign import truth_pull_specs
+    from force_tester_sim.core.params import NOMINAL_YAML
+    from force_tester_sim.core.simulate import simulate_pull
+
+    def rig(name, deps=None):
+        doc = yaml.safe_load(NOMINAL_YAML.read_text())
+        doc['daq']['sample_rate_hz'] = 25000
+        doc['drive']['carriage_mass_kg'] = 80.0
+        doc['drive']['actuator_inertia_kg_m2'] += 33.0 * doc['drive']['pulley_radius_m'] ** 2
+        doc.pop('uncertainty', None)
+        if deps:
+            doc['departures'] = deps
+        (tmp_path / name).write_text(yaml.safe_dump(doc))
+        return load_rig(tmp_path / name)
+    truth = rig('truth.yaml', {'accel_delay': {'delay_s': 60e-6}})
+    camp = []
+    for s in (2, 3):
+        ts = truth.test_set(s)
+        for sp in truth_pull_specs(truth, s, 4, 7):
+            camp.append(({'file': f'set{s}_pull{sp.pull + 1}', 'set': s, 'coupon_lbf': ts.coupon_lbf,
+                          'velocity_fps': ts.velocity_fps, 'decel_g': ts.decel_g}, simulate_pull(truth, sp)))
+    lab = rig('lab.yaml')
+    full = run(camp, lab, tmp_path / 'full')
+    assert full['cause'] == 'accel_delay', [c['name'] for c in full['causes']]
+    assert full['causes'][0]['parameters']['delay_s'] == pytest.approx(60e-6, abs=3e-6)
+    assert full['not_identifiable'] == [] and 'simulation_check' in {q['quantity'] for q in full['identifiable']}
+    bare = [(m, {k: v for k, v in ch.items() if k not in ('force_stationary_n', 'encoder_position_m')})
+            for m, ch in camp]
+    free = run(bare, lab, tmp_path / 'free')
+    assert free['reference'] is False and 'accel_delay' in [c['name'] for c in free['causes']]
+    assert free['candidates']['accel_delay']['parameters']['delay_s'] == pytest.approx(60e-6, abs=3e-6)
