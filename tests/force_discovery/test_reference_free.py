@@ -201,3 +201,17 @@ def test_heavier_carriage_at_25_khz_with_and_without_its_reference(tmp_path):
     free = run(bare, lab, tmp_path / 'free')
     assert free['reference'] is False and 'accel_delay' in [c['name'] for c in free['causes']]
     assert free['candidates']['accel_delay']['parameters']['delay_s'] == pytest.approx(60e-6, abs=3e-6)
+
+
+def test_two_pulls_with_every_channel_are_not_refused(tmp_path):
+    """Fewer than 4 pulls cannot be split into fitted and held-out halves; discover analyses the free phases
+    leave-one-out instead, and says why the analysis with a reference did not run."""
+    from generator import make_campaign
+    camp = make_campaign({'accel_delay': {'delay_s': 50e-6}}, seed=5, sets=(3,), pulls=2)
+    rep = run(camp, load_rig(), tmp_path / 'out')
+    assert rep['reference'] is False and rep['absent'] == [] and rep['validation']['method'] == 'leave-one-out'
+    assert any('needs at least 4' in n for n in rep['notes'])
+    why = {q['quantity']: q['reason'] for q in rep['not_identifiable']}
+    assert 'needs at least 4 pulls' in why['moving_cell_gain'] and 'coulomb_friction' in why
+    assert rep['candidates']['accel_delay']['parameters']['delay_s'] == pytest.approx(50e-6, abs=3e-6)
+    assert rep['causes'] == [] and 'accel_delay' in {c['name'] for c in rep['indicated']}

@@ -92,7 +92,9 @@ def _reference_free(report: dict, out: Path) -> int:
                       f'{len(report["failed_pulls"])} unreadable); expected a record with an event and free phases '
                       f'(why: {out / "report.md"})')
     names = ', '.join(c['name'] for c in report['causes']) or 'none'
-    print(f'no reference ({", ".join(report["absent"])} absent): cause: {report["cause"]} (named: {names}); '
+    why = f'no reference ({", ".join(report["absent"])} absent)' if report['absent'] else \
+        f'{len(report["pulls"])} pull(s), too few for the analysis with a reference'
+    print(f'{why}: cause: {report["cause"]} (named: {names}); '
           f'{report["validation"]["method"]} over {len(report["fitted_pulls"])} pull(s)')
     c = report.get('candidates') or {}
     if 'gain_mass_product' in c:

@@ -119,10 +119,11 @@ def check_core_channels(absent: Sequence[str], name: str = 'campaign') -> None:
             raise DiscoveryError(f'{name} has no {c!r} channel; {NOTHING_TO_CORRECT}')
 
 
-def identifiability(absent: Sequence[str], computed: Sequence[str] = COMPUTED) -> Tuple[list, list]:
+def identifiability(absent: Sequence[str], computed: Sequence[str] = COMPUTED, few: int = 0) -> Tuple[list, list]:
     """(identifiable, not_identifiable) for a campaign lacking ``absent``: each {quantity, needs, what} or
     {quantity, needs, missing, reason}; computed: what this analysis computes of the quantities whose channels
-    are there (the rest is listed as not identifiable by this path, with the reason)."""
+    are there (the rest is listed as not identifiable by this path, with the reason); few: the analysis with a
+    reference was not run because it needs this many pulls."""
     yes, no = [], []
     for q, needs, what in QUANTITIES:
         missing = [c for c in needs if c in absent]
@@ -131,6 +132,10 @@ def identifiability(absent: Sequence[str], computed: Sequence[str] = COMPUTED) -
                        'reason': f'needs {", ".join(missing)} (absent): {what}'})
         elif q in computed:
             yes.append({'quantity': q, 'needs': list(needs), 'what': what})
+        elif few:
+            no.append({'quantity': q, 'needs': list(needs), 'missing': [],
+                       'reason': f'needs at least {few} pulls (half fitted, half held out) for the analysis with a '
+                                 f'reference: {what}'})
         else:
             no.append({'quantity': q, 'needs': list(needs), 'missing': [c for c in REFERENCE_CHANNELS if c in absent],
                        'reason': f'its channels are here, but the analysis with a reference needs '
@@ -627,10 +632,10 @@ def validation_text(n: int) -> dict:
 
 # ------------------------------------------------------------------------------------------ report
 def free_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
-                excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = ()) -> dict:
-    """report.json of the reference-free path."""
+                excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
+    """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
     from .report import clean
-    yes, no = identifiability(absent)
+    yes, no = identifiability(absent, few=few)
     n = len(pulls)
     rep = {'reference': False, 'absent': list(absent),
            'channels': [c for c in CHANNELS if c not in absent and (c in REQUIRED_CHANNELS or c in FREE_CHANNELS)],
@@ -832,8 +837,9 @@ def free_pass2(item) -> FreeStats:
     return free_stats(ref.name, ch, sv.screen, f_hum, sv.pull, delays)
 
 
-def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None) -> dict:
-    """The reference-free discovery of a campaign lacking ``absent`` (module docstring); writes DIR/report.json,
+def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None, few: int = 0) -> dict:
+    """The reference-free discovery of a campaign lacking ``absent`` (module docstring), or of one with every
+    channel but fewer pulls than ``few`` (the analysis with a reference needs that many); writes DIR/report.json,
     report.md and extension.yaml and returns the report."""
     def run(stage, fn, items, names):
         prog = (lambda done, total: progress(stage, done, total)) if progress else None
@@ -845,7 +851,9 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
     excluded = {s.name: s.excluded for s in surveys if s.excluded}
     usable = [(r, s) for r, s in zip(refs, res.results) if s is not None and s.pull is not None]
     notes = [f'no {", ".join(absent)}: the reference-free analysis (free phases of the moving cell and the '
-             'accelerometer)']
+             'accelerometer)'] if absent else [
+        f'{len(refs)} pulls: the analysis with a reference needs at least {few} (half fitted, half held out); '
+        'the free phases of the moving cell and the accelerometer are analysed instead, leave-one-out']
     dts = {round(s.pull.dt, 12) for _r, s in usable}
     if len(dts) > 1:
         raise DiscoveryError(f'pulls have different sample intervals {sorted(dts)}; expected one rate')
@@ -854,7 +862,7 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
         raise DiscoveryError(failed[0][1].split(': ', 1)[-1])       # no moving cell in any pull: one line
     if not usable:
         notes.append(f'0 of {len(refs)} pulls are usable (excluded_pulls, failed_pulls say why)')
-        rep = free_report(None, [], absent, screens, excluded, failed, rig, notes)
+        rep = free_report(None, [], absent, screens, excluded, failed, rig, notes, few)
         write_free_outputs(rep, screens, rig, Path(out_dir))
         return rep
     pulls = [s.pull for _r, s in usable]
@@ -867,7 +875,7 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
         raise DiscoveryError(f'pull {name!r} failed in the statistics stage ({why}); expected every usable pull '
                              'to finish it')
     analysis = campaign_analysis(pulls, res2.results, f_hum, rig)
-    rep = free_report(analysis, pulls, absent, screens, excluded, failed, rig, notes)
+    rep = free_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few)
     write_free_outputs(rep, screens, rig, Path(out_dir))
     return rep
 

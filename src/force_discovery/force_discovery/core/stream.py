@@ -461,6 +461,8 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
     check_core_channels(absent)
     if needs_reference_free(absent):   # no stationary cell or no encoder: what the remaining channels support
         return discover_free(refs, absent, rig, out_dir, mapper, progress)
+    if len(refs) < MIN_PULLS:          # too few to fit half and hold half out: the free phases, leave-one-out
+        return discover_free(refs, absent, rig, out_dir, mapper, progress, few=MIN_PULLS)
     spill = tempfile.mkdtemp(prefix='ft_discover_spill_') if spills_locally(mapper.scheduler) else None
     try:
         st = Stream(refs, rig, mapper, spill, progress)
