@@ -49,8 +49,9 @@ from force_tester_common.core.events import event_spans
 
 from . import quality as Q
 from .errors import DiscoveryError
+from .hum import HUM_BAND_HZ
 from .prep import MASK_GROW_S, lowpassed
-from .ringing import damped_basis, matrix_pencil, ring_sse
+from .ringing import MOUNT_MAX_FRACTION, damped_basis, matrix_pencil, ring_sse
 from .significance import MIN_REL_REDUCTION, MIN_T, significance
 
 FORCE, ACCEL = 'force_moving_n', 'accel_axial_m_s2'
@@ -76,8 +77,6 @@ MODE_MAX_ZETA = 0.3            # ... with damping ratio below this
 MODE_MIN_SHARE = 0.05          # ... and at least this share of the segment's energy
 MODES_PER_PULL = 3
 MODE_CLUSTER_REL = 0.05        # modes of different pulls within 5 % are one mode
-MOUNT_MAX_FRACTION = 0.7       # a mode below 0.7 x the rig's cell mode is not the cell (ringing.py's rule)
-HUM_BAND_HZ = (45.0, 65.0)
 
 # what each quantity needs, and why (report.json identifiable / not_identifiable)
 QUANTITIES = (
