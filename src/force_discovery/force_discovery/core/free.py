@@ -703,10 +703,10 @@ def free_markdown(rep: dict, screens: Sequence) -> str:
                   '|---|---|---|---|---|---|']
         for name, c in rep['candidates'].items():
             p = ', '.join(f'{k} {val:.6g}' for k, val in c['parameters'].items())
-            ci = '; '.join(f'{k} {_fmt_ci(val)}' for k, val in c['parameters_ci95'].items() if val)
+            ci = '; '.join(f'{k} {_fmt_ci(val, fmt=".6g")}' for k, val in c['parameters_ci95'].items() if val)
             ev = c['evidence']
-            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | '
-                         f'{ev["t"] if ev["t"] is not None else "inf"} | {c["verdict"]} |')
+            t = 'inf' if ev['t'] is None else f'{ev["t"]:.3g}'
+            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | {t} | {c["verdict"]} |')
         lines.append('')
     if rep.get('modes'):
         lines += ['## Ringing modes (a2, free decay after the last event)', '',
