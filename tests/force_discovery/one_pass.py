@@ -19,6 +19,7 @@ from force_discovery.core.errors import DiscoveryError
 from force_discovery.core.extension import extension
 from force_discovery.core.force_errors import ForceErrors, error_part
 from force_discovery.core.force_model import TERMS, ForceModel, fit_terms
+from force_discovery.core.free import full_identifiability
 from force_discovery.core.friction import friction_row, friction_rows, friction_sse, friction_stat
 from force_discovery.core.hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
 from force_discovery.core.leftover import leftover_from, leftover_part
@@ -167,6 +168,7 @@ def discover_in_memory(campaign_pulls, rig, out_dir) -> dict:
     left = leftover(one, tuple(dict.fromkeys(decision.named + TERMS)), rig)
     errors = force_errors(one, decision.named, rig)
     report = build_report(analysis, decision, errors, left, rig)
+    report['identifiable'], report['not_identifiable'] = full_identifiability(tuple(analysis.candidates))
     ext = extension(report, rig)
     check = None
     try:

@@ -63,6 +63,8 @@ def main(args) -> int:
         print(f'pull {f["pull"]} left out: {f["error"]}', file=sys.stderr)
     if report.get('retried_pulls'):
         print(f'rerun after a worker died: {", ".join(report["retried_pulls"])}', file=sys.stderr)
+    if report.get('reference') is False:
+        return _reference_free(report, Path(args.out))
     if not report['fitted_pulls']:   # the data-quality screen left too few pulls: the report says which and why
         unread = f' ({len(report["failed_pulls"])} could not be read)' if report.get('failed_pulls') else ''
         return _error(f'{report["causes"][0]["evidence"]["value"]} usable pulls after the data-quality screen{unread}; '
@@ -80,6 +82,34 @@ def main(args) -> int:
     if report['data_quality']:
         print(f'data quality: {len(report["data_quality"])} defects or exclusions (report.md, Data quality)')
     print(f'report: {Path(args.out) / "report.md"}')
+    return 0
+
+
+def _reference_free(report: dict, out: Path) -> int:
+    """What the reference-free path says on the terminal (force_discovery/core/free.py)."""
+    if not report['fitted_pulls']:
+        return _error(f'no usable pulls without a reference ({len(report["excluded_pulls"])} excluded, '
+                      f'{len(report["failed_pulls"])} unreadable); expected a record with an event and free phases '
+                      f'(why: {out / "report.md"})')
+    names = ', '.join(c['name'] for c in report['causes']) or 'none'
+    why = f'no reference ({", ".join(report["absent"])} absent)' if report['absent'] else \
+        f'{len(report["pulls"])} pull(s), too few for the analysis with a reference'
+    print(f'{why}: cause: {report["cause"]} (named: {names}); '
+          f'{report["validation"]["method"]} over {len(report["fitted_pulls"])} pull(s)')
+    c = report.get('candidates') or {}
+    if 'gain_mass_product' in c:
+        g, d = c['gain_mass_product'], c['accel_delay']
+        print(f'g m2 = {g["parameters"]["gain_mass_kg"]:.5g} kg, accelerometer delay '
+              f'{1e6 * d["parameters"]["delay_s"]:.3g} us' + ('; modes: ' + ', '.join(
+                  f'{m["frequency_hz"]:.1f} Hz' for m in report['modes'][:3]) if report.get('modes') else ''))
+    print('not identifiable: ' + '; '.join(f'{q["quantity"]} ({q["reason"].split(":")[0]})'
+                                           for q in report['not_identifiable']))
+    if report.get('indicated'):
+        print('indicated (too few pulls to name): ' + ', '.join(x['name'] for x in report['indicated']))
+    if report['data_quality'] or report['excluded_pulls']:
+        print(f'data quality: {len(report["data_quality"])} defects, {len(report["excluded_pulls"])} pulls '
+              'excluded (report.md, Data quality)')
+    print(f'report: {out / "report.md"}')
     return 0
 
 

@@ -19,6 +19,9 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - leftover.py     the leftover structure no catalog entry explains
 - force_errors.py the held-out force-channel error, model of record vs extended
 - resim.py        closing the loop: the held-out pulls re-simulated with and without the extension
+- free.py         discovery without a reference (no stationary cell or encoder, or 1-3 pulls): the free phases
+                  of the moving cell and the accelerometer give g m2, the accelerometer delay, the ringing modes,
+                  the hum; leave-one-out across pulls; identifiable / not_identifiable; its report
 - stream.py       the driver: the per-pull passes on the campaign engine, memory flat in the number of pulls
 - pipeline.py     discover(): the entry point
 - report.py       report.json (the one place Candidates become dicts); markdown.py report.md; extension.py

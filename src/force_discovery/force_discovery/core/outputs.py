@@ -8,6 +8,7 @@ from typing import Optional
 
 from .extension import extension, extension_yaml
 from .force_errors import ForceErrors
+from .free import identifiability_lines
 from .markdown import markdown
 from .plots import residual_plots, simulation_plot
 from .stages import Analysis
@@ -32,7 +33,9 @@ def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], nam
         plots = residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
         report['plots'] = [str(out / Path(q).name) for q in plots]
         (stage / 'report.json').write_text(json.dumps(report, indent=1))
-        (stage / 'report.md').write_text(markdown(report, report['plots'], analysis.screens, analysis.excluded))
+        md = markdown(report, report['plots'], analysis.screens, analysis.excluded)
+        more = identifiability_lines(report)
+        (stage / 'report.md').write_text(md + ('\n' + '\n'.join(more) if more else ''))
         for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):   # report.json last
             f.replace(out / f.name)
     finally:

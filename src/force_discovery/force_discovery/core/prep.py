@@ -13,10 +13,19 @@ from .errors import DiscoveryError
 from .quality import repair
 
 LOWPASS_HZ = (7000.0, 9000.0)   # every force/accel channel is low-passed alike (zero phase) before the regressions
+# ... scaled to the rate below 25 kHz: the raised cosine runs from 0.28 to 0.36 x the sample rate (7-9 kHz at 25 kHz),
+# so a 10 kHz record is low-passed at 2.8-3.6 kHz (below Nyquist), a 5 kHz one at 1.4-1.8 kHz
+LOWPASS_RATE_SHARE = (0.28, 0.36)
 
 
-def _lowpass_w(f: np.ndarray) -> np.ndarray:
-    lo, hi = LOWPASS_HZ
+def lowpass_band(dt: float) -> tuple:
+    """(start, stop) of the raised-cosine low-pass, Hz, for sample interval dt: LOWPASS_HZ, scaled down to the rate
+    where that would reach past LOWPASS_RATE_SHARE of it."""
+    return tuple(min(f, share / dt) for f, share in zip(LOWPASS_HZ, LOWPASS_RATE_SHARE))
+
+
+def _lowpass_w(f: np.ndarray, dt: float) -> np.ndarray:
+    lo, hi = lowpass_band(dt)
     w = np.ones_like(f)
     mid = (f > lo) & (f < hi)
     w[mid] = 0.5 * (1 + np.cos(np.pi * (f[mid] - lo) / (hi - lo)))
@@ -30,10 +39,15 @@ def _filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
     trend = np.linspace(x[0], x[-1], n)
     X = np.fft.rfft(x - trend)
     f = np.fft.rfftfreq(n, dt)
-    H = _lowpass_w(f)
+    H = _lowpass_w(f, dt)
     if h is None:
         return np.fft.irfft(H * X, n) + trend
     return np.fft.irfft(H * h(2 * np.pi * f) * X, n)
+
+
+def lowpassed(x: np.ndarray, dt: float) -> np.ndarray:
+    """The zero-phase low-pass every force and accelerometer channel gets (lowpass_band) of x."""
+    return _filtered(np.asarray(x, float), dt)
 
 
 def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:

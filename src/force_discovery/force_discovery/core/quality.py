@@ -28,6 +28,9 @@ checks apply to them):
   channel is masked there. The encoder alone may stay constant for seconds while the carriage is at rest;
   it is held (a defect) only when it moved by more than ``ENCODER_JUMP_QUANTA`` counts in the one sample
   before or after the constant run, i.e. it was moving while it reported no motion.
+- ``overload``: sensor channels; see ``_overloads``: a burst of up to 5 ms far above the rest of the channel's
+  record (1.5 x its largest other excursion, 50 x its noise) that no other channel shows (a sensor or amplifier
+  driven past its range, e.g. +/-9000 m/s^2 on an accelerometer in a free phase).
 - ``spike``: sensor channels; see ``_spikes``: a short (<= ``SPIKE_MAX_SAMPLES``) excursion that stands out
   of the fourth difference (which all but removes the rig's ringing and trends), is explained by a compact
   excursion alone, returns to the trend it left, and shows in one channel only (the rig's sharp events --
@@ -67,7 +70,8 @@ NONFINITE = 'nonfinite'
 TIME_GAP = 'time_gap'
 TIME_NONMONOTONIC = 'time_nonmonotonic'
 STUCK = 'stuck'
-KINDS = (SPIKE, CLIPPING, HELD, NONFINITE, TIME_GAP, TIME_NONMONOTONIC, STUCK)
+OVERLOAD = 'overload'
+KINDS = (SPIKE, OVERLOAD, CLIPPING, HELD, NONFINITE, TIME_GAP, TIME_NONMONOTONIC, STUCK)
 TIME_KINDS = (TIME_GAP, TIME_NONMONOTONIC)
 
 ALL = 'all'                      # the channel of a defect that masks every channel (under-run, time axis)
@@ -136,6 +140,17 @@ SPIKE_COINCIDENCE_S = 0.3e-3     # a glitch is in ONE channel; the pull's sharp 
 SPIKE_COINCIDENCE_Z = 6.0        # ringing onset) are in both cells and the accelerometer within ~0.1 ms (the
 #                                  accelerometer's delay <= 0.1 ms): a group with |r| > 6 sigma_r in another of
 #                                  those channels within 0.3 ms is not a spike
+# Overload (see _overloads): a burst of <= 5 ms on one sensor channel standing > 1.5 x above everything else of
+# that channel (and > 50 x its noise) while no other of the coincidence channels has an event there (within 2 ms,
+# above 30 % of its own largest excursion): a sensor or amplifier driven past its range (an accelerometer's
+# +/-9000 m/s^2 burst in a free phase). The rig's events are in every channel at once: the break, the impact.
+OVERLOAD_MAX_S = 5e-3
+OVERLOAD_RATIO = 1.5
+OVERLOAD_SNR = 50.0
+OVERLOAD_CONTEXT_S = 2e-3
+OVERLOAD_COINCIDENCE = 0.3
+OVERLOAD_EDGE = 0.25             # the burst's samples: above this share of its peak excursion
+OVERLOAD_MAX_COUNT = 3           # bursts looked for per channel
 # repair(): gaps up to a spike's length get a cubic bridge, longer ones (held, NaN runs) a straight line
 REPAIR_CUBIC_MAX = SPIKE_MAX_SAMPLES
 # At most this many defects of one kind on one channel are listed one by one; the rest are summed up in one
@@ -439,8 +454,51 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray]) -> PullScreen:
         for i0, i1, peak, detail in _spikes(xw, r, max(sigma_r, 1e-12), others, dt):
             found.append((c, c, SPIKE, i0, i1, f'{peak:+.4g} from the signal interpolated across it, over '
                           f'{_ms(i1 - i0, dt)} {detail}'))
+    devs = {c: np.abs(xw - np.median(xw)) for c, (xw, _r, _s) in rough.items()}
+    for c, (xw, _r, sigma_r) in rough.items():
+        others = [devs[o] for o in COINCIDENCE_CHANNELS if o != c and o in devs]
+        for i0, i1, peak, ratio in _overloads(xw, devs[c], sigma_r / R_PER_SIGMA, others, dt):
+            found.append((c, c, OVERLOAD, i0, i1, f'a burst of {peak:+.4g} over {_ms(i1 - i0, dt)}, {ratio:.3g} x '
+                          'the rest of the record, in this channel alone (sensor overload)'))
     found += _held_records(held, pending, n, dt)
     return _build(name, t, dt, channels, found)
+
+
+def _overloads(x: np.ndarray, dev: np.ndarray, sigma: float, others: Sequence[np.ndarray], dt: float) -> list:
+    """Bursts in x (dev: |x - median|; sigma: its noise): [(i0, i1, signed peak, ratio to the rest)]. The
+    largest excursion is a burst when it lasts <= OVERLOAD_MAX_S, stands OVERLOAD_RATIO x above the rest of the
+    record and OVERLOAD_SNR x above the noise, and no other channel (others: their |x - median|) has an event
+    within OVERLOAD_CONTEXT_S of it (OVERLOAD_COINCIDENCE of its own largest excursion); repeated on the rest
+    up to OVERLOAD_MAX_COUNT times. A record without another channel to compare is not judged."""
+    if not others:
+        return []
+    n = len(x)
+    w = max(1, int(round(OVERLOAD_MAX_S / dt)))
+    g = max(1, int(round(OVERLOAD_CONTEXT_S / dt)))
+    d = dev.copy()
+    out = []
+    tops = [float(np.max(o)) for o in others]
+    for _ in range(OVERLOAD_MAX_COUNT):
+        k = int(np.argmax(d))
+        peak = float(d[k])
+        if not peak > OVERLOAD_SNR * max(sigma, 1e-12):
+            break
+        lo, hi = max(0, k - w), min(n, k + w + 1)
+        big = np.flatnonzero(d[lo:hi] > OVERLOAD_EDGE * peak) + lo
+        i0, i1 = int(big[0]), int(big[-1]) + 1
+        if i1 - i0 > w:
+            break
+        rest = np.concatenate((d[:max(0, i0 - g)], d[min(n, i1 + g):]))
+        top_rest = float(np.max(rest)) if len(rest) else 0.0
+        if peak < OVERLOAD_RATIO * top_rest:
+            break
+        c0, c1 = max(0, i0 - g), min(n, i1 + g)
+        if any(np.max(o[c0:c1]) >= OVERLOAD_COINCIDENCE * top for o, top in zip(others, tops) if top > 0):
+            break
+        out.append((i0, i1, float(x[k] - np.median(x)),
+                    peak / max(top_rest, 1e-12)))
+        d[c0:c1] = 0.0
+    return out
 
 
 def _held_records(held: Dict[str, List[Tuple[int, int]]], pending: list, n: int, dt: float) -> list:

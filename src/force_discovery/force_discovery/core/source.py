@@ -10,7 +10,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
-from bag_tools.core.daq import campaign_index, read_pull
+from bag_tools.core.daq import campaign_channels, campaign_index, read_pull
+from force_tester_common.core.channels import REQUIRED_CHANNELS
+
+from .errors import DiscoveryError
 
 
 @dataclass(frozen=True)
@@ -23,6 +26,8 @@ class PullRef:
     entry: Optional[dict] = None         # ... as written (a TDMS file's channel map is in it)
     rate_hz: Optional[float] = None      # campaign.yaml's sample_rate_hz (None: from the time column)
     channels: Optional[dict] = None      # in-memory pulls: column -> array
+    channel_map: Optional[object] = None  # the campaign's channel map (bag_tools ChannelMap: lab files in volts)
+    absent: tuple = ()                   # required channels the campaign does not have (campaign.yaml absent:)
 
     def __repr__(self) -> str:
         return f'PullRef({self.name!r})'
@@ -32,7 +37,9 @@ def campaign_refs(folder) -> list:
     """PullRef per pull of a campaign folder (campaign.yaml read and checked as read_campaign checks it; no pull
     data read). BagError for a missing or malformed campaign.yaml or a missing pull file."""
     path, rate, _rig, entries = campaign_index(folder)
-    return [PullRef(meta['file'], str(Path(path).resolve()), meta, dict(entry), rate) for meta, entry in entries]
+    cmap, absent = campaign_channels(path)
+    return [PullRef(meta['file'], str(Path(path).resolve()), meta, dict(entry), rate, None, cmap, tuple(absent))
+            for meta, entry in entries]
 
 
 def memory_refs(campaign_pulls: Sequence) -> list:
@@ -45,8 +52,26 @@ def load_channels(ref: PullRef) -> Tuple[dict, dict]:
     if ref.channels is not None:
         return ref.meta, ref.channels
     channels, _rate, _warnings = read_pull((Path(ref.folder) / ref.meta['file'], (ref.entry or {}).get('map'),
-                                            ref.rate_hz))
+                                            ref.rate_hz, ref.channel_map, ref.absent))
     return ref.meta, channels
 
 
-__all__ = ['PullRef', 'campaign_refs', 'memory_refs', 'load_channels']
+def campaign_absent(refs: Sequence[PullRef]) -> tuple:
+    """The required channels a campaign does not have: campaign.yaml's absent: (with its channel map's) for pulls
+    of a folder; for pulls in memory, the required channels the first pull lacks."""
+    if not refs:
+        return ()
+    r = refs[0]
+    if r.channels is None:
+        return tuple(r.absent)
+    absent = tuple(c for c in REQUIRED_CHANNELS if c not in r.channels)
+    for o in refs[1:]:
+        diff = [c for c in REQUIRED_CHANNELS if (c in absent) != (o.channels is not None and c not in o.channels)]
+        if diff:
+            have, lack = (o, r) if diff[0] in absent else (r, o)
+            raise DiscoveryError(f'pull {lack.name!r} has no {diff[0]!r} channel but pull {have.name!r} has; expected '
+                                 'the same channels in every pull (a channel the rig lacks is absent from all)')
+    return absent
+
+
+__all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels']

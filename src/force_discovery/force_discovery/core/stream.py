@@ -56,6 +56,7 @@ from .extension import named_extension
 from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
+from .free import check_core_channels, discover_free, full_identifiability, needs_reference_free
 from .friction import friction_row, friction_rows, friction_sse, friction_stat
 from .hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
 from .leftover import LeftoverPart, LeftoverSum, leftover_part
@@ -65,7 +66,7 @@ from .quality import PullScreen, screen_pull
 from .report import add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
 from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
-from .source import PullRef, campaign_refs, load_channels, memory_refs
+from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs
 from .stages import (
     MIN_PULLS,
     Analysis,
@@ -455,9 +456,16 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
     scheduler then); progress(stage, done, total)."""
     from force_tester_common.engine import Mapper
     mapper = Mapper(scheduler) if mapper is None else mapper
+    refs = pull_refs(campaign)
+    absent = campaign_absent(refs)
+    check_core_channels(absent)
+    if needs_reference_free(absent):   # no stationary cell or no encoder: what the remaining channels support
+        return discover_free(refs, absent, rig, out_dir, mapper, progress)
+    if len(refs) < MIN_PULLS:          # too few to fit half and hold half out: the free phases, leave-one-out
+        return discover_free(refs, absent, rig, out_dir, mapper, progress, few=MIN_PULLS)
     spill = tempfile.mkdtemp(prefix='ft_discover_spill_') if spills_locally(mapper.scheduler) else None
     try:
-        st = Stream(campaign, rig, mapper, spill, progress)
+        st = Stream(refs, rig, mapper, spill, progress)
         analysis = st.analyse()
         decision = decide(analysis, rig)
         out = Path(out_dir)
@@ -469,6 +477,7 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
         left, errors, check = st.held_out_results(analysis, decision, ext)
         analysis = _with_run(analysis, st)
         report = build_report(analysis, decision, errors, left, rig)
+        report['identifiable'], report['not_identifiable'] = full_identifiability(tuple(analysis.candidates))
         if isinstance(check, DiscoveryError):
             report['notes'].append(f'no simulation check: {check}')
             check = None

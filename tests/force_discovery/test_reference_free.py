@@ -1,0 +1,217 @@
+"""Issue 26 section 2 (and what section 4 asks of it): discover on a rig unlike ours. A drop impactor (impactor.py:
+no stationary cell, no encoder, compression impacts, volts through a channel map, LabVIEW/MDF4 files) with hidden
+effects; the code sees only the files, the channel map and the lab's rig YAML. Also: few records, any sign of
+event, sample rates 10-100 kHz, a sensor overload, and our own rig with its reference channels left out."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from impactor import Impactor, lab_campaign, memory_campaign, rig_yaml, tip_mode_hz
+
+from force_discovery.core.errors import DiscoveryError
+from force_discovery.core.pipeline import discover
+from force_tester_sim.core.params import load_rig
+
+
+def run(camp, rig, out):
+    return discover(camp, rig, out, scheduler='inline')
+
+
+def lab_rig(tmp_path, imp):
+    return load_rig(rig_yaml(tmp_path / 'rig.yaml', imp.rate_hz, imp.record_s))
+
+
+def test_drop_impactor_lvm_campaign_names_the_hidden_mount_and_delay(tmp_path):
+    imp = Impactor(mount_hz=1800.0, accel_delay_s=30e-6, m2_kg=0.33, gain=1.02)
+    folder = lab_campaign(tmp_path / 'lab', imp, records=4, fmt='.lvm')
+    rep = run(folder, load_rig(folder / 'rig.yaml'), tmp_path / 'out')
+    assert rep['reference'] is False and rep['absent'] == ['encoder_position_m', 'force_stationary_n']
+    assert rep['validation']['method'] == 'leave-one-out' and len(rep['fitted_pulls']) == 4
+    named = [c['name'] for c in rep['causes']]
+    assert 'mount_resonance' in named and 'accel_delay' in named, named
+    c = rep['candidates']
+    f = c['mount_resonance']['parameters']['frequency_hz']
+    assert f == pytest.approx(tip_mode_hz(imp), rel=0.01)
+    lo, hi = c['accel_delay']['parameters_ci95']['delay_s']
+    assert lo <= 30e-6 <= hi and c['accel_delay']['parameters']['delay_s'] == pytest.approx(30e-6, abs=3e-6)
+    lo, hi = c['gain_mass_product']['parameters_ci95']['gain_mass_kg']
+    assert lo <= 0.33 * 1.02 <= hi and hi - lo < 0.01          # g m2, not g or m2
+    assert all(e['sign'] == 'compression' for p in rep['per_pull'] for e in p['events'])
+    # what needs an absent channel is said, with the channel
+    missing = {q['quantity']: q['missing'] for q in rep['not_identifiable']}
+    assert missing['moving_cell_gain'] == ['force_stationary_n'] and 'effective_mass' in missing
+    assert 'encoder_position_m' in missing['coulomb_friction'] + missing['simulation_check']
+    assert {q['quantity'] for q in rep['identifiable']} >= {'gain_mass_product', 'accel_delay', 'ringing_modes',
+                                                            'mains_hum', 'data_quality'}
+    assert any('calibration mass' in n for n in rep['notes'])
+    md = (tmp_path / 'out' / 'report.md').read_text()
+    assert '## Not identifiable' in md and '## Identifiable from these channels' in md and 'moving_cell_gain' in md
+    assert json.loads((tmp_path / 'out' / 'report.json').read_text())['cause'] == rep['cause']
+    ext = yaml.safe_load((tmp_path / 'out' / 'extension.yaml').read_text())
+    assert ext['correction']['accel_delay_s'] == pytest.approx(30e-6, abs=3e-6)
+
+
+def test_mdf4_campaign_of_three_records_is_leave_one_out_and_names_nothing(tmp_path):
+    imp = Impactor(mount_hz=2400.0, accel_delay_s=50e-6, record_s=0.06)
+    folder = lab_campaign(tmp_path / 'lab', imp, records=3, fmt='.mf4')
+    rep = run(folder, load_rig(folder / 'rig.yaml'), tmp_path / 'out')
+    assert rep['validation']['method'] == 'leave-one-out' and rep['validation']['pulls'] == 3
+    assert 'cannot' not in rep['validation']['supports'] and 't >= 4' in rep['validation']['cannot_support']
+    assert rep['causes'] == [] and rep['cause'] == 'none'
+    ind = {c['name'] for c in rep['indicated']}
+    assert {'mount_resonance', 'accel_delay'} <= ind, ind
+    assert rep['candidates']['accel_delay']['parameters']['delay_s'] == pytest.approx(50e-6, abs=3e-6)
+
+
+def test_one_record_gives_per_pull_estimates_and_no_cause(tmp_path):
+    imp = Impactor(record_s=0.06)
+    rep = run(memory_campaign(imp, 1), lab_rig(tmp_path, imp), tmp_path / 'out')
+    assert rep['validation']['method'] == 'per-pull' and rep['cause'] == 'none' and rep['causes'] == []
+    p, = rep['per_pull']
+    assert p['delay_s'] == pytest.approx(imp.accel_delay_s, abs=3e-6)
+    assert p['gain_mass_kg'] == pytest.approx(imp.m2_kg * imp.gain, rel=0.01)
+    assert rep['candidates']['gain_mass_product']['parameters_ci95']['gain_mass_kg'] is None
+    assert all(c['verdict'] == 'per_pull_only' for c in rep['candidates'].values())
+
+
+@pytest.mark.parametrize('rate', [10_000.0, 25_000.0, 50_000.0, 100_000.0])
+def test_sample_rates_10_to_100_khz(rate, tmp_path):
+    imp = Impactor(rate_hz=rate, record_s=0.06, mount_hz=1500.0, accel_delay_s=60e-6)
+    rep = run(memory_campaign(imp, 2), lab_rig(tmp_path, imp), tmp_path / 'out')
+    c = rep['candidates']
+    assert c['accel_delay']['parameters']['delay_s'] == pytest.approx(60e-6, abs=0.1 / rate + 2e-6)
+    assert c['gain_mass_product']['parameters']['gain_mass_kg'] == pytest.approx(imp.m2_kg, rel=0.01)
+    assert rep['modes'][0]['frequency_hz'] == pytest.approx(tip_mode_hz(imp), rel=0.01)
+
+
+def test_a_tension_event_is_a_pull_too(tmp_path):
+    imp = Impactor(tension=True, record_s=0.06)
+    rep = run(memory_campaign(imp, 2), lab_rig(tmp_path, imp), tmp_path / 'out')
+    assert all(e['sign'] == 'tension' for p in rep['per_pull'] for e in p['events'])
+    assert rep['candidates']['gain_mass_product']['parameters']['gain_mass_kg'] == pytest.approx(imp.m2_kg, rel=0.01)
+
+
+def test_accelerometer_overload_is_caught_and_kept_out(tmp_path):
+    imp = Impactor(record_s=0.08, overload={1: (0.06, 0.5e-3, 9000.0)})
+    rep = run(memory_campaign(imp, 2), lab_rig(tmp_path, imp), tmp_path / 'out')
+    bad = [d for d in rep['data_quality'] if d['kind'] == 'overload']
+    assert len(bad) == 1 and bad[0]['pull'] == 'drop2' and bad[0]['channel'] == 'accel_axial_m_s2'
+    assert 0.0595 <= bad[0]['t_start_s'] <= 0.0605
+    p2 = rep['per_pull'][1]
+    assert p2['gain_mass_kg'] == pytest.approx(imp.m2_kg, rel=0.01)     # the burst did not reach the fit
+
+
+def test_no_moving_cell_is_refused_in_one_line(tmp_path):
+    imp = Impactor(record_s=0.04)
+    camp = [(m, {k: v for k, v in ch.items() if k != 'force_moving_n'}) for m, ch in memory_campaign(imp, 1)]
+    with pytest.raises(DiscoveryError, match='there is nothing to correct'):
+        run(camp, lab_rig(tmp_path, imp), tmp_path / 'out')
+
+
+def test_cli_on_the_lab_folder(tmp_path, capsys):
+    from force_discovery.cli import cli
+    imp = Impactor(record_s=0.05)
+    folder = lab_campaign(tmp_path / 'lab', imp, records=2, fmt='.lvm')
+    assert cli([str(folder), '--rig', str(folder / 'rig.yaml'), '--out', str(tmp_path / 'out'),
+                '--scheduler', 'inline']) == 0
+    out = capsys.readouterr().out
+    assert 'no reference (encoder_position_m, force_stationary_n absent)' in out
+    assert 'moving_cell_gain (needs force_stationary_n (absent)' in out and 'report:' in out
+    doc = yaml.safe_load((folder / 'channels.yaml').read_text())
+    del doc['channels']['force_moving_n']
+    (folder / 'channels.yaml').write_text(yaml.safe_dump(doc))
+    assert cli([str(folder), '--rig', str(folder / 'rig.yaml'), '--out', str(tmp_path / 'o2'),
+                '--scheduler', 'inline']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'nothing to correct' in err
+
+
+def test_our_rig_without_its_reference_channels(tmp_path):
+    """The truth reference rig's tension pulls with the stationary cell and encoder left out: the free phases
+    (slack before the load, free decay and braking after the break) give g m2, the 40 us delay, the mount mode."""
+    from generator import observed_mount_mode
+
+    from force_tester_sim.core.campaign import generate_campaign
+    from force_tester_sim.core.params import TRUTH_YAML
+    truth = load_rig(TRUTH_YAML)
+    camp = generate_campaign(truth, sets=[2], pulls=2, seed=3)
+    drop = ('force_stationary_n', 'encoder_position_m', 'motor_current_a', 'motor_voltage_v',
+            'motor_velocity_cmd_m_s')
+    camp = [(m, {k: v for k, v in ch.items() if k not in drop}) for m, ch in camp]
+    rep = run(camp, load_rig(), tmp_path / 'out')
+    c = rep['candidates']
+    deps = truth.departures
+    assert c['accel_delay']['parameters']['delay_s'] == pytest.approx(40e-6, abs=3e-6), deps
+    g = c['gain_mass_product']['parameters']['gain_mass_kg']
+    assert g == pytest.approx(1.015 * 1.3, rel=0.01)
+    assert all(e['sign'] == 'tension' for p in rep['per_pull'] for e in p['events'])
+    f_obs = observed_mount_mode(truth)[0]
+    assert any(abs(m['frequency_hz'] / f_obs - 1) < 0.02 for m in rep['modes']), (rep['modes'], f_obs)
+    assert np.isfinite(rep['baseline_error'])
+
+
+def test_nothing_hidden_names_nothing_in_the_force_channel(tmp_path):
+    """The lab's rig YAML right (m2, gain 1, no delay, hum well below the 1 N tolerance): g m2, the delay and the
+    hum are within tolerance, none named (the structure's own mode is a mode all the same)."""
+    imp = Impactor(m2_kg=0.30, accel_delay_s=0.0, hum_n=0.2, record_s=0.06)
+    rep = run(memory_campaign(imp, 4), lab_rig(tmp_path, imp), tmp_path / 'out')
+    c = rep['candidates']
+    named = {x['name'] for x in rep['causes']}
+    assert not named & {'gain_mass_product', 'accel_delay', 'mains_hum'}, named
+    assert c['gain_mass_product']['verdict'] == 'within_tolerance'
+    assert c['accel_delay']['verdict'] in ('within_tolerance', 'not_significant')
+    assert c['mains_hum']['verdict'] in ('within_tolerance', 'not_significant')
+
+
+def test_heavier_carriage_at_25_khz_with_and_without_its_reference(tmp_path):
+    """Section 4's second rig: our rig with an 80 kg carriage sampled at 25 kHz, a 60 us accelerometer delay hidden.
+    The code sees the data and that rig's YAML (25 kHz, 80 kg, no departures). With every channel the full path
+    names the delay; with the stationary cell and encoder left out the reference-free path finds it too."""
+    from force_tester_sim.core.campaign import truth_pull_specs
+    from force_tester_sim.core.params import NOMINAL_YAML
+    from force_tester_sim.core.simulate import simulate_pull
+
+    def rig(name, deps=None):
+        doc = yaml.safe_load(NOMINAL_YAML.read_text())
+        doc['daq']['sample_rate_hz'] = 25000
+        doc['drive']['carriage_mass_kg'] = 80.0
+        doc['drive']['actuator_inertia_kg_m2'] += 33.0 * doc['drive']['pulley_radius_m'] ** 2
+        doc.pop('uncertainty', None)
+        if deps:
+            doc['departures'] = deps
+        (tmp_path / name).write_text(yaml.safe_dump(doc))
+        return load_rig(tmp_path / name)
+    truth = rig('truth.yaml', {'accel_delay': {'delay_s': 60e-6}})
+    camp = []
+    for s in (2, 3):
+        ts = truth.test_set(s)
+        for sp in truth_pull_specs(truth, s, 4, 7):
+            camp.append(({'file': f'set{s}_pull{sp.pull + 1}', 'set': s, 'coupon_lbf': ts.coupon_lbf,
+                          'velocity_fps': ts.velocity_fps, 'decel_g': ts.decel_g}, simulate_pull(truth, sp)))
+    lab = rig('lab.yaml')
+    full = run(camp, lab, tmp_path / 'full')
+    assert full['cause'] == 'accel_delay', [c['name'] for c in full['causes']]
+    assert full['causes'][0]['parameters']['delay_s'] == pytest.approx(60e-6, abs=3e-6)
+    assert full['not_identifiable'] == [] and 'simulation_check' in {q['quantity'] for q in full['identifiable']}
+    bare = [(m, {k: v for k, v in ch.items() if k not in ('force_stationary_n', 'encoder_position_m')})
+            for m, ch in camp]
+    free = run(bare, lab, tmp_path / 'free')
+    assert free['reference'] is False and 'accel_delay' in [c['name'] for c in free['causes']]
+    assert free['candidates']['accel_delay']['parameters']['delay_s'] == pytest.approx(60e-6, abs=3e-6)
+
+
+def test_two_pulls_with_every_channel_are_not_refused(tmp_path):
+    """Fewer than 4 pulls cannot be split into fitted and held-out halves; discover analyses the free phases
+    leave-one-out instead, and says why the analysis with a reference did not run."""
+    from generator import make_campaign
+    camp = make_campaign({'accel_delay': {'delay_s': 50e-6}}, seed=5, sets=(3,), pulls=2)
+    rep = run(camp, load_rig(), tmp_path / 'out')
+    assert rep['reference'] is False and rep['absent'] == [] and rep['validation']['method'] == 'leave-one-out'
+    assert any('needs at least 4' in n for n in rep['notes'])
+    why = {q['quantity']: q['reason'] for q in rep['not_identifiable']}
+    assert 'needs at least 4 pulls' in why['moving_cell_gain'] and 'coulomb_friction' in why
+    assert rep['candidates']['accel_delay']['parameters']['delay_s'] == pytest.approx(50e-6, abs=3e-6)
+    assert rep['causes'] == [] and 'accel_delay' in {c['name'] for c in rep['indicated']}
