@@ -106,14 +106,15 @@ def build(log: Path) -> None:
 def npm_install(folder: Path, log: Path, wheels: Path | None = None) -> None:
     """`npm ci` from the folder's package-lock.json; offline from `./ft wheels`' npm cache when given one."""
     if shutil.which('npm') is None:
-        raise SetupError('npm ci', log, 'no npm on PATH; the Foxglove client of the tests needs Node.js 20 and npm')
+        raise SetupError('npm ci', log, f'no npm on PATH; {folder.name} needs Node.js 20 and npm')
     log.write_text('')
     offline = [] if wheels is None else ['--offline', '--cache', str(wheels / NPM_CACHE)]
     _run('npm ci', ['npm', 'ci', '--no-audit', '--no-fund', *offline], log, cwd=folder)
 
 
-def download(lock: Path, into: Path, log: Path, npm_folder: Path | None = None) -> int:
-    """Fill INTO with every file the lock pins (hashes checked), the sdists' build tools, and the npm tarballs."""
+def download(lock: Path, into: Path, log: Path, npm_folders: tuple = ()) -> int:
+    """Fill INTO with every file the lock pins (hashes checked), the sdists' build tools, and the npm tarballs
+    of each folder of NPM_FOLDERS (one npm cache holds them all)."""
     into.mkdir(parents=True, exist_ok=True)
     log.parent.mkdir(parents=True, exist_ok=True)
     log.write_text('')
@@ -124,7 +125,7 @@ def download(lock: Path, into: Path, log: Path, npm_folder: Path | None = None) 
     if tools and any(p.name.endswith(('.tar.gz', '.zip')) for p in into.iterdir()):
         _run('pip download', [python, '-m', 'pip', 'download', '--no-input', '--only-binary', ':all:',
                               '-d', into, *tools], log, env=_pip_env())
-    if npm_folder is not None and shutil.which('npm'):
+    for npm_folder in npm_folders if shutil.which('npm') else ():
         # npm ci into a scratch copy fills the cache folder with every tarball of package-lock.json
         scratch = into / '.npm-scratch'
         shutil.rmtree(scratch, ignore_errors=True)

@@ -59,8 +59,19 @@ class MemoryAppConfiguration {
   }
 }
 
+// Studio keeps its sidebars' state in localStorage ("fox.workspace"); on a browser's first visit, start
+// with the data source sidebar closed so that the layout has the whole window (1600 px wide fits it)
+function closeSidebarOnFirstVisit() {
+  const key = "fox.workspace";
+  if (window.localStorage.getItem(key) == undefined) {
+    window.localStorage.setItem(key, JSON.stringify({ state: { sidebarItem: null, leftSidebarOpen: false },
+                                                      version: 0 }));
+  }
+}
+
 async function start() {
   const root = document.getElementById("root");
+  closeSidebarOnFirstVisit();
   const response = await fetch("layout.json");
   if (!response.ok) {
     throw new Error(`layout.json: HTTP ${response.status}`);
