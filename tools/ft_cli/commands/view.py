@@ -10,11 +10,15 @@ layout and the monitor's WebSocket through Studio's own deep-link parameters (ds
 from __future__ import annotations
 
 import functools
+import mimetypes
 import sys
+import tempfile
 import threading
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from urllib.parse import quote, urlsplit
+from urllib.parse import quote
+
+from force_tester_monitor.core.params import PORT as MONITOR_PORT
 
 from ..paths import ROOT
 
@@ -24,17 +28,16 @@ LAYOUT = ROOT / 'src' / 'force_tester_monitor' / 'layouts' / 'force_tester.json'
 LAYOUT_ID = 'force-tester'          # the id app/viewer.js gives the layout
 HOST = '127.0.0.1'
 PORT = 8080
-MONITOR_PORT = 8765                 # the monitor's default (force_tester_monitor.core.params.PORT)
-# what each URL path serves: a file, or a folder whose files are served under the prefix
-FILES = {
-    '/': VIEWER / 'app' / 'index.html',
-    '/index.html': VIEWER / 'app' / 'index.html',
-    '/viewer.js': VIEWER / 'app' / 'viewer.js',
-    '/layout.json': LAYOUT,
-    '/vendor/react.production.min.js': MODULES / 'react' / 'umd' / 'react.production.min.js',
-    '/vendor/react-dom.production.min.js': MODULES / 'react-dom' / 'umd' / 'react-dom.production.min.js',
+# the site: what each URL path serves (a folder serves its files under its path)
+SITE = {
+    'index.html': VIEWER / 'app' / 'index.html',
+    'viewer.js': VIEWER / 'app' / 'viewer.js',
+    'layout.json': LAYOUT,
+    'vendor/react.production.min.js': MODULES / 'react' / 'umd' / 'react.production.min.js',
+    'vendor/react-dom.production.min.js': MODULES / 'react-dom' / 'umd' / 'react-dom.production.min.js',
+    'studio': MODULES / '@foxglove' / 'studio-base' / 'assets',
 }
-FOLDERS = {'/studio/': MODULES / '@foxglove' / 'studio-base' / 'assets'}
+mimetypes.add_type('application/wasm', '.wasm')   # so that the browser compiles the app's wasm as it streams in
 
 
 class ViewerError(Exception):
@@ -42,44 +45,35 @@ class ViewerError(Exception):
 
 
 def check_installed() -> None:
-    missing = [str(p.relative_to(ROOT)) for p in (*FILES.values(), *FOLDERS.values()) if not p.exists()]
+    missing = [str(p.relative_to(ROOT)) for p in SITE.values() if not p.exists()]
     if missing:
         raise ViewerError(f'the viewer is not installed: {missing[0]} is missing (./ft view installs it with '
                           f'npm ci in tools/viewer)')
 
 
-def resolve(path: str) -> Path | None:
-    """The file a URL path serves, or None (404)."""
-    path = urlsplit(path).path
-    if path in FILES:
-        return FILES[path]
-    for prefix, folder in FOLDERS.items():
-        if path.startswith(prefix):
-            name = path[len(prefix):]
-            if name and '/' not in name and not name.startswith('.'):
-                return folder / name
-    return None
+def make_site(into: Path) -> None:
+    """The site as a folder of symbolic links, for the standard library's file server."""
+    for name, target in SITE.items():
+        link = into / name
+        link.parent.mkdir(parents=True, exist_ok=True)
+        link.symlink_to(target)
 
 
-class Handler(SimpleHTTPRequestHandler):
-    extensions_map = {**SimpleHTTPRequestHandler.extensions_map, '.js': 'text/javascript',
-                      '.wasm': 'application/wasm', '.json': 'application/json'}
+def _no_access_log(handler, format, *args):
+    """The file server's access lines are not printed: a page load asks for about 90 files."""
 
-    def translate_path(self, path):
-        found = resolve(path)
-        return str(found) if found is not None else str(VIEWER / 'app' / '.missing')
 
-    def list_directory(self, path):
-        self.send_error(404)
-
-    def log_message(self, format, *args):   # quiet: a page load asks for ~40 files
-        pass
+QuietHandler = type('QuietHandler', (SimpleHTTPRequestHandler,), {'log_message': _no_access_log})
 
 
 def serve(host: str = HOST, port: int = PORT) -> ThreadingHTTPServer:
-    """An HTTP server for the viewer on HOST:PORT (0: any free port), serving from a daemon thread."""
+    """An HTTP server for the viewer on HOST:PORT (0: any free port), serving from a daemon thread. The site's
+    folder (a temporary one) goes when the server object does."""
     check_installed()
-    server = ThreadingHTTPServer((host, port), functools.partial(Handler, directory=str(VIEWER)))
+    site = tempfile.TemporaryDirectory(prefix='ft-viewer-')
+    make_site(Path(site.name))
+    server = ThreadingHTTPServer((host, port), functools.partial(QuietHandler, directory=site.name))
+    server.site = site
     server.daemon_threads = True
     threading.Thread(target=server.serve_forever, name='viewer', daemon=True).start()
     return server
