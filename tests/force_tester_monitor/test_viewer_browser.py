@@ -6,7 +6,8 @@ The viewer is served as ./ft view serves it and opened by its URL (the layout an
 WebSocket named in Studio's deep-link parameters). Once the validator has scored the pulls, the page
 must show: no connection problem; the live plot's legend with numbers that change while the sim runs;
 the scores table with the scored pull; every node of the graph in the diagnostics panel, OK. The
-screenshot is saved under the test's tmp dir (viewer.png) for a person to look at.
+screenshot is saved under the test's tmp dir (viewer.png) for a person to look at. No request of the
+page may leave the machine.
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ class Page:
         self.reports = queue.Queue()
         self.errors = []
         self.problems = []
+        self.external = []
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self):
@@ -61,6 +63,8 @@ class Page:
             self.errors.append(report['error'])
         elif report['kind'] == 'problem':
             self.problems.append(report['text'])
+        elif report['kind'] == 'external-request':
+            self.external.append(report['url'])
         return report
 
     def state_until(self, condition, timeout: float, spin=lambda: None) -> dict | None:
@@ -190,6 +194,8 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         assert {n: ok for n, (_, ok) in node_rows(state).items() if n in NODES} == {n: True for n in NODES}, \
             node_rows(state)
         assert page.errors == [], page.errors
+        # nothing was asked of the internet
+        assert page.external == [], page.external
         assert graph.dead() == [], [graph.tail(n) for n in graph.dead()]
     finally:
         if page is not None:

@@ -11,6 +11,7 @@
 //   {"kind": "problem", "text": "..."}                     the app reported a data source problem
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
+//   {"kind": "external-request", "url": "..."}             the page asked for something off this machine
 // stdin, one command a line: `screenshot PATH`, `quit`.
 import { createInterface } from "node:readline";
 
@@ -72,6 +73,13 @@ try {
 }
 const page = await browser.newPage({ viewport: { width, height } });
 page.on("pageerror", (error) => say({ kind: "page-error", error: String(error).slice(0, 500) }));
+// the viewer must need no internet: every request stays on this machine (or in the page: data:, blob:)
+page.on("request", (request) => {
+  const { protocol, hostname } = new URL(request.url());
+  if (!["data:", "blob:"].includes(protocol) && !["127.0.0.1", "localhost", "[::1]"].includes(hostname)) {
+    say({ kind: "external-request", url: request.url() });
+  }
+});
 // the app logs each problem of its data source ("Player problem ws:connection-failed {...}")
 page.on("console", (message) => {
   if (message.text().startsWith("Player problem")) {
