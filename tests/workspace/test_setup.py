@@ -170,7 +170,7 @@ def test_an_incomplete_closure_fails_the_lock_check(registry):
 
 
 @pytest.mark.parametrize('args', [['--help'], ['demo', '--help'], ['bag', 'correct', '--help'], ['env'],
-                                  ['wheels', '--help'], ['discover', '--help']])
+                                  ['wheels', '--help'], ['discover', '--help'], ['view', '--help']])
 def test_help_and_env_answer_on_a_fresh_clone_without_setting_anything_up(tmp_path, args):
     """A copy of the workspace's tracked files, no .venv, no install/: nothing is installed or built."""
     root = Path(lock.ROOT)

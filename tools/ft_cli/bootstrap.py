@@ -3,6 +3,7 @@
     python -m ft_cli.bootstrap venv  --venv DIR --lock FILE --log FILE [--wheels DIR]
     python -m ft_cli.bootstrap build --log FILE
     python -m ft_cli.bootstrap npm   --log FILE [--wheels DIR]
+    python -m ft_cli.bootstrap chromium --log FILE
 
 The lock is installed exactly as written, with no dependency resolution at all:
 `pip install --no-deps --require-hashes -r LOCK`, then `pip check`. requirements.lock is the
@@ -27,6 +28,11 @@ ROOT = Path(__file__).resolve().parents[2]
 # what pip needs to build the lock's few sdists (empy) from a wheel folder with no index
 SDIST_BUILD_TOOLS = ('setuptools', 'wheel')
 NPM_CACHE = 'npm-cache'   # the folder of `./ft wheels DIR` that holds the npm packages' tarballs
+# Debian's Chromium for the viewer's browser test, pinned. Debian's archive keeps only the newest build of a
+# release (each security update replaces it), so when the pin is gone from the archive the newest is installed
+# and the step says so: bump the pin then.
+CHROMIUM = 'chromium'
+CHROMIUM_VERSION = '150.0.7871.100-1~deb12u1'
 
 
 class SetupError(Exception):
@@ -106,14 +112,36 @@ def build(log: Path) -> None:
 def npm_install(folder: Path, log: Path, wheels: Path | None = None) -> None:
     """`npm ci` from the folder's package-lock.json; offline from `./ft wheels`' npm cache when given one."""
     if shutil.which('npm') is None:
-        raise SetupError('npm ci', log, 'no npm on PATH; the Foxglove client of the tests needs Node.js 20 and npm')
+        raise SetupError('npm ci', log, f'no npm on PATH; {folder.name} needs Node.js 20 and npm')
     log.write_text('')
     offline = [] if wheels is None else ['--offline', '--cache', str(wheels / NPM_CACHE)]
     _run('npm ci', ['npm', 'ci', '--no-audit', '--no-fund', *offline], log, cwd=folder)
 
 
-def download(lock: Path, into: Path, log: Path, npm_folder: Path | None = None) -> int:
-    """Fill INTO with every file the lock pins (hashes checked), the sdists' build tools, and the npm tarballs."""
+def install_chromium(log: Path) -> str:
+    """Install Debian's Chromium with apt-get (as root, or through sudo without a password): the pinned
+    version, or the archive's newest when the pin is gone. Returns what was installed."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    log.write_text('')
+    if shutil.which('apt-get') is None:
+        raise SetupError('apt-get install', log, 'no apt-get: install Chromium with the system\'s package manager')
+    sudo = [] if os.geteuid() == 0 else ['sudo', '-n']
+    if sudo and shutil.which('sudo') is None:
+        raise SetupError('apt-get install', log, 'not root and no sudo: run `apt-get install chromium` as root')
+    env = dict(os.environ, DEBIAN_FRONTEND='noninteractive')
+    apt = [*sudo, 'apt-get', '-y', '-q', '--no-install-recommends']
+    _run('apt-get update', [*sudo, 'apt-get', '-q', 'update'], log, env=env)
+    policy = subprocess.run(['apt-cache', 'madison', CHROMIUM], capture_output=True, text=True).stdout
+    if f'| {CHROMIUM_VERSION} |' in policy:
+        _run('apt-get install', [*apt, 'install', f'{CHROMIUM}={CHROMIUM_VERSION}'], log, env=env)
+        return f'{CHROMIUM} {CHROMIUM_VERSION}'
+    _run('apt-get install', [*apt, 'install', CHROMIUM], log, env=env)
+    return f'{CHROMIUM} (the archive no longer has the pinned {CHROMIUM_VERSION}: the newest instead; bump the pin)'
+
+
+def download(lock: Path, into: Path, log: Path, npm_folders: tuple = ()) -> int:
+    """Fill INTO with every file the lock pins (hashes checked), the sdists' build tools, and the npm tarballs
+    of each folder of NPM_FOLDERS (one npm cache holds them all)."""
     into.mkdir(parents=True, exist_ok=True)
     log.parent.mkdir(parents=True, exist_ok=True)
     log.write_text('')
@@ -124,7 +152,7 @@ def download(lock: Path, into: Path, log: Path, npm_folder: Path | None = None) 
     if tools and any(p.name.endswith(('.tar.gz', '.zip')) for p in into.iterdir()):
         _run('pip download', [python, '-m', 'pip', 'download', '--no-input', '--only-binary', ':all:',
                               '-d', into, *tools], log, env=_pip_env())
-    if npm_folder is not None and shutil.which('npm'):
+    for npm_folder in npm_folders if shutil.which('npm') else ():
         # npm ci into a scratch copy fills the cache folder with every tarball of package-lock.json
         scratch = into / '.npm-scratch'
         shutil.rmtree(scratch, ignore_errors=True)
@@ -152,12 +180,16 @@ def main(argv: list | None = None) -> int:
     n.add_argument('folder', type=Path)
     n.add_argument('--log', type=Path, required=True)
     n.add_argument('--wheels', type=Path)
+    c = sub.add_parser('chromium', help="install Debian's Chromium (pinned) for the viewer's browser test")
+    c.add_argument('--log', type=Path, required=True)
     args = p.parse_args(argv)
     try:
         if args.step == 'venv':
             setup_venv(args.venv, args.lock, args.log, args.wheels, args.mend)
         elif args.step == 'build':
             build(args.log)
+        elif args.step == 'chromium':
+            print(f'ft: installed {install_chromium(args.log)}', file=sys.stderr)
         else:
             npm_install(args.folder, args.log, args.wheels)
     except SetupError as e:

@@ -74,7 +74,8 @@ class Wheels:
     @staticmethod
     def add_arguments(p):
         p.description = ('Download every package requirements.lock pins, with its hashes checked, the tools that '
-                         "build the lock's few source packages, and the Foxglove client's npm packages, into DIR. "
+                         "build the lock's few source packages, and the npm packages of the Foxglove client and "
+                         'the viewer, into DIR. '
                          'Carry DIR and the workspace to the machine with no network and run FT_WHEELS=DIR ./ft demo '
                          '(or ./ft test) there: it installs from DIR alone.')
         p.add_argument('dir', type=Path, help='the folder to fill (made if missing)')
@@ -84,7 +85,7 @@ class Wheels:
         from ..bootstrap import SetupError, download
         try:
             n_files = download(ROOT / 'requirements.lock', args.dir, ROOT / '.ft' / 'wheels.log',
-                               ROOT / 'tools' / 'foxglove_client')
+                               (ROOT / 'tools' / 'foxglove_client', ROOT / 'tools' / 'viewer'))
         except SetupError as e:
             print(f'ft: error: {e}', file=sys.stderr)
             return 1

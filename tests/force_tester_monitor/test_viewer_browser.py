@@ -1,0 +1,206 @@
+"""Acceptance: the workspace's viewer (./ft view: Foxglove Studio 1.48.0 from @foxglove/studio-base) in a
+real browser, headless Chromium (Debian's), on a live graph: sim, correction, validator and monitor as
+separate processes over Fast DDS.
+
+The viewer is served as ./ft view serves it and opened by its URL (the layout and the monitor's
+WebSocket named in Studio's deep-link parameters). Once the validator has scored the pulls, the page
+must show: no connection problem; the live plot's legend with numbers that change while the sim runs;
+the scores table with the scored pull; every node of the graph in the diagnostics panel, OK. The
+screenshot is saved under the test's tmp dir (viewer.png) for a person to look at. No request of the
+page may leave the machine.
+"""
+from __future__ import annotations
+
+import json
+import queue
+import re
+import shutil
+import subprocess
+import threading
+import time
+
+import pytest
+from fox_client import monitor_port
+
+from ft_cli.commands import view
+from ft_cli.graph import Graph, ScoreCollector
+
+pytestmark = pytest.mark.slow
+
+PULLS = 2
+DRIVER = view.VIEWER / 'drive.mjs'
+NUMBER = re.compile(r'^-?\d+(\.\d+)?(e[-+]?\d+)?$', re.I)
+# each node's name in its /diagnostics status ("<node>: <what>"), as the diagnostics panel lists it
+NODES = ('sim', 'correction', 'validator', 'monitor')
+LIVE = 'Plot!livetrace'            # the layout's panels, by id
+SCORES = 'Table!scores'
+
+
+class Page:
+    """The driver (tools/viewer/drive.mjs) with the viewer open: its reports, read on a thread."""
+
+    def __init__(self, url: str, chromium: str):
+        node = shutil.which('node')
+        assert node, 'node is not on PATH; the machine image provides Node.js 20'
+        self.proc = subprocess.Popen([node, str(DRIVER), url, '--chromium', chromium], cwd=view.VIEWER,
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        self.reports = queue.Queue()
+        self.errors = []
+        self.problems = []
+        self.external = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            if line.startswith('{'):
+                self.reports.put(json.loads(line))
+        self.reports.put({'kind': 'exit', 'code': self.proc.wait()})
+
+    def next(self, timeout: float) -> dict:
+        report = self.reports.get(timeout=timeout)
+        if report['kind'] == 'page-error':
+            self.errors.append(report['error'])
+        elif report['kind'] == 'problem':
+            self.problems.append(report['text'])
+        elif report['kind'] == 'external-request':
+            self.external.append(report['url'])
+        return report
+
+    def state_until(self, condition, timeout: float, spin=lambda: None) -> dict | None:
+        """The first page state for which condition(state) holds, or None after timeout."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            spin()
+            try:
+                report = self.next(timeout=0.2)
+            except queue.Empty:
+                continue
+            assert report['kind'] != 'exit', f'the driver exited ({report}): {self.proc.stderr.read()[-2000:]}'
+            if report['kind'] == 'state' and condition(report):
+                return report
+        return None
+
+    def command(self, line: str, kind: str, timeout: float = 30) -> dict:
+        self.proc.stdin.write(line + '\n')
+        self.proc.stdin.flush()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            report = self.next(timeout=max(0.1, deadline - time.monotonic()))
+            if report['kind'] == kind:
+                return report
+        raise AssertionError(f'no {kind} report within {timeout} s')
+
+    def close(self):
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.write('quit\n')
+                self.proc.stdin.flush()
+                self.proc.wait(timeout=20)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+                self.proc.wait()
+
+
+def panel(state: dict, panel_id: str) -> dict:
+    found = [p for p in state['panels'] if p['id'] == panel_id]
+    assert found, (panel_id, [p['id'] for p in state['panels']])
+    return found[0]
+
+
+def legend_values(state: dict, panel_id: str) -> dict:
+    """{series label: the value the legend shows} of a plot, for the series that show a number."""
+    return {e['label']: float(e['value']) for e in panel(state, panel_id)['legend'] if NUMBER.match(e['value'])}
+
+
+def table_rows(state: dict, panel_id: str) -> list:
+    """The rows of a Table panel as {column: text}, by the header row's names."""
+    table = panel(state, panel_id)['table']
+    return [dict(zip(table[0], row)) for row in table[1:]] if table else []
+
+
+def node_rows(state: dict) -> dict:
+    """{node: (message, OK?)} of the diagnostics panel's rows, by the node named first in the row."""
+    rows = {}
+    for row in state['diagnostics']:
+        node = row['name'].split(':')[0].lstrip('/')
+        rows[node] = (row['message'], bool(state['okColor']) and row['color'] == state['okColor'])
+    return rows
+
+
+def chromium_binary() -> str:
+    found = shutil.which('chromium') or shutil.which('chromium-browser')
+    if not found:
+        pytest.skip("no Chromium on PATH: the set-up installs Debian's chromium (apt-get install chromium)")
+    return found
+
+
+def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_domain):
+    chromium = chromium_binary()
+    view.check_installed()
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector()
+    server = page = None
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node')
+        monitor = graph.start('force_tester_monitor', 'monitor_node', {'port': 0})
+        port = monitor_port(graph.log_dir / 'monitor_node.log', monitor)
+        server = view.serve('127.0.0.1', 0)
+        url = view.url('127.0.0.1', server.server_address[1], f'ws://127.0.0.1:{port}')
+        page = Page(url, chromium)
+        first = page.next(timeout=120)
+        if first['kind'] == 'launch-failed':
+            pytest.skip(f'Chromium ({chromium}) did not start: {first["error"]}')
+        # the app is up and connected: it subscribed to the monitor's topics (the heartbeat counts a client)
+        assert page.state_until(lambda s: any(p['id'] == LIVE for p in s['panels']), 120), \
+            'the layout did not open'
+        assert collector.wait_for_graph({'/force': 3, '/force_corrected': 2, '/pull_event': 2}, timeout=60)
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,
+                                                     'wait_for_subscribers': 2})
+        spin = lambda: collector.executor.spin_once(timeout_sec=0.05)   # noqa: E731
+        # the live plot's legend shows numbers, and they move while the sim pulls
+        seen = []
+
+        def moving(state):
+            values = legend_values(state, LIVE)
+            if values:
+                seen.append(values)
+            return len({tuple(sorted(v.items())) for v in seen}) >= 3
+        assert page.state_until(moving, 180, spin), (seen[-3:], graph.tail('sim_node'))
+        assert collector.wait(PULLS, 180, alive=lambda: not graph.dead()), graph.tail('sim_node')
+
+        last_state = []
+
+        def settled(state):
+            last_state[:] = [state]
+            shown = {r.get('pull_id') for r in table_rows(state, SCORES)}
+            rows = node_rows(state)
+            return str(collector.scores[-1]['pull_id']) in shown and all(rows.get(n, ('', False))[1] for n in NODES)
+        state = page.state_until(settled, 120, spin)
+        page.command(f'screenshot {tmp_path / "viewer.png"}', 'screenshot')
+        print(f'screenshot: {tmp_path / "viewer.png"}')
+        assert state is not None, ('the scores table or the diagnostics never settled',
+                                   table_rows(last_state[0], SCORES), node_rows(last_state[0]))
+        # no connection problem: the app reported none for its data source
+        assert page.problems == [], page.problems
+        # the scores table shows the last scored pull, with the validator's numbers
+        rows = [r for r in table_rows(state, SCORES) if r.get('pull_id') == str(collector.scores[-1]['pull_id'])]
+        assert rows, table_rows(state, SCORES)
+        last = collector.scores[-1]
+        assert float(rows[0]['stationary_peak_n']) == pytest.approx(last['stationary_peak_n'], rel=1e-9)
+        assert float(rows[0]['raw_diff_pct']) == pytest.approx(last['raw_diff_pct'], rel=1e-9)
+        # every node is listed, OK
+        assert {n: ok for n, (_, ok) in node_rows(state).items() if n in NODES} == {n: True for n in NODES}, \
+            node_rows(state)
+        assert page.errors == [], page.errors
+        # nothing was asked of the internet
+        assert page.external == [], page.external
+        assert graph.dead() == [], [graph.tail(n) for n in graph.dead()]
+    finally:
+        if page is not None:
+            page.close()
+        if server is not None:
+            server.shutdown()
+        graph.stop()
+        collector.close()

@@ -1,0 +1,108 @@
+// The force tester's viewer: renders the Foxglove Studio app (loaded by index.html from
+// @foxglove/studio-base's library build, whose exports are globals) with
+//   - one layout, the workspace's, kept in memory and read from layout.json (so every page load starts
+//     from the layout as shipped; edits last until the page is reloaded),
+//   - settings kept in memory,
+//   - the Foxglove WebSocket data source (the live monitor) and local MCAP files (a recorded bag).
+// The URL says what to open, in Studio's own deep-link parameters, which `./ft view` prints:
+//   ?ds=foxglove-websocket&ds.url=ws://HOST:8765&layoutId=force-tester
+"use strict";
+
+const LAYOUT_ID = "force-tester";
+const LAYOUT_NAME = "Force tester";
+
+// ILayoutStorage: the layouts by id, whatever the namespace the app asks for
+class MemoryLayoutStorage {
+  constructor(layouts) {
+    this.layouts = new Map(layouts.map((layout) => [layout.id, layout]));
+  }
+  async list(_namespace) {
+    return [...this.layouts.values()];
+  }
+  async get(_namespace, id) {
+    return this.layouts.get(id);
+  }
+  async put(_namespace, layout) {
+    this.layouts.set(layout.id, layout);
+    return layout;
+  }
+  async delete(_namespace, id) {
+    this.layouts.delete(id);
+  }
+  async importLayouts(_params) {}
+  async migrateUnnamespacedLayouts(_namespace) {}
+}
+
+// IAppConfiguration: settings in memory, with listeners per key
+class MemoryAppConfiguration {
+  constructor(initial) {
+    this.values = new Map(Object.entries(initial));
+    this.listeners = new Map();
+  }
+  get(key) {
+    return this.values.get(key);
+  }
+  async set(key, value) {
+    this.values.set(key, value);
+    for (const listener of this.listeners.get(key) ?? []) {
+      listener(value);
+    }
+  }
+  addChangeListener(key, listener) {
+    if (!this.listeners.has(key)) {
+      this.listeners.set(key, new Set());
+    }
+    this.listeners.get(key).add(listener);
+  }
+  removeChangeListener(key, listener) {
+    this.listeners.get(key)?.delete(listener);
+  }
+}
+
+// Studio keeps its sidebars' state in localStorage ("fox.workspace"); on a browser's first visit, start
+// with the data source sidebar closed so that the layout has the whole window (1600 px wide fits it)
+function closeSidebarOnFirstVisit() {
+  const key = "fox.workspace";
+  if (window.localStorage.getItem(key) == undefined) {
+    window.localStorage.setItem(key, JSON.stringify({ state: { sidebarItem: null, leftSidebarOpen: false },
+                                                      version: 0 }));
+  }
+}
+
+async function start() {
+  const root = document.getElementById("root");
+  closeSidebarOnFirstVisit();
+  const response = await fetch("layout.json");
+  if (!response.ok) {
+    throw new Error(`layout.json: HTTP ${response.status}`);
+  }
+  const data = await response.json();
+  const now = new Date().toISOString();
+  const layout = {
+    id: LAYOUT_ID,
+    name: LAYOUT_NAME,
+    permission: "CREATOR_WRITE",
+    baseline: { data, savedAt: now },
+    working: undefined,
+    syncInfo: undefined,
+  };
+  await initI18n();
+  await waitForFonts();
+  const props = {
+    deepLinks: [window.location.href],
+    appConfiguration: new MemoryAppConfiguration({ [AppSetting.TELEMETRY_ENABLED]: false,
+                                                   [AppSetting.CRASH_REPORTING_ENABLED]: false }),
+    dataSources: [new FoxgloveWebSocketDataSourceFactory(), new McapLocalDataSourceFactory()],
+    layoutStorage: new MemoryLayoutStorage([layout]),
+    extensionLoaders: [],
+    enableLaunchPreferenceScreen: false,
+    enableGlobalCss: true,
+  };
+  ReactDOM.render(React.createElement(App, props), root);
+  console.debug("viewer rendered");
+}
+
+start().catch((error) => {
+  console.error(error);
+  document.getElementById("root").textContent = `The viewer failed to start: ${error}`;
+});
