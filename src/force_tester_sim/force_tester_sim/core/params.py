@@ -1,6 +1,7 @@
 """Rig parameters: frozen dataclasses loaded from YAML (defaults equal the packaged nominal.yaml)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -162,7 +163,7 @@ class RigParams:
     test_sets: tuple = NOMINAL_TEST_SETS
     departures: Departures = NO_DEPARTURES   # empty = the nominal rig (str() gives 'none')
     tolerances: Tolerances = field(default_factory=Tolerances)   # practical significance (core/tolerances.py)
-    uncertainty_stated: tuple = ()   # the YAML's uncertainty: entries, ((section.key, u), ...) (core/uncertainty.py)
+    uncertainty_stated: tuple = ()   # the YAML's uncertainty: entries that are not the default, ((section.key, u), ...)
 
     @property
     def uncertainty(self) -> Uncertainties:
@@ -238,9 +239,12 @@ def rig_from_dict(data: Mapping) -> RigParams:
         kwargs['departures'] = departures_from_data(data['departures'])
     if 'tolerances' in data:
         kwargs['tolerances'] = tolerances_from_data(data['tolerances'])
-    if 'uncertainty' in data:
-        kwargs['uncertainty_stated'] = overrides_from_data(data['uncertainty'])
     rig = RigParams(**kwargs)
+    if 'uncertainty' in data:   # kept only where it is not the default fraction, so equal rigs compare equal
+        default = dict(rig.uncertainty)
+        stated = tuple((k, u) for k, u in overrides_from_data(data['uncertainty'])
+                       if not math.isclose(u, default[k], rel_tol=1e-9, abs_tol=0.0))
+        rig = dataclasses.replace(rig, uncertainty_stated=stated)
     validate_rig(rig)
     return rig
 
