@@ -49,6 +49,19 @@ import numpy as np
 
 from force_tester_sim.core.departures import departures_from_data
 
+from .budget import (
+    clock_relative,
+    force_systematics,
+    force_variants,
+    friction_systematics,
+    friction_variants,
+    honest_all,
+    load_dependence,
+    load_groups,
+    rate_stat_u,
+    statistical_u,
+    variant_pulls,
+)
 from .cells import CAL_PULLS, calibration_note, cell_calibration, cell_damping_from, cell_zeta, with_tension
 from .decision import Decision, decide
 from .errors import DiscoveryError
@@ -98,6 +111,7 @@ class Survey:
     info: Optional[PullInfo] = None
     friction: Optional[tuple] = None   # friction.friction_row
     spill: Optional[str] = None        # where the prepared pull was spilled
+    friction_variants: Optional[dict] = None   # budget.friction_variants: the row with each drive constant off
 
 
 @dataclass(frozen=True)
@@ -118,6 +132,7 @@ class StatsJob:
     dt: float                           # the campaign's sample interval (the first usable pull's)
     fcf: Optional[float] = None         # the friction force (held-out pulls with a current channel)
     mode: Optional[tuple] = None        # the observed free-decay mode (held-out pulls, when there is one)
+    variants: bool = False              # also the force statistics under budget.force_variants (a few fitted pulls)
 
 
 @dataclass(frozen=True)
@@ -129,6 +144,7 @@ class PullStats:
     blocks: np.ndarray
     friction: Optional[tuple] = None    # (squared current residual without, with the friction)
     ring: Optional[RingPart] = None
+    variants: Optional[dict] = None     # budget variant name -> its force_blocks
 
 
 @dataclass(frozen=True)
@@ -207,7 +223,7 @@ def survey(item) -> Survey:
         return Survey(p.name, q, sc, excluded=why, info=info)
     if spill is not None:
         _write_spill(p, spill)
-    return Survey(p.name, q, sc, None, None, info, friction_row(p, rig), spill)
+    return Survey(p.name, q, sc, None, None, info, friction_row(p, rig), spill, friction_variants(p, rig))
 
 
 def cell_record(item) -> Optional[float]:
@@ -234,7 +250,10 @@ def pull_stats(item) -> PullStats:
         friction = (friction_sse(p, rig, 0.0), friction_sse(p, rig, job.fcf))
     if job.held and job.mode is not None:
         ring = ring_part(p, job.dt, cell_modes(rig.force_chain), job.mode, keep=True)
-    return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring)
+    variants = None
+    if job.variants:
+        variants = {name: force_blocks(v, hum) for name, v in force_variants(p, rig, c1).items()}
+    return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring, variants)
 
 
 def held_out(item) -> HeldOut:
@@ -371,8 +390,9 @@ class Stream:
                     st = dataclasses.replace(st, ring=dataclasses.replace(st.ring, segment=None))
                 kept.append(i)
             stats[i] = st
-        jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, mode if j in held_set else None)
-                for j in range(len(usable))]
+        vpulls = set(variant_pulls(fit))
+        jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, mode if j in held_set else None,
+                         j in vpulls) for j in range(len(usable))]
         self._strict('statistics', self._map('statistics', pull_stats,
                                              [(src, rig, self.c1, job) for src, job in zip(self.sources, jobs)], names,
                                              on_result=keep))
@@ -395,6 +415,9 @@ class Stream:
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
+        sys_ = systematics(cand, stats, fit, [s.quality.peak_n for s in usable], scales if significant else None, m2,
+                           modes, rows, [usable[j].friction_variants for j in fit])
+        cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
         run = {'failed': tuple(self.failed), 'retried': tuple(self.retried), 'scheduler': self.where}
@@ -478,6 +501,34 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
     finally:
         if spill is not None:
             shutil.rmtree(spill, ignore_errors=True)
+
+
+def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v) -> dict:
+    """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (budget.py) from pass 3's variant
+    statistics and load groups (the force model), the free-decay modes (the mount) and the friction rows."""
+    out: dict = {}
+    vidx = [j for j in fit if stats[j].variants is not None]
+    if vidx:
+        def sub(get):
+            return ForceStats([get(stats[j]) for j in vidx], [stats[j].dt for j in vidx], m2,
+                              None if scales is None else [scales[j] for j in vidx])
+        names = list(stats[vidx[0]].variants)
+        fs = force_systematics(sub(lambda st: st.blocks), {n: sub(lambda st, n=n: st.variants[n]) for n in names},
+                               range(len(vidx)), m2)
+        u_stat = {t: {p: (rate_stat_u(t, cand[t]) if t == 'ac_coupling' else statistical_u(t, cand[t], p))
+                      for p in cand[t].parameters} for t in TERMS}
+        all_blocks = ForceStats([st.blocks for st in stats], [st.dt for st in stats], m2, scales)
+        ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat)
+        for t, params in fs.items():
+            for p, comps in params.items():
+                out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+    found = [m for m in modes if m is not None]
+    if 'mount_resonance' in cand and len(found) >= 2:
+        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in found], ddof=1))},
+                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
+    if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
+        out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, friction_stat)}
+    return out
 
 
 def _with_run(analysis: Analysis, st: Stream) -> Analysis:
