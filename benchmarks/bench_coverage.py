@@ -189,7 +189,7 @@ def main() -> int:
                         continue
                     lo, hi = c['parameters_ci95'][par]
                     lo, hi = (-math.inf if lo is None else lo), (math.inf if hi is None else hi)   # None: infinite
-                    est = c['parameters'][par]
+                    est = math.inf if c['parameters'][par] is None else c['parameters'][par]   # None: infinite
                     half = 0.5 * (hi - lo)
                     tol = tolerance(cause, par, rig, truth)
                     inside = lo <= truth <= hi

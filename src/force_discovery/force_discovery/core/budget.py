@@ -5,7 +5,9 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
 - statistical: the 95 % interval of the pull-to-pull spread (jackknife or bootstrap) over its coverage factor.
 - nominal constants: the force model is refitted, on up to VARIANT_PULLS of the fitted pulls, with T computed from
   m1 (or the cells' stiffness) one standard uncertainty (rig.uncertainty) off; the friction force with each drive
-  constant one standard uncertainty off. The change is the component (a sensitivity coefficient times u).
+  constant one standard uncertainty off. The change is the component (a sensitivity coefficient times u). When the
+  stationary cell's free decay measured its natural frequency on m1 (cells.py), T depends on m1 and K_LC1 only
+  through it: the stiffness's u is then the measurement's (cell_stiffness_u) and m1's change is zero.
 - model form: the same refits under plausible variants of the model of record: the cells' damping one standard
   uncertainty off (relative to the damping T uses, measured or the rig's), a 4th-order Butterworth anti-alias
   filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms later, 50 ms earlier).
@@ -72,19 +74,38 @@ def _butter(x: np.ndarray, sos) -> np.ndarray:
     return sosfilt(sos, x - x[0]) + x[0]      # settled on the first sample
 
 
-def force_variants(p: Pull, rig, c1: Optional[float]) -> Dict[str, Pull]:
-    """The pull under each FORCE_VARIANTS variant (c1: the cells' damping coefficient T uses; None: the rig's)."""
+def cell_stiffness_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
+    """The standard uncertainty of the stiffness T uses. Without a measured cell frequency: the rig's. With one
+    (cells.cell_frequency_from: median f, sd, n), T depends on the cell only through K_LC1 / m1 = (2 pi f)^2 and the
+    damping ratio, so K_LC1's relative u is twice f's: the measurement's standard error, the sample clock, and the
+    difference between the frequency T uses and the measured one (when it stayed below the calibration's gate)."""
+    fc = rig.force_chain
+    k1 = fc.load_cell_stiffness_n_per_m if cal is None else cal[0]
+    if fcal is None:
+        return rig.uncertainty.u('force_chain.load_cell_stiffness_n_per_m') * k1 / fc.load_cell_stiffness_n_per_m
+    f, sd, n = fcal
+    f_used = math.sqrt(k1 / fc.m1) / (2 * math.pi)
+    rel = math.sqrt((sd / math.sqrt(n) / f) ** 2 + clock_relative(rig) ** 2 + (f_used / f - 1.0) ** 2)
+    return 2.0 * rel * k1
+
+
+def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = None) -> Dict[str, Pull]:
+    """The pull under each FORCE_VARIANTS variant. cal: the cells' (K_LC1, c1) T uses (cells.cell_calibration;
+    None: the rig's); fcal: the measured cell frequency (cells.cell_frequency_from), when there is one: then m1 moves
+    with K_LC1 / m1 held (T does not change: it depends on m1 only through the measured frequency)."""
     from scipy.signal import butter
     fc, u = rig.force_chain, rig.uncertainty
-    m1, k1 = fc.m1, fc.load_cell_stiffness_n_per_m
-    c1 = fc.c1 if c1 is None else c1
+    m1 = fc.m1
+    k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
     um1 = u.u('force_chain.stationary_side_mass_kg')
-    uk1 = u.u('force_chain.load_cell_stiffness_n_per_m')
+    uk1 = cell_stiffness_u(rig, cal, fcal)
     rz = u.relative('force_chain.load_cell_damping_ratio', fc.load_cell_damping_ratio)
 
     def tension(m, k, c):
         return dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, m, k, c))
-    out = {'m1': tension(m1 + um1, k1, c1 * math.sqrt((m1 + um1) / m1)),   # the damping ratio held
+    r = (m1 + um1) / m1
+    out = {'m1': (tension(m1 + um1, k1 * r, c1 * r) if fcal is not None
+                  else tension(m1 + um1, k1, c1 * math.sqrt(r))),   # the damping ratio held
            'cell_stiffness': tension(m1, k1 + uk1, c1 * math.sqrt((k1 + uk1) / k1)),
            'cell_damping': tension(m1, k1, c1 * (1.0 + rz))}
     sos = butter(4, ANTI_ALIAS_FRACTION / p.dt, fs=1.0 / p.dt, output='sos')
@@ -239,6 +260,6 @@ def clock_relative(rig) -> float:
     return rig.uncertainty.relative('daq.sample_rate_hz', rig.daq.sample_rate_hz)
 
 
-__all__ = ['COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'clock_relative', 'force_systematics',
+__all__ = ['cell_stiffness_u', 'COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'clock_relative', 'force_systematics',
            'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence',
            'load_groups', 'rate_scale', 'rate_stat_u', 'statistical_u', 'variant_pulls']

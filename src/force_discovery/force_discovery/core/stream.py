@@ -62,7 +62,15 @@ from .budget import (
     statistical_u,
     variant_pulls,
 )
-from .cells import CAL_PULLS, calibration_note, cell_calibration, cell_damping_from, cell_zeta, with_tension
+from .cells import (
+    CAL_PULLS,
+    calibration_note,
+    cell_calibration,
+    cell_damping_from,
+    cell_frequency_from,
+    cell_mode,
+    with_tension,
+)
 from .decision import Decision, decide
 from .errors import DiscoveryError
 from .extension import named_extension
@@ -133,6 +141,7 @@ class StatsJob:
     fcf: Optional[float] = None         # the friction force (held-out pulls with a current channel)
     mode: Optional[tuple] = None        # the observed free-decay mode (held-out pulls, when there is one)
     variants: bool = False              # also the force statistics under budget.force_variants (a few fitted pulls)
+    fcal: Optional[tuple] = None        # ... with the measured cell frequency (cells.cell_frequency_from)
 
 
 @dataclass(frozen=True)
@@ -203,8 +212,9 @@ def prepare_ref(ref: PullRef, rig):
     return q, sc, prepare(meta, ch, rig, q, sc)
 
 
-def load_pull(src: Source, rig, c1: Optional[float]) -> Pull:
-    """The prepared pull (from the spill when there is one), T with the cells' calibration c1 (None: the rig's)."""
+def load_pull(src: Source, rig, c1: Optional[tuple]) -> Pull:
+    """The prepared pull (from the spill when there is one), T with the cells' calibration c1 (cells.with_tension's
+    (K_LC1, c1); None: the rig's)."""
     p = _read_spill(src.spill) if src.spill is not None and os.path.exists(src.spill) else prepare_ref(src.ref, rig)[2]
     return with_tension(p, rig, c1)
 
@@ -226,10 +236,10 @@ def survey(item) -> Survey:
     return Survey(p.name, q, sc, None, None, info, friction_row(p, rig), spill, friction_variants(p, rig))
 
 
-def cell_record(item) -> Optional[float]:
-    """Pass 1b: item = (Source, rig); cells.cell_zeta of the pull (its T does not matter)."""
+def cell_record(item) -> Optional[tuple]:
+    """Pass 1b: item = (Source, rig); cells.cell_mode of the pull (its T does not matter)."""
     src, rig = item
-    return cell_zeta(load_pull(src, rig, None), rig)
+    return cell_mode(load_pull(src, rig, None), rig)
 
 
 def hum_record(item) -> HumRecord:
@@ -252,7 +262,7 @@ def pull_stats(item) -> PullStats:
         ring = ring_part(p, job.dt, cell_modes(rig.force_chain), job.mode, keep=True)
     variants = None
     if job.variants:
-        variants = {name: force_blocks(v, hum) for name, v in force_variants(p, rig, c1).items()}
+        variants = {name: force_blocks(v, hum) for name, v in force_variants(p, rig, c1, job.fcal).items()}
     return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring, variants)
 
 
@@ -364,8 +374,10 @@ class Stream:
         fit, held = split(usable)
         held_set = set(held)
         notes = []
-        self.zetas = self._cell_zetas(names, held)
-        self.c1, cells = cell_calibration(cell_damping_from(self.zetas), rig)
+        modes_cell = self._cell_zetas(names, held)
+        self.zetas = [None if m is None else m[1] for m in modes_cell]
+        fcal = cell_frequency_from(modes_cell)
+        self.c1, cells = cell_calibration(cell_damping_from(self.zetas), rig, fcal)
         if calibration_note(cells):
             notes.append(calibration_note(cells))
         dt = usable[0].info.dt
@@ -392,7 +404,7 @@ class Stream:
             stats[i] = st
         vpulls = set(variant_pulls(fit))
         jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, mode if j in held_set else None,
-                         j in vpulls) for j in range(len(usable))]
+                         j in vpulls, fcal) for j in range(len(usable))]
         self._strict('statistics', self._map('statistics', pull_stats,
                                              [(src, rig, self.c1, job) for src, job in zip(self.sources, jobs)], names,
                                              on_result=keep))
@@ -425,7 +437,7 @@ class Stream:
                           excluded, cells, friction_sses, **run)
 
     def _cell_zetas(self, names, held) -> list:
-        """cells.cell_zeta of the usable pulls in order, as far as the calibrations need them: until CAL_PULLS
+        """cells.cell_mode of the usable pulls in order, as far as the calibrations need them: until CAL_PULLS
         were measured over all pulls and over the held-out ones (cell_damping_from takes the first CAL_PULLS), in
         batches of 2 CAL_PULLS pulls."""
         zetas, held = [], list(held)
