@@ -91,8 +91,8 @@ def cell_stiffness_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
 
 def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = None) -> Dict[str, Pull]:
     """The pull under each FORCE_VARIANTS variant. cal: the cells' (K_LC1, c1) T uses (cells.cell_calibration;
-    None: the rig's); fcal: the measured cell frequency (cells.cell_frequency_from), when there is one: then m1 moves
-    with K_LC1 / m1 held (T does not change: it depends on m1 only through the measured frequency)."""
+    None: the rig's); fcal: the measured cell frequency (cells.cell_frequency_from), when there is one: then m1 moving
+    with K_LC1 / m1 held leaves T as it is (it depends on m1 only through the measured frequency): the pull itself."""
     from scipy.signal import butter
     fc, u = rig.force_chain, rig.uncertainty
     m1 = fc.m1
@@ -104,8 +104,7 @@ def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = N
     def tension(m, k, c):
         return dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, m, k, c))
     r = (m1 + um1) / m1
-    out = {'m1': (tension(m1 + um1, k1 * r, c1 * r) if fcal is not None
-                  else tension(m1 + um1, k1, c1 * math.sqrt(r))),   # the damping ratio held
+    out = {'m1': p if fcal is not None else tension(m1 + um1, k1, c1 * math.sqrt(r)),   # the damping ratio held
            'cell_stiffness': tension(m1, k1 + uk1, c1 * math.sqrt((k1 + uk1) / k1)),
            'cell_damping': tension(m1, k1, c1 * (1.0 + rz))}
     sos = butter(4, ANTI_ALIAS_FRACTION / p.dt, fs=1.0 / p.dt, output='sos')
