@@ -61,7 +61,7 @@ def calibrate_cells(pulls: Sequence[Pull], rig) -> Tuple[Sequence[Pull], Optiona
     return tuple(with_tension(p, rig, c1) for p in pulls), out, c1, fcal
 
 
-def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal) -> dict:
+def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
     """The systematic parts of the budgets (force_discovery.core.budget) from the pulls' arrays: the force model
     refitted on the variant pulls' samples (ForceModel), the load groups, the free-decay modes, the friction rows."""
     m2 = rig.force_chain.m2
@@ -74,7 +74,8 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal) -> dict:
                              range(len(vidx)), m2)
     u_stat = {t: {p: (B.rate_stat_u(t, cand[t]) if t == 'ac_coupling' else B.statistical_u(t, cand[t], p))
                   for p in cand[t].parameters} for t in TERMS}
-    ld = B.load_dependence(ForceModel(pulls, m2, hums), B.load_groups(fit, [p.peak for p in pulls]), m2, u_stat)
+    ld = B.load_dependence(ForceModel(pulls, m2, hums), B.load_groups(fit, [p.peak for p in pulls]), m2, u_stat,
+                           delay)
     for t, params in fs.items():
         for p, comps in params.items():
             out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
@@ -161,7 +162,8 @@ def analyse(campaign_pulls, rig) -> OnePass:
     mount, ring = ring_stage(pulls, fit, held, rig.force_chain)
     friction, friction_sses = current_stage(pulls, fit, held, rig)
     cand, more = S.candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
-    cand = B.honest_all(cand, systematic_parts(pulls, fit, cand, hums, rig, c1, fcal), B.clock_relative(rig))
+    sys_ = systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, force['delay_s'])
+    cand = B.honest_all(cand, sys_, B.clock_relative(rig))
     infos = tuple(S.PullInfo(p.name, p.dt, len(p.t), p.w0, p.w1) for p in pulls)
     analysis = S.Analysis(infos, quality, tuple(fit), tuple(held), scales if hums is not None else None, cand, force,
                         ring, tuple(notes + more), screens, excluded, cells, friction_sses)

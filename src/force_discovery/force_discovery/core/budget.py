@@ -9,8 +9,9 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
   stationary cell's free decay measured its natural frequency on m1 (cells.py), T depends on m1 and K_LC1 only
   through it: the stiffness's u is then the measurement's (cell_stiffness_u) and m1's change is zero.
 - model form: the same refits under plausible variants of the model of record: the cells' damping one standard
-  uncertainty off (relative to the damping T uses, measured or the rig's), a 4th-order Butterworth anti-alias
-  filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms later, 50 ms earlier).
+  uncertainty off (the rig's, or when the free decay measured it, the measurement's: cell_damping_u), a 4th-order
+  Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
+  later, 50 ms earlier).
 - DAQ: the sample clock's relative uncertainty (rig daq.sample_rate_hz) on every time or frequency parameter.
   The samples' resolution and noise act pull to pull: they are in the statistical part.
 - definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
@@ -74,6 +75,19 @@ def _butter(x: np.ndarray, sos) -> np.ndarray:
     return sosfilt(sos, x - x[0]) + x[0]      # settled on the first sample
 
 
+def cell_damping_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
+    """The relative standard uncertainty of the cells' damping T uses. Without a measured free decay: the rig's.
+    With one (cells.cell_frequency_from: ..., median damping ratio, its sd), the measurement's standard error and
+    the difference between the ratio T uses and the measured one (when it stayed below the calibration's gate)."""
+    fc = rig.force_chain
+    if fcal is None:
+        return rig.uncertainty.relative('force_chain.load_cell_damping_ratio', fc.load_cell_damping_ratio)
+    _f, _sd, n, z, sd_z = fcal
+    k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
+    z_used = c1 / (2.0 * math.sqrt(k1 * fc.m1))
+    return math.sqrt((z_used / z - 1.0) ** 2 + (sd_z / math.sqrt(n) / z) ** 2)
+
+
 def cell_stiffness_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
     """The standard uncertainty of the stiffness T uses. Without a measured cell frequency: the rig's. With one
     (cells.cell_frequency_from: median f, sd, n), T depends on the cell only through K_LC1 / m1 = (2 pi f)^2 and the
@@ -83,7 +97,7 @@ def cell_stiffness_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
     k1 = fc.load_cell_stiffness_n_per_m if cal is None else cal[0]
     if fcal is None:
         return rig.uncertainty.u('force_chain.load_cell_stiffness_n_per_m') * k1 / fc.load_cell_stiffness_n_per_m
-    f, sd, n = fcal
+    f, sd, n, _z, _sd_z = fcal
     f_used = math.sqrt(k1 / fc.m1) / (2 * math.pi)
     rel = math.sqrt((sd / math.sqrt(n) / f) ** 2 + clock_relative(rig) ** 2 + (f_used / f - 1.0) ** 2)
     return 2.0 * rel * k1
@@ -99,7 +113,7 @@ def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = N
     k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
     um1 = u.u('force_chain.stationary_side_mass_kg')
     uk1 = cell_stiffness_u(rig, cal, fcal)
-    rz = u.relative('force_chain.load_cell_damping_ratio', fc.load_cell_damping_ratio)
+    rz = cell_damping_u(rig, cal, fcal)
 
     def tension(m, k, c):
         return dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, m, k, c))
@@ -164,16 +178,18 @@ def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
     return [list(a) for a in np.array_split(np.array(order), g)]
 
 
-def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dict) -> dict:
+def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dict, d: float) -> dict:
     """{term: {parameter: u}}: the spread of the force model fitted on each load group, beyond the statistical
     spread of groups that size (u_stat: {term: {parameter: the pooled statistical u}}; tau's in its rate; the
-    result in the parameter's unit)."""
+    result in the parameter's unit). The delay is searched per group for its own spread; the other terms are fitted
+    at the campaign's delay d (a delay's noise in a small group is not a load dependence of the gain)."""
     if len(groups) < 2:
         return {}
     per = []
     for gr in groups:
-        c, _, d = fm_.fit_delay(set(TERMS), list(gr))
-        per.append(_param_table(c, d, m2))
+        c, _ = fm_.fit(set(TERMS), list(gr), d)
+        _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
+        per.append(_param_table(c, dg, m2))
     out: dict = {}
     for term, params in per[0].items():
         for par in params:
@@ -259,6 +275,6 @@ def clock_relative(rig) -> float:
     return rig.uncertainty.relative('daq.sample_rate_hz', rig.daq.sample_rate_hz)
 
 
-__all__ = ['cell_stiffness_u', 'COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'clock_relative', 'force_systematics',
-           'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence',
-           'load_groups', 'rate_scale', 'rate_stat_u', 'statistical_u', 'variant_pulls']
+__all__ = ['COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative',
+           'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all',
+           'load_dependence', 'load_groups', 'rate_scale', 'rate_stat_u', 'statistical_u', 'variant_pulls']

@@ -42,16 +42,20 @@ def cell_zeta(p: Pull, rig) -> Optional[float]:
     return None if m is None else m[1]
 
 
-def cell_frequency_from(modes: Iterable[Optional[Tuple[float, float]]]) -> Optional[Tuple[float, float, int]]:
-    """(median, standard deviation, count) of the natural frequency over the first CAL_PULLS measured cell_mode()s
-    (None: not measured on that pull), in pull order; None if fewer than 2 were measured."""
+def cell_frequency_from(modes: Iterable[Optional[Tuple[float, float]]]) -> Optional[tuple]:
+    """(median natural frequency, its standard deviation, count, median damping ratio, its standard deviation) over
+    the first CAL_PULLS measured cell_mode()s (None: not measured on that pull), in pull order; None if fewer than 2
+    were measured."""
     found = []
     for m in modes:
         if len(found) >= CAL_PULLS:
             break
         if m is not None:
-            found.append(m[0])
-    return (float(np.median(found)), float(np.std(found, ddof=1)), len(found)) if len(found) >= 2 else None
+            found.append(m)
+    if len(found) < 2:
+        return None
+    f, z = np.array(found).T
+    return float(np.median(f)), float(np.std(f, ddof=1)), len(found), float(np.median(z)), float(np.std(z, ddof=1))
 
 
 def rig_cell_frequency(rig) -> float:
@@ -97,7 +101,7 @@ def cell_calibration(cal: Optional[Tuple[float, int]], rig, fcal: Optional[Tuple
         out.update(measured_damping_ratio=z, pulls=n, used_for_tension=used)
         zeta = z if used else zeta
     if fcal is not None:
-        f, _sd, n = fcal
+        f, _sd, n = fcal[:3]
         f_rig = rig_cell_frequency(rig)
         used_f = abs(f / f_rig - 1.0) > CAL_MIN_FREQ_CHANGE
         out.update(rig_frequency_hz=f_rig, measured_frequency_hz=f, frequency_pulls=n,

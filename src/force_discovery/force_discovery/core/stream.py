@@ -428,7 +428,7 @@ class Stream:
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
         sys_ = systematics(cand, stats, fit, [s.quality.peak_n for s in usable], scales if significant else None, m2,
-                           modes, rows, [usable[j].friction_variants for j in fit])
+                           modes, rows, [usable[j].friction_variants for j in fit], force['delay_s'])
         cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
@@ -515,9 +515,10 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             shutil.rmtree(spill, ignore_errors=True)
 
 
-def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v) -> dict:
+def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float) -> dict:
     """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (budget.py) from pass 3's variant
-    statistics and load groups (the force model), the free-decay modes (the mount) and the friction rows."""
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount) and the
+    friction rows."""
     out: dict = {}
     vidx = [j for j in fit if stats[j].variants is not None]
     if vidx:
@@ -530,7 +531,7 @@ def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, r
         u_stat = {t: {p: (rate_stat_u(t, cand[t]) if t == 'ac_coupling' else statistical_u(t, cand[t], p))
                       for p in cand[t].parameters} for t in TERMS}
         all_blocks = ForceStats([st.blocks for st in stats], [st.dt for st in stats], m2, scales)
-        ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat)
+        ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat, delay)
         for t, params in fs.items():
             for p, comps in params.items():
                 out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
