@@ -172,7 +172,8 @@ def main() -> int:
                 k += 1
                 effect = scaled_effect(name, G.draw(name, seed), rig.force_chain.m2)
                 nuisance = G.draw_nuisance(seed, within_tolerance=True) if k % 2 else None
-                if nuisance is not None:
+                if nuisance is not None:   # the anti-alias corner scales with the sample rate (15-22 kHz at 50 kHz)
+                    nuisance['anti_alias_hz'] *= rig.daq.sample_rate_hz / 50000.0
                     m = nuisance['departures']['effective_mass']['mass_kg']
                     nuisance['departures']['effective_mass']['mass_kg'] = m * rig.force_chain.m2 / MASS_KG
                 deps = {**(nuisance['departures'] if nuisance else {}), name: effect}
