@@ -12,8 +12,16 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
+from force_discovery.core import budget as B
 from force_discovery.core import stages as S
-from force_discovery.core.cells import calibration_note, cell_calibration, cell_damping_ratio, with_tension
+from force_discovery.core.cells import (
+    calibration_note,
+    cell_calibration,
+    cell_damping_ratio,
+    cell_frequency_from,
+    cell_mode,
+    with_tension,
+)
 from force_discovery.core.decision import decide
 from force_discovery.core.errors import DiscoveryError
 from force_discovery.core.extension import extension
@@ -42,14 +50,45 @@ class OnePass:
     hums: Optional[tuple]
 
 
-def calibrate_cells(pulls: Sequence[Pull], rig) -> Tuple[Sequence[Pull], Optional[dict]]:
+def calibrate_cells(pulls: Sequence[Pull], rig) -> Tuple[Sequence[Pull], Optional[dict], Optional[tuple],
+                                                    Optional[tuple]]:
     """The cells' damping ratio measured on the pulls' free decay (cell_damping_ratio); when it departs from the
     rig's by more than CAL_MIN_CHANGE (relative), every pull's T is recomputed with it. Returns (pulls, calibration
-    or None when nothing was measured)."""
-    c1, out = cell_calibration(cell_damping_ratio(pulls, range(len(pulls)), rig), rig)
+    or None when nothing was measured, the (K_LC1, c1) T uses or None for the rig's, the measured cell frequency)."""
+    fcal = cell_frequency_from(cell_mode(p, rig) for p in pulls)
+    c1, out = cell_calibration(cell_damping_ratio(pulls, range(len(pulls)), rig), rig, fcal)
     if c1 is None:
-        return pulls, out
-    return tuple(with_tension(p, rig, c1) for p in pulls), out
+        return pulls, out, None, fcal
+    return tuple(with_tension(p, rig, c1) for p in pulls), out, c1, fcal
+
+
+def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
+    """The systematic parts of the budgets (force_discovery.core.budget) from the pulls' arrays: the force model
+    refitted on the variant pulls' samples (ForceModel), the load groups, the free-decay modes, the friction rows."""
+    m2 = rig.force_chain.m2
+    out: dict = {}
+    vidx = B.variant_pulls(fit)
+    sub_h = None if hums is None else [hums[j] for j in vidx]
+    variants = [B.force_variants(pulls[j], rig, c1, fcal) for j in vidx]
+    fs = B.force_systematics(ForceModel([pulls[j] for j in vidx], m2, sub_h),
+                             {n: ForceModel([v[n] for v in variants], m2, sub_h) for n in variants[0]},
+                             range(len(vidx)), m2)
+    u_stat = {t: {p: (B.rate_stat_u(t, cand[t]) if t == 'ac_coupling' else B.statistical_u(t, cand[t], p))
+                  for p in cand[t].parameters} for t in TERMS}
+    ld = B.load_dependence(ForceModel(pulls, m2, hums), B.load_groups(fit, [p.peak for p in pulls]), m2, u_stat,
+                           delay)
+    for t, params in fs.items():
+        for p, comps in params.items():
+            out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+    modes = [m for m in (free_decay_mode(pulls[j]) for j in few_pulls(fit)) if m is not None]
+    if 'mount_resonance' in cand and len(modes) >= 2:
+        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in modes], ddof=1))},
+                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in modes], ddof=1))}}
+    if 'coulomb_friction' in cand:
+        rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
+        out['coulomb_friction'] = {'force_n': B.friction_systematics(
+            rows, [B.friction_variants(pulls[j], rig) for j in fit], friction_stat)}
+    return out
 
 
 def hum_stage(pulls, fit, held, m2):
@@ -116,7 +155,7 @@ def analyse(campaign_pulls, rig) -> OnePass:
     m2 = rig.force_chain.m2
     fit, held = S.split(pulls)
     notes = []
-    pulls, cells = calibrate_cells(pulls, rig)
+    pulls, cells, c1, fcal = calibrate_cells(pulls, rig)
     if calibration_note(cells):
         notes.append(calibration_note(cells))
     hum, hums, scales = hum_stage(pulls, fit, held, m2)
@@ -124,6 +163,8 @@ def analyse(campaign_pulls, rig) -> OnePass:
     mount, ring = ring_stage(pulls, fit, held, rig.force_chain)
     friction, friction_sses = current_stage(pulls, fit, held, rig)
     cand, more = S.candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
+    sys_ = systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, force['delay_s'])
+    cand = B.honest_all(cand, sys_, B.clock_relative(rig))
     infos = tuple(S.PullInfo(p.name, p.dt, len(p.t), p.w0, p.w1) for p in pulls)
     analysis = S.Analysis(infos, quality, tuple(fit), tuple(held), scales if hums is not None else None, cand, force,
                         ring, tuple(notes + more), screens, excluded, cells, friction_sses)

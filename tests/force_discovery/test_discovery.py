@@ -210,8 +210,9 @@ def _tolerant_rig(**tol):
 def test_verdict_follows_the_tolerance_band():
     """One campaign with a 5 % gain departure; the user's tolerance decides: named outside the band, within
     tolerance inside it, inconclusive when the interval straddles the edge (with the pulls that would settle it)."""
-    from force_discovery.core.decision import decide
+    from force_discovery.core.decision import decide, fixed_half
     from force_discovery.core.stream import Stream
+    from force_discovery.core.uncertainty import t_quantile
     from force_tester_common.engine import Mapper
     camp = make_campaign({'moving_cell_gain': {'gain': 1.05}}, seed=21, sets=(2, 3), pulls=4)
     analysis = Stream(camp, load_rig(), Mapper('inline')).analyse()
@@ -226,7 +227,27 @@ def test_verdict_follows_the_tolerance_band():
     v_named, v_within, v_edge = verdicts.values()
     assert v_named['verdict'] == 'named'
     assert v_within['verdict'] == 'within_tolerance'
-    assert v_edge['verdict'] == 'inconclusive' and v_edge['pulls_to_settle'] > v_edge['pulls']
+    assert v_edge['verdict'] == 'inconclusive'
+    # more pulls shrink only the statistical part of the interval: they settle it unless the systematic part alone
+    # reaches the band edge (here the edge sits at the truth, 0.02 % from the estimate)
+    settle, fixed = v_edge['pulls_to_settle'], fixed_half('moving_cell_gain', c)
+    assert fixed > 0 and (settle is None) == (fixed >= abs(c.parameters['gain'] - 1.05)), (settle, fixed)
+    assert settle is None or settle > v_edge['pulls']
+    # and the interval is the expanded one: every component listed, wider than the statistical part alone
+    budget = c.uncertainty_budget['gain']
+    assert {'statistical', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window',
+            'load_dependence', 'combined'} <= set(budget)
+    assert 0.5 * (hi - lo) >= t_quantile(c.ci_pulls) * budget['statistical'] > 0
+
+
+def test_pulls_to_settle_leaves_the_systematic_part():
+    """The statistical part shrinks as 1/sqrt(n); a systematic part that alone reaches the band edge never does."""
+    from force_discovery.core.uncertainty import pulls_to_settle
+    from force_tester_sim.core.tolerances import Band
+    b = Band('moving_cell_gain', 'gain', 0.99, 1.01)
+    assert pulls_to_settle(1.02, (1.0, 1.04), b, 10) == 40                  # all statistical: (0.02 / 0.01)^2 x 10
+    assert pulls_to_settle(1.02, (1.0, 1.04), b, 10, fixed_half=0.006) == 57   # 10 x (4e-4 - 3.6e-5) / (1e-4 - 3.6e-5)
+    assert pulls_to_settle(1.02, (1.0, 1.04), b, 10, fixed_half=0.012) is None  # the systematic part reaches the edge
 
 
 def test_departure_inside_the_tolerance_is_reported_not_named(tmp_path):

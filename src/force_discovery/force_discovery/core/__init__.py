@@ -5,7 +5,7 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - source.py       where a campaign's pulls come from (a folder read pull by pull, or channels in memory)
 - quality.py      the data-quality screen (defects found, repaired and masked; pulls left out)
 - prep.py         per-pull preparation: T, the low-passed channels, carriage motion, the analysis window
-- cells.py        cell-damping calibration: the cells' damping ratio from the free decay, T recomputed with it
+- cells.py        cell calibration: the stationary cell's frequency and damping from the free decay, T recomputed
 - hum.py          mains hum: the line's frequency, each pull's amplitude and phase
 - force_model.py  the force model F_move - hum = g T + M a2(t + d) - k C, fitted on samples (ForceModel)
 - force_stats.py  ... the same fits from per-pull sufficient statistics (ForceStats: what the stream uses)
@@ -13,6 +13,7 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - friction.py     friction: the motor current against the force balance
 - significance.py the held-out significance test
 - uncertainty.py  intervals (jackknife, bootstrap) and the tolerance verdict
+- budget.py       uncertainty budgets: the systematic parts of every parameter's uncertainty, the expanded interval
 - candidate.py    Candidate and Evidence: what a stage says about one cause (frozen)
 - stages.py       the stages: each turns its channel's per-pull results into Candidates; Analysis; the method
 - decision.py     the decision: named, within tolerance, inconclusive, withheld

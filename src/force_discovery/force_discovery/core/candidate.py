@@ -7,7 +7,7 @@ A new kind of cause (a term beyond the catalog, a reference-free check) is a new
 a new piece of evidence is a field of Evidence, with its place in EVIDENCE_ORDER (report.json's key order)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Dict, List, Optional
 
 # report.json's order of the evidence keys: the significance test's (significance.significance), then what a
@@ -61,19 +61,23 @@ class Evidence:
 @dataclass(frozen=True)
 class Candidate:
     """One catalog cause as a stage found it: its parameters (departures.CATALOG's names), their 95 % intervals
-    over ci_pulls pulls, the evidence, and the measured channel it was tested on."""
+    over ci_pulls pulls, the evidence, and the measured channel it was tested on. A stage gives the statistical
+    interval; budget.honest() replaces it with the expanded one and fills uncertainty_budget
+    ({parameter: {component: standard uncertainty}}, budget.py)."""
 
     parameters: Dict[str, float]
     parameters_ci95: Dict[str, List[float]]
     ci_pulls: int
     evidence: Evidence
     channel: str
+    uncertainty_budget: Dict[str, Dict[str, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """The candidate as report.json lists it before the decision's verdicts are added (a fresh dict)."""
         return {'parameters': dict(self.parameters),
                 'parameters_ci95': {k: list(v) for k, v in self.parameters_ci95.items()},
-                'ci_pulls': self.ci_pulls, 'evidence': self.evidence.as_dict(), 'channel': self.channel}
+                'ci_pulls': self.ci_pulls, 'evidence': self.evidence.as_dict(), 'channel': self.channel,
+                'uncertainty_budget': {k: dict(v) for k, v in self.uncertainty_budget.items()}}
 
 
 __all__ = ['Candidate', 'Evidence']

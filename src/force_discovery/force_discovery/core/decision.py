@@ -8,6 +8,7 @@ from typing import Tuple
 
 from force_tester_sim.core.tolerances import BAND_PARAMETER, band
 
+from .budget import COMBINED, COVERAGE_K, STATISTICAL
 from .candidate import Candidate
 from .force_model import TERMS
 from .stages import Analysis
@@ -45,11 +46,21 @@ def _admissible(name: str, c: Candidate) -> bool:
 
 
 def tolerance_input(name: str, c: Candidate) -> Tuple[float, Tuple[float, float]]:
-    """(estimate, 95 % interval) of the quantity the cause's tolerance band applies to."""
+    """(estimate, 95 % interval) of the quantity the cause's tolerance band applies to: the expanded interval
+    (budget.py) when it is a parameter."""
     par = BAND_PARAMETER[name][0]
     if par in c.parameters:
         return c.parameters[par], tuple(c.parameters_ci95[par])
     return c.evidence.value(par), tuple(c.evidence.value(par + '_ci95'))
+
+
+def fixed_half(name: str, c: Candidate) -> float:
+    """The half-width that more pulls would not shrink: COVERAGE_K x the systematic part of the band parameter's
+    budget (0 without one)."""
+    b = c.uncertainty_budget.get(BAND_PARAMETER[name][0])
+    if not b or name == 'ac_coupling':   # the AC coupling's interval is made in its rate 1/tau: taken as shrinking
+        return 0.0
+    return COVERAGE_K * math.sqrt(sum(v * v for k, v in b.items() if k not in (STATISTICAL, COMBINED)))
 
 
 def decide(analysis: Analysis, rig) -> Decision:
@@ -62,7 +73,7 @@ def decide(analysis: Analysis, rig) -> Decision:
         if n in cand:
             est, ci = tolerance_input(n, cand[n])
             verdicts[n] = verdict(est, ci, band(n, rig.tolerances, rig.force_chain.m2), _admissible(n, cand[n]),
-                                  cand[n].ci_pulls)
+                                  cand[n].ci_pulls, fixed_half(n, cand[n]))
     named = [n for n, v in verdicts.items() if v['verdict'] == NAMED]
     rejected, notes = {}, []
     nl = cand['moving_cell_gain'].evidence.t_squared_rel_reduction

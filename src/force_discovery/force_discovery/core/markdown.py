@@ -6,6 +6,7 @@ from pathlib import Path
 
 from . import quality as Q
 from . import stages
+from .budget import COMBINED, KIND
 
 
 def _num(v) -> str:
@@ -70,7 +71,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
         L.append('(none: every candidate passed)')
     for note in r['notes']:
         L.append(f'- note: {note}')
-    L += [''] + Q.markdown_lines(screens, excluded) + run_lines(r)
+    L += [''] + budget_lines(r) + Q.markdown_lines(screens, excluded) + run_lines(r)
     L += ['## Method', '', stages.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
     L += simulation_lines(r)
     if r.get('leftover'):
@@ -84,6 +85,32 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
     else:
         L += ['(matplotlib not importable: no plots)']
     return '\n'.join(L) + '\n'
+
+
+def budget_lines(r) -> list:
+    """report.md: every candidate parameter's uncertainty budget (report.json uncertainty_budget) as one table, the
+    components summed in quadrature by kind (budget.KIND), standard uncertainties (k = 1)."""
+    kinds = list(dict.fromkeys(KIND.values()))
+    L = ['## Uncertainty budgets', '',
+         'Standard uncertainties (k = 1) by kind, each kind the quadrature sum of its components; the 95 % '
+         'intervals are the estimate +/- sqrt((q u_statistical)^2 + (2 u_systematic)^2) (q: the statistical '
+         'interval\'s own factor). Largest: the largest component.', '',
+         '| cause | parameter | estimate | ' + ' | '.join(kinds) + ' | combined | largest | 95 % interval |',
+         '|---' * (len(kinds) + 6) + '|']
+    for n, params in r.get('uncertainty_budget', {}).items():
+        c = r['candidates'][n]
+        for par, comps in params.items():
+            per = {k: 0.0 for k in kinds}
+            for comp, u in comps.items():
+                if comp in KIND and u is not None:
+                    per[KIND[comp]] += u * u
+            parts = [k for k in comps if k in KIND and comps[k] is not None]
+            big = max(parts, key=lambda k: comps[k]) if parts else '-'
+            lo, hi = c['parameters_ci95'][par]
+            L.append(f'| {n} | {par} | {_num(c["parameters"][par])} | '
+                     + ' | '.join(f'{v ** 0.5:.3g}' for v in per.values())
+                     + f' | {_num(comps.get(COMBINED))} | {big} | [{_num(lo)}, {_num(hi)}] |')
+    return L + ['']
 
 
 def run_lines(r) -> list:

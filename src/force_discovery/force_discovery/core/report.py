@@ -74,9 +74,12 @@ def candidates(analysis: Analysis, decision: Decision) -> dict:
 
 
 def entry(n: str, c: dict) -> dict:
-    """A candidate as listed in report.json: parameters, their 95 % intervals, the tolerance verdict."""
+    """A candidate as listed in report.json: parameters, their 95 % intervals (expanded: budget.py), the
+    uncertainty budget {parameter: {component: u}}, the tolerance verdict."""
     return {'name': n, 'parameters': {k: float(c['parameters'][k]) for k in CATALOG_PARAMS[n]},
             'parameters_ci95': {k: [float(v) for v in c['parameters_ci95'][k]] for k in CATALOG_PARAMS[n]},
+            'uncertainty_budget': {k: c['uncertainty_budget'][k] for k in CATALOG_PARAMS[n]
+                                   if k in c['uncertainty_budget']},
             'tolerance': c['tolerance']}
 
 
@@ -132,14 +135,17 @@ def build_report(analysis: Analysis, decision: Decision, errors: ForceErrors, le
         'significance_rule': (f'a candidate is named when, on the held-out pulls, removing it from the extended '
                               f'model raises the summed squared residual of its channel by >= '
                               f'{100 * MIN_REL_REDUCTION:g} % and the per-pull increases have t >= {MIN_T:g}, '
-                              f'AND its 95 % interval (jackknife or bootstrap over pulls) lies wholly outside '
+                              f'AND its 95 % interval (the pull-to-pull spread and the systematic parts of '
+                              f'its uncertainty_budget, expanded) lies wholly outside '
                               f'its tolerance band (rig tolerances:); inside the band it is within_tolerance, '
                               f'across an edge inconclusive; '
                               f'a mount mode must also lie below {MOUNT_MAX_FRACTION} x the cell mode; '
                               f'force-channel causes are withheld when a T^2 term removes > '
                               f'{100 * NONLIN_SHARE:g} % of the held-out force residual left by them'),
+        'uncertainty_budget': {n: c['uncertainty_budget'] for n, c in cand.items()},
         'candidates': {n: {'parameters': c['parameters'], 'parameters_ci95': c['parameters_ci95'],
-                           'tolerance': c['tolerance'], 'evidence': c['evidence'], 'channel': c['channel']}
+                           'uncertainty_budget': c['uncertainty_budget'], 'tolerance': c['tolerance'],
+                           'evidence': c['evidence'], 'channel': c['channel']}
                        for n, c in cand.items()},
         'leftover': left,
         'cell_damping': analysis.cells,

@@ -49,7 +49,28 @@ import numpy as np
 
 from force_tester_sim.core.departures import departures_from_data
 
-from .cells import CAL_PULLS, calibration_note, cell_calibration, cell_damping_from, cell_zeta, with_tension
+from .budget import (
+    clock_relative,
+    force_systematics,
+    force_variants,
+    friction_systematics,
+    friction_variants,
+    honest_all,
+    load_dependence,
+    load_groups,
+    rate_stat_u,
+    statistical_u,
+    variant_pulls,
+)
+from .cells import (
+    CAL_PULLS,
+    calibration_note,
+    cell_calibration,
+    cell_damping_from,
+    cell_frequency_from,
+    cell_mode,
+    with_tension,
+)
 from .decision import Decision, decide
 from .errors import DiscoveryError
 from .extension import named_extension
@@ -99,6 +120,7 @@ class Survey:
     info: Optional[PullInfo] = None
     friction: Optional[tuple] = None   # friction.friction_row
     spill: Optional[str] = None        # where the prepared pull was spilled
+    friction_variants: Optional[dict] = None   # budget.friction_variants: the row with each drive constant off
 
 
 @dataclass(frozen=True)
@@ -119,6 +141,8 @@ class StatsJob:
     dt: float                           # the campaign's sample interval (the first usable pull's)
     fcf: Optional[float] = None         # the friction force (held-out pulls with a current channel)
     mode: Optional[tuple] = None        # the observed free-decay mode (held-out pulls, when there is one)
+    variants: bool = False              # also the force statistics under budget.force_variants (a few fitted pulls)
+    fcal: Optional[tuple] = None        # ... with the measured cell frequency (cells.cell_frequency_from)
 
 
 @dataclass(frozen=True)
@@ -130,6 +154,7 @@ class PullStats:
     blocks: np.ndarray
     friction: Optional[tuple] = None    # (squared current residual without, with the friction)
     ring: Optional[RingPart] = None
+    variants: Optional[dict] = None     # budget variant name -> its force_blocks
 
 
 @dataclass(frozen=True)
@@ -188,8 +213,9 @@ def prepare_ref(ref: PullRef, rig):
     return q, sc, prepare(meta, ch, rig, q, sc)
 
 
-def load_pull(src: Source, rig, c1: Optional[float]) -> Pull:
-    """The prepared pull (from the spill when there is one), T with the cells' calibration c1 (None: the rig's)."""
+def load_pull(src: Source, rig, c1: Optional[tuple]) -> Pull:
+    """The prepared pull (from the spill when there is one), T with the cells' calibration c1 (cells.with_tension's
+    (K_LC1, c1); None: the rig's)."""
     p = _read_spill(src.spill) if src.spill is not None and os.path.exists(src.spill) else prepare_ref(src.ref, rig)[2]
     return with_tension(p, rig, c1)
 
@@ -208,13 +234,13 @@ def survey(item) -> Survey:
         return Survey(p.name, q, sc, excluded=why, info=info)
     if spill is not None:
         _write_spill(p, spill)
-    return Survey(p.name, q, sc, None, None, info, friction_row(p, rig), spill)
+    return Survey(p.name, q, sc, None, None, info, friction_row(p, rig), spill, friction_variants(p, rig))
 
 
-def cell_record(item) -> Optional[float]:
-    """Pass 1b: item = (Source, rig); cells.cell_zeta of the pull (its T does not matter)."""
+def cell_record(item) -> Optional[tuple]:
+    """Pass 1b: item = (Source, rig); cells.cell_mode of the pull (its T does not matter)."""
     src, rig = item
-    return cell_zeta(load_pull(src, rig, None), rig)
+    return cell_mode(load_pull(src, rig, None), rig)
 
 
 def hum_record(item) -> HumRecord:
@@ -235,7 +261,10 @@ def pull_stats(item) -> PullStats:
         friction = (friction_sse(p, rig, 0.0), friction_sse(p, rig, job.fcf))
     if job.held and job.mode is not None:
         ring = ring_part(p, job.dt, cell_modes(rig.force_chain), job.mode, keep=True)
-    return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring)
+    variants = None
+    if job.variants:
+        variants = {name: force_blocks(v, hum) for name, v in force_variants(p, rig, c1, job.fcal).items()}
+    return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring, variants)
 
 
 def held_out(item) -> HeldOut:
@@ -346,8 +375,10 @@ class Stream:
         fit, held = split(usable)
         held_set = set(held)
         notes = []
-        self.zetas = self._cell_zetas(names, held)
-        self.c1, cells = cell_calibration(cell_damping_from(self.zetas), rig)
+        modes_cell = self._cell_zetas(names, held)
+        self.zetas = [None if m is None else m[1] for m in modes_cell]
+        fcal = cell_frequency_from(modes_cell)
+        self.c1, cells = cell_calibration(cell_damping_from(self.zetas), rig, fcal)
         if calibration_note(cells):
             notes.append(calibration_note(cells))
         dt = usable[0].info.dt
@@ -372,8 +403,9 @@ class Stream:
                     st = dataclasses.replace(st, ring=dataclasses.replace(st.ring, segment=None))
                 kept.append(i)
             stats[i] = st
-        jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, mode if j in held_set else None)
-                for j in range(len(usable))]
+        vpulls = set(variant_pulls(fit))
+        jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, mode if j in held_set else None,
+                         j in vpulls, fcal) for j in range(len(usable))]
         self._strict('statistics', self._map('statistics', pull_stats,
                                              [(src, rig, self.c1, job) for src, job in zip(self.sources, jobs)], names,
                                              on_result=keep))
@@ -396,6 +428,9 @@ class Stream:
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
+        sys_ = systematics(cand, stats, fit, [s.quality.peak_n for s in usable], scales if significant else None, m2,
+                           modes, rows, [usable[j].friction_variants for j in fit], force['delay_s'])
+        cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
         run = {'failed': tuple(self.failed), 'retried': tuple(self.retried), 'scheduler': self.where}
@@ -403,7 +438,7 @@ class Stream:
                           excluded, cells, friction_sses, **run)
 
     def _cell_zetas(self, names, held) -> list:
-        """cells.cell_zeta of the usable pulls in order, as far as the calibrations need them: until CAL_PULLS
+        """cells.cell_mode of the usable pulls in order, as far as the calibrations need them: until CAL_PULLS
         were measured over all pulls and over the held-out ones (cell_damping_from takes the first CAL_PULLS), in
         batches of 2 CAL_PULLS pulls."""
         zetas, held = [], list(held)
@@ -487,6 +522,35 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
     finally:
         if spill is not None:
             shutil.rmtree(spill, ignore_errors=True)
+
+
+def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float) -> dict:
+    """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (budget.py) from pass 3's variant
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount) and the
+    friction rows."""
+    out: dict = {}
+    vidx = [j for j in fit if stats[j].variants is not None]
+    if vidx:
+        def sub(get):
+            return ForceStats([get(stats[j]) for j in vidx], [stats[j].dt for j in vidx], m2,
+                              None if scales is None else [scales[j] for j in vidx])
+        names = list(stats[vidx[0]].variants)
+        fs = force_systematics(sub(lambda st: st.blocks), {n: sub(lambda st, n=n: st.variants[n]) for n in names},
+                               range(len(vidx)), m2)
+        u_stat = {t: {p: (rate_stat_u(t, cand[t]) if t == 'ac_coupling' else statistical_u(t, cand[t], p))
+                      for p in cand[t].parameters} for t in TERMS}
+        all_blocks = ForceStats([st.blocks for st in stats], [st.dt for st in stats], m2, scales)
+        ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat, delay)
+        for t, params in fs.items():
+            for p, comps in params.items():
+                out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+    found = [m for m in modes if m is not None]
+    if 'mount_resonance' in cand and len(found) >= 2:
+        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in found], ddof=1))},
+                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
+    if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
+        out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, friction_stat)}
+    return out
 
 
 def _with_run(analysis: Analysis, st: Stream) -> Analysis:

@@ -1,4 +1,5 @@
-"""Uncertainty of fitted parameters from the pull-to-pull spread, and the practical-significance verdict.
+"""Uncertainty of fitted parameters from the pull-to-pull spread (the statistical part of each budget: budget.py adds
+the systematic parts and expands the interval), and the practical-significance verdict.
 
 - Pooled fits (the force model's gain, mass, delay, AC coupling) get a delete-one-pull jackknife over the
   fitted pulls: se^2 = (n - 1)/n sum (theta_(-k) - mean)^2, interval theta +/- t(0.975, n - 1) se.
@@ -8,8 +9,8 @@
 A cause is acted on only when it is statistically significant on held-out pulls AND its 95 % interval lies
 wholly outside its tolerance band (force_tester_sim.core.tolerances). Otherwise it is reported as
 `within_tolerance` (interval inside the band, significant or not), `inconclusive` (significant, interval
-straddles a band edge; with the number of pulls that would settle it, from the interval shrinking as
-1/sqrt(n)) or `not_significant`.
+straddles a band edge; with the number of pulls that would settle it, from the interval's statistical part
+shrinking as 1/sqrt(n), its systematic part not at all) or `not_significant`.
 """
 from __future__ import annotations
 
@@ -58,20 +59,27 @@ def bootstrap_ci(values: Sequence, statistic: Callable[[np.ndarray], float] = np
     return float(np.quantile(stats, a)), float(np.quantile(stats, 1 - a))
 
 
-def pulls_to_settle(estimate: float, ci: Tuple[float, float], band: Band, n: int) -> Optional[int]:
-    """Pulls needed for the interval (shrinking as 1/sqrt(n)) to clear the nearer band edge; None if never."""
+def pulls_to_settle(estimate: float, ci: Tuple[float, float], band: Band, n: int,
+                    fixed_half: float = 0.0) -> Optional[int]:
+    """Pulls needed for the interval to clear the nearer band edge; None if never. Of its half-width h, the part
+    fixed_half (the expanded systematic part, budget.py) does not shrink with more pulls; the statistical rest,
+    sqrt(h^2 - fixed_half^2), shrinks as 1/sqrt(n)."""
     lo, hi = ci
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return None
     half = 0.5 * (hi - lo)
     dist = band.distance(estimate)
-    if dist <= 0 or half <= 0:
+    stat = math.sqrt(max(0.0, half * half - fixed_half * fixed_half))
+    room = dist * dist - fixed_half * fixed_half
+    if dist <= 0 or stat <= 0 or room <= 0:
         return None
-    return int(math.ceil(n * (half / dist) ** 2))
+    return int(math.ceil(n * stat * stat / room))
 
 
-def verdict(estimate: float, ci: Tuple[float, float], band: Band, significant: bool, n: int) -> dict:
-    """The practical-significance verdict of one candidate (see the module doc)."""
+def verdict(estimate: float, ci: Tuple[float, float], band: Band, significant: bool, n: int,
+            fixed_half: float = 0.0) -> dict:
+    """The practical-significance verdict of one candidate (see the module doc); fixed_half: the part of the
+    interval's half-width that more pulls do not shrink (pulls_to_settle)."""
     lo, hi = ci
     out = {'band': band.as_dict(), 'estimate': float(estimate), 'ci95': [float(lo), float(hi)], 'pulls': int(n)}
     if band.contains(lo, hi):
@@ -82,5 +90,5 @@ def verdict(estimate: float, ci: Tuple[float, float], band: Band, significant: b
         out['verdict'] = NAMED
     else:
         out['verdict'] = INCONCLUSIVE
-        out['pulls_to_settle'] = pulls_to_settle(estimate, ci, band, n)
+        out['pulls_to_settle'] = pulls_to_settle(estimate, ci, band, n, fixed_half)
     return out

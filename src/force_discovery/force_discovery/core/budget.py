@@ -1,0 +1,280 @@
+"""Uncertainty budgets (issue 25): every reported parameter's combined standard uncertainty, the statistical part
+(the pull-to-pull spread, uncertainty.py) and the systematic parts, each estimated and listed. ROS-free.
+
+Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KIND):
+- statistical: the 95 % interval of the pull-to-pull spread (jackknife or bootstrap) over its coverage factor.
+- nominal constants: the force model is refitted, on up to VARIANT_PULLS of the fitted pulls, with T computed from
+  m1 (or the cells' stiffness) one standard uncertainty (rig.uncertainty) off; the friction force with each drive
+  constant one standard uncertainty off. The change is the component (a sensitivity coefficient times u). When the
+  stationary cell's free decay measured its natural frequency on m1 (cells.py), T depends on m1 and K_LC1 only
+  through it: the stiffness's u is then the measurement's (cell_stiffness_u) and m1's change is zero.
+- model form: the same refits under plausible variants of the model of record: the cells' damping one standard
+  uncertainty off (the rig's, or when the free decay measured it, the measurement's: cell_damping_u), a 4th-order
+  Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
+  later, 50 ms earlier).
+- DAQ: the sample clock's relative uncertainty (rig daq.sample_rate_hz) on every time or frequency parameter.
+  The samples' resolution and noise act pull to pull: they are in the statistical part.
+- definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
+  pulls grouped by load (GROUPS groups by stationary peak); the spread of the groups beyond what their statistics
+  explain is the component. A mode's frequency and damping move with the load: their pull-to-pull standard
+  deviation.
+
+The expanded uncertainty is U = sqrt((q u_stat)^2 + (COVERAGE_K u_sys)^2): q is the statistical interval's own
+factor (Student's t over the fitted pulls, or 1.96 for a bootstrap), so with no systematic part the interval is the
+old one, and COVERAGE_K = 2 (a calibration certificate's k = 2, about 95 %) on the systematic parts, whose
+distributions are not known. `parameters_ci95` becomes estimate +/- U.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Dict, Mapping, Optional, Sequence
+
+import numpy as np
+
+from .candidate import Candidate
+from .force_model import TERMS, force_params
+from .friction import friction_row
+from .prep import Pull, tension_from_stationary
+from .uncertainty import CONFIDENCE, t_quantile
+
+COVERAGE_K = 2.0
+VARIANT_PULLS = 3        # fitted pulls (spread over the campaign) the model-form and constant refits use
+GROUPS = 3               # load groups of the fitted pulls for the definition component
+ANTI_ALIAS_FRACTION = 0.4   # the variant's anti-alias corner, as a fraction of the sample rate
+WINDOW_LATER_S, WINDOW_EARLIER_S = 0.025, 0.05   # the shorter analysis window's start and end moved in
+
+STATISTICAL, COMBINED = 'statistical', 'combined'
+#: component -> its kind (report.md groups the budget table by kind)
+KIND = {STATISTICAL: 'statistical',
+        'm1': 'nominal constant', 'cell_stiffness': 'nominal constant',
+        'torque_constant': 'nominal constant', 'pulley_radius': 'nominal constant',
+        'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
+        'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
+        'cell_damping': 'model form', 'anti_alias_filter': 'model form', 'analysis_window': 'model form',
+        'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
+FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window')
+DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
+                  'actuator_inertia': 'actuator_inertia_kg_m2', 'motor_inertia': 'motor_inertia_kg_m2',
+                  'viscous_damping_motor': 'viscous_damping_motor_n_s_per_m',
+                  'viscous_damping_actuator': 'viscous_damping_actuator_n_s_per_m'}
+TIME_PARAMETERS = {('accel_delay', 'delay_s'), ('ac_coupling', 'time_constant_s'),
+                   ('mains_hum', 'frequency_hz'), ('mount_resonance', 'frequency_hz')}
+
+
+def variant_pulls(fit: Sequence[int]) -> list:
+    """The fitted pulls (list positions) the refits use: up to VARIANT_PULLS, spread evenly."""
+    fit = list(fit)
+    if len(fit) <= VARIANT_PULLS:
+        return fit
+    return [fit[int(round(i * (len(fit) - 1) / (VARIANT_PULLS - 1)))] for i in range(VARIANT_PULLS)]
+
+
+def _butter(x: np.ndarray, sos) -> np.ndarray:
+    from scipy.signal import sosfilt
+    return sosfilt(sos, x - x[0]) + x[0]      # settled on the first sample
+
+
+def cell_damping_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
+    """The relative standard uncertainty of the cells' damping T uses. Without a measured free decay: the rig's.
+    With one (cells.cell_frequency_from: ..., median damping ratio, its sd), the measurement's standard error and
+    the difference between the ratio T uses and the measured one (when it stayed below the calibration's gate)."""
+    fc = rig.force_chain
+    if fcal is None:
+        return rig.uncertainty.relative('force_chain.load_cell_damping_ratio', fc.load_cell_damping_ratio)
+    _f, _sd, n, z, sd_z = fcal
+    k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
+    z_used = c1 / (2.0 * math.sqrt(k1 * fc.m1))
+    return math.sqrt((z_used / z - 1.0) ** 2 + (sd_z / math.sqrt(n) / z) ** 2)
+
+
+def cell_stiffness_u(rig, cal: Optional[tuple], fcal: Optional[tuple]) -> float:
+    """The standard uncertainty of the stiffness T uses. Without a measured cell frequency: the rig's. With one
+    (cells.cell_frequency_from: median f, sd, n), T depends on the cell only through K_LC1 / m1 = (2 pi f)^2 and the
+    damping ratio, so K_LC1's relative u is twice f's: the measurement's standard error, the sample clock, and the
+    difference between the frequency T uses and the measured one (when it stayed below the calibration's gate)."""
+    fc = rig.force_chain
+    k1 = fc.load_cell_stiffness_n_per_m if cal is None else cal[0]
+    if fcal is None:
+        return rig.uncertainty.u('force_chain.load_cell_stiffness_n_per_m') * k1 / fc.load_cell_stiffness_n_per_m
+    f, sd, n, _z, _sd_z = fcal
+    f_used = math.sqrt(k1 / fc.m1) / (2 * math.pi)
+    rel = math.sqrt((sd / math.sqrt(n) / f) ** 2 + clock_relative(rig) ** 2 + (f_used / f - 1.0) ** 2)
+    return 2.0 * rel * k1
+
+
+def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = None) -> Dict[str, Pull]:
+    """The pull under each FORCE_VARIANTS variant. cal: the cells' (K_LC1, c1) T uses (cells.cell_calibration;
+    None: the rig's); fcal: the measured cell frequency (cells.cell_frequency_from), when there is one: then m1 moving
+    with K_LC1 / m1 held leaves T as it is (it depends on m1 only through the measured frequency): the pull itself."""
+    from scipy.signal import butter
+    fc, u = rig.force_chain, rig.uncertainty
+    m1 = fc.m1
+    k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
+    um1 = u.u('force_chain.stationary_side_mass_kg')
+    uk1 = cell_stiffness_u(rig, cal, fcal)
+    rz = cell_damping_u(rig, cal, fcal)
+
+    def tension(m, k, c):
+        return dataclasses.replace(p, T=tension_from_stationary(p.fs, p.dt, m, k, c))
+    r = (m1 + um1) / m1
+    out = {'m1': p if fcal is not None else tension(m1 + um1, k1, c1 * math.sqrt(r)),   # the damping ratio held
+           'cell_stiffness': tension(m1, k1 + uk1, c1 * math.sqrt((k1 + uk1) / k1)),
+           'cell_damping': tension(m1, k1, c1 * (1.0 + rz))}
+    sos = butter(4, ANTI_ALIAS_FRACTION / p.dt, fs=1.0 / p.dt, output='sos')
+    out['anti_alias_filter'] = dataclasses.replace(p, fm=_butter(p.fm, sos), T=_butter(p.T, sos),
+                                                   a2=_butter(p.a2, sos))
+    w0 = min(p.w0 + int(round(WINDOW_LATER_S / p.dt)), p.load0)
+    w1 = max(p.w1 - int(round(WINDOW_EARLIER_S / p.dt)), p.brk + 1)
+    out['analysis_window'] = dataclasses.replace(p, w0=w0, w1=w1)
+    return out
+
+
+def friction_variants(p: Pull, rig) -> Optional[Dict[str, tuple]]:
+    """friction_row() of the pull with each drive constant one standard uncertainty off (None: no current)."""
+    if p.current is None:
+        return None
+    out = {}
+    for name, key in DRIVE_VARIANTS.items():
+        v = getattr(rig.drive, key)
+        d = dataclasses.replace(rig.drive, **{key: v + rig.uncertainty.u(f'drive.{key}')})
+        out[name] = friction_row(p, dataclasses.replace(rig, drive=d))
+    return out
+
+
+def _param_table(coef: dict, d: float, m2: float) -> Dict[str, Dict[str, float]]:
+    """force_params, with the AC coupling as its rate k (1/tau, finite for any sign)."""
+    out = force_params(coef, d, m2)
+    if 'k' in coef:
+        out['ac_coupling'] = {'time_constant_s': float(coef['k'])}
+    return out
+
+
+def force_systematics(fm_nominal, fm_variants: Mapping[str, object], idx: Sequence[int], m2: float) -> dict:
+    """{term: {parameter: {component: change}}} of the full force model refitted (delay searched) on the pulls idx
+    of each variant ForceStats against the nominal one's; for ac_coupling the change in the rate 1/tau over the
+    rate_scale of the nominal fit's tau (its unit)."""
+    full = set(TERMS)
+    c0, _, d0 = fm_nominal.fit_delay(full, idx)
+    p0 = _param_table(c0, d0, m2)
+    out: dict = {}
+    for name, fm_v in fm_variants.items():
+        c, _, d = fm_v.fit_delay(full, idx)
+        pv = _param_table(c, d, m2)
+        for term, params in p0.items():
+            for par, v in params.items():
+                scale = rate_scale(1.0 / v if v > 0 else math.inf) if term == 'ac_coupling' else 1.0
+                out.setdefault(term, {}).setdefault(par, {})[name] = abs(pv[term][par] - v) / scale
+    return out
+
+
+def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
+    """The fitted pulls in GROUPS groups by their stationary peak (fewer groups when there are few pulls; each
+    group at least 2 pulls)."""
+    order = sorted(fit, key=lambda j: peaks[j])
+    g = min(GROUPS, len(order) // 2)
+    if g < 2:
+        return []
+    return [list(a) for a in np.array_split(np.array(order), g)]
+
+
+def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dict, d: float) -> dict:
+    """{term: {parameter: u}}: the spread of the force model fitted on each load group, beyond the statistical
+    spread of groups that size (u_stat: {term: {parameter: the pooled statistical u}}; tau's in its rate; the
+    result in the parameter's unit). The delay is searched per group for its own spread; the other terms are fitted
+    at the campaign's delay d (a delay's noise in a small group is not a load dependence of the gain)."""
+    if len(groups) < 2:
+        return {}
+    per = []
+    for gr in groups:
+        c, _ = fm_.fit(set(TERMS), list(gr), d)
+        _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
+        per.append(_param_table(c, dg, m2))
+    out: dict = {}
+    for term, params in per[0].items():
+        for par in params:
+            vals = np.array([p[term][par] for p in per])
+            s2 = float(np.var(vals, ddof=1))
+            us = u_stat.get(term, {}).get(par, 0.0)
+            k0 = float(np.mean(vals))
+            scale = rate_scale(1.0 / k0 if k0 > 0 else math.inf) if term == 'ac_coupling' else 1.0
+            out.setdefault(term, {})[par] = math.sqrt(max(0.0, s2 - len(groups) * us ** 2)) / scale
+    return out
+
+
+def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]], stat) -> dict:
+    """{component: change of the friction statistic} with each drive constant off (rows: the fitted pulls'
+    friction_row()s; rows_v: their friction_variants(); stat: friction.friction_stat)."""
+    f0 = stat(rows)
+    return {name: abs(stat(np.array([r[name] for r in rows_v])) - f0) for name in DRIVE_VARIANTS}
+
+
+def statistical_u(name: str, c: Candidate, par: str) -> float:
+    """The statistical standard uncertainty behind a candidate's interval (inf when it has none)."""
+    lo, hi = c.parameters_ci95[par]
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return math.inf
+    return 0.5 * (hi - lo) / stat_factor(name, c)
+
+
+def stat_factor(name: str, c: Candidate) -> float:
+    """The statistical interval's coverage factor: Student's t over the fitted pulls (jackknife), 1.96 (bootstrap)."""
+    from scipy.stats import norm
+    return t_quantile(c.ci_pulls) if name in TERMS else float(norm.ppf(0.5 + CONFIDENCE / 2))
+
+
+def rate_stat_u(name: str, c: Candidate) -> float:
+    """The AC coupling's statistical u in its rate 1/tau (the interval is the rate's, inverted)."""
+    lo, hi = c.parameters_ci95['time_constant_s']
+    k_hi = 1.0 / lo if lo > 0 else math.inf
+    k_lo = 1.0 / hi if (hi > 0 and math.isfinite(hi)) else 0.0
+    return 0.5 * (k_hi - k_lo) / stat_factor(name, c) if math.isfinite(k_hi) else math.inf
+
+
+def rate_scale(tau: float) -> float:
+    """d(1/tau)/d(tau) in magnitude, 1/tau^2 (1 where tau is not a finite positive time: the rate's own unit)."""
+    return 1.0 / (tau * tau) if (tau > 0 and math.isfinite(tau)) else 1.0
+
+
+def honest(name: str, c: Candidate, systematic: Mapping[str, Mapping[str, float]], clock_rel: float) -> Candidate:
+    """The candidate with every parameter's budget and the expanded interval (module doc). systematic:
+    {parameter: {component: u}} in the parameter's unit; clock_rel: the sample clock's relative u. The AC coupling's
+    interval is made in its rate k = 1/tau (u(k) = u(tau) / tau^2) and inverted, as its statistical one is."""
+    budget, ci = {}, {}
+    for par, est in c.parameters.items():
+        sys_ = dict(systematic.get(par, {}))
+        if (name, par) in TIME_PARAMETERS and clock_rel > 0:
+            sys_['sample_clock'] = clock_rel * abs(est) if math.isfinite(est) else 0.0
+        rate = name == 'ac_coupling'
+        s = rate_scale(est) if rate else 1.0
+        u_stat = rate_stat_u(name, c) / s if rate else statistical_u(name, c, par)
+        u_sys = math.sqrt(sum(v * v for v in sys_.values()))
+        U = math.sqrt((stat_factor(name, c) * u_stat) ** 2 + (COVERAGE_K * u_sys) ** 2) * s
+        lo, hi = c.parameters_ci95[par]
+        if math.isfinite(U):
+            if rate:
+                k = 1.0 / est if (est > 0 and math.isfinite(est)) else 0.0
+                lo = 1.0 / (k + U) if k + U > 0 else math.inf
+                hi = 1.0 / (k - U) if k - U > 0 else math.inf
+            else:
+                lo, hi = est - U, est + U
+        comps = {STATISTICAL: u_stat, **sys_}
+        comps[COMBINED] = math.sqrt(sum(v * v for v in comps.values()))
+        budget[par] = comps
+        ci[par] = [float(lo), float(hi)]
+    return dataclasses.replace(c, parameters_ci95=ci, uncertainty_budget=budget)
+
+
+def honest_all(cand: Mapping[str, Candidate], systematic: Mapping[str, Mapping], clock_rel: float) -> dict:
+    """honest() of every candidate (systematic: {name: {parameter: {component: u}}})."""
+    return {n: honest(n, c, systematic.get(n, {}), clock_rel) for n, c in cand.items()}
+
+
+def clock_relative(rig) -> float:
+    """The sample clock's relative standard uncertainty."""
+    return rig.uncertainty.relative('daq.sample_rate_hz', rig.daq.sample_rate_hz)
+
+
+__all__ = ['COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative',
+           'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all',
+           'load_dependence', 'load_groups', 'rate_scale', 'rate_stat_u', 'statistical_u', 'variant_pulls']
