@@ -52,3 +52,13 @@ def peak_inputs(rig, extension_file: str | Path | None = None) -> PeakInputs:
         if 'accel_delay_s' in stated:
             out['accel_delay_s'] = float(stated['accel_delay_s'])
     return PeakInputs(**out)
+
+
+def validator_params(extension_file: str | Path | None = None, rig_file: str | Path | None = None) -> dict:
+    """The validator node's peak_u_* parameters: peak_inputs of the rig the correction assumes (the nominal rig
+    unless ``rig_file``) and its extension."""
+    from dataclasses import asdict
+
+    from force_tester_sim.core.params import NOMINAL_YAML, load_rig
+    inputs = peak_inputs(load_rig(rig_file or NOMINAL_YAML), extension_file)
+    return {f'peak_u_{k}': float(v) for k, v in asdict(inputs).items()}

@@ -11,32 +11,36 @@ from dataclasses import replace
 
 import numpy as np
 
-from force_tester_common.core.clock import sample_stamps_ns
+from force_tester_common.core.clock import NS_PER_S, sample_stamps_ns
 
 from ..core.errors import CorrectionError
 from ..core.scoring import SetStatistics, score_pull
 from .result import PullRecord
 
-SCORED = ('stationary', 'raw', 'corrected', 'filtered')
+SCORED = ('stationary', 'raw', 'corrected', 'filtered', 'inertial')
 
 
 class PullScorer:
     """Scores windows over pieces {'t', 'stationary', 'raw', 'corrected', 'filtered'} fed in time
     order; ``drops`` are the stamps of blocks lost upstream (counted into their pull)."""
 
-    def __init__(self, windows: list, drops: list, loaded_fraction: float) -> None:
+    def __init__(self, windows: list, drops: list, loaded_fraction: float, peak_inputs=None) -> None:
         self.windows = list(windows)
         by_start = sorted(range(len(self.windows)), key=lambda i: self.windows[i][:2])
         self.open = {i: [] for i in by_start}  # stays in start order
         self.outcome: dict = {}
         self.drops = np.array(sorted(drops), dtype=np.int64)
         self.loaded_fraction = loaded_fraction
+        self.peak_inputs = peak_inputs
+        self.rate_hz = None   # from the sample stamps, for the peak's uncertainty
 
     def add(self, piece: dict) -> None:
         t = piece['t']
         if not t.size:
             return
         last, latest = int(t[-1]), int(t.max())
+        if self.rate_hz is None and t.size > 1 and last > int(t[0]):
+            self.rate_hz = (t.size - 1) * NS_PER_S / (last - int(t[0]))
         for i in list(self.open):
             start, end = self.windows[i][:2]
             if start > latest:  # this and the later windows have no samples here
@@ -56,7 +60,9 @@ class PullScorer:
         arrays = [np.concatenate([p[k] for p in parts]) if len(parts) > 1 else parts[0][k]
                   for k in SCORED]
         try:
-            self.outcome[i] = score_pull(*arrays, loaded_fraction=self.loaded_fraction)
+            *scored, inertial = arrays
+            self.outcome[i] = score_pull(*scored, loaded_fraction=self.loaded_fraction, inertial=inertial,
+                                         sample_rate_hz=self.rate_hz, peak_inputs=self.peak_inputs)
         except CorrectionError as exc:
             self.outcome[i] = f'pull {pull_id} (set {set_id}) not scored: {exc}'
 

@@ -29,8 +29,8 @@ class CorrectionStream:
     ``keep`` or while the pull windows are unknown."""
 
     def __init__(self, params: CorrectionParams, extension: Extension | None,
-                 loaded_fraction: float, keep: bool = True) -> None:
-        self.params, self.extension = params, extension
+                 loaded_fraction: float, keep: bool = True, peak_inputs=None) -> None:
+        self.params, self.extension, self.peak_inputs = params, extension, peak_inputs
         self.loaded_fraction, self.keep = loaded_fraction, keep
         self.parts: dict = {k: [] for k in PIECE_KEYS}
         self.nan_count = 0
@@ -42,7 +42,7 @@ class CorrectionStream:
         self._prefilter = None
 
     def windows_known(self, windows: list, drops: list) -> None:
-        self.scorer = PullScorer(windows, drops, self.loaded_fraction)
+        self.scorer = PullScorer(windows, drops, self.loaded_fraction, self.peak_inputs)
 
     def write_to(self, sink: Sink) -> None:
         self.sink = sink

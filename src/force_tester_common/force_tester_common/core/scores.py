@@ -7,7 +7,8 @@ core's SetSummary fields (``SET_SUMMARY_FIELDS``: message field -> core attribut
 
 PULL_SCORE_FIELDS = ('stationary_peak_n', 'raw_peak_n', 'corrected_peak_n', 'filtered_peak_n',
                      'raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct',
-                     'raw_rms_n', 'corrected_rms_n', 'filtered_rms_n')
+                     'raw_rms_n', 'corrected_rms_n', 'filtered_rms_n',
+                     'corrected_peak_u_n', 'filtered_peak_u_n', 'coverage_factor')
 
 SET_SUMMARY_FIELDS = {
     'pulls': 'pulls',
