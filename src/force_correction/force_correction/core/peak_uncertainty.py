@@ -14,7 +14,9 @@ P = max_t c(t) is what a test engineer reports. What P inherits (``PeakInputs``,
   M draws of (m, g, S, d) and white noise of the measured sigma, the peak of each drawn c(t) near t_pk, and u
   the draws' standard deviation (the linear terms come out the same in it, so one MC gives the total);
 - the noise: sigma of c over the pull's quiet lead-in (differences of neighbouring samples, so a slow drift does
-  not count), added to each draw's samples (the max of a noisy plateau picks its highest noise sample).
+  not count), added to each draw's samples; and since the max of a noisy plateau picks its highest noise sample
+  (a one-sided bias the draws' spread does not show), sigma sqrt(2 ln n) is added to k u, n the samples within
+  3 sigma of the peak.
 
 The moving average (eq 25) cuts a short peak: the filtered peak sits below the corrected one by
 ``ma_cut_n = P - max(filtered)``, measured on the pull itself. The filtered peak's expanded uncertainty is
@@ -163,7 +165,12 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
         drawn = drawn + sigma * rng.standard_normal(drawn.shape)
     peaks = np.nanmax(np.where(ok[None, :], drawn, np.nan), axis=1)
     u = float(np.std(peaks, ddof=1)) if draws > 1 else 0.0
-    big = k * u
+    # the max of a noisy plateau is its highest noise sample: a one-sided bias the draws' spread does not show.
+    # Its size: sigma times the expected max of n standard normals (~ sqrt(2 ln n)), n the samples within 3 sigma
+    # of the peak; added to k u linearly (JCGM 100 F.2.4.5: an uncorrected known bias widens the interval)
+    near = int(np.count_nonzero(ok & (c[lo:hi] >= peak - 3.0 * sigma))) if sigma > 0 else 1
+    bias = sigma * math.sqrt(2.0 * math.log(near)) if near > 1 else 0.0
+    big = k * u + bias
     fpk = float(np.nanmax(fl)) if np.isfinite(fl).any() else math.nan
     cut = peak - fpk
     return PeakUncertainty(peak_n=peak, u_n=u, expanded_n=big, k=float(k), components=components, ma_cut_n=cut,
