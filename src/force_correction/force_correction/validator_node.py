@@ -92,6 +92,8 @@ SPECS = [
     ParamSpec('state_file', '', 'JSON-lines file the scores are appended to; a restarted validator republishes '
                                 'them and its set summaries go on from them ("" = keep nothing; a relative path '
                                 'is under $ROS_HOME, default ~/.ros)', read_only=True),
+    ParamSpec('peak_uncertainty', True, 'give each corrected peak its expanded uncertainty (k = 2; false: the '
+                                        'score without it, NaN, as before; ./ft bench rigs --peak-u compares)'),
     *(ParamSpec(f'peak_u_{k}', 0.0, f'standard uncertainty (k = 1) of {what}, for the expanded uncertainty of '
                                      'each corrected peak (0 = not stated; `./ft demo` passes the rig YAML\'s)',
                 rng) for k, what, rng in (
@@ -112,11 +114,12 @@ def check(values: dict) -> dict:
     return values
 
 
-def add_pair(acc: PullAccumulator, pair) -> None:
+def add_pair(acc: PullAccumulator, pair, inertial: bool = True) -> None:
+    """One aligned pair into its pull; ``inertial``: keep m*a too (for the peak's uncertainty)."""
     corrected, force = pair['corrected'], pair['force']
     acc.add_block(pair.stamp_ns, pair.sample_rate_hz, to_array(force.stationary_n),
                   to_array(corrected.raw_n), to_array(corrected.corrected_n), to_array(corrected.filtered_n),
-                  inertial=to_array(corrected.inertial_n))
+                  inertial=to_array(corrected.inertial_n) if inertial else None)
 
 
 class ValidatorNode(Node):
@@ -128,7 +131,9 @@ class ValidatorNode(Node):
         self.correction_node = name if name.startswith('/') else f"{self.get_namespace().rstrip('/')}/{name}"
         self.aligner = BlockAligner(('corrected', 'force'), max_pending=self.params.values['max_pending'],
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
-        self.tracker = PullTracker(add_pair, abort_timeout_s=self.params.values['abort_timeout_s'])
+        self.tracker = PullTracker(
+            lambda acc, pair: add_pair(acc, pair, self.params.values['peak_uncertainty']),
+            abort_timeout_s=self.params.values['abort_timeout_s'])
         self.stats = SetStatistics()
         self.counts = {'scores': 0, 'bad_messages': 0, 'runs': 0, 'aborted': 0}
         self._source_restarted = False   # a /force new run whose /force_corrected new run is still to come

@@ -211,7 +211,9 @@ class PullAccumulator:
     def score(self, loaded_fraction: float = LOADED_FRACTION, peak_inputs: PeakInputs | None = None
               ) -> PullScoreResult:
         a = self.arrays()
-        known = np.isfinite(a['inertial']).any()
+        # m*a known for every sample the corrected force has (not for a pull begun without it)
+        fin = np.isfinite(a['inertial'])
+        known = bool(fin.any()) and np.array_equal(fin, np.isfinite(a['corrected']))
         res = score_pull(a['stationary'], a['raw'], a['corrected'], a['filtered'], loaded_fraction=loaded_fraction,
                          inertial=a['inertial'] if known else None,
                          sample_rate_hz=self.sample_rate_hz if known else None, peak_inputs=peak_inputs)
