@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -45,6 +45,15 @@ class PullScoreResult:
     corrected_peak_u_n: float = math.nan
     filtered_peak_u_n: float = math.nan
     coverage_factor: float = math.nan
+
+    def __eq__(self, other):
+        """Field by field, NaN equal to NaN (a score equals its round trip through the score log)."""
+        if not isinstance(other, PullScoreResult):
+            return NotImplemented
+        return all(a == b or (a != a and b != b) for a, b in
+                   ((getattr(self, f.name), getattr(other, f.name)) for f in fields(self)))
+
+    __hash__ = None
 
 
 def _arr(x, name: str) -> np.ndarray:
