@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from force_tester_common.core.clock import NS_PER_S, sample_stamps_ns
+from force_tester_common.core.clock import sample_stamps_ns
 
 from ..core.errors import CorrectionError
 from ..core.scoring import SetStatistics, score_pull
@@ -32,22 +32,21 @@ class PullScorer:
         self.drops = np.array(sorted(drops), dtype=np.int64)
         self.loaded_fraction = loaded_fraction
         self.peak_inputs = peak_inputs
-        self.rate_hz = None   # from the sample stamps, for the peak's uncertainty
+        self.rate_hz = None   # the blocks' sample rate (the stream sets it), for the peak's uncertainty
 
     def add(self, piece: dict) -> None:
         t = piece['t']
         if not t.size:
             return
         last, latest = int(t[-1]), int(t.max())
-        if self.rate_hz is None and t.size > 1 and last > int(t[0]):
-            self.rate_hz = (t.size - 1) * NS_PER_S / (last - int(t[0]))
         for i in list(self.open):
             start, end = self.windows[i][:2]
             if start > latest:  # this and the later windows have no samples here
                 break
             lo, hi = t.searchsorted([start, end])
             if hi > lo:
-                self.open[i].append({k: piece[k][lo:hi] for k in SCORED})
+                self.open[i].append({k: piece[k][lo:hi] if k in piece else np.full(hi - lo, np.nan)
+                                     for k in SCORED})   # a piece without m*a: the peak's U unknown
             if last >= end:
                 self._score(i)
 
@@ -61,7 +60,9 @@ class PullScorer:
                   for k in SCORED]
         try:
             *scored, inertial = arrays
-            self.outcome[i] = score_pull(*scored, loaded_fraction=self.loaded_fraction, inertial=inertial,
+            known = bool(np.isfinite(inertial).any())
+            self.outcome[i] = score_pull(*scored, loaded_fraction=self.loaded_fraction,
+                                         inertial=inertial if known else None,
                                          sample_rate_hz=self.rate_hz, peak_inputs=self.peak_inputs)
         except CorrectionError as exc:
             self.outcome[i] = f'pull {pull_id} (set {set_id}) not scored: {exc}'

@@ -40,6 +40,7 @@ class CorrectionStream:
         self.seq = 0
         self._state = None
         self._prefilter = None
+        self.rate_hz = None
 
     def windows_known(self, windows: list, drops: list) -> None:
         self.scorer = PullScorer(windows, drops, self.loaded_fraction, self.peak_inputs)
@@ -64,7 +65,9 @@ class CorrectionStream:
         self.nan_count += out.nan_count
         piece = dict(zip(PIECE_KEYS, (stamps, stationary, measured, out.inertial_n,
                                       out.corrected_n, out.filtered_n)))
+        self.rate_hz = rate_hz   # the peak's uncertainty takes the blocks' rate, as the validator does
         if self.scorer is not None:
+            self.scorer.rate_hz = rate_hz
             self.scorer.add(piece)
         if self.sink is not None:
             self.sink(piece, blocks, frame, self.seq)
@@ -85,6 +88,7 @@ class CorrectionStream:
         windows were known first, else from the kept arrays."""
         if self.scorer is None:
             self.windows_known(windows, drops)
+            self.scorer.rate_hz = self.rate_hz
             self.scorer.add(self.arrays())
         return self.scorer.finish()
 

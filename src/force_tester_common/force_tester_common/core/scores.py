@@ -39,3 +39,13 @@ def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
     else:
         code = PULL_OK
     return code, '; '.join(texts)
+
+
+def peak_text(peak_lbf: float, u_lbf: float, k: float) -> str:
+    """A corrected peak as a test engineer reports it: '750.0 lbf +/- 6.0 lbf (k = 2)' (the peak alone while U
+    is not known, '-' while the peak is not)."""
+    if peak_lbf != peak_lbf:
+        return '-'
+    if u_lbf != u_lbf:
+        return f'{peak_lbf:.1f} lbf'
+    return f'{peak_lbf:.1f} lbf +/- {u_lbf:.1f} lbf (k = {k:g})'
