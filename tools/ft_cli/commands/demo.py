@@ -89,8 +89,8 @@ def format_table(scores: list) -> str:
                     + (f" {mean('corrected_peak_u_n', ext_group) / LBF_N:>7.1f}" if ext else ''))
     dropped = sum(sc['dropped_blocks'] for sc in scores)
     rows.append(f'% difference is thesis eq 1 at the peaks: |F_stat - F| / F_stat; dropped blocks: {dropped}')
-    rows.append('U: the expanded uncertainty (k = 2) of the corrected peak (mean over the pulls): the m*a peak is '
-                'P +/- U, e.g. P = 750 lbf, U = 6 lbf reads 750 lbf +/- 6 lbf (k = 2)')
+    rows.append('U m*a' + (', U ext' if ext else '') + ': the expanded uncertainty (k = 2) of that corrected peak, '
+                'mean over the pulls: peak +/- U')
     return '\n'.join(rows)
 
 
