@@ -30,7 +30,7 @@ def test_linear_terms_match_the_monte_carlo():
     pu = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, inputs, draws=4000)
     lin = math.hypot(*(u for _, u in pu.components))
     assert pu.u_n == pytest.approx(lin, rel=0.1)   # the max moves a little with the ringing m a: MC >= linear
-    assert pu.expanded_n == pytest.approx(2 * pu.u_n)
+    assert pu.expanded_n == pytest.approx(2 * pu.u_n, rel=0.02)   # k u, plus a noise bias near 0 here
     i = int(np.argmax(out.corrected_n))   # sensitivity coefficients at the corrected peak
     assert dict(pu.components)['gain'] == pytest.approx(0.005 * (out.corrected_n[i] + out.inertial_n[i]))
     assert dict(pu.components)['mass'] == pytest.approx(0.01 * abs(out.inertial_n[i]))

@@ -43,10 +43,12 @@ COVERAGE_FACTOR = 2.0
 MC_DRAWS = 400
 #: half-width of the window around the peak the draws search (s): far wider than any delay drawn
 PEAK_WINDOW_S = 1.0e-3
-#: the quiet lead-in: the samples before |c| first exceeds this share of the peak, at most QUIET_MAX_S of them
+#: the quiet lead-in: the last QUIET_MAX_S of samples before |c| first exceeds this share of the peak
 QUIET_FRACTION = 0.05
 QUIET_MAX_S = 0.1
 
+#: the draws' seed: the same signals around the peak give the same U, wherever the pull's samples begin
+MC_SEED = 0x0E
 INPUT_NAMES = ('mass_rel', 'gain_rel', 'accel_sensitivity_rel', 'accel_delay_s')
 
 
@@ -101,8 +103,8 @@ def quiet_noise(corrected: np.ndarray, sample_rate_hz: float) -> float:
         return math.nan
     pk = float(np.max(np.abs(c[fin])))
     loud = np.flatnonzero(fin & (np.abs(c) > QUIET_FRACTION * pk))
-    end = min(int(loud[0]) if len(loud) else len(c), int(QUIET_MAX_S * sample_rate_hz))
-    q = c[:end]
+    end = int(loud[0]) if len(loud) else len(c)
+    q = c[max(0, end - int(QUIET_MAX_S * sample_rate_hz)):end]   # just before the load: not where the pull began
     d = np.diff(q[np.isfinite(q)])
     return float(np.std(d) / math.sqrt(2.0)) if len(d) >= 8 else math.nan
 
@@ -112,8 +114,8 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
     """The corrected peak of one pull and its expanded uncertainty (module docstring).
 
     corrected, inertial, filtered: the pull's c = F - m a, m a, and the moving average of c (N, equal lengths,
-    NaN allowed); the force the correction used is c + m a. Deterministic: the draws are seeded by the pull's
-    own peak sample, so the same pull gives the same U.
+    NaN allowed); the force the correction used is c + m a. Deterministic (MC_SEED), and independent of where
+    the pull's samples begin: the same pull scored live, replayed or offline gives the same U.
     """
     if not isinstance(inputs, PeakInputs):
         raise CorrectionError(f'inputs {inputs!r} is not a PeakInputs; expected PeakInputs(...)')
@@ -150,7 +152,7 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
     idx = np.arange(lo, hi)
     f_w, ma_w = force[lo:hi], ma[lo:hi]
     ok = np.isfinite(f_w) & np.isfinite(ma_w)
-    rng = np.random.default_rng([i, n, 0x0E])
+    rng = np.random.default_rng(MC_SEED)
     z = rng.standard_normal((4, draws))
     em, eg, es = inputs.mass_rel * z[0], inputs.gain_rel * z[1], inputs.accel_sensitivity_rel * z[2]
     shift = inputs.accel_delay_s * rate * z[3]                     # samples; F(t - delta) by linear interpolation
