@@ -1,6 +1,7 @@
 """The corrected peak's expanded uncertainty (force_correction.core.peak_uncertainty): the budget follows its
 inputs, the Monte Carlo agrees with the linear budget where that is valid, bad inputs are refused."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -68,3 +69,12 @@ def test_the_moving_average_cut_is_measured():
 def test_bad_inputs_are_refused_with_the_value(kw):
     with pytest.raises(CorrectionError, match=list(kw)[0]):
         PeakInputs(**kw)
+
+
+def test_peak_u_option_reads_four_numbers_or_names_the_value():
+    from force_correction.offline.cli import peak_inputs_arg
+    assert peak_inputs_arg('0.01,0.005,0.01,3e-6') == PeakInputs(0.01, 0.005, 0.01, 3e-6)
+    assert peak_inputs_arg(None) == PeakInputs()
+    for bad in ('0.01,abc', '0.01,0.02', '0.01,-0.1,0,0'):
+        with pytest.raises(CorrectionError, match='-0.1' if '-' in bad else re.escape(repr(bad))):
+            peak_inputs_arg(bad)
