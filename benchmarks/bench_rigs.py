@@ -156,7 +156,7 @@ def batch_seconds(seconds: float) -> float:
 
 
 def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, domain: int, drive: bool = False,
-        log=print) -> dict:
+        log=print, peak_u: bool = True) -> dict:
     """Start ``rigs`` rigs, let them publish ``seconds`` of data, and measure (see the module doc)."""
     pulls_per_set = max(1, math.ceil(seconds / (PULL_S * len(SETS))))
     n_pulls = pulls_per_set * len(SETS)
@@ -171,7 +171,8 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
                       'wait_for_subscribers': 2, 'drive': drive}
         namespaces = [f'/rig{k}' for k in range(1, rigs + 1)]
         # the documented way (docs/nodes.md, "Several rigs on one machine"): a namespace and a parameter file per rig
-        files = [write_params(graph.log_dir / f'rig{k}.yaml', ns, {'sim': dict(sim_params, seed=k)})
+        files = [write_params(graph.log_dir / f'rig{k}.yaml', ns, {'sim': dict(sim_params, seed=k),
+                                                                   'validator': {'peak_uncertainty': peak_u}})
                  for k, ns in enumerate(namespaces, 1)]
         if compose:
             procs['correction_graph'] = graph.start(
@@ -234,10 +235,11 @@ def run(rigs: int, seconds: float, block: int, executor: str, compose: bool, dom
             added.append((probe.corrected_arrival[stamp] - arrival) / 1e6)
     corr_names = ['correction_graph'] if compose else [f'rig{k}/correction' for k in range(1, rigs + 1)]
     corr_cpu = sum(cpu[n] for n in corr_names) / wall   # composed: the correction and the validator
+    live_cpu = sum(c for n, c in cpu.items() if not n.endswith('/sim')) / wall   # all but the sims
     batch = batch_seconds(n_pulls * PULL_S)
     return {'rigs': rigs, 'drive': drive, 'dropped': sum(r['dropped'] for r in per_rig),
             'unscored': sum(r['pulls'] - r['scored'] for r in per_rig), 'block': block, 'executor': executor,
-            'compose': compose,
+            'compose': compose, 'peak_u': peak_u, 'live_cpu_per_rig': live_cpu / rigs,
             'seconds_of_data': n_pulls * PULL_S, 'wall_s': wall,
             'p50_latency_ms': float(np.percentile(lat, 50)) if lat else None,
             'p99_latency_ms': float(np.percentile(lat, 99)) if lat else None,
@@ -282,8 +284,9 @@ def clean(r: dict, live_ms: float = math.inf) -> bool:
 def summary(results: list) -> None:
     """One line per run: the trade-offs side by side."""
     print('side by side (one run each, in this order):')
-    print(f"{'rigs':>4} {'block':>5} {'executor':>8} {'layout':>8} {'dropped':>7} {'corr CPU/rig':>12} "
-          f"{'x batch':>7} {'p50 after':>9} {'p99 after':>9} {'p50 added':>9} {'p99 added':>9}  (ms)")
+    print(f"{'rigs':>4} {'block':>5} {'executor':>8} {'layout':>8} {'peak U':>6} {'dropped':>7} {'corr CPU/rig':>12} "
+          f"{'live CPU/rig':>12} {'x batch':>7} {'p50 after':>9} {'p99 after':>9} {'p50 added':>9} {'p99 added':>9}"
+          "  (ms)")
     for r in results:
         if not r.get('started', True):
             print(f"{r['rigs']:>4} {r['block']:>5} {r['executor']:>8} {'composed' if r['compose'] else 'process':>8} "
@@ -293,7 +296,8 @@ def summary(results: list) -> None:
         def ms(key, r=r):
             return f'{r[key]:9.2f}' if r[key] is not None else f"{'-':>9}"
         print(f"{r['rigs']:>4} {r['block']:>5} {r['executor']:>8} {'composed' if r['compose'] else 'process':>8} "
-              f"{r['dropped'] + r['unscored']:>7} {100 * r['correction_cpu_per_rig']:11.1f}% "
+              f"{'on' if r['peak_u'] else 'off':>6} {r['dropped'] + r['unscored']:>7} "
+              f"{100 * r['correction_cpu_per_rig']:11.1f}% {100 * r['live_cpu_per_rig']:11.1f}% "
               f"{r['correction_cpu_over_batch']:7.0f} {ms('p50_latency_ms')} {ms('p99_latency_ms')} "
               f"{ms('p50_added_ms')} {ms('p99_added_ms')}")
 
@@ -323,6 +327,9 @@ def main() -> int:
     ap.add_argument('--layout', type=listed(str, LAYOUTS), default=['process'], metavar='L[,L...]',
                     help="process: one process per node (default); composed: every rig's correction and "
                          "validator in one process, one executor; a list runs each")
+    ap.add_argument('--peak-u', type=listed(str, ('on', 'off')), default=['on'], metavar='on,off',
+                    help="the validator's expanded uncertainty of each corrected peak (default on); "
+                         "'on,off' runs both, side by side")
     ap.add_argument('--drive', action='store_true',
                     help="the sims simulate the carriage's motor drive too (0.25 s of CPU per 2 s pull; "
                          "default: the prescribed motion, since a real rig's hardware makes the data)")
@@ -341,13 +348,14 @@ def main() -> int:
     domain = [args.domain]
     results = []
 
-    def trial(n, block, executor, layout):
+    def trial(n, block, executor, layout, peak_u='on'):
         try:
-            r = run(n, args.seconds, block, executor, layout == 'composed', domain[0], args.drive)
+            r = run(n, args.seconds, block, executor, layout == 'composed', domain[0], args.drive,
+                    peak_u=peak_u == 'on')
         except NotStarted as exc:   # too many rigs to even start: a failed run, not the end of --max
             print(exc)
             r = {'rigs': n, 'block': block, 'executor': executor, 'compose': layout == 'composed',
-                 'dropped': None, 'unscored': None, 'started': False}
+                 'dropped': None, 'unscored': None, 'started': False, 'peak_u': peak_u == 'on'}
             results.append(r)
             return r
         finally:
@@ -360,7 +368,8 @@ def main() -> int:
         for block in args.block:
             for executor in args.executor:
                 for layout in args.layout:
-                    trial(args.rigs, block, executor, layout)
+                    for peak_u in args.peak_u:
+                        trial(args.rigs, block, executor, layout, peak_u)
         if len(results) > 1:
             summary(results)
         out = results[0] if len(results) == 1 else {'runs': results}

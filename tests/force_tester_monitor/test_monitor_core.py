@@ -7,7 +7,7 @@ import pytest
 from force_tester_monitor.core.batch import decode_batch
 from force_tester_monitor.core.errors import MonitorError
 from force_tester_monitor.core.health import TopicStats, recorder_counts
-from force_tester_monitor.core.live import ForceJoin, JoinedBlock, LiveTrace, PullTraces, loaded_window
+from force_tester_monitor.core.live import ForceJoin, JoinedBlock, LiveTrace, PullTraces, loaded_window, score_lbf
 from force_tester_monitor.core.params import MonitorParams
 
 from bag_tools.core.fastcdr import encode_blocks
@@ -133,3 +133,15 @@ def test_params_name_the_value_and_the_range():
         MonitorParams(port=70000)
     with pytest.raises(MonitorError, match="force_every 'x' is invalid"):
         MonitorParams(force_every='x')
+
+
+def test_a_score_in_lbf_states_the_corrected_peak_with_its_uncertainty():
+    from types import SimpleNamespace
+    score = SimpleNamespace(pull_id=3, test_set=2, status=0, stationary_peak_n=760 * LBF_N,
+                            corrected_peak_n=750 * LBF_N, corrected_peak_u_n=6 * LBF_N, filtered_peak_n=700 * LBF_N,
+                            filtered_peak_u_n=56 * LBF_N, coverage_factor=2.0)
+    out = score_lbf(score)
+    assert out['corrected_peak'] == '750.0 lbf +/- 6.0 lbf (k = 2)'
+    assert out['corrected_peak_u_lbf'] == pytest.approx(6.0) and out['filtered_peak_u_lbf'] == pytest.approx(56.0)
+    unknown = score_lbf(SimpleNamespace(**{**vars(score), 'corrected_peak_u_n': math.nan}))
+    assert unknown['corrected_peak'] == '750.0 lbf'   # no U claimed where none is known

@@ -12,6 +12,7 @@ from force_tester_common.core.blocks import BLOCK_SAMPLES
 from ft_cli.commands import demo
 from ft_cli.graph import SCORE_KEYS, Graph, ScoreCollector
 from ft_cli.paths import executable
+from ft_cli.peak_inputs import validator_params
 
 pytestmark = pytest.mark.slow
 
@@ -107,11 +108,12 @@ def test_bag_playback_reproduces_live_scores(live, tmp_path, layout):
     graph = Graph(tmp_path / 'logs')
     collector = ScoreCollector()
     try:
+        # the peak's uncertainty from the same rig YAML as the demo's validator
         if layout == 'two_processes':
             graph.start('force_correction', 'correction_node')
-            graph.start('force_correction', 'validator_node')
+            graph.start('force_correction', 'validator_node', validator_params())
         else:  # both nodes in one executor
-            graph.start('force_correction', 'correction_graph')
+            graph.start('force_correction', 'correction_graph', validator_params())
         assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=30)
         assert collector.spin_until(lambda: collector.node.count_publishers('/pull_score') >= 1, timeout=30)
         graph.start('bag_tools', 'player', extra=[

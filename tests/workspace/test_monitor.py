@@ -155,6 +155,7 @@ def test_in_tmux_against_a_live_graph(tmp_path, ros_domain):
         (s,) = collector.scores
         want = [str(s['pull_id']), '2', 'OK', f"{n_to_lbf(s['stationary_peak_n']):.1f}",
                 f"{n_to_lbf(s['raw_peak_n']):.1f}", f"{n_to_lbf(s['corrected_peak_n']):.1f}",
+                '+/-', f"{n_to_lbf(s['corrected_peak_u_n']):.1f}",   # the corrected peak with its U (k = 2)
                 f"{n_to_lbf(s['filtered_peak_n']):.1f}", f"{s['raw_diff_pct']:.1f}",
                 f"{s['corrected_diff_pct']:.1f}", f"{s['filtered_diff_pct']:.1f}"]
         deadline = time.monotonic() + 30
@@ -163,7 +164,7 @@ def test_in_tmux_against_a_live_graph(tmp_path, ros_domain):
             rows = [line.split() for line in screen.splitlines()]
             states = dict(m.groups() for m in re.finditer(
                 r'^\s*(sim|correction|validator|recorder): .*?\s{2,}(OK|WARN|ERROR|STALE)\s', screen, re.M))
-            return want in [r[:10] for r in rows] and states == dict.fromkeys(
+            return want in [r[:12] for r in rows] and states == dict.fromkeys(
                 ('sim', 'correction', 'validator', 'recorder'), 'OK')
         while not shown(screen := capture()) and time.monotonic() < deadline:
             time.sleep(0.25)

@@ -67,13 +67,14 @@ from force_tester_common.ros import (
 
 from .core.errors import CorrectionError
 from .core.pairing import BlockAligner
+from .core.peak_uncertainty import PeakInputs
 from .core.score_log import LoggedScore, ScoreLog
 from .core.scoring import PullAccumulator, SetStatistics
 from .core.tracking import Finished, PullTracker
 from .correction_node import RESTARTING_PARAMETERS
 
 FORCE = next(t for t in BLOCK_TOPICS if t.topic == '/force')
-USED_FIELDS = {'corrected': ('raw_n', 'corrected_n', 'filtered_n'), 'force': ('stationary_n',)}
+USED_FIELDS = {'corrected': ('raw_n', 'corrected_n', 'filtered_n', 'inertial_n'), 'force': ('stationary_n',)}
 TICK_S = 0.5
 
 SPECS = [
@@ -91,6 +92,15 @@ SPECS = [
     ParamSpec('state_file', '', 'JSON-lines file the scores are appended to; a restarted validator republishes '
                                 'them and its set summaries go on from them ("" = keep nothing; a relative path '
                                 'is under $ROS_HOME, default ~/.ros)', read_only=True),
+    ParamSpec('peak_uncertainty', True, 'give each corrected peak its expanded uncertainty (k = 2; false: the '
+                                        'score without it, NaN, as before; ./ft bench rigs --peak-u compares)'),
+    *(ParamSpec(f'peak_u_{k}', 0.0, f'standard uncertainty (k = 1) of {what}, for the expanded uncertainty of '
+                                     'each corrected peak (0 = not stated; `./ft demo` passes the rig YAML\'s)',
+                rng) for k, what, rng in (
+        ('mass_rel', "m2, relative", C.PEAK_U_REL_RANGE),
+        ('gain_rel', "the moving cell's gain (sensitivity), relative", C.PEAK_U_REL_RANGE),
+        ('accel_sensitivity_rel', "the accelerometer's sensitivity, relative", C.PEAK_U_REL_RANGE),
+        ('accel_delay_s', "the accelerometer's lag behind the force channel, s", C.PEAK_U_DELAY_RANGE_S))),
     ParamSpec('correction_node', 'correction', 'name of the correction node whose parameter changes mark the '
                                                'pulls in progress RECONFIGURED (relative: in this node\'s '
                                                'namespace)', read_only=True),
@@ -104,10 +114,12 @@ def check(values: dict) -> dict:
     return values
 
 
-def add_pair(acc: PullAccumulator, pair) -> None:
+def add_pair(acc: PullAccumulator, pair, inertial: bool = True) -> None:
+    """One aligned pair into its pull; ``inertial``: keep m*a too (for the peak's uncertainty)."""
     corrected, force = pair['corrected'], pair['force']
     acc.add_block(pair.stamp_ns, pair.sample_rate_hz, to_array(force.stationary_n),
-                  to_array(corrected.raw_n), to_array(corrected.corrected_n), to_array(corrected.filtered_n))
+                  to_array(corrected.raw_n), to_array(corrected.corrected_n), to_array(corrected.filtered_n),
+                  inertial=to_array(corrected.inertial_n) if inertial else None)
 
 
 class ValidatorNode(Node):
@@ -119,7 +131,9 @@ class ValidatorNode(Node):
         self.correction_node = name if name.startswith('/') else f"{self.get_namespace().rstrip('/')}/{name}"
         self.aligner = BlockAligner(('corrected', 'force'), max_pending=self.params.values['max_pending'],
                                     new_run_gap_s=self.params.values['new_run_gap_s'])
-        self.tracker = PullTracker(add_pair, abort_timeout_s=self.params.values['abort_timeout_s'])
+        self.tracker = PullTracker(
+            lambda acc, pair: add_pair(acc, pair, self.params.values['peak_uncertainty']),
+            abort_timeout_s=self.params.values['abort_timeout_s'])
         self.stats = SetStatistics()
         self.counts = {'scores': 0, 'bad_messages': 0, 'runs': 0, 'aborted': 0}
         self._source_restarted = False   # a /force new run whose /force_corrected new run is still to come
@@ -152,6 +166,12 @@ class ValidatorNode(Node):
             self._publish(logged, save=False)
         skipped = f'; {bad} unreadable line(s) skipped' if bad else ''
         self.diag.report(WARN if bad else OK, f'{len(scores)} earlier score(s) restored from {self.log.path}{skipped}')
+
+    def peak_inputs(self) -> PeakInputs:
+        v = self.params.values
+        return PeakInputs(mass_rel=v['peak_u_mass_rel'], gain_rel=v['peak_u_gain_rel'],
+                          accel_sensitivity_rel=v['peak_u_accel_sensitivity_rel'],
+                          accel_delay_s=v['peak_u_accel_delay_s'])
 
     def _bad(self, topic: str, problem: str) -> None:
         self.counts['bad_messages'] += 1
@@ -224,7 +244,7 @@ class ValidatorNode(Node):
         acc = f.acc
         notes = f.notes + ((('aborted', f.aborted),) if f.aborted else ())
         try:
-            s = acc.score(self.params.values['loaded_fraction'])
+            s = acc.score(self.params.values['loaded_fraction'], peak_inputs=self.peak_inputs())
         except CorrectionError as exc:   # no usable data: every pull still gets its message, with NaN
             status, detail = pull_status(acc.dropped_blocks, (*notes, ('incomplete', f'not scored: {exc}')),
                                          aborted=bool(f.aborted))

@@ -24,7 +24,15 @@ import time
 from collections import defaultdict
 
 from diagnostic_msgs.msg import DiagnosticArray
-from force_tester_msgs.msg import MonitorForce, MonitorHealth, PullEvent, PullTrace, TopicHealth
+from force_tester_msgs.msg import (
+    MonitorForce,
+    MonitorHealth,
+    MonitorScore,
+    PullEvent,
+    PullScore,
+    PullTrace,
+    TopicHealth,
+)
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
@@ -38,7 +46,7 @@ from force_tester_common.ros import EVENT_QOS, OK, SCORE_QOS, SUMMARY_QOS, WARN,
 from .core import params as P
 from .core.batch import decode_batch
 from .core.health import TopicStats, recorder_counts
-from .core.live import SIGNALS, ForceJoin, LiveTrace, PullTraces
+from .core.live import SIGNALS, ForceJoin, LiveTrace, PullTraces, score_lbf
 from .foxglove_bridge import FoxgloveBridge, sdk_version
 from .parameter_proxy import ParameterProxy
 
@@ -84,6 +92,7 @@ FORWARDED.update({CH.PULL_EVENT_TOPIC: (CH.PULL_EVENT_TYPE, None),
                   CH.DIAGNOSTICS_TOPIC: (DIAGNOSTICS_TYPE, None)})
 DERIVED = {CH.MONITOR_FORCE_TOPIC: (CH.MONITOR_FORCE_TYPE, MonitorForce),
            CH.PULL_TRACE_TOPIC: (CH.PULL_TRACE_TYPE, PullTrace),
+           CH.MONITOR_SCORE_TOPIC: (CH.MONITOR_SCORE_TYPE, MonitorScore),
            CH.MONITOR_HEALTH_TOPIC: (CH.MONITOR_HEALTH_TYPE, MonitorHealth)}
 FORCE_TOPIC = CH.BLOCK_TYPES[CH.FORCE_TYPE][0]
 CORRECTED = CH.CORRECTED_TYPE[1][0]
@@ -188,6 +197,8 @@ class MonitorNode(Node):
             items = self._take(topic)
             if items:
                 self.stats[topic].add([a for a, _ in items])
+            if topic == CH.PULL_SCORE_TOPIC:
+                self._scores(items)
         self._diagnostics()
         self.bridge.serve()
 
@@ -232,6 +243,18 @@ class MonitorNode(Node):
                 self._bad(CH.PULL_EVENT_TOPIC, f'pull event code {msg.event} is unknown')
         if items:
             self.stats[CH.PULL_EVENT_TOPIC].add([a for a, _ in items])
+
+    def _scores(self, items) -> None:
+        """Each /pull_score again on /monitor/pull_score in lbf, its corrected peak with its uncertainty."""
+        for _arrival, data in items:
+            try:
+                score = deserialize_message(data, PullScore)
+            except Exception as exc:  # noqa: BLE001 - input from outside
+                self._bad(CH.PULL_SCORE_TOPIC, f'undecodable: {exc}')
+                continue
+            msg = MonitorScore(**score_lbf(score))
+            msg.header.stamp = score.header.stamp
+            self._send(CH.MONITOR_SCORE_TOPIC, msg)
 
     def _diagnostics(self) -> None:
         items = self._take(CH.DIAGNOSTICS_TOPIC)

@@ -31,6 +31,7 @@ from force_tester_common.core.units import LBF_N
 
 from ..graph import Graph, ScoreCollector
 from ..paths import RUNS, executable
+from ..peak_inputs import validator_params
 
 CORRECTED_TOPIC = CORRECTED_TYPE[1][0]
 EXT_NS = '/extension'   # the extension pair's topics: /extension/force_corrected, /extension/pull_score, ...
@@ -65,10 +66,12 @@ def format_table(scores: list) -> str:
     ext = any(sc.get('extension') for sc in scores)
     head = (f"{'set':>3} {'pulls':>5} {'stationary':>11} {'raw moving':>11} {'m*a corr.':>10} {f'+ MA({WINDOW})':>10}"
             + (f" {'ext + m*a':>10}" if ext else '')
-            + f" {'diff raw':>9} {'diff m*a':>9} {'diff MA':>8}" + (f" {'diff ext':>9}" if ext else '') + '\n'
+            + f" {'diff raw':>9} {'diff m*a':>9} {'diff MA':>8}" + (f" {'diff ext':>9}" if ext else '')
+            + f" {'U m*a':>7}" + (f" {'U ext':>7}" if ext else '') + '\n'
             + f"{'':>3} {'':>5} {'peak lbf':>11} {'peak lbf':>11} {'peak lbf':>10} {'peak lbf':>10}"
-            + (f" {'peak lbf':>10}" if ext else '') + f" {'%':>9} {'%':>9} {'%':>8}" + (f" {'%':>9}" if ext else ''))
-    rows = [head, '-' * (104 if ext else 84)]
+            + (f" {'peak lbf':>10}" if ext else '') + f" {'%':>9} {'%':>9} {'%':>8}" + (f" {'%':>9}" if ext else '')
+            + f" {'lbf':>7}" + (f" {'lbf':>7}" if ext else ''))
+    rows = [head, '-' * (120 if ext else 92)]
     for s in sorted({sc['test_set'] for sc in scores}):
         group = [sc for sc in scores if sc['test_set'] == s]
         ext_group = [sc['extension'] for sc in group if sc.get('extension')]
@@ -81,9 +84,13 @@ def format_table(scores: list) -> str:
                     + (f"{mean('corrected_peak_n', ext_group) / LBF_N:>10.1f} " if ext else '')
                     + f"{mean('raw_diff_pct'):>9.1f} {mean('corrected_diff_pct'):>9.1f} "
                     + f"{mean('filtered_diff_pct'):>8.1f}"
-                    + (f" {mean('corrected_diff_pct', ext_group):>9.1f}" if ext else ''))
+                    + (f" {mean('corrected_diff_pct', ext_group):>9.1f}" if ext else '')
+                    + f" {mean('corrected_peak_u_n') / LBF_N:>7.1f}"
+                    + (f" {mean('corrected_peak_u_n', ext_group) / LBF_N:>7.1f}" if ext else ''))
     dropped = sum(sc['dropped_blocks'] for sc in scores)
     rows.append(f'% difference is thesis eq 1 at the peaks: |F_stat - F| / F_stat; dropped blocks: {dropped}')
+    rows.append('U m*a' + (', U ext' if ext else '') + ': the expanded uncertainty (k = 2) of that corrected peak, '
+                'mean over the pulls: peak +/- U')
     return '\n'.join(rows)
 
 
@@ -94,7 +101,7 @@ def extension_args(extension: Path) -> dict:
         return [a for topic in topics for a in ('-r', f'{topic.lstrip("/")}:={EXT_NS.lstrip("/")}{topic}')]
     return {'correction': dict(params={'extension_file': str(extension)}, key='correction_extension',
                                extra=['--ros-args', '-r', '__node:=correction_extension', *remap(CORRECTED_TOPIC)]),
-            'validator': dict(key='validator_extension',
+            'validator': dict(key='validator_extension', params=validator_params(extension),
                               extra=['--ros-args', '-r', '__node:=validator_extension',
                                      *remap(CORRECTED_TOPIC, PULL_SCORE_TOPIC, PULL_SCORE_LATEST_TOPIC,
                                             SET_SUMMARY_TOPIC)])}
@@ -149,7 +156,7 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         if monitor and monitor_node_available():
             graph.start('force_tester_monitor', 'monitor_node')
         graph.start('force_correction', 'correction_node')
-        graph.start('force_correction', 'validator_node')
+        graph.start('force_correction', 'validator_node', validator_params())
         if extension:
             for exe, kw in extension_args(extension).items():
                 graph.start('force_correction', f'{exe}_node', **kw)

@@ -46,7 +46,8 @@ REFRESH_S = 0.5
 PULL_ROWS = 12        # the last pulls shown
 COLOURS = {GOOD: 'green', FAIR: 'yellow', POOR: 'bold red'}
 LEVEL_COLOURS = {LEVEL_OK: 'green', LEVEL_WARN: 'yellow', LEVEL_ERROR: 'bold red', LEVEL_STALE: 'magenta'}
-PULL_COLUMNS = ('pull', 'set', 'status', 'stat lbf', 'raw lbf', 'm*a lbf', 'MA lbf', 'raw %', 'm*a %', 'MA %')
+PULL_COLUMNS = ('pull', 'set', 'status', 'stat lbf', 'raw lbf', 'm*a lbf +/- U (k=2)', 'MA lbf',
+                'raw %', 'm*a %', 'MA %')
 SET_COLUMNS = ('set', 'OK pulls', 'stat lbf', 'raw % mean+/-std', 'm*a % mean+/-std', 'MA % mean+/-std')
 NODE_COLUMNS = ('node', 'state', 'message', 'age s')
 # the health line shows the sample-block topics the correction reads and writes (the others are quiet;
@@ -150,6 +151,12 @@ def _num(value: float):
     return Text(fmt(value), justify='right')
 
 
+def _peak_cell(peak: float, u: float):
+    """'750.0 +/- 6.0': a corrected peak and its expanded uncertainty (the peak alone while U is not known)."""
+    from rich.text import Text
+    return Text(fmt(peak) + ('' if u is None or math.isnan(u) else f' +/- {fmt(u)}'), justify='right')
+
+
 def make_app():
     from rich.text import Text
     from textual.app import App, ComposeResult
@@ -218,7 +225,7 @@ def make_app():
                 g = board.grades(r)
                 status = Text(r.status, style='green' if r.status == 'OK' else 'yellow')
                 pulls.add_row(str(r.pull_id), str(r.test_set), status, _num(r.stationary_lbf), _num(r.raw_lbf),
-                              _num(r.corrected_lbf), _num(r.filtered_lbf),
+                              _peak_cell(r.corrected_lbf, r.corrected_u_lbf), _num(r.filtered_lbf),
                               *(_pct_cell(getattr(r, f'{k}_pct'), g[k]) for k in DIFF_KINDS))
             sets = self.query_one('#sets', DataTable)
             sets.clear()

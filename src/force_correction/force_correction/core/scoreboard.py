@@ -47,6 +47,7 @@ class PullRow:
     filtered_pct: float
     dropped_blocks: int
     detail: str
+    corrected_u_lbf: float = math.nan   # expanded uncertainty of corrected_lbf (k = coverage_factor, 2)
 
 
 class Scoreboard:
@@ -74,7 +75,8 @@ class Scoreboard:
             out.append(PullRow(int(s.pull_id), int(s.test_set), PULL_STATUS_NAMES.get(int(s.status), str(s.status)),
                                n_to_lbf(s.stationary_peak_n), n_to_lbf(s.raw_peak_n), n_to_lbf(s.corrected_peak_n),
                                n_to_lbf(s.filtered_peak_n), s.raw_diff_pct, s.corrected_diff_pct,
-                               s.filtered_diff_pct, int(s.dropped_blocks), s.detail))
+                               s.filtered_diff_pct, int(s.dropped_blocks), s.detail,
+                               n_to_lbf(getattr(s, 'corrected_peak_u_n', math.nan))))
         return out if last is None else out[-last:]
 
     def grades(self, row: PullRow) -> Dict[str, str]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -19,6 +19,7 @@ from force_tester_common.core.clock import record_stamps_ns
 from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE
 
 from .errors import CorrectionError
+from .peak_uncertainty import PeakInputs, peak_uncertainty
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,20 @@ class PullScoreResult:
     n_loaded: int
     loaded_fraction: float
     dropped_blocks: int = 0
+    #: expanded uncertainty of corrected_peak_n / filtered_peak_n (N, k = coverage_factor; core/peak_uncertainty):
+    #: NaN where the pull's m*a was not at hand (a score log of an older validator)
+    corrected_peak_u_n: float = math.nan
+    filtered_peak_u_n: float = math.nan
+    coverage_factor: float = math.nan
+
+    def __eq__(self, other):
+        """Field by field, NaN equal to NaN (a score equals its round trip through the score log)."""
+        if not isinstance(other, PullScoreResult):
+            return NotImplemented
+        return all(a == b or (a != a and b != b) for a, b in
+                   ((getattr(self, f.name), getattr(other, f.name)) for f in fields(self)))
+
+    __hash__ = None
 
 
 def _arr(x, name: str) -> np.ndarray:
@@ -58,7 +73,8 @@ def _rms(err: np.ndarray) -> float:
     return float(np.sqrt(np.mean(fin * fin))) if fin.size else math.nan
 
 
-def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = LOADED_FRACTION
+def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = LOADED_FRACTION, *,
+               inertial=None, sample_rate_hz: float | None = None, peak_inputs: PeakInputs | None = None
                ) -> PullScoreResult:
     """Score one pull; all inputs are per-sample arrays of equal length (N).
 
@@ -93,11 +109,20 @@ def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = LO
         out[f'{k}_peak_n'] = pk
         out[f'{k}_diff_pct'] = abs(s_peak - pk) / s_peak * 100.0
         out[f'{k}_rms_n'] = _rms(a[loaded] - s[loaded])
+    if inertial is not None and sample_rate_hz is not None and np.isfinite(sigs['corrected']).any():
+        ma = _arr(inertial, 'inertial')
+        if ma.shape != s.shape:
+            raise CorrectionError(f"inertial has {ma.shape[0]} samples but stationary has {s.shape[0]}; "
+                                  "expected equal lengths")
+        pu = peak_uncertainty(sigs['corrected'], ma, sigs['filtered'], sample_rate_hz,
+                              PeakInputs() if peak_inputs is None else peak_inputs)
+        out.update(corrected_peak_u_n=pu.expanded_n, filtered_peak_u_n=pu.filtered_expanded_n,
+                   coverage_factor=pu.k)
     return PullScoreResult(stationary_peak_n=s_peak, n_samples=int(s.shape[0]),
                            n_loaded=int(np.count_nonzero(loaded)), loaded_fraction=lf, **out)
 
 
-_FIELDS = ('stationary', 'raw', 'corrected', 'filtered')
+_FIELDS = ('stationary', 'raw', 'corrected', 'filtered', 'inertial')
 
 
 class PullAccumulator:
@@ -117,6 +142,7 @@ class PullAccumulator:
         self.set_id = set_id
         self.pull_id = pull_id
         self.dropped_blocks = 0
+        self.sample_rate_hz: Optional[float] = None
         self._parts: Dict[str, List[np.ndarray]] = {k: [] for k in _FIELDS}
         self._times: List[np.ndarray] = []
         if end_ns is not None:
@@ -149,15 +175,19 @@ class PullAccumulator:
         self.dropped_blocks += int(count)
 
     def add_block(self, stamp_ns: int, sample_rate_hz: float, stationary, raw, corrected,
-                  filtered) -> int:
-        """Add one block; returns the number of its samples that fall inside the pull."""
+                  filtered, inertial=None) -> int:
+        """Add one block; returns the number of its samples that fall inside the pull. inertial: the block's
+        m*a (N), for the peak's uncertainty (NaN when not given)."""
         if not _is_int(stamp_ns):
             raise CorrectionError(f"stamp_ns {stamp_ns!r} is not an int; expected integer ns")
         rate = float(sample_rate_hz)
         if not math.isfinite(rate) or rate <= 0:
             raise CorrectionError(
                 f"sample_rate_hz {sample_rate_hz!r} is out of range; expected a rate > 0 Hz")
-        arrs = [_arr(x, k) for k, x in zip(_FIELDS, (stationary, raw, corrected, filtered))]
+        n0 = np.shape(stationary)[0] if np.ndim(stationary) else 1
+        if inertial is None:
+            inertial = np.full(n0, np.nan)
+        arrs = [_arr(x, k) for k, x in zip(_FIELDS, (stationary, raw, corrected, filtered, inertial))]
         n = arrs[0].shape[0]
         for k, a in zip(_FIELDS, arrs):
             if a.shape[0] != n:
@@ -168,6 +198,7 @@ class PullAccumulator:
         if self.end_ns is not None:
             keep &= t < self.end_ns
         cnt = int(np.count_nonzero(keep))
+        self.sample_rate_hz = rate
         if cnt:
             self._times.append(t[keep])
             for k, a in zip(_FIELDS, arrs):
@@ -186,10 +217,15 @@ class PullAccumulator:
             out[k] = np.concatenate(self._parts[k])[order]
         return out
 
-    def score(self, loaded_fraction: float = LOADED_FRACTION) -> PullScoreResult:
+    def score(self, loaded_fraction: float = LOADED_FRACTION, peak_inputs: PeakInputs | None = None
+              ) -> PullScoreResult:
         a = self.arrays()
-        res = score_pull(a['stationary'], a['raw'], a['corrected'], a['filtered'],
-                         loaded_fraction=loaded_fraction)
+        # m*a known for every sample the corrected force has (not for a pull begun without it)
+        fin = np.isfinite(a['inertial'])
+        known = bool(fin.any()) and np.array_equal(fin, np.isfinite(a['corrected']))
+        res = score_pull(a['stationary'], a['raw'], a['corrected'], a['filtered'], loaded_fraction=loaded_fraction,
+                         inertial=a['inertial'] if known else None,
+                         sample_rate_hz=self.sample_rate_hz if known else None, peak_inputs=peak_inputs)
         return replace(res, dropped_blocks=self.dropped_blocks)
 
 

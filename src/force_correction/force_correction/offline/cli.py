@@ -10,6 +10,7 @@ from force_tester_common.engine import add_scheduler_argument
 
 from ..core.errors import CorrectionError
 from ..core.params import CorrectionParams
+from ..core.peak_uncertainty import PeakInputs
 
 
 def format_summary(result) -> str:
@@ -24,11 +25,32 @@ def format_summary(result) -> str:
                      f" {f(s.raw_mean_pct)} {f(s.raw_std_pct)}"
                      f"  {f(s.corrected_mean_pct)} {f(s.corrected_std_pct)}"
                      f"  {f(s.filtered_mean_pct)} {f(s.filtered_std_pct)}")
+    for s in result.sets:   # each set's corrected peak with its expanded uncertainty
+        scores = [r.score for r in result.pulls if r.test_set == s.set_id]
+        u = [x.corrected_peak_u_n for x in scores if math.isfinite(x.corrected_peak_u_n)]
+        if u:
+            peak = sum(x.corrected_peak_n for x in scores) / len(scores)
+            lines.append(f"set {s.set_id}: corrected (m*a) peak {peak / LBF_N:.1f} lbf +/- "
+                         f"{sum(u) / len(u) / LBF_N:.1f} lbf (k = {scores[0].coverage_factor:g}), mean over "
+                         f"{len(scores)} pull(s)")
     p = result.params
     lines.append(f"m2 = {p.mass_kg:g} kg, window = {p.window}; % difference is thesis "
                  f"eq 1 at the peaks; std over pulls (ddof 1); NaN samples: "
                  f"{result.nan_samples}; dropped blocks: {result.dropped_blocks}")
     return '\n'.join(lines)
+
+
+def peak_inputs_arg(text: str | None) -> PeakInputs:
+    """--peak-u M,G,S,D as PeakInputs (CorrectionError naming the value when it is not four numbers)."""
+    if text is None:
+        return PeakInputs()
+    try:
+        values = [float(v) for v in text.split(',')]
+    except ValueError:
+        values = []
+    if len(values) != 4:
+        raise CorrectionError(f'--peak-u {text!r} is invalid; expected four numbers M,G,S,D')
+    return PeakInputs(*values)
 
 
 def _correction_arguments(p) -> None:
@@ -50,6 +72,10 @@ def _correct_arguments(p) -> None:
     p.add_argument('--window-from-bandwidth', action='store_true',
                    help='choose the moving average from the bandwidth of the short events (impacts narrower '
                    'than a few windows) instead of --window; not the default')
+    p.add_argument('--peak-u', metavar='M,G,S,D', default=None,
+                   help="standard uncertainties (k = 1) of m2 (relative), the moving cell's gain (relative), the "
+                        "accelerometer's sensitivity (relative) and lag (s), for each corrected peak's expanded "
+                        "uncertainty, e.g. 0.01,0.005,0.01,2.9e-6 (the nominal rig's); default: the noise only")
     p.add_argument('--to', choices=('bag', 'campaign'), default=None,
                    help='output kind (default: the kind of SRC)')
     add_scheduler_argument(p)
@@ -60,7 +86,8 @@ def run_correct(args) -> int:
     from .pipeline import CorrectionSetup, correct
     setup = CorrectionSetup.build(args.mass_kg, args.window, args.extension,
                                   loaded_fraction=args.loaded_fraction,
-                                  window_from_bandwidth=args.window_from_bandwidth)
+                                  window_from_bandwidth=args.window_from_bandwidth,
+                                  peak_inputs=peak_inputs_arg(args.peak_u))
     prog = Progress('correct', 'messages')
     try:
         result = correct(args.src, args.dst, setup, to=args.to, progress=prog, mapper=mapper,

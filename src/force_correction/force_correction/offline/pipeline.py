@@ -23,6 +23,7 @@ from ..core.errors import CorrectionError
 from ..core.extension import Extension
 from ..core.pairing import BlockAligner
 from ..core.params import CorrectionParams
+from ..core.peak_uncertainty import PeakInputs
 from ..core.short_events import advice, bandwidth_window, short_events
 from ..core.streaming import correct_signal
 from . import bag as bagio
@@ -48,6 +49,8 @@ class CorrectionSetup:
     segment_samples: int = SEGMENT_SAMPLES
     #: choose the moving average from the short events' bandwidth (short_events.bandwidth_window)
     window_from_bandwidth: bool = False
+    #: the inputs' uncertainties of each corrected peak's expanded uncertainty (default: only the noise)
+    peak_inputs: PeakInputs = field(default_factory=PeakInputs)
 
     def __post_init__(self):
         lo, hi = LOADED_FRACTION_RANGE
@@ -182,7 +185,7 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
                               'path does not apply')
     target = bagio.extension_target(fast, dst) if to == 'bag' and path in ('auto', 'fast') \
         else None
-    stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction,
+    stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction, peak_inputs=setup.peak_inputs,
                               keep=target is None)
     with target if target is not None else nullcontext():
         if target is not None:  # results go out as they are computed
@@ -217,7 +220,7 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
 
 def _correct_campaign(src: Path, dst: Path, setup: CorrectionSetup, mapper, skip_failed) -> CorrectionResult:
     camp = read_campaign(src, mapper=mapper, skip_failed=skip_failed)
-    stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction)
+    stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction, peak_inputs=setup.peak_inputs)
     windows, columns = correct_runs(camp, stream)
     pulls, stats, warnings = stream.scores(windows, [])
     if 'force_stationary_n' in camp.absent:   # one line, not one per pull

@@ -20,7 +20,7 @@ from ..core.scoring import SetStatistics, score_pull
 from ..core.short_events import short_events
 from .result import PullRecord
 
-SCORED = ('stationary', 'raw', 'corrected', 'filtered')
+SCORED = ('stationary', 'raw', 'corrected', 'filtered', 'inertial')
 #: a pull whose filtered peak is below its corrected peak by more than this share is searched for short events
 LOSSY = 0.02
 
@@ -34,16 +34,18 @@ class PullScorer:
     """Scores windows over pieces {'t', 'stationary', 'raw', 'corrected', 'filtered'} fed in time
     order; ``drops`` are the stamps of blocks lost upstream (counted into their pull)."""
 
-    def __init__(self, windows: list, drops: list, loaded_fraction: float, short_window: int = 0) -> None:
+    def __init__(self, windows: list, drops: list, loaded_fraction: float, peak_inputs=None,
+                 short_window: int = 0) -> None:
         self.windows = list(windows)
         self.short_window = short_window
-        self.rates: dict = {}     # window -> the sample rate of its first piece
+        self.rates: dict = {}     # window -> the blocks' sample rate of its first piece (short events, the peak's U)
         self.events: list = []    # (pull_id, ShortEvent, rate_hz) in the order the pulls were scored
         by_start = sorted(range(len(self.windows)), key=lambda i: self.windows[i][:2])
         self.open = {i: [] for i in by_start}  # stays in start order
         self.outcome: dict = {}
         self.drops = np.array(sorted(drops), dtype=np.int64)
         self.loaded_fraction = loaded_fraction
+        self.peak_inputs = peak_inputs
 
     def add(self, piece: dict, rate_hz: float = 0.0) -> None:
         t = piece['t']
@@ -56,7 +58,8 @@ class PullScorer:
                 break
             lo, hi = t.searchsorted([start, end])
             if hi > lo:
-                self.open[i].append({k: piece[k][lo:hi] for k in SCORED})
+                self.open[i].append({k: piece[k][lo:hi] if k in piece else np.full(hi - lo, np.nan)
+                                     for k in SCORED})   # a piece without m*a: the peak's U unknown
                 self.rates.setdefault(i, rate_hz)
             if last >= end:
                 self._score(i)
@@ -69,11 +72,15 @@ class PullScorer:
             return
         arrays = [np.concatenate([p[k] for p in parts]) if len(parts) > 1 else parts[0][k]
                   for k in SCORED]
+        rate = self.rates.get(i, 0.0)
         try:
-            self.outcome[i] = score_pull(*arrays, loaded_fraction=self.loaded_fraction)
+            *scored, inertial = arrays
+            known = bool(np.isfinite(inertial).any())
+            self.outcome[i] = score_pull(*scored, loaded_fraction=self.loaded_fraction,
+                                         inertial=inertial if known else None,
+                                         sample_rate_hz=rate or None, peak_inputs=self.peak_inputs)
         except CorrectionError as exc:
             self.outcome[i] = f'pull {pull_id} (set {set_id}) not scored: {exc}'
-        rate = self.rates.get(i, 0.0)
         if self.short_window and rate > 0 and (isinstance(self.outcome[i], str) or lossy(self.outcome[i])):
             self.events += [(int(pull_id), e, rate) for e in short_events(arrays[1], arrays[2], rate,
                                                                           self.short_window)]

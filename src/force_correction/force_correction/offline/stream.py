@@ -29,8 +29,8 @@ class CorrectionStream:
     ``keep`` or while the pull windows are unknown."""
 
     def __init__(self, params: CorrectionParams, extension: Extension | None,
-                 loaded_fraction: float, keep: bool = True) -> None:
-        self.params, self.extension = params, extension
+                 loaded_fraction: float, keep: bool = True, peak_inputs=None) -> None:
+        self.params, self.extension, self.peak_inputs = params, extension, peak_inputs
         self.loaded_fraction, self.keep = loaded_fraction, keep
         self.parts: dict = {k: [] for k in PIECE_KEYS}
         self.nan_count = 0
@@ -43,7 +43,8 @@ class CorrectionStream:
         self.rate_hz = 0.0
 
     def windows_known(self, windows: list, drops: list) -> None:
-        self.scorer = PullScorer(windows, drops, self.loaded_fraction, short_window=self.params.window)
+        self.scorer = PullScorer(windows, drops, self.loaded_fraction, self.peak_inputs,
+                                 short_window=self.params.window)
 
     def write_to(self, sink: Sink) -> None:
         self.sink = sink

@@ -17,3 +17,7 @@ LOADED_FRACTION_RANGE = (0.01, 0.99)
 SHORT_EVENT_WINDOWS = 3.0          # an event narrower (FWHM) than this many moving-average windows is "short"
 EVENT_BANDWIDTH_ENERGY = 0.95      # an event's bandwidth: the frequency below which this share of its energy lies
 MA_HALF_POWER = 0.4429             # a W-point moving average passes half the power at MA_HALF_POWER * rate / W
+# the corrected peak's uncertainty inputs (force_correction.core.peak_uncertainty.PeakInputs, k = 1): the ranges a
+# node accepts; the values are the rig's (ft_cli.peak_inputs), 0 = not stated
+PEAK_U_REL_RANGE = (0.0, 0.5)        # relative standard uncertainty of m2, the cell gain, the accel sensitivity
+PEAK_U_DELAY_RANGE_S = (0.0, 1e-3)   # standard uncertainty of the accelerometer's lag

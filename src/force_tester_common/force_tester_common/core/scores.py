@@ -7,7 +7,8 @@ core's SetSummary fields (``SET_SUMMARY_FIELDS``: message field -> core attribut
 
 PULL_SCORE_FIELDS = ('stationary_peak_n', 'raw_peak_n', 'corrected_peak_n', 'filtered_peak_n',
                      'raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct',
-                     'raw_rms_n', 'corrected_rms_n', 'filtered_rms_n')
+                     'raw_rms_n', 'corrected_rms_n', 'filtered_rms_n',
+                     'corrected_peak_u_n', 'filtered_peak_u_n', 'coverage_factor')
 
 SET_SUMMARY_FIELDS = {
     'pulls': 'pulls',
@@ -38,3 +39,13 @@ def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
     else:
         code = PULL_OK
     return code, '; '.join(texts)
+
+
+def peak_text(peak_lbf: float, u_lbf: float, k: float) -> str:
+    """A corrected peak as a test engineer reports it: '750.0 lbf +/- 6.0 lbf (k = 2)' (the peak alone while U
+    is not known, '-' while the peak is not)."""
+    if peak_lbf != peak_lbf:
+        return '-'
+    if u_lbf != u_lbf:
+        return f'{peak_lbf:.1f} lbf'
+    return f'{peak_lbf:.1f} lbf +/- {u_lbf:.1f} lbf (k = {k:g})'

@@ -16,6 +16,7 @@ import numpy as np
 
 from force_tester_common.core.clock import NS_PER_S, record_stamps_ns, sample_stamp_ns
 from force_tester_common.core.correction import LOADED_FRACTION
+from force_tester_common.core.scores import peak_text
 from force_tester_common.core.units import n_to_lbf
 
 from .errors import MonitorError
@@ -205,3 +206,16 @@ class PullTraces:
         sel = slice(max(window.start - margin, 0), min(window.stop + margin, stamps.size))
         return Trace(p.pull_id, p.test_set, p.start_ns, rate, (stamps[sel] - p.start_ns) / NS_PER_S,
                      {s: n_to_lbf(a[sel]) for s, a in arrays.items()})
+
+
+def score_lbf(score) -> dict:
+    """A PullScore (or anything with its fields) as MonitorScore's fields in lbf: the corrected peak with its
+    expanded uncertainty, as numbers and as text."""
+    def lbf(name):
+        return float(n_to_lbf(float(getattr(score, name))))
+    out = {'pull_id': int(score.pull_id), 'test_set': int(score.test_set), 'status': int(score.status),
+           'coverage_factor': float(score.coverage_factor),
+           **{f'{k}_lbf': lbf(f'{k}_n') for k in ('stationary_peak', 'corrected_peak', 'corrected_peak_u',
+                                                  'filtered_peak', 'filtered_peak_u')}}
+    out['corrected_peak'] = peak_text(out['corrected_peak_lbf'], out['corrected_peak_u_lbf'], out['coverage_factor'])
+    return out

@@ -1,0 +1,80 @@
+"""The corrected peak's expanded uncertainty (force_correction.core.peak_uncertainty): the budget follows its
+inputs, the Monte Carlo agrees with the linear budget where that is valid, bad inputs are refused."""
+import math
+import re
+
+import numpy as np
+import pytest
+
+from force_correction.core.errors import CorrectionError
+from force_correction.core.params import CorrectionParams
+from force_correction.core.peak_uncertainty import PeakInputs, peak_uncertainty
+from force_correction.core.streaming import correct_signal
+
+RATE = 50_000.0
+
+
+def pull(seed=0, noise=0.3):
+    """A smooth 1000 N pulse on a quiet lead-in, a ringing m a, white noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(20_000) / RATE
+    tension = 1000.0 * np.exp(-0.5 * ((t - 0.3) / 0.004) ** 2)
+    a = 300.0 * np.sin(2 * np.pi * 1000.0 * t) * (t > 0.29)
+    force = tension + 1.152 * a + noise * rng.standard_normal(t.size)
+    out = correct_signal(force, a, CorrectionParams(mass_kg=1.152))
+    return out, tension
+
+
+def test_linear_terms_match_the_monte_carlo():
+    out, _ = pull(noise=0.0)
+    inputs = PeakInputs(mass_rel=0.01, gain_rel=0.005)
+    pu = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, inputs, draws=4000)
+    lin = math.hypot(*(u for _, u in pu.components))
+    assert pu.u_n == pytest.approx(lin, rel=0.1)   # the max moves a little with the ringing m a: MC >= linear
+    assert pu.expanded_n == pytest.approx(2 * pu.u_n, rel=0.02)   # k u, plus a noise bias near 0 here
+    i = int(np.argmax(out.corrected_n))   # sensitivity coefficients at the corrected peak
+    assert dict(pu.components)['gain'] == pytest.approx(0.005 * (out.corrected_n[i] + out.inertial_n[i]))
+    assert dict(pu.components)['mass'] == pytest.approx(0.01 * abs(out.inertial_n[i]))
+
+
+def test_each_input_widens_it_and_noise_alone_is_small():
+    out, _ = pull()
+    base = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, PeakInputs())
+    assert 0 < base.expanded_n < 3.0 and base.noise_n == pytest.approx(0.3, rel=0.2)
+    for name in ('mass_rel', 'gain_rel', 'accel_sensitivity_rel'):
+        wider = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, PeakInputs(**{name: 0.02}))
+        assert wider.expanded_n > base.expanded_n + 0.5, name
+    late = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, PeakInputs(accel_delay_s=2e-5))
+    assert late.expanded_n > base.expanded_n
+
+
+def test_covers_the_tension_over_noise_seeds():
+    hits = 0
+    for seed in range(40):
+        out, tension = pull(seed, noise=2.0)
+        pu = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, PeakInputs())
+        hits += abs(pu.peak_n - tension.max()) <= pu.expanded_n
+    assert hits >= 36   # about 95 % of 40
+
+
+def test_the_moving_average_cut_is_measured():
+    out, _ = pull()
+    pu = peak_uncertainty(out.corrected_n, out.inertial_n, out.filtered_n, RATE, PeakInputs())
+    assert pu.ma_cut_n == pytest.approx(out.corrected_n.max() - np.nanmax(out.filtered_n))
+    assert pu.filtered_expanded_n == pytest.approx(pu.expanded_n + abs(pu.ma_cut_n))
+
+
+@pytest.mark.parametrize('kw', [{'mass_rel': -0.1}, {'gain_rel': float('nan')}, {'accel_delay_s': 1.0},
+                                {'mass_rel': True}])
+def test_bad_inputs_are_refused_with_the_value(kw):
+    with pytest.raises(CorrectionError, match=list(kw)[0]):
+        PeakInputs(**kw)
+
+
+def test_peak_u_option_reads_four_numbers_or_names_the_value():
+    from force_correction.offline.cli import peak_inputs_arg
+    assert peak_inputs_arg('0.01,0.005,0.01,3e-6') == PeakInputs(0.01, 0.005, 0.01, 3e-6)
+    assert peak_inputs_arg(None) == PeakInputs()
+    for bad in ('0.01,abc', '0.01,0.02', '0.01,-0.1,0,0'):
+        with pytest.raises(CorrectionError, match='-0.1' if '-' in bad else re.escape(repr(bad))):
+            peak_inputs_arg(bad)
