@@ -89,6 +89,7 @@ def test_a_pull_that_kills_every_worker_fails_alone(tmp_path, monkeypatch):
     assert [n for n, _ in r.failed] == ['x'] and 'KilledWorker' in r.failed[0][1]
     assert len((tmp_path / 'deaths').read_text().split()) == 2 * (engine.RETRIES + 1)
     assert 'x' in r.retried
+    engine.shutdown(None)   # the next test starts a fresh embedded cluster, not one whose workers were killed 6 times
 
 
 def test_an_unreachable_scheduler_is_one_error_within_10_s():

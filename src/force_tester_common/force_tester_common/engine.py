@@ -51,6 +51,9 @@ SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
 CONNECT_TIMEOUT_S = 3.0
 #: Reruns of a pull whose worker died (the embedded cluster's allowed-failures).
 RETRIES = 2
+#: The embedded cluster fails a task that has found no live worker for this long (Dask's no-workers-timeout;
+#: its default waits forever): workers whose restarts keep failing become a reported pull, not a hang.
+NO_WORKERS_TIMEOUT = '300s'
 
 
 class EngineError(Exception):
@@ -87,7 +90,9 @@ def _embedded(retries: int):
     import dask
     from distributed import Client, LocalCluster
     n = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else (os.cpu_count() or 1)
-    with dask.config.set({'distributed.scheduler.allowed-failures': int(retries)}):
+    # a task that finds no worker for NO_WORKERS_TIMEOUT fails (its pull is reported) instead of waiting forever
+    with dask.config.set({'distributed.scheduler.allowed-failures': int(retries),
+                          'distributed.scheduler.no-workers-timeout': NO_WORKERS_TIMEOUT}):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host='127.0.0.1',
                                dashboard_address=':0', silence_logs=logging.CRITICAL)
     client = Client(cluster, set_as_default=False)
