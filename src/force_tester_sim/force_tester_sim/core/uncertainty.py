@@ -60,7 +60,7 @@ DEFAULTS_REL: dict[str, dict[str, float]] = {
 class Uncertainties:
     """Standard uncertainties keyed ``section.key`` (k = 1, the constant's own unit)."""
 
-    values: tuple   # ((key, u), ...) sorted by key; build it with uncertainties_from_data
+    values: tuple   # ((key, u), ...) sorted by key; made by uncertainties(rig, stated)
 
     def u(self, key: str) -> float:
         for k, v in self.values:
