@@ -54,6 +54,10 @@ def test_every_pull_is_scored_ok_with_no_block_dropped(run):
     assert run.sent['/pull_event'] == 2 * len(run.scores)
 
 
+LATE_PACKETS = 20     # heartbeats and acks that can fall between reading host A's counters and host B's
+MAX_FRAME = 1514      # bytes of an Ethernet frame on the veth (MTU 1500 + header)
+
+
 def test_the_data_crossed_the_link(run):
     """Every reader in host B got its copy over the veth: what host A sent on it (and host B's
     end received) is at least the recorded payload times the readers, and the packet counter on
@@ -62,7 +66,11 @@ def test_the_data_crossed_the_link(run):
     a, b = run.counters['a'], run.counters['b']
     assert run.readers['/force'] == 3 and run.readers['/motor'] == 1, run.readers
     assert run.payload_bytes >= sum(run.cdr_bytes[t] for t in LINK_TOPICS) > 0
-    assert a['tx_bytes'] == b['rx_bytes'] >= run.payload_bytes, (a, b, run.payload_bytes)
+    # the counters are read host after host (A first) while the nodes still send heartbeats, so B may count a
+    # few packets that A sent after its counters were read (a CI run saw one, 70 bytes); never fewer
+    late = b['rx_packets'] - a['tx_packets']
+    assert 0 <= late <= LATE_PACKETS and 0 <= b['rx_bytes'] - a['tx_bytes'] <= late * MAX_FRAME, (a, b)
+    assert a['tx_bytes'] >= run.payload_bytes, (a, run.payload_bytes)
     assert run.sniffed['a']['data_first_bytes'] >= run.payload_bytes, run.sniffed
     assert run.sniffed['a']['missed_by_sniffer'] == 0
     assert a['multicast_blocked'] + b['multicast_blocked'] > 0, (a, b)
