@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import tempfile
 import time
@@ -38,7 +37,7 @@ import generator as G  # the generator
 from force_discovery.core.pipeline import discover
 from force_tester_common.core.correction import MASS_KG
 from force_tester_sim.core.campaign import truth_pull_specs
-from force_tester_sim.core.params import NOMINAL_YAML, load_rig
+from force_tester_sim.core.params import NOMINAL_YAML, rig_from_dict
 from force_tester_sim.core.simulate import simulate_pull
 from force_tester_sim.core.tolerances import band
 
@@ -58,14 +57,6 @@ PERTURBED = ('force_chain.stationary_side_mass_kg', 'force_chain.moving_side_mas
 ALWAYS = {'moving_cell_gain': 'gain', 'effective_mass': 'mass_kg', 'accel_delay': 'delay_s'}
 
 
-def load_data(data: dict):
-    fd, path = tempfile.mkstemp(suffix='.yaml')
-    os.close(fd)
-    try:
-        Path(path).write_text(yaml.safe_dump(data))
-        return load_rig(path)
-    finally:
-        os.unlink(path)
 
 
 def variant_data(name: str) -> dict:
@@ -103,7 +94,7 @@ def true_rig(data: dict, analysis_rig, seed: int, departures: dict, nuisance) ->
         d['force_chain']['lanyard_damping_ratio'] *= nuisance['lanyard_damping_factor']
     if departures:
         d['departures'] = departures
-    return load_data(d), d
+    return rig_from_dict(d), d
 
 
 def make_campaign(rig, seed: int, nuisance) -> list:
@@ -165,7 +156,7 @@ def main() -> int:
           f'{"/tol":>6}  in', flush=True)
     for var in variants:
         data = variant_data(var)
-        rig = load_data(data)
+        rig = rig_from_dict(data)
         for name in sorted(G.PLAUSIBLE):
             for trial in range(a.trials):
                 seed = a.seed + 100 * trial + k

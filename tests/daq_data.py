@@ -65,3 +65,23 @@ def run_cli(*args, module='bag_tools.cli'):
 
 def no_partials(folder: Path):
     return [p.name for p in folder.iterdir() if p.name.startswith('.')]
+
+
+def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E') -> Path:
+    """A LabVIEW Measurement File as LabVIEW writes it: tab separated, one X column, Delta_X per channel."""
+    names = list(volts)
+    k = len(names)
+    tab = '\t'
+    head = ['LabVIEW Measurement\t', 'Writer_Version\t2', 'Reader_Version\t2', 'Separator\tTab',
+            'Decimal_Separator\t.', 'Multi_Headings\tNo', 'X_Columns\tOne', 'Time_Pref\tRelative',
+            'Operator\tlab', 'Date\t2026/11/24', 'Time\t12:00:00.000', '***End_of_Header***\t', '\t',
+            f'Channels\t{k}' + tab * k, 'Samples' + ''.join(f'\t{len(volts[c])}' for c in names) + tab,
+            'Date' + '\t2026/11/24' * k + tab, 'Time' + '\t12:00:00.000' * k + tab,
+            'Y_Unit_Label' + '\tVolts' * k + tab, 'X_Dimension' + '\tTime' * k + tab,
+            'X0' + '\t0.0000000000000000E+0' * k + tab, 'Delta_X' + f'\t{1 / rate:.6E}' * k + tab,
+            '***End_of_Header***' + tab * (k + 1), 'X_Value\t' + tab.join(names) + '\tComment']
+    n = len(volts[names[0]])
+    cols = np.column_stack([np.arange(n) / rate] + [volts[c] for c in names])
+    body = '\n'.join(tab.join(fmt % v for v in row) for row in cols)
+    path.write_text('\n'.join(head) + '\n' + body + '\n')
+    return path

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from daq_data import SRC_DIRS, run_cli
+from daq_data import SRC_DIRS, run_cli, write_lvm
 
 for _d in reversed(SRC_DIRS):
     if str(_d) not in sys.path:
@@ -57,26 +57,6 @@ def write_map(path, doc=None, **changes):
         ch, field = key.split('__')
         doc['channels'][ch][field] = value
     path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def write_lvm(path, volts: dict, rate: float, fmt: str = '%.9E'):
-    """A LabVIEW Measurement File as LabVIEW writes it: tab separated, one X column, Delta_X per channel."""
-    names = list(volts)
-    k = len(names)
-    tab = '\t'
-    head = ['LabVIEW Measurement\t', 'Writer_Version\t2', 'Reader_Version\t2', 'Separator\tTab',
-            'Decimal_Separator\t.', 'Multi_Headings\tNo', 'X_Columns\tOne', 'Time_Pref\tRelative',
-            'Operator\tlab', 'Date\t2026/11/24', 'Time\t12:00:00.000', '***End_of_Header***\t', '\t',
-            f'Channels\t{k}' + tab * k, 'Samples' + ''.join(f'\t{len(volts[c])}' for c in names) + tab,
-            'Date' + '\t2026/11/24' * k + tab, 'Time' + '\t12:00:00.000' * k + tab,
-            'Y_Unit_Label' + '\tVolts' * k + tab, 'X_Dimension' + '\tTime' * k + tab,
-            'X0' + '\t0.0000000000000000E+0' * k + tab, 'Delta_X' + f'\t{1 / rate:.6E}' * k + tab,
-            '***End_of_Header***' + tab * (k + 1), 'X_Value\t' + tab.join(names) + '\tComment']
-    n = len(volts[names[0]])
-    cols = np.column_stack([np.arange(n) / rate] + [volts[c] for c in names])
-    body = '\n'.join(tab.join(fmt % v for v in row) for row in cols)
-    path.write_text('\n'.join(head) + '\n' + body + '\n')
     return path
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from daq_data import write_lvm
 
 from force_tester_common.core.units import G_M_S2
 from force_tester_sim.core.params import NOMINAL_YAML
@@ -146,26 +147,6 @@ def rig_yaml(path: Path, rate_hz: float, record_s: float) -> Path:
     doc['force_chain']['load_cell_stiffness_n_per_m'] = CELL_STIFFNESS
     doc.pop('uncertainty', None)
     path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def write_lvm(path: Path, v: dict, rate: float) -> Path:
-    """A LabVIEW Measurement File as LabVIEW writes it (tab separated, one X column, Delta_X per channel)."""
-    names = list(v)
-    k = len(names)
-    tab = '\t'
-    head = ['LabVIEW Measurement\t', 'Writer_Version\t2', 'Reader_Version\t2', 'Separator\tTab',
-            'Decimal_Separator\t.', 'Multi_Headings\tNo', 'X_Columns\tOne', 'Time_Pref\tRelative',
-            'Operator\tlab', 'Date\t2026/11/24', 'Time\t12:00:00.000', '***End_of_Header***\t', '\t',
-            f'Channels\t{k}' + tab * k, 'Samples' + ''.join(f'\t{len(v[c])}' for c in names) + tab,
-            'Date' + '\t2026/11/24' * k + tab, 'Time' + '\t12:00:00.000' * k + tab,
-            'Y_Unit_Label' + '\tVolts' * k + tab, 'X_Dimension' + '\tTime' * k + tab,
-            'X0' + '\t0.0000000000000000E+0' * k + tab, 'Delta_X' + f'\t{1 / rate:.6E}' * k + tab,
-            '***End_of_Header***' + tab * (k + 1), 'X_Value\t' + tab.join(names) + '\tComment']
-    n = len(v[names[0]])
-    cols = np.column_stack([np.arange(n) / rate] + [v[c] for c in names])
-    body = '\n'.join(tab.join('%.9E' % x for x in row) for row in cols)
-    path.write_text('\n'.join(head) + '\n' + body + '\n')
     return path
 
 
