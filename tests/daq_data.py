@@ -85,3 +85,17 @@ def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E') -> Path:
     body = '\n'.join(tab.join(fmt % v for v in row) for row in cols)
     path.write_text('\n'.join(head) + '\n' + body + '\n')
     return path
+
+
+#: the drop impactor's DAQ (a piezo cell and an accelerometer in volts, compression positive) and its channel map
+FORCE_MV_PER_N = 0.225     # piezo load cell, mV/N
+ACCEL_MV_PER_G = 1.023     # accelerometer, mV/g
+IMPACTOR_CHANNEL_MAP = {
+    'channels': {
+        'force_moving_n': {'source': 'Load cell', 'unit': 'V', 'sensitivity': f'{FORCE_MV_PER_N} mV/N',
+                           'sign': 'compression'},
+        'accel_axial_m_s2': {'source': 'Accel', 'unit': 'V', 'sensitivity': f'{ACCEL_MV_PER_G} mV/g',
+                             'sign': 'compression'},
+    },
+    'absent': ['force_stationary_n', 'encoder_position_m'],
+}

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from daq_data import SRC_DIRS, run_cli, write_lvm
+from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, SRC_DIRS, run_cli, write_lvm
 
 for _d in reversed(SRC_DIRS):
     if str(_d) not in sys.path:
@@ -21,9 +21,6 @@ from bag_tools.core.daq import read_campaign  # noqa: E402
 from bag_tools.core.daqfiles import load_channel_map, read_records  # noqa: E402
 from bag_tools.core.errors import BagError  # noqa: E402
 from force_tester_common.core.units import G_M_S2  # noqa: E402
-
-FORCE_MV_PER_N = 0.225     # piezo load cell, mV/N
-ACCEL_MV_PER_G = 1.023     # accelerometer, mV/g
 
 
 def impact_record(rate: float, n: int, seed: int, width_s: float = 1e-3, peak_n: float = 2000.0):
@@ -40,15 +37,7 @@ def impact_record(rate: float, n: int, seed: int, width_s: float = 1e-3, peak_n:
     return {'force_moving_n': force, 'accel_axial_m_s2': accel}, volts
 
 
-CHANNEL_MAP = {
-    'channels': {
-        'force_moving_n': {'source': 'Load cell', 'unit': 'V', 'sensitivity': f'{FORCE_MV_PER_N} mV/N',
-                           'sign': 'compression'},
-        'accel_axial_m_s2': {'source': 'Accel', 'unit': 'V', 'sensitivity': f'{ACCEL_MV_PER_G} mV/g',
-                             'sign': 'compression'},
-    },
-    'absent': ['force_stationary_n', 'encoder_position_m'],
-}
+CHANNEL_MAP = IMPACTOR_CHANNEL_MAP
 
 
 def write_map(path, doc=None, **changes):

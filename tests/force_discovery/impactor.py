@@ -22,22 +22,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from daq_data import write_lvm
+from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, write_lvm
 
 from force_tester_common.core.units import G_M_S2
 from force_tester_sim.core.params import NOMINAL_YAML
 
-FORCE_MV_PER_N = 0.225     # piezo load cell
-ACCEL_MV_PER_G = 1.023     # accelerometer
-CHANNEL_MAP = {
-    'channels': {
-        'force_moving_n': {'source': 'Load cell', 'unit': 'V', 'sensitivity': f'{FORCE_MV_PER_N} mV/N',
-                           'sign': 'compression'},
-        'accel_axial_m_s2': {'source': 'Accel', 'unit': 'V', 'sensitivity': f'{ACCEL_MV_PER_G} mV/g',
-                             'sign': 'compression'},
-    },
-    'absent': ['force_stationary_n', 'encoder_position_m'],
-}
+CHANNEL_MAP = IMPACTOR_CHANNEL_MAP
 NOMINAL_M2 = 0.30          # the rig YAML's moving-side mass (what the lab believes)
 CELL_STIFFNESS = 1.5e9     # N/m: the rig YAML's cell (about 11 kHz on m2)
 
