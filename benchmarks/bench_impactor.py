@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generator
+sys.path[:0] = [str(ROOT / 'tests' / 'force_discovery'), str(ROOT / 'tests')]   # the test generator and its DAQ helpers
 
 import numpy as np  # noqa: E402
 from impactor import Impactor, memory_campaign, rig_yaml, tip_mode_hz  # noqa: E402
