@@ -37,7 +37,7 @@ def test_node_states_go_stale():
 def test_every_node_reports_at_least_once_a_second(tmp_path, ros_domain):
     """The four nodes as processes, the sim waiting for readers that never come (it used to fall
     silent there): each status arrives again and again, never more than a heartbeat and a bit
-    apart, OK, with counters, named "<node>: <what>" with the node as hardware_id."""
+    apart, OK, with counters, named "<node>: <what>" with the namespace (none here) as hardware_id."""
     from diagnostic_msgs.msg import DiagnosticArray
 
     from force_tester_common.ros import EVENT_QOS
@@ -75,9 +75,39 @@ def test_every_node_reports_at_least_once_a_second(tmp_path, ros_domain):
         assert max(gaps) < 1.9 * HEARTBEAT_S, (node, gaps)
         assert len(reports) >= span_s / HEARTBEAT_S, (node, len(reports))
         last = reports[-1][1]
-        assert last.hardware_id == f'/{node}', last
+        assert last.hardware_id == '', last    # the root namespace: a viewer's row reads "<node>: <what>"
         assert last.name.startswith(f'{node}: ') and len(last.name) > len(node) + 2, last.name
         assert last.level == LEVEL_OK.to_bytes(1, 'little'), (node, last.level, last.message)
         assert last.values, (node, last)
     assert {kv.key for kv in seen['sim'][-1][1].values} == {'pulls', 'blocks_per_topic'}
     assert 'messages' in {kv.key for kv in seen['recorder'][-1][1].values}
+
+
+def test_a_rig_namespace_is_the_hardware_id(ros_domain):
+    """A node of a rig under a namespace names the rig as hardware_id, so a viewer's row reads
+    "rig_b: validator: ...", and /diagnostics stays the one global topic."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+
+    from force_tester_common.ros import EVENT_QOS, OK, Diagnostics
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        rig = rclpy.create_node('validator', namespace='rig_b', context=context)
+        viewer = rclpy.create_node('viewer', context=context)
+        got = []
+        viewer.create_subscription(DiagnosticArray, '/diagnostics', lambda m: got.extend(m.status), EVENT_QOS)
+        diag = Diagnostics(rig, 'pull scoring', period_s=0.1)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(rig)
+        executor.add_node(viewer)
+        deadline = time.monotonic() + 30
+        while not got and time.monotonic() < deadline:
+            diag.report(OK, 'scoring', log=False)
+            executor.spin_once(timeout_sec=0.1)
+        assert got, 'no status arrived on /diagnostics'
+        assert (got[0].name, got[0].hardware_id) == ('validator: pull scoring', 'rig_b'), got[0]
+        executor.shutdown()
+    finally:
+        rclpy.shutdown(context=context)

@@ -22,6 +22,8 @@ def paths_in(layout: dict) -> list:
 
 
 def test_layout_plots_only_what_the_monitor_serves():
+    from rosbags.interfaces import Nodetype
+
     from bag_tools.core.typestore import default_typestore
     layout = json.loads(LAYOUT.read_text())
     kinds = {k.split('!')[0] for k in layout['configById']}
@@ -32,7 +34,11 @@ def test_layout_plots_only_what_the_monitor_serves():
     assert any(p.startswith('/monitor/force.') for p in paths) and any('/monitor/pull_trace.' in p for p in paths)
     for path in paths:
         topic = max((t for t in types if path == t or path.startswith(t + '.')), key=len)
-        field = re.sub(r'\[.*\]$', '', path[len(topic) + 1:]) if path != topic else ''
-        if field:
-            names = [f[0] for f in store.fielddefs[types[topic]][1]]
-            assert field in names, (path, names)
+        msg_type = types[topic]
+        for field in (re.sub(r'\[.*\]$', '', f) for f in path[len(topic) + 1:].split('.') if f):
+            # a field of a nested message (pulls[:].pull_id): walk into the element type
+            defs = dict(store.fielddefs[msg_type][1])
+            assert field in defs, (path, list(defs))
+            kind, detail = defs[field]
+            msg_type = detail[0][1] if kind == Nodetype.SEQUENCE and detail[0][0] == Nodetype.NAME else \
+                detail if kind == Nodetype.NAME else None

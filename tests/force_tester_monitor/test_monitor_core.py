@@ -139,9 +139,48 @@ def test_a_score_in_lbf_states_the_corrected_peak_with_its_uncertainty():
     from types import SimpleNamespace
     score = SimpleNamespace(pull_id=3, test_set=2, status=0, stationary_peak_n=760 * LBF_N,
                             corrected_peak_n=750 * LBF_N, corrected_peak_u_n=6 * LBF_N, filtered_peak_n=700 * LBF_N,
-                            filtered_peak_u_n=56 * LBF_N, coverage_factor=2.0)
+                            filtered_peak_u_n=56 * LBF_N, coverage_factor=2.0, raw_diff_pct=31.5,
+                            corrected_diff_pct=-1.25, filtered_diff_pct=4.0)
     out = score_lbf(score)
+    assert (out['raw_diff_pct'], out['corrected_diff_pct'], out['filtered_diff_pct']) == (31.5, -1.25, 4.0)
     assert out['corrected_peak'] == '750.0 lbf +/- 6.0 lbf (k = 2)'
     assert out['corrected_peak_u_lbf'] == pytest.approx(6.0) and out['filtered_peak_u_lbf'] == pytest.approx(56.0)
     unknown = score_lbf(SimpleNamespace(**{**vars(score), 'corrected_peak_u_n': math.nan}))
     assert unknown['corrected_peak'] == '750.0 lbf'   # no U claimed where none is known
+
+
+def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_statistics():
+    from types import SimpleNamespace
+
+    from force_tester_monitor.core.history import ScoreHistory
+
+    from force_tester_common.core.units import LBF_N
+
+    def score(pull, test_set=1, u_n=26.7, status=0):
+        return SimpleNamespace(pull_id=pull, test_set=test_set, status=status, stationary_peak_n=1000.0 + pull,
+                               corrected_peak_n=1010.0, corrected_peak_u_n=u_n, raw_diff_pct=30.123456,
+                               corrected_diff_pct=1.006, filtered_diff_pct=-0.5, coverage_factor=2.0)
+    history = ScoreHistory(rows=3)
+    for pull in range(5):
+        history.add_score(score(pull, status=pull % 2), stamp_ns=pull * 1_000_000_000)
+    rows = history.pulls()
+    assert [r['pull'] for r in rows] == [4, 3, 2]          # the newest three, newest first
+    assert rows[0]['status'] == 'OK' and rows[1]['status'] == 'INCOMPLETE'
+    assert rows[0]['stationary_lbf'] == round(1004.0 / LBF_N, 1)
+    assert rows[0]['corrected_lbf'] == f'{1010.0 / LBF_N:.1f} ± {26.7 / LBF_N:.1f}'
+    assert (rows[0]['raw_pct'], rows[0]['corrected_pct']) == (30.12, 1.01)
+    assert history.newest_stamp_ns() == 4_000_000_000 and history.coverage_factor == 2.0
+    history.add_score(score(3, u_n=float('nan')), stamp_ns=3_000_000_000)   # pull 3 scored again: one row, moved up
+    assert [r['pull'] for r in history.pulls()] == [3, 4, 2]
+    assert history.pulls()[0]['corrected_lbf'] == f'{1010.0 / LBF_N:.1f}'
+    nan = float('nan')
+    summary = SimpleNamespace(test_set=2, pulls=4, stationary_peak_mean_n=3000.0, raw_diff_mean_pct=30.0,
+                              raw_diff_std_pct=1.234, corrected_diff_mean_pct=2.0, corrected_diff_std_pct=nan,
+                              filtered_diff_mean_pct=nan, filtered_diff_std_pct=nan)
+    history.add_summary(summary)
+    history.add_summary(SimpleNamespace(**{**vars(summary), 'test_set': 1}))
+    assert [s['test_set'] for s in history.sets()] == [1, 2]
+    assert history.sets()[1] == {'test_set': 2, 'pulls': 4, 'stationary_mean_lbf': round(3000.0 / LBF_N, 1),
+                                 'raw_pct': '30.00 ± 1.23', 'corrected_pct': '2.00', 'filtered_pct': '-'}
+    with pytest.raises(MonitorError, match="history rows 0 is invalid"):
+        ScoreHistory(rows=0)

@@ -5,7 +5,8 @@ separate processes over Fast DDS.
 The viewer is served as ./ft view serves it and opened by its URL (the layout and the monitor's
 WebSocket named in Studio's deep-link parameters). Once the validator has scored the pulls, the page
 must show: no connection problem; the live plot's legend with numbers that change while the sim runs;
-the scores table with the scored pull; every node of the graph in the diagnostics panel, OK. The
+the score history with one row per scored pull, with the validator's numbers in display units; every
+node of the graph in the diagnostics panel, OK, its row named "<node>: <what>". The
 screenshot is saved under the test's tmp dir (viewer.png) for a person to look at. No request of the
 page may leave the machine.
 """
@@ -22,6 +23,7 @@ import time
 import pytest
 from fox_client import monitor_port
 
+from force_tester_common.core.units import n_to_lbf
 from ft_cli.commands import view
 from ft_cli.graph import Graph, ScoreCollector
 
@@ -33,7 +35,7 @@ NUMBER = re.compile(r'^-?\d+(\.\d+)?(e[-+]?\d+)?$', re.I)
 # each node's name in its /diagnostics status ("<node>: <what>"), as the diagnostics panel lists it
 NODES = ('sim', 'correction', 'validator', 'monitor')
 LIVE = 'Plot!livetrace'            # the layout's panels, by id
-SCORES = 'Table!scores'
+HISTORY = 'Table!history'
 
 
 class Page:
@@ -174,22 +176,29 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
 
         def settled(state):
             last_state[:] = [state]
-            shown = {r.get('pull_id') for r in table_rows(state, SCORES)}
+            shown = {r.get('pull') for r in table_rows(state, HISTORY)}
             rows = node_rows(state)
-            return str(collector.scores[-1]['pull_id']) in shown and all(rows.get(n, ('', False))[1] for n in NODES)
+            return {str(s['pull_id']) for s in collector.scores} <= shown and \
+                all(rows.get(n, ('', False))[1] for n in NODES)
         state = page.state_until(settled, 120, spin)
         page.command(f'screenshot {tmp_path / "viewer.png"}', 'screenshot')
         print(f'screenshot: {tmp_path / "viewer.png"}')
-        assert state is not None, ('the scores table or the diagnostics never settled',
-                                   table_rows(last_state[0], SCORES), node_rows(last_state[0]))
+        assert state is not None, ('the score history or the diagnostics never settled',
+                                   table_rows(last_state[0], HISTORY), node_rows(last_state[0]))
         # no connection problem: the app reported none for its data source
         assert page.problems == [], page.problems
-        # the scores table shows the last scored pull, with the validator's numbers
-        rows = [r for r in table_rows(state, SCORES) if r.get('pull_id') == str(collector.scores[-1]['pull_id'])]
-        assert rows, table_rows(state, SCORES)
-        last = collector.scores[-1]
-        assert float(rows[0]['stationary_peak_n']) == pytest.approx(last['stationary_peak_n'], rel=1e-9)
-        assert float(rows[0]['raw_diff_pct']) == pytest.approx(last['raw_diff_pct'], rel=1e-9)
+        # the score history: a row per scored pull, newest first, with the validator's numbers (lbf, rounded)
+        rows = table_rows(state, HISTORY)
+        assert [r['pull'] for r in rows] == [str(s['pull_id']) for s in reversed(collector.scores)], rows
+        for row, score in zip(rows, reversed(collector.scores)):
+            assert float(row['stationary_lbf']) == pytest.approx(n_to_lbf(score['stationary_peak_n']), abs=0.051)
+            assert float(row['raw_pct']) == pytest.approx(score['raw_diff_pct'], abs=0.0051)
+            assert row['corrected_lbf'].startswith(f"{n_to_lbf(score['corrected_peak_n']):.1f}"), (row, score)
+        # and the set's running statistics, as the validator summed them up
+        sets = table_rows(state, 'Table!sets')
+        assert [(r['test_set'], r['pulls']) for r in sets] == [('3', str(PULLS))], sets
+        # each diagnostics row reads "<node>: <what>" (no node name twice, as "/validator: validator: ...")
+        assert all(row['name'].count(':') == 1 for row in state['diagnostics']), state['diagnostics']
         # every node is listed, OK
         assert {n: ok for n, (_, ok) in node_rows(state).items() if n in NODES} == {n: True for n in NODES}, \
             node_rows(state)

@@ -78,8 +78,8 @@ class CorrectionNode(Node):
         self.extension = ext
         self.prefilters = {}  # sample rate -> ForcePrefilter
         self.monitors = {}    # sample rate -> ShortEventMonitor
-        self.diag.report(OK, f'correction (re)started with m = {params.mass_kg} kg, N = {params.window}, '
-                             f'extension {ext}')
+        self.diag.report(OK, f'(re)started: m = {params.mass_kg:g} kg, N = {params.window}, '
+                             f'extension: {ext.describe()}')
 
     def _prefilter(self, rate_hz: float) -> ForcePrefilter:
         if rate_hz not in self.prefilters:

@@ -44,10 +44,13 @@ OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.E
 class Diagnostics:
     """Publishes diagnostic_msgs/DiagnosticArray on /diagnostics and mirrors it to the node's log.
 
-    Status name ``"<node>: <what>"``, hardware_id the node's fully qualified name (diagnostic_msgs
-    conventions: one name per component, hardware_id what it runs on). Besides the reports a node
-    makes on events, a heartbeat every ``period_s`` (HEARTBEAT_S, 1 Hz; the recorder 2 Hz) repeats
-    the node's state with ``counters()`` as key/values, so a viewer never marks a healthy node STALE.
+    Status name ``"<node>: <what>"`` (diagnostic_updater's convention), hardware_id the node's namespace
+    without its leading slash: the rig it serves, empty in the root namespace. Viewers show a row as
+    ``"<hardware_id>: <name>"`` (Foxglove) or group by hardware_id (rqt_robot_monitor), so a row reads
+    ``validator: pull scoring``, or ``rig_b: validator: pull scoring`` for the validator of rig_b.
+    Besides the reports a node makes on events, a heartbeat every ``period_s`` (HEARTBEAT_S, 1 Hz; the
+    recorder 2 Hz) repeats the node's state with ``counters()`` as key/values, so a viewer never marks a
+    healthy node STALE.
     The heartbeat's level is the worst report of the last HOLD_S seconds (OK when there was none),
     or, for good, that of a report made with ``latch=True`` (a condition that lasts, like a stopped
     simulation). Its message is that report's, else the last OK report's.
@@ -109,7 +112,7 @@ class Diagnostics:
 
     def _publish(self, level: int, message: str, values: dict) -> None:
         status = DiagnosticStatus(level=level, name=self._name, message=message,
-                                  hardware_id=self._node.get_fully_qualified_name(),
+                                  hardware_id=self._node.get_namespace().strip('/'),
                                   values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self._node.get_clock().now().to_msg()

@@ -4,7 +4,8 @@
   graph's topics unchanged: CDR messages on channels with the full ``pkg/msg/Type`` name and the
   embedded ros2msg definition, as in our bags, so one Foxglove layout serves a live graph, a bag
   played back and an opened bag file.
-- The derived topics /monitor/force, /monitor/pull_trace and /monitor/health, published on ROS
+- The derived topics /monitor/force, /monitor/pull_trace, /monitor/pull_score, /monitor/score_history and
+  /monitor/health, published on ROS
   (for PlotJuggler and rqt) and forwarded the same way.
 - The graph's node parameters for Foxglove's Parameters panel (read from /parameter_events and the
   nodes' parameter services; a set from the panel goes to the node's parameter service).
@@ -31,8 +32,12 @@ from force_tester_msgs.msg import (
     PullEvent,
     PullScore,
     PullTrace,
+    ScoreRow,
+    SetRow,
+    SetSummary,
     TopicHealth,
 )
+from force_tester_msgs.msg import ScoreHistory as ScoreHistoryMsg
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
@@ -46,6 +51,7 @@ from force_tester_common.ros import EVENT_QOS, OK, SCORE_QOS, SUMMARY_QOS, WARN,
 from .core import params as P
 from .core.batch import decode_batch
 from .core.health import TopicStats, recorder_counts
+from .core.history import ScoreHistory
 from .core.live import SIGNALS, ForceJoin, LiveTrace, PullTraces, score_lbf
 from .foxglove_bridge import FoxgloveBridge, sdk_version
 from .parameter_proxy import ParameterProxy
@@ -70,6 +76,8 @@ SPECS = [
     ParamSpec('trace_timeout_s', P.TRACE_TIMEOUT_S, "an ended pull's trace goes out when no block came for this long "
                                                     '(the data stopped short)', P.TRACE_TIMEOUT_RANGE_S,
               read_only=True),
+    ParamSpec('history_rows', P.HISTORY_ROWS, '/monitor/score_history: the newest pulls it lists',
+              P.HISTORY_ROWS_RANGE, read_only=True),
     ParamSpec('backlog', P.BACKLOG, 'messages the server queues per client (the oldest is dropped when full)',
               P.BACKLOG_RANGE, read_only=True),
     ParamSpec('depth', P.DEPTH, 'subscription queue depth (best effort, keep last)', P.DEPTH_RANGE,
@@ -93,6 +101,7 @@ FORWARDED.update({CH.PULL_EVENT_TOPIC: (CH.PULL_EVENT_TYPE, None),
 DERIVED = {CH.MONITOR_FORCE_TOPIC: (CH.MONITOR_FORCE_TYPE, MonitorForce),
            CH.PULL_TRACE_TOPIC: (CH.PULL_TRACE_TYPE, PullTrace),
            CH.MONITOR_SCORE_TOPIC: (CH.MONITOR_SCORE_TYPE, MonitorScore),
+           CH.SCORE_HISTORY_TOPIC: (CH.SCORE_HISTORY_TYPE, ScoreHistoryMsg),
            CH.MONITOR_HEALTH_TOPIC: (CH.MONITOR_HEALTH_TYPE, MonitorHealth)}
 FORCE_TOPIC = CH.BLOCK_TYPES[CH.FORCE_TYPE][0]
 CORRECTED = CH.CORRECTED_TYPE[1][0]
@@ -134,6 +143,7 @@ class MonitorNode(Node):
         self.join = ForceJoin()
         self.live = LiveTrace(cfg.force_every)
         self.traces = PullTraces(cfg.trace_margin_s, cfg.max_trace_s, cfg.trace_timeout_s)
+        self.history = ScoreHistory(cfg.history_rows)
         self.recorder = {}
         self.recorder_seen_ns = None
         self.pubs = {topic: self.create_publisher(cls, topic, EVENT_QOS) for topic, (_n, cls) in DERIVED.items()}
@@ -193,12 +203,12 @@ class MonitorNode(Node):
             self._publish_force(self.live.flush())
         for trace in self.traces.expire(time.monotonic_ns()):
             self._publish_trace(trace)
-        for topic in (CH.PULL_SCORE_TOPIC, CH.SET_SUMMARY_TOPIC):
-            items = self._take(topic)
+        scores, summaries = self._take(CH.PULL_SCORE_TOPIC), self._take(CH.SET_SUMMARY_TOPIC)
+        for topic, items in ((CH.PULL_SCORE_TOPIC, scores), (CH.SET_SUMMARY_TOPIC, summaries)):
             if items:
                 self.stats[topic].add([a for a, _ in items])
-            if topic == CH.PULL_SCORE_TOPIC:
-                self._scores(items)
+        if self._scores(scores) + self._summaries(summaries):
+            self._publish_history()
         self._diagnostics()
         self.bridge.serve()
 
@@ -244,17 +254,38 @@ class MonitorNode(Node):
         if items:
             self.stats[CH.PULL_EVENT_TOPIC].add([a for a, _ in items])
 
-    def _scores(self, items) -> None:
-        """Each /pull_score again on /monitor/pull_score in lbf, its corrected peak with its uncertainty."""
+    def _decoded(self, topic: str, items, cls) -> list:
+        out = []
         for _arrival, data in items:
             try:
-                score = deserialize_message(data, PullScore)
+                out.append(deserialize_message(data, cls))
             except Exception as exc:  # noqa: BLE001 - input from outside
-                self._bad(CH.PULL_SCORE_TOPIC, f'undecodable: {exc}')
-                continue
+                self._bad(topic, f'undecodable: {exc}')
+        return out
+
+    def _scores(self, items) -> int:
+        """Each /pull_score again on /monitor/pull_score in lbf, its corrected peak with its uncertainty, and
+        into the score history. Returns how many there were."""
+        scores = self._decoded(CH.PULL_SCORE_TOPIC, items, PullScore)
+        for score in scores:
             msg = MonitorScore(**score_lbf(score))
             msg.header.stamp = score.header.stamp
             self._send(CH.MONITOR_SCORE_TOPIC, msg)
+            self.history.add_score(score, score.header.stamp.sec * NS_PER_S + score.header.stamp.nanosec)
+        return len(scores)
+
+    def _summaries(self, items) -> int:
+        summaries = self._decoded(CH.SET_SUMMARY_TOPIC, items, SetSummary)
+        for summary in summaries:
+            self.history.add_summary(summary)
+        return len(summaries)
+
+    def _publish_history(self) -> None:
+        msg = ScoreHistoryMsg(pulls=[ScoreRow(**row) for row in self.history.pulls()],
+                              sets=[SetRow(**row) for row in self.history.sets()],
+                              coverage_factor=self.history.coverage_factor)
+        msg.header.stamp = ns_to_stamp(self.history.newest_stamp_ns())
+        self._send(CH.SCORE_HISTORY_TOPIC, msg)
 
     def _diagnostics(self) -> None:
         items = self._take(CH.DIAGNOSTICS_TOPIC)

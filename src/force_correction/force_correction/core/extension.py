@@ -74,6 +74,13 @@ class Extension:
         except (TypeError, ValueError) as exc:
             raise CorrectionError(f'extension {data!r} is invalid: {exc}') from None
 
+    def describe(self) -> str:
+        """What the extension changes, briefly: 'none', or 'moving_cell_gain 1.02, accel_delay_s 2.1e-05'."""
+        default = type(self)()
+        changed = [f'{f.name} {v:.6g}' if isinstance(v, float) else f'{f.name} {v}'
+                   for f in fields(self) if (v := getattr(self, f.name)) != getattr(default, f.name)]
+        return ', '.join(changed) or 'none'
+
     @classmethod
     def from_yaml(cls, path) -> 'Extension':
         """The ``correction:`` section of an extension.yaml written by `./ft discover`."""

@@ -41,6 +41,14 @@ def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
     return code, '; '.join(texts)
 
 
+def peak_short(peak_lbf: float, u_lbf: float) -> str:
+    """The same in a table's cell, whose column names the unit and k: '750.0 ± 6.0' ('750.0' while U is not known,
+    '-' while the peak is not)."""
+    if peak_lbf != peak_lbf:
+        return '-'
+    return f'{peak_lbf:.1f}' if u_lbf != u_lbf else f'{peak_lbf:.1f} ± {u_lbf:.1f}'
+
+
 def peak_text(peak_lbf: float, u_lbf: float, k: float) -> str:
     """A corrected peak as a test engineer reports it: '750.0 lbf +/- 6.0 lbf (k = 2)' (the peak alone while U
     is not known, '-' while the peak is not)."""

@@ -215,6 +215,7 @@ def score_lbf(score) -> dict:
         return float(n_to_lbf(float(getattr(score, name))))
     out = {'pull_id': int(score.pull_id), 'test_set': int(score.test_set), 'status': int(score.status),
            'coverage_factor': float(score.coverage_factor),
+           **{f'{k}_diff_pct': float(getattr(score, f'{k}_diff_pct')) for k in ('raw', 'corrected', 'filtered')},
            **{f'{k}_lbf': lbf(f'{k}_n') for k in ('stationary_peak', 'corrected_peak', 'corrected_peak_u',
                                                   'filtered_peak', 'filtered_peak_u')}}
     out['corrected_peak'] = peak_text(out['corrected_peak_lbf'], out['corrected_peak_u_lbf'], out['coverage_factor'])

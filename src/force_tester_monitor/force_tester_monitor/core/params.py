@@ -26,6 +26,8 @@ MAX_TRACE_S = 60.0                 # pull trace: a pull longer than this keeps i
 MAX_TRACE_RANGE_S = (0.1, 3600.0)
 TRACE_TIMEOUT_S = 3.0              # an ended pull's trace goes out when no block came for this long (stopped short)
 TRACE_TIMEOUT_RANGE_S = (0.1, 600.0)
+HISTORY_ROWS = 500                 # /monitor/score_history: the newest pulls it lists (a set's statistics cover all)
+HISTORY_ROWS_RANGE = (1, 100_000)
 BACKLOG = 1024                     # messages the server queues per client; the oldest goes first when full
 BACKLOG_RANGE = (16, 1_000_000)
 DEPTH = 10_000                     # subscription queue (best effort, keep last; 10 s of 1 ms blocks, as the graph's):
@@ -57,6 +59,7 @@ class MonitorParams:
     trace_margin_s: float = TRACE_MARGIN_S
     max_trace_s: float = MAX_TRACE_S
     trace_timeout_s: float = TRACE_TIMEOUT_S
+    history_rows: int = HISTORY_ROWS
     backlog: int = BACKLOG
     depth: int = DEPTH
     on_demand: bool = ON_DEMAND
@@ -69,6 +72,7 @@ class MonitorParams:
                                 ('trace_margin_s', TRACE_MARGIN_RANGE_S, float),
                                 ('max_trace_s', MAX_TRACE_RANGE_S, float),
                                 ('trace_timeout_s', TRACE_TIMEOUT_RANGE_S, float),
+                                ('history_rows', HISTORY_ROWS_RANGE, int),
                                 ('backlog', BACKLOG_RANGE, int), ('depth', DEPTH_RANGE, int)):
             object.__setattr__(self, name, _check(name, getattr(self, name), rng, kind))
         if not isinstance(self.on_demand, bool):

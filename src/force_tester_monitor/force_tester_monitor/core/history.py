@@ -1,0 +1,79 @@
+"""The score history (ROS-free): the pulls scored so far and each test set's running statistics, as the rows
+of /monitor/score_history (ScoreRow, SetRow; display units, rounded for reading).
+
+The set statistics are the validator's (its /set_summary, the last one per set): the monitor shows them and
+computes none of its own. A pull scored again (the validator re-scores a pull it had scored from partial
+data) replaces its row.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+
+from force_tester_common.core.scores import PULL_STATUS_NAMES, peak_short
+from force_tester_common.core.units import n_to_lbf
+
+from .errors import MonitorError
+
+DIFFS = ('raw', 'corrected', 'filtered')
+
+
+def _lbf(value_n: float) -> float:
+    return round(float(n_to_lbf(float(value_n))), 1)
+
+
+def _pct(value: float) -> float:
+    return round(float(value), 2)
+
+
+def score_row(score) -> dict:
+    """A PullScore (or anything with its fields) as a ScoreRow's fields."""
+    return {'pull': int(score.pull_id), 'test_set': int(score.test_set),
+            'status': PULL_STATUS_NAMES.get(int(score.status), str(int(score.status))),
+            'stationary_lbf': _lbf(score.stationary_peak_n),
+            'corrected_lbf': peak_short(float(n_to_lbf(float(score.corrected_peak_n))),
+                                        float(n_to_lbf(float(score.corrected_peak_u_n)))),
+            **{f'{d}_pct': _pct(getattr(score, f'{d}_diff_pct')) for d in DIFFS}}
+
+
+def set_row(summary) -> dict:
+    """A SetSummary message (or anything with its fields) as a SetRow's fields."""
+    def mean_std(d):
+        mean, std = getattr(summary, f'{d}_diff_mean_pct'), getattr(summary, f'{d}_diff_std_pct')
+        return '-' if mean != mean else (f'{mean:.2f}' if std != std else f'{mean:.2f} ± {std:.2f}')
+    return {'test_set': int(summary.test_set), 'pulls': int(summary.pulls),
+            'stationary_mean_lbf': _lbf(summary.stationary_peak_mean_n),
+            **{f'{d}_pct': mean_std(d) for d in DIFFS}}
+
+
+class ScoreHistory:
+    """The newest ``rows`` scored pulls and the last summary of each test set."""
+
+    def __init__(self, rows: int):
+        if not (isinstance(rows, int) and rows >= 1):
+            raise MonitorError(f'history rows {rows!r} is invalid; expected an integer >= 1')
+        self.rows = rows
+        self._pulls: OrderedDict = OrderedDict()   # (test_set, pull_id) -> (start stamp ns, ScoreRow fields)
+        self._sets: dict = {}                      # test_set -> SetRow fields
+        self.coverage_factor = float('nan')
+
+    def add_score(self, score, stamp_ns: int) -> None:
+        key = (int(score.test_set), int(score.pull_id))
+        self._pulls.pop(key, None)
+        self._pulls[key] = (int(stamp_ns), score_row(score))
+        while len(self._pulls) > self.rows:
+            self._pulls.popitem(last=False)
+        self.coverage_factor = float(score.coverage_factor)
+
+    def add_summary(self, summary) -> None:
+        self._sets[int(summary.test_set)] = set_row(summary)
+
+    def newest_stamp_ns(self) -> int:
+        return max((s for s, _ in self._pulls.values()), default=0)
+
+    def pulls(self) -> list:
+        """ScoreRow fields, newest first."""
+        return [row for _, row in reversed(self._pulls.values())]
+
+    def sets(self) -> list:
+        """SetRow fields, by test set."""
+        return [self._sets[k] for k in sorted(self._sets)]
