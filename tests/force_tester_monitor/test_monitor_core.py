@@ -133,6 +133,9 @@ def test_params_name_the_value_and_the_range():
         MonitorParams(port=70000)
     with pytest.raises(MonitorError, match="force_every 'x' is invalid"):
         MonitorParams(force_every='x')
+    with pytest.raises(MonitorError, match="host 'lab-pc' is invalid; expected an IP address"):
+        MonitorParams(host='lab-pc')
+    assert MonitorParams(host='0.0.0.0').host == '0.0.0.0'
 
 
 def test_a_score_in_lbf_states_the_corrected_peak_with_its_uncertainty():

@@ -17,13 +17,13 @@ from force_tester_monitor.core.subprotocol import (
 )
 
 
-def handshake(port: int, protocols: str | None) -> tuple:
+def handshake(port: int, protocols: str | None, host: str = '127.0.0.1') -> tuple:
     """(status code, the answer's Sec-WebSocket-Protocol or None) of a raw WebSocket upgrade."""
     key = base64.b64encode(os.urandom(16)).decode()
-    head = (f'GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n'
+    head = (f'GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n'
             f'Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n'
             + (f'Sec-WebSocket-Protocol: {protocols}\r\n' if protocols else '') + '\r\n')
-    with socket.create_connection(('127.0.0.1', port), timeout=30) as s:
+    with socket.create_connection((host, port), timeout=30) as s:
         s.sendall(head.encode())
         data = b''
         while b'\r\n\r\n' not in data:
@@ -54,6 +54,24 @@ def test_both_names_are_accepted_through_the_gate(sdk_and_gate):
     assert handshake(gate.port, f'{LEGACY_SUBPROTOCOL}, {SDK_SUBPROTOCOL}') == (101, SDK_SUBPROTOCOL)
     assert handshake(gate.port, 'some.other.v1')[0] == 400
     assert handshake(gate.port, None)[0] == 400
+
+
+def test_a_gate_on_every_interface_serves_the_lab_network():
+    """The monitor's ``host`` 0.0.0.0: a browser on another machine reaches the gate at this machine's address,
+    while the SDK's own server stays on loopback."""
+    from ft_cli.commands.view import lan_address
+    address = lan_address()
+    if address.count('.') != 3:
+        pytest.skip(f'this machine has no IPv4 address on a default route ({address!r})')
+    server = foxglove.start_server(name='gate test', host='127.0.0.1', port=0)
+    gate = SubprotocolGate('0.0.0.0', 0, server.port)
+    try:
+        assert handshake(gate.port, LEGACY_SUBPROTOCOL, host=address) == (101, LEGACY_SUBPROTOCOL)
+        with pytest.raises(OSError):
+            socket.create_connection((address, server.port), timeout=10).close()
+    finally:
+        gate.close()
+        server.stop()
 
 
 def test_a_busy_port_is_one_line_naming_it(sdk_and_gate):

@@ -56,3 +56,22 @@ def test_a_monitor_that_is_not_a_websocket_url_is_one_readable_line():
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [
         f"ft: error: --monitor 'localhost:8765': expected a ws:// URL such as ws://127.0.0.1:{view.MONITOR_PORT}"]
+
+
+def test_served_to_the_lab_network_the_url_names_this_machine_and_its_monitor():
+    """--host 0.0.0.0: the printed URL must work from another machine, so it names this machine's address
+    (not loopback), for the viewer and for the monitor the browser connects to."""
+    proc = subprocess.Popen([str(ROOT / 'ft'), 'view', '--host', '0.0.0.0', '--port', '0'], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stdout.readline()
+        hint = proc.stdout.readline()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    address = view.lan_address()
+    assert address not in ('127.0.0.1', 'localhost'), address
+    link = urlsplit(first.split(' at ', 1)[1].strip())
+    assert link.hostname == address, first
+    assert parse_qs(link.query)['ds.url'] == [f'ws://{address}:{view.MONITOR_PORT}'], first
+    assert 'host:=0.0.0.0' in hint, hint

@@ -20,7 +20,6 @@ from foxglove.websocket import Capability
 
 from bag_tools.core.typestore import default_typestore
 
-from .core import params as P
 from .core.errors import MonitorError
 from .core.subprotocol import SubprotocolGate
 
@@ -91,7 +90,7 @@ class FoxgloveBridge:
     (called on the server's thread, so thread-safe), ``set([(name, value)])`` and ``refresh()``.
     """
 
-    def __init__(self, types: dict, port: int, backlog: int, *, parameters, on_watch: Callable[[], None],
+    def __init__(self, types: dict, host: str, port: int, backlog: int, *, parameters, on_watch: Callable[[], None],
                  on_client_message: Callable[[str], None], on_sdk_log: Callable[[int, str], None]):
         self.parameters = parameters
         self.on_watch, self.on_client_message, self.on_sdk_log = on_watch, on_client_message, on_sdk_log
@@ -119,7 +118,7 @@ class FoxgloveBridge:
         except RuntimeError as exc:
             raise MonitorError(f'the Foxglove server cannot start ({exc}); expected a free loopback port') from None
         try:
-            self.gate = SubprotocolGate(P.HOST, port, self.server.port)
+            self.gate = SubprotocolGate(host, port, self.server.port)
         except MonitorError:
             self.server.stop()
             raise

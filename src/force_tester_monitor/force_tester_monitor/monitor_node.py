@@ -59,8 +59,9 @@ from .parameter_proxy import ParameterProxy
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
 SPECS = [
-    ParamSpec('port', P.PORT, f'Foxglove WebSocket port on {P.HOST} (0: any free port)', P.PORT_RANGE,
-              read_only=True),
+    ParamSpec('host', P.HOST, 'address the Foxglove WebSocket listens on (0.0.0.0: every interface, for browsers '
+                              'on the lab network)', read_only=True),
+    ParamSpec('port', P.PORT, 'Foxglove WebSocket port (0: any free port)', P.PORT_RANGE, read_only=True),
     ParamSpec('force_every', P.FORCE_EVERY, '/force_corrected blocks per /monitor/force message',
               P.FORCE_EVERY_RANGE, read_only=True),
     ParamSpec('period_s', P.PERIOD_S, 'the monitor works through what arrived this often', P.PERIOD_RANGE_S,
@@ -130,12 +131,12 @@ class MonitorNode(Node):
         self.counts = defaultdict(int)
         self.parameters = ParameterProxy(self, self.diag, lambda ps: self.bridge.publish_parameters(ps))
         types = {**{t: n for t, (n, _f) in FORWARDED.items()}, **{t: n for t, (n, _c) in DERIVED.items()}}
-        self.bridge = FoxgloveBridge(types, cfg.port, cfg.backlog, parameters=self.parameters,
+        self.bridge = FoxgloveBridge(types, cfg.host, cfg.port, cfg.backlog, parameters=self.parameters,
                                      on_watch=self._update_watched, on_client_message=self._client_message,
                                      on_sdk_log=self._sdk_log)
         self.channels = self.bridge.channels
         self.port = self.bridge.port
-        self.diag.report(OK, f'Foxglove WebSocket at ws://{P.HOST}:{self.port} (foxglove-sdk '
+        self.diag.report(OK, f'Foxglove WebSocket at ws://{cfg.host}:{self.port} (foxglove-sdk '
                              f'{sdk_version()}, subprotocol foxglove.sdk.v1)', port=self.port)
 
         self.pending = {topic: [] for topic in FORWARDED}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import mimetypes
+import socket
 import sys
 import tempfile
 import threading
@@ -85,16 +86,34 @@ def url(host: str, port: int, monitor: str) -> str:
             f'&layoutId={LAYOUT_ID}')
 
 
+def lan_address() -> str:
+    """This machine's address on its default route, as other machines of the lab network reach it (a UDP socket
+    is connected to a documentation address to pick the interface; no packet is sent), else its host name."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(('192.0.2.1', 9))
+            return s.getsockname()[0]
+        except OSError:
+            return socket.gethostname()
+
+
+def shown_host(host: str) -> str:
+    """The address a browser uses to reach a server bound to HOST."""
+    return lan_address() if host in ('0.0.0.0', '::') else host
+
+
 def add_arguments(p):
     p.add_argument('--host', default=HOST,
-                   help=f'address to serve on (default {HOST}; 0.0.0.0 for every interface)')
+                   help=f'address to serve on (default {HOST}; 0.0.0.0 for every interface: browsers on the lab '
+                        'network, and the monitor is looked for at this machine\'s address)')
     p.add_argument('--port', type=int, default=PORT, help=f'HTTP port to serve on (default {PORT}; 0: any free port)')
-    p.add_argument('--monitor', default=f'ws://127.0.0.1:{MONITOR_PORT}', metavar='URL',
-                   help=f"the monitor's Foxglove WebSocket (default ws://127.0.0.1:{MONITOR_PORT})")
+    p.add_argument('--monitor', default=None, metavar='URL',
+                   help="the monitor's Foxglove WebSocket, as the browser reaches it "
+                        f'(default ws://HOST:{MONITOR_PORT}, HOST as the viewer is reached)')
 
 
 def run(args) -> int:
-    if not args.monitor.startswith(('ws://', 'wss://')):
+    if args.monitor is not None and not args.monitor.startswith(('ws://', 'wss://')):
         print(f'ft: error: --monitor {args.monitor!r}: expected a ws:// URL such as ws://127.0.0.1:{MONITOR_PORT}',
               file=sys.stderr)
         return 2
@@ -104,8 +123,11 @@ def run(args) -> int:
         print(f'ft: error: {exc}', file=sys.stderr)
         return 1
     host, port = server.server_address[:2]
-    shown = '127.0.0.1' if host == '0.0.0.0' else host
-    print(f'viewer (Foxglove Studio 1.48.0, MPL-2.0) at {url(shown, port, args.monitor)}', flush=True)
+    shown = shown_host(host)
+    monitor = args.monitor or f'ws://{shown}:{MONITOR_PORT}'
+    print(f'viewer (Foxglove Studio 1.48.0, MPL-2.0) at {url(shown, port, monitor)}', flush=True)
+    if shown != HOST and args.monitor is None:
+        print(f'the browser connects to the monitor at {monitor}: start it with -p host:=0.0.0.0', flush=True)
     print('Ctrl-C stops it', flush=True)
     try:
         threading.Event().wait()

@@ -2,13 +2,15 @@
 the core's MonitorParams and the tests take them from here."""
 from __future__ import annotations
 
+import ipaddress
 from dataclasses import dataclass
 
 from force_tester_common.core.channels import ACCEL_TYPE, BLOCK_TYPES, ENCODER_TYPE, MOTOR_TYPE
 
 from .errors import MonitorError
 
-HOST = '127.0.0.1'                 # the WebSocket listens on loopback only
+HOST = '127.0.0.1'                 # the WebSocket listens on loopback only by default; 0.0.0.0 (or an
+                                   # interface's address) serves browsers on the lab network
 PORT = 8765                        # Foxglove's default WebSocket port
 PORT_RANGE = (0, 65535)            # 0: any free port (the node logs the one it got)
 FORCE_EVERY = 2                    # /force_corrected blocks per /monitor/force message: 50 Hz at the
@@ -51,6 +53,7 @@ def _check(name: str, value, rng: tuple, kind: type):
 
 @dataclass(frozen=True)
 class MonitorParams:
+    host: str = HOST
     port: int = PORT
     force_every: int = FORCE_EVERY
     period_s: float = PERIOD_S
@@ -75,5 +78,10 @@ class MonitorParams:
                                 ('history_rows', HISTORY_ROWS_RANGE, int),
                                 ('backlog', BACKLOG_RANGE, int), ('depth', DEPTH_RANGE, int)):
             object.__setattr__(self, name, _check(name, getattr(self, name), rng, kind))
+        try:
+            ipaddress.ip_address(self.host)
+        except ValueError:
+            raise MonitorError(f'host {self.host!r} is invalid; expected an IP address such as {HOST} or 0.0.0.0') \
+                from None
         if not isinstance(self.on_demand, bool):
             raise MonitorError(f'on_demand {self.on_demand!r} is invalid; expected true or false')
