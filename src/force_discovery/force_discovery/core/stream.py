@@ -77,9 +77,10 @@ from .extension import named_extension
 from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
-from .free import check_core_channels, discover_free, full_identifiability, needs_reference_free
+from .free import discover_free
 from .friction import friction_row, friction_rows, friction_sse, friction_stat
 from .hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
+from .identifiability import check_core_channels, full_identifiability, needs_reference_free
 from .leftover import LeftoverPart, LeftoverSum, leftover_part
 from .outputs import write_outputs
 from .prep import Pull, PullQuality, check_quality, prepare
