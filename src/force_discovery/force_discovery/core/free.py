@@ -36,7 +36,7 @@ per-pull estimates, no interval, no cause.
 # This module's docstring is the Method section of the reference-free report.md: keep it the method as run.
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -51,6 +51,7 @@ from .free_stats import FreeStats, free_stats
 from .hum import HUM_BAND_HZ, hum_frequency_free
 from .identifiability import FREE_CHANNELS, check_core_channels
 from .leave_one_out import campaign_analysis
+from .reference_fit import reference_stats
 
 METHOD = __doc__.split('\n\n', 1)[1]
 
@@ -68,12 +69,12 @@ class FreeSurvey:
 
 def free_survey(ref) -> FreeSurvey:
     """Pass 1 (mapped over the pulls): read, screen, and analyse one pull's free phases."""
-    from .source import load_channels
+    from .source import load_channels, rated_ranges
     _meta, ch = load_channels(ref)
     for c in FREE_CHANNELS:
         if c not in ch:
             check_core_channels((c,), f'pull {ref.name!r}')
-    sc = Q.screen_pull(ref.name, ch)
+    sc = Q.screen_pull(ref.name, ch, rated_ranges(ref))
     why = sc.exclusion(0, sc.samples, FREE_CHANNELS)
     if why:
         return FreeSurvey(ref.name, sc, excluded=why)
@@ -84,11 +85,13 @@ def free_survey(ref) -> FreeSurvey:
 
 
 def free_pass2(item) -> FreeStats:
-    """Pass 2 (mapped over the usable pulls): item = (PullRef, FreeSurvey, hum frequency, the delay grid)."""
+    """Pass 2 (mapped over the usable pulls): item = (PullRef, FreeSurvey, hum frequency, the delay grid,
+    the rig's force chain)."""
     from .source import load_channels
-    ref, sv, f_hum, delays = item
+    ref, sv, f_hum, delays, fc = item
     _meta, ch = load_channels(ref)
-    return free_stats(ref.name, ch, sv.screen, f_hum, sv.pull, delays)
+    st = free_stats(ref.name, ch, sv.screen, f_hum, sv.pull, delays)
+    return replace(st, ref=reference_stats(ref.name, ch, sv.screen, f_hum, delays, fc))
 
 
 def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None, few: int = 0) -> dict:
@@ -123,7 +126,8 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
     pres = [(p.hum_t, p.hum_r) for p in pulls if len(p.hum_t) > 100]
     f_hum = hum_frequency_free(pres) if pres else float(np.mean(HUM_BAND_HZ))
     grid = delay_grid(pulls[0].dt, [p.delay_s for p in pulls])
-    res2 = run('statistics', free_pass2, [(r, s, f_hum, grid) for r, s in usable], [p.name for p in pulls])
+    res2 = run('statistics', free_pass2, [(r, s, f_hum, grid, rig.force_chain) for r, s in usable],
+               [p.name for p in pulls])
     if res2.failed:
         name, why = res2.failed[0]
         raise DiscoveryError(f'pull {name!r} failed in the statistics stage ({why}); expected every usable pull '

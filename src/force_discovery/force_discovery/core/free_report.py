@@ -11,24 +11,33 @@ from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 
 from . import quality as Q
 from .free_phases import FreePull
-from .identifiability import FREE_CHANNELS, identifiability
+from .identifiability import COMPUTED, FREE_CHANNELS, identifiability
 from .leave_one_out import validation_text
+
+REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
+REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C over the whole record, T from '
+                  'force_stationary_n (no encoder needed)')
 
 
 def free_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
                 excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
     """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
     from .report import clean
-    yes, no = identifiability(absent, few=few)
+    with_ref = bool(analysis and analysis.get('reference'))
+    yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
+    for q in yes:
+        if q['quantity'] in REFERENCE_COMPUTED:
+            q['what'] = REFERENCE_WHAT
     n = len(pulls)
-    rep = {'reference': False, 'absent': list(absent),
+    rep = {'reference': False, 'stationary_cell': with_ref, 'absent': list(absent),
            'channels': [c for c in CHANNELS if c not in absent and (c in REQUIRED_CHANNELS or c in FREE_CHANNELS)],
-           'identifiable': yes, 'not_identifiable': no, 'validation': validation_text(max(n, 1)),
+           'identifiable': yes, 'not_identifiable': no, 'validation': validation_text(max(n, 1), with_ref),
            'pulls': [p.name for p in pulls], 'fitted_pulls': [p.name for p in pulls],
            'held_out_pulls': [p.name for p in pulls] if n >= 2 else [],
            'data_quality': Q.defect_dicts(screens), 'excluded_pulls': dict(excluded),
            'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes)}
-    rep['notes'].append('g and m2 separate only with a reference (the stationary cell) or a known calibration '
+    rep['notes'].append(f'the stationary cell separates g and m2 ({REFERENCE_WHAT})' if with_ref else
+                        'g and m2 separate only with a reference (the stationary cell) or a known calibration '
                         'mass: the free phases give their product g m2')
     if analysis is None:
         rep.update(cause='unexplained', causes=[], candidates={}, gain=None, baseline_error=None,
@@ -132,6 +141,10 @@ def free_extension(rep: dict, rig) -> dict:
         corr['accel_delay_s'] = c['accel_delay']['parameters']['delay_s']
     if 'mains_hum' in named:
         corr['mains_hum_hz'] = c['mains_hum']['parameters']['frequency_hz']
+    if named & set(REFERENCE_COMPUTED):     # the stationary cell: g and m2 apart
+        corr['moving_cell_gain'] = c['moving_cell_gain']['parameters']['gain']
+        corr['mass_kg'] = c['effective_mass']['parameters']['mass_kg']
+        return {'departures': {}, 'correction': corr, 'assumptions': {}}
     return {'departures': {}, 'correction': corr,
             'assumptions': {'moving_cell_gain': 'not identifiable without a reference or a calibration mass: '
                             'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force'}}

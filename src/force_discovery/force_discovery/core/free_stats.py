@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence, Tuple
+from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -24,7 +24,7 @@ class FreeStats:
     nohum: np.ndarray                # ... without
     hum_amp: float                   # the pull's hum amplitude at G, d of its own
     samples: int
-
+    ref: Optional[object] = None     # reference_fit.RefStats: with the stationary cell, else None
 
 
 def free_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, fp: FreePull,
@@ -72,7 +72,6 @@ def pooled(stats: Sequence[FreeStats], idx: Sequence[int], key: str = 'hum') -> 
 def sse_at(st: FreeStats, g: float, d: float, key: str = 'hum') -> float:
     ff, fa, aa = interp_stats(st.delays, getattr(st, key), d)
     return max(0.0, ff - 2 * g * fa + g * g * aa)
-
 
 
 def gain_at(stats: Sequence[FreeStats], idx: Sequence[int], d: float) -> float:

@@ -10,6 +10,7 @@ import numpy as np
 
 from .free_phases import FreePull
 from .free_stats import FreeStats, gain_at, pooled, sse_at
+from .reference_fit import fit, gram_at, models, reference_fits
 from .ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
 from .significance import MIN_REL_REDUCTION, MIN_T, significance
 from .uncertainty import jackknife_ci, mean_ci
@@ -34,8 +35,8 @@ def _verdict(n: int, ev, inside: Optional[bool], outside: Optional[bool], per_pu
     return 'named' if outside else 'inconclusive'
 
 
-def _evidence_dict(ev, base, ext) -> dict:
-    return {'statistic': 'held-out (leave-one-out) free-phase SSE reduction and t of the per-pull reductions',
+def _evidence_dict(ev, base, ext, where: str = 'free-phase') -> dict:
+    return {'statistic': f'held-out (leave-one-out) {where} SSE reduction and t of the per-pull reductions',
             'rel_sse_reduction': ev.rel_sse_reduction, 't': ev.t, 'rms_gain': ev.rms_gain,
             'threshold': f'rel >= {MIN_REL_REDUCTION:g} and t >= {MIN_T:g} over >= {MIN_NAMED_PULLS} held-out pulls',
             'significant': bool(ev.significant), 'per_pull_rel_reduction': [float(1 - e / b) if b > 0 else 0.0
@@ -74,12 +75,12 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     amp = float(np.mean(hum_amps))
     ci_h = mean_ci(hum_amps)
 
-    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, extra=None):
+    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, extra=None, where='free-phase'):
         ev = significance(ev_base, ev_ext)
         better = bool(np.all(ev_ext < ev_base))
         v = _verdict(n, ev, inside, outside, better)
         causes[name] = {'name': name, 'parameters': params, 'parameters_ci95': ci, 'verdict': v,
-                        'evidence': _evidence_dict(ev, ev_base, ev_ext), 'channel': channel, **(extra or {})}
+                        'evidence': _evidence_dict(ev, ev_base, ev_ext, where), 'channel': channel, **(extra or {})}
 
     def band_test(ci, est, lo_, hi_):
         lo_ci, hi_ci = (ci if ci is not None else (est, est))
@@ -96,6 +97,25 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     entry('mains_hum', {'frequency_hz': f_hum, 'amplitude_n': amp}, {'amplitude_n': ci_h}, full_nohum, full,
           ins if n >= 2 else None, outs, 'force_moving_n - g m2 a2(t + d), free phases',
           {'band_n': [0.0, tol.mains_hum_amplitude_n]})
+    ref = [s.ref for s in stats]
+    reference = None
+    if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (reference_fit.py)
+        reference = reference_fits(ref, d, [x[1] for x in loo] if n >= 2 else [d], g0)
+        held = reference['held']
+        where = 'whole-record (F_move = g T + M a2(t + d) - k C)'
+        chan = 'force_moving_n = g T + g m2 a2(t + d) - k C, T from force_stationary_n, the whole record'
+        rg, rm = reference['g'], reference['m2']
+        ci_rg = _jackknife(rg, [x[0] for x in reference['loo']])
+        ci_rm = _jackknife(rm, [x[1] for x in reference['loo']])
+        bg = tol.moving_cell_gain_rel
+        ins, outs = band_test(ci_rg, rg, 1.0 - bg, 1.0 + bg)
+        entry('moving_cell_gain', {'gain': rg}, {'gain': ci_rg}, held['unit_gain'], held['full'],
+              ins if n >= 2 else None, outs, chan, {'band': [1.0 - bg, 1.0 + bg]}, where)
+        bm = tol.effective_mass_rel * g0
+        ins, outs = band_test(ci_rm, rm, g0 - bm, g0 + bm)
+        entry('effective_mass', {'mass_kg': rm}, {'mass_kg': ci_rm}, held['record_mass'], held['full'],
+              ins if n >= 2 else None, outs, chan, {'model_of_record': {'mass_kg': g0, 'band_kg': [g0 - bm, g0 + bm]},
+                                                    'ac_coupling_per_s': reference['k']}, where)
     modes = cluster_modes(pulls)
     f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
     noise = float(np.median([p.accel_noise for p in pulls]))
@@ -125,24 +145,32 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
                   {'cell_mode_hz': f_cell, 'ring_to_noise': rn,
                    'frequency_rule': f'observed < {MOUNT_MAX_FRACTION} x the rig\'s cell mode '
                                      f'({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)'})
-    order = ('mount_resonance', 'accel_delay', 'gain_mass_product', 'mains_hum')
+    order = ('mount_resonance', 'accel_delay', 'moving_cell_gain', 'effective_mass', 'gain_mass_product',
+             'mains_hum')
     named = sorted((k for k in order if k in causes and causes[k]['verdict'] == 'named'),
                    key=lambda k: -causes[k]['evidence']['rel_sse_reduction'])
     per_pull = [{'pull': p.name, 'gain_mass_kg': p.gain_mass, 'delay_s': p.delay_s, 'hum_amplitude_n': s.hum_amp,
                  'free_share': p.free_share, 'events': list(p.events),
                  'modes': [{'frequency_hz': f, 'damping_ratio': z, 'energy_share': e} for f, z, e in p.modes]}
                 for p, s in zip(pulls, stats)]
+    if reference is not None:      # each pull's own g and m2 (at its own delay)
+        for row, p, r in zip(per_pull, pulls, ref):
+            b = fit(gram_at(r, p.delay_s), models(g0)['full'])
+            row.update(moving_cell_gain=float(b[0]), effective_mass_kg=float(b[1] / b[0]))
     return {'G': G, 'd': d, 'causes': causes, 'named': named, 'modes': modes, 'per_pull': per_pull,
             'baseline_sse': float(base.sum()), 'extended_sse': float(full.sum()),
-            'samples': int(sum(s.samples for s in stats)), 'accel_noise': noise, 'cell_mode_hz': f_cell}
+            'samples': int(sum(s.samples for s in stats)), 'accel_noise': noise, 'cell_mode_hz': f_cell,
+            'reference': reference is not None}
 
 
 
-def validation_text(n: int) -> dict:
-    """What the number of pulls supports (report.json validation)."""
+def validation_text(n: int, reference: bool = False) -> dict:
+    """What the number of pulls supports (report.json validation); reference: the stationary cell is there (g and
+    m2 apart)."""
     if n == 1:
         return {'method': 'per-pull', 'pulls': 1,
-                'supports': 'the pull\'s own estimates (g m2, delay, modes, hum, data quality)',
+                'supports': f'the pull\'s own estimates ({"g, m2, " if reference else ""}g m2, delay, modes, hum, '
+                            'data quality)',
                 'cannot_support': 'an interval, a held-out check, or a cause: one pull cannot tell an effect '
                                   'from that pull\'s own scatter'}
     if n < MIN_NAMED_PULLS:
@@ -157,5 +185,6 @@ def validation_text(n: int) -> dict:
             'supports': f'each estimate fitted on {n - 1} pulls and checked on the one left out, every pull held '
                         f'out once; named causes (t >= {MIN_T:g} over the {n} held-out pulls, interval outside '
                         'the tolerance band)',
-            'cannot_support': 'g and m2 separately (no reference), anything needing an absent channel'}
+            'cannot_support': ('' if reference else 'g and m2 separately (no reference), ') +
+                              'anything needing an absent channel'}
 

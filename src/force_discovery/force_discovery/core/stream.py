@@ -88,7 +88,7 @@ from .quality import PullScreen, screen_pull
 from .report import add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
 from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
-from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs
+from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs, rated_ranges
 from .stages import (
     MIN_PULLS,
     Analysis,
@@ -210,7 +210,7 @@ def prepare_ref(ref: PullRef, rig):
     """(PullQuality, PullScreen, Pull) of one pull from its data (DiscoveryError when it cannot be analysed)."""
     meta, ch = load_channels(ref)
     q = check_quality(meta, ch)
-    sc = screen_pull(q.name, ch)
+    sc = screen_pull(q.name, ch, rated_ranges(ref))
     return q, sc, prepare(meta, ch, rig, q, sc)
 
 
