@@ -228,6 +228,7 @@ def test_example_channel_map_reads_the_lab_files(tmp_path):
     example = Path(__file__).resolve().parents[2] / 'config' / 'channel_maps' / 'drop_impactor.yaml'
     cmap = load_channel_map(example)
     assert cmap.absent == ('encoder_position_m', 'force_stationary_n') and cmap.sample_rate_hz == 100_000.0
+    assert cmap.specs['force_moving_n'].rated == 20_000.0 and cmap.specs['accel_axial_m_s2'].rated > 4900.0
     si, volts = impact_record(100_000.0, 3000, 4)
     from bag_tools.core.daqfiles import apply_map
     out, _absent, _used = apply_map(read_records(write_mf4(tmp_path / 'x.mf4', volts, 100_000.0))[0], cmap, 'x')

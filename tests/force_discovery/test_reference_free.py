@@ -77,8 +77,10 @@ def test_one_record_gives_per_pull_estimates_and_no_cause(tmp_path):
     assert all(c['verdict'] == 'per_pull_only' for c in rep['candidates'].values())
 
 
-@pytest.mark.parametrize('rate', [10_000.0, 25_000.0, 50_000.0, 100_000.0])
-def test_sample_rates_10_to_100_khz(rate, tmp_path):
+@pytest.mark.parametrize('rate', [5_000.0, 10_000.0, 25_000.0, 50_000.0, 100_000.0])
+def test_sample_rates_5_to_100_khz(rate, tmp_path):
+    """g m2 within 1 % at every rate (at 5 kHz it was 1.7 % low while the delay grid's step was a quarter sample:
+    delay_fit.DELAY_STEP_MAX_S)."""
     imp = Impactor(rate_hz=rate, record_s=0.06, mount_hz=1500.0, accel_delay_s=60e-6)
     rep = run(memory_campaign(imp, 2), lab_rig(tmp_path, imp), tmp_path / 'out')
     c = rep['candidates']

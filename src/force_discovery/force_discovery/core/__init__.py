@@ -31,6 +31,7 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - free_stats.py   ... pass 2 of a pull: the normal equations per delay; pooled fits and held-out residuals from them
 - leave_one_out.py ... the campaign: pooled estimates, every pull held out once, intervals, verdicts, what the
                   number of pulls supports
+- reference_fit.py ... with the stationary cell (no encoder, or 1-3 pulls): g and m2 apart, leave-one-out
 - free_report.py  ... its report.json, report.md and extension.yaml
 - stream.py       the driver: the per-pull passes on the campaign engine, memory flat in the number of pulls
 - pipeline.py     discover(): the entry point

@@ -9,8 +9,8 @@ contact, after a break or a rebound, while braking -- it reads
     F_move = g m2 a2(t + d) + offset + hum            (g: the cell's gain, d: the accelerometer's delay)
 
 which identifies the product G = g m2, the delay d, the free structure's ringing modes (in a2 after the event),
-the mains hum and the data quality. g and m2 separate only with a reference (the stationary cell) or a known
-calibration mass. The method, per pull:
+the mains hum and the data quality. g and m2 separate only with a reference (the stationary cell: step 5) or a
+known calibration mass. The method, per pull:
 
 1. Screen (quality.screen_pull, every channel present), repair, low-pass both channels alike (prep.lowpassed: the
    band scaled to the rate).
@@ -25,6 +25,10 @@ calibration mass. The method, per pull:
    at the campaign's hum frequency) projected out: three numbers, so that every fit and held-out residual below
    needs the pull only through them.
 4. Ringing: the strongest damped modes (matrix pencil) of a2 in the free decay after the last event.
+5. With the stationary cell (a campaign without the encoder, or with every channel but 1-3 pulls): T from the
+   stationary cell (prep.tension_from_stationary) over the whole record, and per delay the Gram matrix of
+   F_move, T, a2(t + d) and C (the running integral of F_move) with the offset and hum projected out
+   (reference_fit.py): F_move = g T + g m2 a2(t + d) - k C separates the cell's gain g and the mass m2.
 
 The campaign: G and d fitted on all pulls pooled; with n >= 2 pulls every pull is held out once (leave-one-out:
 the fit on the others scores it), which gives each cause its held-out evidence (significance.significance) and
