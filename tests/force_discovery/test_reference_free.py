@@ -265,6 +265,8 @@ def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path):
     missing = {q['quantity']: q['missing'] for q in rep['not_identifiable']}
     assert missing['simulation_check'] == ['encoder_position_m'] and 'encoder_position_m' in missing['coulomb_friction']
     assert 'moving_cell_gain' not in missing and 'effective_mass' not in missing
+    assert missing['cell_damping'] == ['encoder_position_m'] and all(
+        'encoder_position_m (absent)' in q['reason'] for q in rep['not_identifiable'])
     assert any('stationary cell separates g and m2' in n for n in rep['notes'])
     assert all(p['moving_cell_gain'] == pytest.approx(1.015, abs=0.004) for p in rep['per_pull'])
 

@@ -67,9 +67,10 @@ def identifiability(absent: Sequence[str], computed: Sequence[str] = COMPUTED, f
                        'reason': f'needs at least {few} pulls (half fitted, half held out) for the analysis with a '
                                  f'reference: {what}'})
         else:
-            no.append({'quantity': q, 'needs': list(needs), 'missing': [c for c in REFERENCE_CHANNELS if c in absent],
-                       'reason': f'its channels are here, but the analysis with a reference needs '
-                                 f'{" and ".join(REFERENCE_CHANNELS)} together: {what}'})
+            lack = [c for c in REFERENCE_CHANNELS if c in absent]
+            no.append({'quantity': q, 'needs': list(needs), 'missing': lack,
+                       'reason': f'needs {", ".join(lack)} (absent) too: its own channels are here, but the analysis '
+                                 f'with a reference needs {" and ".join(REFERENCE_CHANNELS)} together: {what}'})
     return yes, no
 
 
