@@ -159,6 +159,9 @@ def test_dry_run_of_lvm_campaign_counts_events(tmp_path):
     ({'accel_axial_m_s2__sensitivity': '0 mV/g'}, "sensitivity '0 mV/g' is invalid"),
     ({'force_moving_n__sensitivity': '0.225 mV/g'}, "sensitivity '0.225 mV/g' is in mV/g"),
     ({'force_moving_n__sign': 'up'}, "sign 'up' is invalid"),
+    ({'accel_axial_m_s2__range': '0 g'}, "range '0 g' is invalid"),
+    ({'accel_axial_m_s2__range': '50 kN'}, "range '50 kN' is in kN; expected a unit of acceleration"),
+    ({'accel_axial_m_s2__range': '50 furlong'}, "range unit 'furlong' is not a unit I can convert"),
 ])
 def test_bad_channel_map_is_one_line(tmp_path, change, expect):
     _si, volts = impact_record(25_000.0, 2000, 1)
@@ -167,6 +170,21 @@ def test_bad_channel_map_is_one_line(tmp_path, change, expect):
     assert r.returncode == 2
     assert r.stderr.count('\n') == 1 and expect in r.stderr and 'Traceback' not in r.stderr, r.stderr
     assert not (tmp_path / 'bag').exists()
+
+
+def test_rated_range_in_physical_or_file_units(tmp_path):
+    """A channel map's range: (the sensor's rated range) in a unit of the channel's kind or in the file's unit,
+    to SI as the values are; --dry-run says it."""
+    from force_tester_common.core.units import G_M_S2
+    m = write_map(tmp_path / 'map.yaml', accel_axial_m_s2__range='500 g', force_moving_n__range='4.5 V')
+    cmap = load_channel_map(m)
+    assert cmap.specs['accel_axial_m_s2'].rated == pytest.approx(500 * G_M_S2)
+    assert cmap.specs['force_moving_n'].rated == pytest.approx(4.5 / 0.225e-3)      # 0.225 mV/N: 20 kN
+    assert cmap.specs['force_moving_n'].rated != cmap.specs['accel_axial_m_s2'].rated
+    _si, volts = impact_record(25_000.0, 2000, 1)
+    r = run_cli('import', write_mf4(tmp_path / 'drop.mf4', volts, 25_000.0), '--channels', m, '--dry-run')
+    assert r.returncode == 0, r.stderr
+    assert 'rated +/-20000 N' in r.stdout and f'rated +/-{500 * G_M_S2:.6g} m/s^2' in r.stdout, r.stdout
 
 
 def test_unknown_format_lists_known(tmp_path):
@@ -210,6 +228,7 @@ def test_example_channel_map_reads_the_lab_files(tmp_path):
     example = Path(__file__).resolve().parents[2] / 'config' / 'channel_maps' / 'drop_impactor.yaml'
     cmap = load_channel_map(example)
     assert cmap.absent == ('encoder_position_m', 'force_stationary_n') and cmap.sample_rate_hz == 100_000.0
+    assert cmap.specs['force_moving_n'].rated == 20_000.0 and cmap.specs['accel_axial_m_s2'].rated > 4900.0
     si, volts = impact_record(100_000.0, 3000, 4)
     from bag_tools.core.daqfiles import apply_map
     out, _absent, _used = apply_map(read_records(write_mf4(tmp_path / 'x.mf4', volts, 100_000.0))[0], cmap, 'x')

@@ -151,11 +151,12 @@ def write_mf4(path: Path, v: dict, rate: float) -> Path:
     return path
 
 
-def lab_campaign(folder: Path, imp: Impactor, records: int = 4, fmt: str = '.lvm', seed0: int = 0) -> Path:
+def lab_campaign(folder: Path, imp: Impactor, records: int = 4, fmt: str = '.lvm', seed0: int = 0,
+                 channel_map: dict = CHANNEL_MAP) -> Path:
     """A campaign folder as the lab hands it over: one DAQ file per record in volts, channels.yaml (the channel
     map) and campaign.yaml naming it; the rig YAML beside it (rig.yaml)."""
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / 'channels.yaml').write_text(yaml.safe_dump(CHANNEL_MAP))
+    (folder / 'channels.yaml').write_text(yaml.safe_dump(channel_map))
     entries = []
     for i in range(records):
         ch = simulate_record(imp, seed0 + i)

@@ -27,9 +27,9 @@ from force_discovery.core.errors import DiscoveryError
 from force_discovery.core.extension import extension
 from force_discovery.core.force_errors import ForceErrors, error_part
 from force_discovery.core.force_model import TERMS, ForceModel, fit_terms
-from force_discovery.core.free import full_identifiability
 from force_discovery.core.friction import friction_row, friction_rows, friction_sse, friction_stat
 from force_discovery.core.hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
+from force_discovery.core.identifiability import full_identifiability
 from force_discovery.core.leftover import leftover_from, leftover_part
 from force_discovery.core.outputs import write_outputs
 from force_discovery.core.prep import Pull, check_quality, prepare

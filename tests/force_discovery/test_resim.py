@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from generator import draw_nuisance, make_campaign, observed_mount_mode, rig_with
 
-from force_discovery.core.prep import _filtered, prepare
+from force_discovery.core.prep import filtered, prepare
 from force_discovery.core.resim import fit_pull_quantities, resimulate, simulation_check
 from force_tester_sim.core.campaign import truth_pull_specs
 from force_tester_sim.core.departures import NO_DEPARTURES, departures_from_data
@@ -94,10 +94,10 @@ def test_nominal_pull_resimulated_with_fitted_quantities():
             assert q.break_duration_s == pytest.approx(spec.break_duration_s, rel=0.05), p.name
         sim = resimulate(p, rig, NO_DEPARTURES, q)
         w = slice(p.w0, p.w1)
-        meas = {'force_moving_n': p.fm, 'force_stationary_n': _filtered(p.fs, p.dt), 'accel_axial_m_s2': p.a2,
-                'motor_current_a': _filtered(p.current, p.dt)}
+        meas = {'force_moving_n': p.fm, 'force_stationary_n': filtered(p.fs, p.dt), 'accel_axial_m_s2': p.a2,
+                'motor_current_a': filtered(p.current, p.dt)}
         for ch, m in meas.items():
-            rms = np.sqrt(np.mean((_filtered(sim[ch], p.dt)[w] - m[w]) ** 2))
+            rms = np.sqrt(np.mean((filtered(sim[ch], p.dt)[w] - m[w]) ** 2))
             assert rms < 0.01 * np.max(np.abs(m[w])), (p.name, ch, rms)
 
 

@@ -284,8 +284,8 @@ def _private_imports(path: Path) -> list:
     return out
 
 
-# being split (issue 24 section 1) by its own change: its private imports are left to it
-SPLITTING = ('force_discovery',)
+# packages being split by their own change, whose private imports and dead code are left to it (none now)
+SPLITTING: tuple = ()
 
 
 def test_privates_stay_in_their_module():

@@ -102,6 +102,9 @@ def _reference_free(report: dict, out: Path) -> int:
         print(f'g m2 = {g["parameters"]["gain_mass_kg"]:.5g} kg, accelerometer delay '
               f'{1e6 * d["parameters"]["delay_s"]:.3g} us' + ('; modes: ' + ', '.join(
                   f'{m["frequency_hz"]:.1f} Hz' for m in report['modes'][:3]) if report.get('modes') else ''))
+    if 'moving_cell_gain' in c:
+        print(f'with the stationary cell: g = {c["moving_cell_gain"]["parameters"]["gain"]:.5g}, m2 = '
+              f'{c["effective_mass"]["parameters"]["mass_kg"]:.5g} kg')
     print('not identifiable: ' + '; '.join(f'{q["quantity"]} ({q["reason"].split(":")[0]})'
                                            for q in report['not_identifiable']))
     if report.get('indicated'):

@@ -39,7 +39,7 @@ FORMATS = {'.csv': 'campaign CSV', '.tdms': 'NI TDMS', '.lvm': 'LabVIEW LVM', '.
            '.mdf': 'ASAM MDF4', '.uff': 'UFF 58', '.unv': 'UFF 58'}
 #: Sign conventions a channel map may name: the direction the file's positive values point.
 SIGNS = {'tension': 1.0, 'compression': -1.0, 1: 1.0, -1: -1.0, '+1': 1.0, '-1': -1.0}
-MAP_KEYS = ('source', 'unit', 'sensitivity', 'scale', 'offset', 'sign')
+MAP_KEYS = ('source', 'unit', 'sensitivity', 'scale', 'offset', 'sign', 'range')
 #: Rates within this relative tolerance of an integer are that integer (a 1e-5 s increment stored in binary).
 RATE_SNAP = 1e-6
 NOTHING_TO_CORRECT = 'there is nothing to correct (the correction needs force_moving_n and accel_axial_m_s2)'
@@ -344,6 +344,7 @@ class ChannelSpec:
     offset: float
     sign: float
     how: str                 # 'sensitivity 0.225 mV/N', 'scale 4444 N/V' or ''
+    rated: float | None = None   # the sensor's rated range (+/-, SI): values beyond it are an overload
 
 
 @dataclass
@@ -434,8 +435,34 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
                            f'{SI_UNIT[dim]} without a sensitivity or scale; expected a {dim} unit or '
                            'sensitivity: e.g. 0.225 mV/N')
         factor = uf
+    rated = _rated(entry['range'], channel, dim, u, factor, where) if 'range' in entry else None
     return ChannelSpec(channel, str(src), None if u is None else u.strip(), factor, float(offset),
-                       SIGNS[sign_text], how)
+                       SIGNS[sign_text], how, rated)
+
+
+def _rated(text, channel: str, dim: str, file_unit: str | None, factor: float | None, where: str) -> float:
+    """A sensor's rated range in SI: '50 g', '22 kN' (a unit of the channel's kind), '5 V' (the file's unit,
+    converted as the values are) or a bare number (SI); +/- the value."""
+    parts = str(text).split(None, 1) if not isinstance(text, (int, float)) or isinstance(text, bool) else [text]
+    try:
+        value = float(parts[0])
+    except (TypeError, ValueError):
+        value = math.nan
+    if not math.isfinite(value) or value <= 0:
+        raise BagError(f'{where}: {channel} range {text!r} is invalid; expected the sensor\'s rated range, a '
+                       'number > 0 with a unit, e.g. 50 g or 22 kN')
+    if len(parts) == 1:
+        return value
+    u = parts[1].strip()
+    if unit(u) is None:
+        raise BagError(f'{where}: {channel} range unit {u!r} is not a unit I can convert; known: {", ".join(UNITS)}')
+    ud, uf = UNITS[u]
+    if ud == dim:
+        return value * uf
+    if file_unit is not None and u == file_unit.strip() and factor is not None:
+        return value * factor
+    raise BagError(f'{where}: {channel} range {text!r} is in {u}; expected a unit of {dim} ({SI_UNIT[dim]}) or the '
+                   f'file unit{" " + repr(file_unit) if file_unit else ""}')
 
 
 def load_channel_map(source) -> ChannelMap:
@@ -508,7 +535,8 @@ def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
                                    f'{CHANNEL_DIMENSION[ch]} unit; give a sensitivity or scale in the channel map')
         out[ch] = spec.sign * (raw - spec.offset) * factor if (spec.sign, spec.offset, factor) != (1.0, 0.0, 1.0) \
             else raw
-        used.append((ch, spec.source, u, spec.how + (' compression positive' if spec.sign < 0 else '')))
+        used.append((ch, spec.source, u, spec.how + (' compression positive' if spec.sign < 0 else '') +
+                     (f', rated +/-{spec.rated:.6g} {SI_UNIT[CHANNEL_DIMENSION[ch]]}' if spec.rated else '')))
     for ch in CORE_CHANNELS[1:]:
         if ch not in out:
             raise BagError(f'{Path(where).name}: no {ch} channel; {NOTHING_TO_CORRECT}; file channels: {names}')

@@ -6,13 +6,14 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - quality.py      the data-quality screen (defects found, repaired and masked; pulls left out)
 - prep.py         per-pull preparation: T, the low-passed channels, carriage motion, the analysis window
 - cells.py        cell calibration: the stationary cell's frequency and damping from the free decay, T recomputed
-- hum.py          mains hum: the line's frequency, each pull's amplitude and phase
+- hum.py          mains hum: the line's frequency (from pre-pull records or free-phase residuals), each pull's
+                  amplitude and phase
 - force_model.py  the force model F_move - hum = g T + M a2(t + d) - k C, fitted on samples (ForceModel)
 - force_stats.py  ... the same fits from per-pull sufficient statistics (ForceStats: what the stream uses)
-- ringing.py      ringing: the free decay after the break (matrix pencil), the mount mapping
+- ringing.py      ringing: the free decay after the break (matrix pencil), the mount mapping, modes across pulls
 - friction.py     friction: the motor current against the force balance
 - significance.py the held-out significance test
-- uncertainty.py  intervals (jackknife, bootstrap) and the tolerance verdict
+- uncertainty.py  intervals (jackknife, bootstrap, a mean's) and the tolerance verdict
 - budget.py       uncertainty budgets: the systematic parts of every parameter's uncertainty, the expanded interval
 - candidate.py    Candidate and Evidence: what a stage says about one cause (frozen)
 - stages.py       the stages: each turns its channel's per-pull results into Candidates; Analysis; the method
@@ -20,9 +21,18 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - leftover.py     the leftover structure no catalog entry explains
 - force_errors.py the held-out force-channel error, model of record vs extended
 - resim.py        closing the loop: the held-out pulls re-simulated with and without the extension
-- free.py         discovery without a reference (no stationary cell or encoder, or 1-3 pulls): the free phases
-                  of the moving cell and the accelerometer give g m2, the accelerometer delay, the ringing modes,
-                  the hum; leave-one-out across pulls; identifiable / not_identifiable; its report
+- identifiability.py what a campaign's channels can identify: which path a campaign lacking channels takes,
+                  identifiable / not_identifiable (both paths)
+- free.py         discovery without a reference (no stationary cell or encoder, or 1-3 pulls), the driver; its
+                  docstring is the method: the free phases of the moving cell and the accelerometer give g m2, the
+                  accelerometer delay, the ringing modes, the hum
+- delay_fit.py    ... F = G a(t + d) + offset on a grid of delays (a band-limited shift, the refined minimum)
+- free_phases.py  ... pass 1 of a pull: its events (either sign), free phases, own g m2 and delay, free-decay modes
+- free_stats.py   ... pass 2 of a pull: the normal equations per delay; pooled fits and held-out residuals from them
+- leave_one_out.py ... the campaign: pooled estimates, every pull held out once, intervals, verdicts, what the
+                  number of pulls supports
+- reference_fit.py ... with the stationary cell (no encoder, or 1-3 pulls): g and m2 apart, leave-one-out
+- free_report.py  ... its report.json, report.md and extension.yaml
 - stream.py       the driver: the per-pull passes on the campaign engine, memory flat in the number of pulls
 - pipeline.py     discover(): the entry point
 - report.py       report.json (the one place Candidates become dicts); markdown.py report.md; extension.py

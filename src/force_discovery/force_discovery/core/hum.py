@@ -78,3 +78,32 @@ def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
 def hum_scale(amps: Sequence[float], a_fit: float, j: int) -> float:
     """The factor on held-out pull j's own hum estimate: its amplitude comes from the fitted pulls (a_fit)."""
     return a_fit / max(amps[j], 1e-12)
+
+
+HUM_STEP_HZ = 0.05
+HUM_PULLS = 6
+
+
+def hum_frequency_free(pres: Sequence[Tuple[np.ndarray, np.ndarray]]) -> float:
+    """The line frequency (HUM_BAND_HZ) maximizing the summed least-squares sinusoid power of the free-phase
+    residuals pres = [(t, r)] of up to HUM_PULLS pulls: a scan in HUM_STEP_HZ steps, refined. Least squares on the
+    free samples alone: an impact record may hold only a few line cycles, with the event cut out of them."""
+    from scipy.optimize import minimize_scalar
+    pres = list(pres)[:HUM_PULLS]
+
+    def power_many(fs):
+        tot = np.zeros(len(fs))
+        for t, r in pres:
+            ph = 2 * np.pi * np.outer(fs, t)
+            X = np.stack([np.sin(ph), np.cos(ph), np.ones_like(ph)], axis=2)      # (f, n, 3)
+            XtX = np.einsum('fni,fnj->fij', X, X)
+            c = np.linalg.solve(XtX, np.einsum('fni,n->fi', X, r)[..., None])[..., 0]
+            tot += np.einsum('fi,fij,fj->f', c[:, :2], XtX[:, :2, :2], c[:, :2])
+        return tot
+
+    def power(f):
+        return float(power_many(np.array([f]))[0])
+    grid = np.arange(HUM_BAND_HZ[0], HUM_BAND_HZ[1] + HUM_STEP_HZ / 2, HUM_STEP_HZ)
+    f0 = float(grid[int(np.argmax(np.concatenate([power_many(grid[k:k + 50]) for k in range(0, len(grid), 50)])))])
+    return float(minimize_scalar(lambda f: -power(f), bounds=(f0 - HUM_STEP_HZ, f0 + HUM_STEP_HZ), method='bounded',
+                                 options={'xatol': 1e-3}).x)

@@ -8,7 +8,7 @@ from typing import Optional
 
 from .extension import extension, extension_yaml
 from .force_errors import ForceErrors
-from .free import identifiability_lines
+from .identifiability import identifiability_lines
 from .markdown import markdown
 from .plots import residual_plots, simulation_plot
 from .stages import Analysis

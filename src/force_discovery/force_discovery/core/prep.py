@@ -33,7 +33,7 @@ def _lowpass_w(f: np.ndarray, dt: float) -> np.ndarray:
     return w
 
 
-def _filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
+def filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
     """Zero-phase low-pass of x, optionally times a frequency response h(omega) (end trend removed first)."""
     n = len(x)
     trend = np.linspace(x[0], x[-1], n)
@@ -47,12 +47,12 @@ def _filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
 
 def lowpassed(x: np.ndarray, dt: float) -> np.ndarray:
     """The zero-phase low-pass every force and accelerometer channel gets (lowpass_band) of x."""
-    return _filtered(np.asarray(x, float), dt)
+    return filtered(np.asarray(x, float), dt)
 
 
 def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:
     """T = F_stat + m1 a1 (eq 21/23) with a1 from F_stat = K u1 + c1 v1 (exact in the frequency domain)."""
-    return _filtered(fs, dt) + _filtered(fs, dt, lambda w: -m1 * w ** 2 / (k1 + 1j * c1 * w))
+    return filtered(fs, dt) + filtered(fs, dt, lambda w: -m1 * w ** 2 / (k1 + 1j * c1 * w))
 
 
 @dataclass(frozen=True)
@@ -143,8 +143,8 @@ def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None, screen=N
     fs = np.asarray(ch['force_stationary_n'], float)
     x = np.asarray(ch['encoder_position_m'], float)
     T = tension_from_stationary(fs, dt, fc.m1, fc.load_cell_stiffness_n_per_m, fc.c1)
-    fm = _filtered(np.asarray(ch['force_moving_n'], float), dt)
-    a2 = _filtered(np.asarray(ch['accel_axial_m_s2'], float), dt)
+    fm = filtered(np.asarray(ch['force_moving_n'], float), dt)
+    a2 = filtered(np.asarray(ch['accel_axial_m_s2'], float), dt)
     win = max(5, int(round(2e-3 / dt)) | 1)
     x3 = savgol_filter(x, win, 3)
     v3 = savgol_filter(x, win, 3, deriv=1, delta=dt)

@@ -151,6 +151,7 @@ OVERLOAD_CONTEXT_S = 2e-3
 OVERLOAD_COINCIDENCE = 0.3
 OVERLOAD_EDGE = 0.25             # the burst's samples: above this share of its peak excursion
 OVERLOAD_MAX_COUNT = 3           # bursts looked for per channel
+RATED_FLANK = 0.5                # beyond a rated range: the excursion down to this share of it is masked
 # repair(): gaps up to a spike's length get a cubic bridge, longer ones (held, NaN runs) a straight line
 REPAIR_CUBIC_MAX = SPIKE_MAX_SAMPLES
 # At most this many defects of one kind on one channel are listed one by one; the rest are summed up in one
@@ -368,8 +369,9 @@ def _ms(samples: int, dt: float) -> str:
 
 
 # ------------------------------------------------------------------------------------------ the screen
-def screen_pull(name: str, ch: Dict[str, np.ndarray]) -> PullScreen:
-    """Screen one pull's channels (dict channel -> array, time_s required) for data defects.
+def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, float]] = None) -> PullScreen:
+    """Screen one pull's channels (dict channel -> array, time_s required) for data defects. rated: a sensor's
+    rated range (+/-, SI) per channel, where a channel map gives it: samples beyond it are an overload.
 
     DiscoveryError when the record cannot be screened at all (no time_s, channels of different lengths, fewer
     than 3 samples, no two finite increasing time stamps)."""
@@ -423,6 +425,16 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray]) -> PullScreen:
             found.append((c, c, STUCK, 0, n, f'constant at {float(np.median(xf)):.6g} over the whole record '
                           f'(spread {spread:.3g}; expected > {limit:.3g})'))
             continue
+        if rated and c in rated:
+            ax = np.abs(np.where(fin, x, 0.0))
+            beyond = ax > rated[c]
+            s0, e0 = _runs(ax > RATED_FLANK * rated[c])          # each excursion beyond, with its flanks
+            keep = [k for k, (a, b) in enumerate(zip(s0, e0)) if beyond[a:b].any()]
+            for i0, i1 in _merge(s0[keep], e0[keep], gap):
+                seg = x[i0:i1][np.isfinite(x[i0:i1])]
+                peak = float(seg[np.argmax(np.abs(seg))])
+                found.append((c, c, OVERLOAD, i0, i1, f'{peak:+.6g} beyond the sensor\'s rated range +/-{rated[c]:.6g} '
+                              f'(the channel map), over {_ms(i1 - i0, dt)} (sensor overload)'))
         if c == ENCODER_CHANNEL:
             pending += _encoder_held(x, dt)
         if c not in SENSOR_CHANNELS:
@@ -457,7 +469,10 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray]) -> PullScreen:
     devs = {c: np.abs(xw - np.median(xw)) for c, (xw, _r, _s) in rough.items()}
     for c, (xw, _r, sigma_r) in rough.items():
         others = [devs[o] for o in COINCIDENCE_CHANNELS if o != c and o in devs]
+        beyond = [(f[3], f[4]) for f in found if f[0] == c and f[2] == OVERLOAD]     # the rated range's
         for i0, i1, peak, ratio in _overloads(xw, devs[c], sigma_r / R_PER_SIGMA, others, dt):
+            if any(i0 < b1 and b0 < i1 for b0, b1 in beyond):
+                continue
             found.append((c, c, OVERLOAD, i0, i1, f'a burst of {peak:+.4g} over {_ms(i1 - i0, dt)}, {ratio:.3g} x '
                           'the rest of the record, in this channel alone (sensor overload)'))
     found += _held_records(held, pending, n, dt)

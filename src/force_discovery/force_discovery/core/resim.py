@@ -56,7 +56,7 @@ from .cells import cell_damping_ratio
 from .errors import DiscoveryError
 from .friction import STILL_M_S, drive_force_balance
 from .hum import hum_per_pull
-from .prep import Pull, _filtered
+from .prep import Pull, filtered
 from .ringing import MOUNT_MAX_FRACTION, matrix_pencil, ring_segment
 
 SIM_CHANNELS = ('force_moving_n', 'force_stationary_n', 'accel_axial_m_s2', 'motor_current_a')
@@ -248,7 +248,7 @@ def fit_pull_quantities(pull: Pull, rig, passes: int = DYNAMIC_PASSES) -> PullQu
     dynamic = np.zeros(len(t))
 
     def resid(z):
-        model = _filtered(quasi_static_tension(t, x3, v3, unpack(z), C, zeta, mu, dynamic), dt)
+        model = filtered(quasi_static_tension(t, x3, v3, unpack(z), C, zeta, mu, dynamic), dt)
         return (model - Tm) / scale
 
     lo = np.array([-1.5, -50.0, -20.0, math.log(MIN_BREAK_S / dur0) - 1e-9] + ([-0.5, -3.0] if yields else []))
@@ -311,9 +311,9 @@ def resimulate(pull: Pull, rig, departures: Departures, q: PullQuantities) -> Di
 
 
 def _measured(pull: Pull) -> Dict[str, np.ndarray]:
-    out = {'force_moving_n': pull.fm, 'force_stationary_n': _filtered(pull.fs, pull.dt), 'accel_axial_m_s2': pull.a2}
+    out = {'force_moving_n': pull.fm, 'force_stationary_n': filtered(pull.fs, pull.dt), 'accel_axial_m_s2': pull.a2}
     if pull.current is not None:
-        out['motor_current_a'] = _filtered(pull.current, pull.dt)
+        out['motor_current_a'] = filtered(pull.current, pull.dt)
     return out
 
 
@@ -432,14 +432,14 @@ def resim_pull(p: Pull, setup: ResimSetup, trace: bool = False) -> ResimPart:
                                                                                                       bool)
         sse = {}
         for kind, sim in sims.items():
-            y = _filtered(sim[ch], p.dt)
+            y = filtered(sim[ch], p.dt)
             sse[kind] = float(np.sum((y[w] - m[w])[ok] ** 2))
             if tr is not None:
                 tr.setdefault(ch, {'measured': m[w].copy()})[kind] = y[w]
         rows.append((ch, sse['baseline'], sse['extended'], int(np.count_nonzero(ok)), int(np.count_nonzero(~ok))))
     windows = None
     if setup.mount:
-        windows = (ring_window(p, p.a2), ring_window(p, _filtered(sims['extended']['accel_axial_m_s2'], p.dt)))
+        windows = (ring_window(p, p.a2), ring_window(p, filtered(sims['extended']['accel_axial_m_s2'], p.dt)))
     return ResimPart(p.name, None, tuple(rows), {'baseline': qb.as_dict(), 'extended': qe.as_dict()}, windows, tr,
                      time.perf_counter() - t0, p.dt)
 

@@ -9,6 +9,7 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 
 from .prep import Pull
+from .uncertainty import mean_ci
 
 MOUNT_MAX_FRACTION = 0.7      # a free-decay mode below 0.7 x the cell mode is not the cell
 
@@ -157,3 +158,36 @@ def ring_part(p: Pull, dt: float, cell: list, mode: Tuple[float, float], keep: b
     b, e = ring_sse(seg, dt, cell), ring_sse(seg, dt, cell + [mode])
     ob, oe = (b, e) if p.dt == dt else (ring_sse(seg, p.dt, cell), ring_sse(seg, p.dt, cell + [mode]))
     return RingPart(b, e, ring_to_noise(p, seg, cell, mode), len(seg), ob, oe, seg if keep else None)
+
+
+MODE_CLUSTER_REL = 0.05        # modes of different pulls within 5 % are one mode
+
+
+def cluster_modes(pulls: Sequence) -> list:
+    """The reference-free path's modes across pulls (each with .name and .modes): the modes seen in at least half
+    the pulls (frequencies within MODE_CLUSTER_REL), [{frequency_hz, damping_ratio, pulls, per_pull}], by how many
+    pulls show it, then the energy."""
+    allm = sorted((f, z, e, j) for j, p in enumerate(pulls) for f, z, e in p.modes)
+    groups: list = []
+    for m in allm:
+        if groups and m[0] <= groups[-1][-1][0] * (1 + MODE_CLUSTER_REL):
+            groups[-1].append(m)
+        else:
+            groups.append([m])
+    out = []
+    need = max(1, math.ceil(len(pulls) / 2))
+    for g in groups:
+        per = {}
+        for f, z, e, j in g:
+            if j not in per or e > per[j][2]:
+                per[j] = (f, z, e)
+        if len(per) < need:
+            continue
+        fs = [v[0] for v in per.values()]
+        zs = [v[1] for v in per.values()]
+        out.append({'frequency_hz': float(np.median(fs)), 'damping_ratio': float(np.median(zs)),
+                    'frequency_ci95': mean_ci(fs), 'damping_ci95': mean_ci(zs), 'pulls': len(per),
+                    'energy_share': float(np.median([v[2] for v in per.values()])),
+                    'per_pull': {pulls[j].name: [v[0], v[1]] for j, v in sorted(per.items())}})
+    out.sort(key=lambda m: (-m['pulls'], -m['energy_share']))
+    return out

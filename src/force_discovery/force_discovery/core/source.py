@@ -56,6 +56,12 @@ def load_channels(ref: PullRef) -> Tuple[dict, dict]:
     return ref.meta, channels
 
 
+def rated_ranges(ref: PullRef) -> dict:
+    """{channel: the sensor's rated range (+/-, SI)} where the campaign's channel map gives one (range:)."""
+    specs = getattr(ref.channel_map, 'specs', None) or {}
+    return {c: sp.rated for c, sp in specs.items() if getattr(sp, 'rated', None)}
+
+
 def campaign_absent(refs: Sequence[PullRef]) -> tuple:
     """The required channels a campaign does not have: campaign.yaml's absent: (with its channel map's) for pulls
     of a folder; for pulls in memory, the required channels the first pull lacks."""
@@ -74,4 +80,4 @@ def campaign_absent(refs: Sequence[PullRef]) -> tuple:
     return absent
 
 
-__all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels']
+__all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels', 'rated_ranges']

@@ -77,9 +77,10 @@ from .extension import named_extension
 from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
-from .free import check_core_channels, discover_free, full_identifiability, needs_reference_free
+from .free import discover_free
 from .friction import friction_row, friction_rows, friction_sse, friction_stat
 from .hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
+from .identifiability import check_core_channels, full_identifiability, needs_reference_free
 from .leftover import LeftoverPart, LeftoverSum, leftover_part
 from .outputs import write_outputs
 from .prep import Pull, PullQuality, check_quality, prepare
@@ -87,7 +88,7 @@ from .quality import PullScreen, screen_pull
 from .report import add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
 from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
-from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs
+from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs, rated_ranges
 from .stages import (
     MIN_PULLS,
     Analysis,
@@ -209,7 +210,7 @@ def prepare_ref(ref: PullRef, rig):
     """(PullQuality, PullScreen, Pull) of one pull from its data (DiscoveryError when it cannot be analysed)."""
     meta, ch = load_channels(ref)
     q = check_quality(meta, ch)
-    sc = screen_pull(q.name, ch)
+    sc = screen_pull(q.name, ch, rated_ranges(ref))
     return q, sc, prepare(meta, ch, rig, q, sc)
 
 

@@ -15,7 +15,7 @@ shrinking as 1/sqrt(n), its systematic part not at all) or `not_significant`.
 from __future__ import annotations
 
 import math
-from typing import Callable, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -92,3 +92,12 @@ def verdict(estimate: float, ci: Tuple[float, float], band: Band, significant: b
         out['verdict'] = INCONCLUSIVE
         out['pulls_to_settle'] = pulls_to_settle(estimate, ci, band, n, fixed_half)
     return out
+
+
+def mean_ci(x: Sequence[float]) -> Optional[List[float]]:
+    """CONFIDENCE interval of the mean of x (Student t; None for fewer than 2 values)."""
+    x = np.asarray(x, float)
+    if len(x) < 2:
+        return None
+    h = t_quantile(len(x)) * float(np.std(x, ddof=1)) / math.sqrt(len(x))
+    return [float(x.mean() - h), float(x.mean() + h)]

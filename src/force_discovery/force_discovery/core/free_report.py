@@ -1,0 +1,169 @@
+"""The reference-free path's report: report.json, report.md (its Method section is free.py's docstring), extension.yaml,
+written whole. ROS-free."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Dict, Optional, Sequence
+
+from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
+
+from . import quality as Q
+from .free_phases import FreePull
+from .identifiability import COMPUTED, FREE_CHANNELS, identifiability
+from .leave_one_out import validation_text
+
+REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
+REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C over the whole record, T from '
+                  'force_stationary_n (no encoder needed)')
+
+
+def free_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
+                excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
+    """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
+    from .report import clean
+    with_ref = bool(analysis and analysis.get('reference'))
+    yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
+    for q in yes:
+        if q['quantity'] in REFERENCE_COMPUTED:
+            q['what'] = REFERENCE_WHAT
+    n = len(pulls)
+    rep = {'reference': False, 'stationary_cell': with_ref, 'absent': list(absent),
+           'channels': [c for c in CHANNELS if c not in absent and (c in REQUIRED_CHANNELS or c in FREE_CHANNELS)],
+           'identifiable': yes, 'not_identifiable': no, 'validation': validation_text(max(n, 1), with_ref),
+           'pulls': [p.name for p in pulls], 'fitted_pulls': [p.name for p in pulls],
+           'held_out_pulls': [p.name for p in pulls] if n >= 2 else [],
+           'data_quality': Q.defect_dicts(screens), 'excluded_pulls': dict(excluded),
+           'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes)}
+    rep['notes'].append(f'the stationary cell separates g and m2 ({REFERENCE_WHAT})' if with_ref else
+                        'g and m2 separate only with a reference (the stationary cell) or a known calibration '
+                        'mass: the free phases give their product g m2')
+    if analysis is None:
+        rep.update(cause='unexplained', causes=[], candidates={}, gain=None, baseline_error=None,
+                   extended_error=None, modes=[], per_pull=[])
+        return clean(rep)
+    c = analysis['causes']
+    named = analysis['named']
+    if n == 1:
+        cause = 'none'
+        rep['notes'].append('one pull: per-pull estimates only, no cause')
+    else:
+        cause = named[0] if named else 'none'
+        ind = [k for k, v in c.items() if v['verdict'] == 'indicated']
+        if ind:
+            rep['notes'].append(f'indicated (departs on every held-out pull, too few pulls to name): '
+                                f'{", ".join(ind)}')
+    samples = max(analysis['samples'], 1)
+    rep.update(cause=cause, causes=[c[k] for k in named], candidates=c,
+               indicated=[c[k] for k in c if c[k]['verdict'] == 'indicated'],
+               within_tolerance=[c[k] for k in c if c[k]['verdict'] == 'within_tolerance'],
+               inconclusive=[c[k] for k in c if c[k]['verdict'] == 'inconclusive'],
+               metric='RMS moving-cell residual in the free phases, held out (leave-one-out); baseline: '
+                      'g m2 = the rig\'s m2, no delay, no hum',
+               baseline_error=math.sqrt(analysis['baseline_sse'] / samples),
+               extended_error=math.sqrt(analysis['extended_sse'] / samples),
+               modes=analysis['modes'], per_pull=analysis['per_pull'], cell_mode_hz=analysis['cell_mode_hz'])
+    rep['gain'] = rep['baseline_error'] / rep['extended_error'] if rep['extended_error'] else None
+    return clean(rep)
+
+
+def _fmt_ci(ci, scale=1.0, fmt='.4g') -> str:
+    if not ci or ci[0] is None:
+        return '-'
+    return f'[{ci[0] * scale:{fmt}}, {ci[1] * scale:{fmt}}]'
+
+
+def free_markdown(rep: dict, screens: Sequence, method: str) -> str:
+    """report.md of the reference-free path."""
+    lines = ['# Discovery without a reference', '',
+             f'Channels: {", ".join(rep["channels"])}; absent: {", ".join(rep["absent"]) or "-"}. '
+             f'{len(rep["pulls"])} usable pulls ({rep["validation"]["method"]}).', '',
+             f'**Cause: {rep["cause"]}**' + (f' (named: {", ".join(c["name"] for c in rep["causes"])})'
+                                             if rep['causes'] else ''), '']
+    if rep.get('gain'):
+        lines += [f'{rep["metric"]}: {rep["baseline_error"]:.4g} N -> {rep["extended_error"]:.4g} N '
+                  f'(x{rep["gain"]:.3g}).', '']
+    lines += ['## Identifiable from these channels', '', '| quantity | from | what |', '|---|---|---|']
+    lines += [f'| {q["quantity"]} | {", ".join(q["needs"]) or "every channel"} | {q["what"]} |'
+              for q in rep['identifiable']]
+    lines += ['', '## Not identifiable', '', '| quantity | needs | why |', '|---|---|---|']
+    lines += [f'| {q["quantity"]} | {", ".join(q["needs"])} | {q["reason"]} |' for q in rep['not_identifiable']]
+    v = rep['validation']
+    lines += ['', '## What the number of pulls supports', '', f'- method: {v["method"]} over {v["pulls"]} pull(s)',
+              f'- supports: {v["supports"]}', f'- cannot support: {v["cannot_support"]}', '']
+    if rep.get('candidates'):
+        lines += ['## Estimates', '', '| quantity | estimate | 95 % interval | held-out rel. reduction | t | verdict |',
+                  '|---|---|---|---|---|---|']
+        for name, c in rep['candidates'].items():
+            p = ', '.join(f'{k} {val:.6g}' for k, val in c['parameters'].items())
+            ci = '; '.join(f'{k} {_fmt_ci(val, fmt=".6g")}' for k, val in c['parameters_ci95'].items() if val)
+            ev = c['evidence']
+            t = 'inf' if ev['t'] is None else f'{ev["t"]:.3g}'
+            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | {t} | {c["verdict"]} |')
+        lines.append('')
+    if rep.get('modes'):
+        lines += ['## Ringing modes (a2, free decay after the last event)', '',
+                  f'The rig\'s cell mode: {rep["cell_mode_hz"]:.0f} Hz.', '',
+                  '| frequency (Hz) | damping ratio | pulls | 95 % interval (Hz) |', '|---|---|---|---|']
+        lines += [f'| {m["frequency_hz"]:.1f} | {m["damping_ratio"]:.4f} | {m["pulls"]} | '
+                  f'{_fmt_ci(m["frequency_ci95"], fmt=".1f")} |' for m in rep['modes']]
+        lines.append('')
+    if rep.get('per_pull'):
+        lines += ['## Per pull', '', '| pull | events | g m2 (kg) | delay (us) | hum (N) | free share |',
+                  '|---|---|---|---|---|---|']
+        for p in rep['per_pull']:
+            evs = '; '.join(f'{e["sign"]} {e["peak_n"]:.4g} N at {e["start_s"]:.4f} s, {1e3 * e["width_s"]:.3g} ms'
+                            for e in p['events'])
+            lines.append(f'| {p["pull"]} | {evs} | {p["gain_mass_kg"]:.5g} | {1e6 * p["delay_s"]:.3g} | '
+                         f'{p["hum_amplitude_n"]:.3g} | {p["free_share"]:.2f} |')
+        lines.append('')
+    if rep['notes']:
+        lines += ['## Notes', ''] + [f'- {x}' for x in rep['notes']] + ['']
+    if rep.get('failed_pulls'):
+        lines += ['Pulls that could not be read or analysed:', ''] + \
+                 [f'- {f["pull"]}: {f["error"]}' for f in rep['failed_pulls']] + ['']
+    lines += Q.markdown_lines(screens, rep.get('excluded_pulls'))
+    lines += ['## Method', '', method]
+    return '\n'.join(lines) + '\n'
+
+
+def free_extension(rep: dict, rig) -> dict:
+    """extension.yaml: what the correction can undo from these channels. The correction subtracts mass_kg a2 from
+    F_move / moving_cell_gain; with g unknown, mass_kg is g m2 and the gain 1, so the corrected force is g times
+    the force at the contact (stated under assumptions)."""
+    c = rep.get('candidates') or {}
+    corr = {'mass_kg': rig.force_chain.m2, 'accel_delay_s': 0.0, 'moving_cell_gain': 1.0}
+    named = {x['name'] for x in rep.get('causes', [])}
+    if 'gain_mass_product' in named:
+        corr['mass_kg'] = c['gain_mass_product']['parameters']['gain_mass_kg']
+    if 'accel_delay' in named:
+        corr['accel_delay_s'] = c['accel_delay']['parameters']['delay_s']
+    if 'mains_hum' in named:
+        corr['mains_hum_hz'] = c['mains_hum']['parameters']['frequency_hz']
+    if named & set(REFERENCE_COMPUTED):     # the stationary cell: g and m2 apart
+        corr['moving_cell_gain'] = c['moving_cell_gain']['parameters']['gain']
+        corr['mass_kg'] = c['effective_mass']['parameters']['mass_kg']
+        return {'departures': {}, 'correction': corr, 'assumptions': {}}
+    return {'departures': {}, 'correction': corr,
+            'assumptions': {'moving_cell_gain': 'not identifiable without a reference or a calibration mass: '
+                            'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force'}}
+
+
+def write_free_outputs(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
+    """DIR/report.json, report.md and extension.yaml, written whole (into a fresh folder, moved in at the end)."""
+    import shutil
+    import tempfile
+
+    from .extension import extension_yaml
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
+    try:
+        (stage / 'extension.yaml').write_text(extension_yaml(free_extension(rep, rig)))
+        (stage / 'report.md').write_text(free_markdown(rep, screens, method))
+        (stage / 'report.json').write_text(json.dumps(rep, indent=1))
+        for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):
+            f.replace(out / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+

@@ -1,0 +1,190 @@
+"""The reference-free campaign: g m2 and the delay pooled over the pulls, every pull held out once (leave-one-out),
+the jackknife intervals, each cause's held-out evidence and its verdict, and what the number of pulls supports.
+ROS-free."""
+from __future__ import annotations
+
+import math
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from .free_phases import FreePull
+from .free_stats import FreeStats, gain_at, pooled, sse_at
+from .reference_fit import fit, gram_at, models, reference_fits
+from .ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
+from .significance import MIN_REL_REDUCTION, MIN_T, significance
+from .uncertainty import jackknife_ci, mean_ci
+
+MIN_NAMED_PULLS = 4            # held-out pulls needed before a cause can meet t >= MIN_T
+
+
+def _jackknife(est: float, loo: Sequence[float]) -> Optional[List[float]]:
+    return list(jackknife_ci(est, loo)) if len(loo) >= 2 else None
+
+
+def _verdict(n: int, ev, inside: Optional[bool], outside: Optional[bool], per_pull_better: bool) -> str:
+    if n < 2:
+        return 'per_pull_only'
+    if inside:
+        return 'within_tolerance'
+    if n < MIN_NAMED_PULLS:
+        return 'indicated' if (ev.rel_sse_reduction >= MIN_REL_REDUCTION and per_pull_better and outside) \
+            else 'not_indicated'
+    if not ev.significant:
+        return 'not_significant'
+    return 'named' if outside else 'inconclusive'
+
+
+def _evidence_dict(ev, base, ext, where: str = 'free-phase') -> dict:
+    return {'statistic': f'held-out (leave-one-out) {where} SSE reduction and t of the per-pull reductions',
+            'rel_sse_reduction': ev.rel_sse_reduction, 't': ev.t, 'rms_gain': ev.rms_gain,
+            'threshold': f'rel >= {MIN_REL_REDUCTION:g} and t >= {MIN_T:g} over >= {MIN_NAMED_PULLS} held-out pulls',
+            'significant': bool(ev.significant), 'per_pull_rel_reduction': [float(1 - e / b) if b > 0 else 0.0
+                                                                          for b, e in zip(base, ext)]}
+
+
+def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_hum: float, rig) -> dict:
+    """The campaign's estimates, their intervals, the held-out evidence and the verdicts (report.json's core)."""
+    n = len(pulls)
+    fc = rig.force_chain
+    tol = rig.tolerances
+    g0 = fc.m2                        # the model of record: g = 1, the rig's m2, no delay
+    allj = list(range(n))
+    G, d = pooled(stats, allj)
+    loo = [pooled(stats, [k for k in allj if k != j]) for j in allj] if n >= 2 else []
+    hum_amps = [s.hum_amp for s in stats]
+    # held-out SSE of each pull under the nested models
+    if n >= 2:
+        base = np.array([sse_at(stats[j], g0, 0.0, 'nohum') for j in allj])
+        lo = [pooled(stats, [k for k in allj if k != j], 'nohum') for j in allj]
+        full_nohum = np.array([sse_at(stats[j], *lo[j], 'nohum') for j in allj])
+        full = np.array([sse_at(stats[j], *loo[j], 'hum') for j in allj])
+        no_delay = np.array([sse_at(stats[j], gain_at(stats, [k for k in allj if k != j], 0.0), 0.0, 'hum')
+                             for j in allj])
+    else:
+        base = np.array([sse_at(stats[0], g0, 0.0, 'nohum')])
+        full_nohum = np.array([sse_at(stats[0], G, d, 'nohum')])
+        full = np.array([sse_at(stats[0], G, d, 'hum')])
+        no_delay = np.array([sse_at(stats[0], gain_at(stats, [0], 0.0), 0.0, 'hum')])
+    # the G cause: nominal g m2 vs fitted G (delay fitted in both); the delay: G alone vs G and d; hum: without/with
+    g_nom_d = np.array([sse_at(stats[j], g0, loo[j][1] if n >= 2 else d, 'hum') for j in allj])
+    causes = {}
+    band_g = (tol.moving_cell_gain_rel + tol.effective_mass_rel) * g0
+    ci_g = _jackknife(G, [x[0] for x in loo])
+    ci_d = _jackknife(d, [x[1] for x in loo])
+    amp = float(np.mean(hum_amps))
+    ci_h = mean_ci(hum_amps)
+
+    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, extra=None, where='free-phase'):
+        ev = significance(ev_base, ev_ext)
+        better = bool(np.all(ev_ext < ev_base))
+        v = _verdict(n, ev, inside, outside, better)
+        causes[name] = {'name': name, 'parameters': params, 'parameters_ci95': ci, 'verdict': v,
+                        'evidence': _evidence_dict(ev, ev_base, ev_ext, where), 'channel': channel, **(extra or {})}
+
+    def band_test(ci, est, lo_, hi_):
+        lo_ci, hi_ci = (ci if ci is not None else (est, est))
+        return lo_ <= lo_ci and hi_ci <= hi_, hi_ci < lo_ or lo_ci > hi_
+
+    ins, outs = band_test(ci_g, G, g0 - band_g, g0 + band_g)
+    entry('gain_mass_product', {'gain_mass_kg': G}, {'gain_mass_kg': ci_g}, g_nom_d, full, ins if n >= 2 else None,
+          outs, 'force_moving_n = g m2 a2(t + d), free phases',
+          {'model_of_record': {'gain_mass_kg': g0, 'band_kg': [g0 - band_g, g0 + band_g]}})
+    ins, outs = band_test(ci_d, d, -tol.accel_delay_s, tol.accel_delay_s)
+    entry('accel_delay', {'delay_s': d}, {'delay_s': ci_d}, no_delay, full, ins if n >= 2 else None, outs,
+          'force_moving_n = g m2 a2(t + d), free phases', {'band_s': [-tol.accel_delay_s, tol.accel_delay_s]})
+    ins, outs = band_test(ci_h, amp, 0.0, tol.mains_hum_amplitude_n)
+    entry('mains_hum', {'frequency_hz': f_hum, 'amplitude_n': amp}, {'amplitude_n': ci_h}, full_nohum, full,
+          ins if n >= 2 else None, outs, 'force_moving_n - g m2 a2(t + d), free phases',
+          {'band_n': [0.0, tol.mains_hum_amplitude_n]})
+    ref = [s.ref for s in stats]
+    reference = None
+    if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (reference_fit.py)
+        reference = reference_fits(ref, d, [x[1] for x in loo] if n >= 2 else [d], g0)
+        held = reference['held']
+        where = 'whole-record (F_move = g T + M a2(t + d) - k C)'
+        chan = 'force_moving_n = g T + g m2 a2(t + d) - k C, T from force_stationary_n, the whole record'
+        rg, rm = reference['g'], reference['m2']
+        ci_rg = _jackknife(rg, [x[0] for x in reference['loo']])
+        ci_rm = _jackknife(rm, [x[1] for x in reference['loo']])
+        bg = tol.moving_cell_gain_rel
+        ins, outs = band_test(ci_rg, rg, 1.0 - bg, 1.0 + bg)
+        entry('moving_cell_gain', {'gain': rg}, {'gain': ci_rg}, held['unit_gain'], held['full'],
+              ins if n >= 2 else None, outs, chan, {'band': [1.0 - bg, 1.0 + bg]}, where)
+        bm = tol.effective_mass_rel * g0
+        ins, outs = band_test(ci_rm, rm, g0 - bm, g0 + bm)
+        entry('effective_mass', {'mass_kg': rm}, {'mass_kg': ci_rm}, held['record_mass'], held['full'],
+              ins if n >= 2 else None, outs, chan, {'model_of_record': {'mass_kg': g0, 'band_kg': [g0 - bm, g0 + bm]},
+                                                    'ac_coupling_per_s': reference['k']}, where)
+    modes = cluster_modes(pulls)
+    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
+    noise = float(np.median([p.accel_noise for p in pulls]))
+    mount = next((m for m in modes if m['frequency_hz'] < MOUNT_MAX_FRACTION * f_cell), None)
+    if mount is not None:
+        cell = [(f_cell, fc.load_cell_damping_ratio)]
+        b, e, r2n = [], [], []
+        for p in pulls:
+            if p.ring is None:
+                continue
+            others = [v for k, v in mount['per_pull'].items() if k != p.name] if n >= 2 else \
+                list(mount['per_pull'].values())
+            if not others:
+                continue
+            mode = (float(np.median([o[0] for o in others])), float(np.median([o[1] for o in others])))
+            b.append(ring_sse(p.ring, p.dt, cell))
+            e.append(ring_sse(p.ring, p.dt, cell + [mode]))
+            X = np.column_stack([damped_basis(len(p.ring), p.dt, *mode), np.ones(len(p.ring))])
+            c, *_ = np.linalg.lstsq(X, p.ring, rcond=None)
+            r2n.append(float(np.sqrt(np.mean((X[:, :2] @ c[:2]) ** 2)) / max(p.accel_noise, 1e-12)))
+        if b:
+            rn = float(np.median(r2n))
+            entry('mount_resonance', {'frequency_hz': mount['frequency_hz'], 'damping_ratio': mount['damping_ratio']},
+                  {'frequency_hz': mount['frequency_ci95'], 'damping_ratio': mount['damping_ci95']}, np.array(b),
+                  np.array(e), rn < tol.mount_ring_to_noise if n >= 2 else None, rn >= tol.mount_ring_to_noise,
+                  'accel_axial_m_s2, free decay after the last event',
+                  {'cell_mode_hz': f_cell, 'ring_to_noise': rn,
+                   'frequency_rule': f'observed < {MOUNT_MAX_FRACTION} x the rig\'s cell mode '
+                                     f'({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)'})
+    order = ('mount_resonance', 'accel_delay', 'moving_cell_gain', 'effective_mass', 'gain_mass_product',
+             'mains_hum')
+    named = sorted((k for k in order if k in causes and causes[k]['verdict'] == 'named'),
+                   key=lambda k: -causes[k]['evidence']['rel_sse_reduction'])
+    per_pull = [{'pull': p.name, 'gain_mass_kg': p.gain_mass, 'delay_s': p.delay_s, 'hum_amplitude_n': s.hum_amp,
+                 'free_share': p.free_share, 'events': list(p.events),
+                 'modes': [{'frequency_hz': f, 'damping_ratio': z, 'energy_share': e} for f, z, e in p.modes]}
+                for p, s in zip(pulls, stats)]
+    if reference is not None:      # each pull's own g and m2 (at its own delay)
+        for row, p, r in zip(per_pull, pulls, ref):
+            b = fit(gram_at(r, p.delay_s), models(g0)['full'])
+            row.update(moving_cell_gain=float(b[0]), effective_mass_kg=float(b[1] / b[0]))
+    return {'G': G, 'd': d, 'causes': causes, 'named': named, 'modes': modes, 'per_pull': per_pull,
+            'baseline_sse': float(base.sum()), 'extended_sse': float(full.sum()),
+            'samples': int(sum(s.samples for s in stats)), 'accel_noise': noise, 'cell_mode_hz': f_cell,
+            'reference': reference is not None}
+
+
+
+def validation_text(n: int, reference: bool = False) -> dict:
+    """What the number of pulls supports (report.json validation); reference: the stationary cell is there (g and
+    m2 apart)."""
+    if n == 1:
+        return {'method': 'per-pull', 'pulls': 1,
+                'supports': f'the pull\'s own estimates ({"g, m2, " if reference else ""}g m2, delay, modes, hum, '
+                            'data quality)',
+                'cannot_support': 'an interval, a held-out check, or a cause: one pull cannot tell an effect '
+                                  'from that pull\'s own scatter'}
+    if n < MIN_NAMED_PULLS:
+        return {'method': 'leave-one-out', 'pulls': n,
+                'supports': f'each estimate fitted on {n - 1} pull(s) and checked on the one left out; the '
+                            'per-pull agreement; a jackknife interval (wide: Student t with '
+                            f'{n - 1} degree(s) of freedom)',
+                'cannot_support': f'a named cause: the held-out test needs t >= {MIN_T:g} over at least '
+                                  f'{MIN_NAMED_PULLS} held-out pulls; what departs on every held-out pull is '
+                                  '`indicated`, not named'}
+    return {'method': 'leave-one-out', 'pulls': n,
+            'supports': f'each estimate fitted on {n - 1} pulls and checked on the one left out, every pull held '
+                        f'out once; named causes (t >= {MIN_T:g} over the {n} held-out pulls, interval outside '
+                        'the tolerance band)',
+            'cannot_support': ('' if reference else 'g and m2 separately (no reference), ') +
+                              'anything needing an absent channel'}
+
