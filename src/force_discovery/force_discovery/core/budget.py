@@ -209,6 +209,20 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     return {name: abs(stat(np.array([r[name] for r in rows_v])) - f0) for name in DRIVE_VARIANTS}
 
 
+def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float]) -> dict:
+    """{cause: {parameter: {'pull_to_pull': u}}} of the quantities measured pull by pull whose definition moves with
+    the pull: the free-decay mode's frequency and damping (modes: (f, zeta) or None per pull) and the hum's frequency
+    (hum_freqs: the pulls' own), each their pull-to-pull standard deviation (at least 2 pulls)."""
+    out: dict = {}
+    found = [m for m in modes if m is not None]
+    if 'mount_resonance' in cand and len(found) >= 2:
+        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in found], ddof=1))},
+                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
+    if 'mains_hum' in cand and len(hum_freqs) >= 2:
+        out['mains_hum'] = {'frequency_hz': {'pull_to_pull': float(np.std(hum_freqs, ddof=1))}}
+    return out
+
+
 def statistical_u(name: str, c: Candidate, par: str) -> float:
     """The statistical standard uncertainty behind a candidate's interval (inf when it has none)."""
     lo, hi = c.parameters_ci95[par]
@@ -277,4 +291,5 @@ def clock_relative(rig) -> float:
 
 __all__ = ['COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative',
            'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all',
-           'load_dependence', 'load_groups', 'rate_scale', 'rate_stat_u', 'statistical_u', 'variant_pulls']
+           'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
+           'variant_pulls']
