@@ -16,8 +16,9 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
   The samples' resolution and noise act pull to pull: they are in the statistical part.
 - definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
   pulls grouped by load (GROUPS groups by stationary peak); the spread of the groups beyond what their statistics
-  explain is the component. A mode's frequency and damping move with the load: their pull-to-pull standard
-  deviation.
+  explain is a random effect, and the pooled estimate's share of it (over GROUPS) is the component
+  (load_dependence). A mode's frequency and damping, and the hum's frequency, move from pull to pull: their
+  pull-to-pull standard deviation (pull_to_pull).
 
 The expanded uncertainty is U = sqrt((q u_stat)^2 + (COVERAGE_K u_sys)^2): q is the statistical interval's own
 factor (Student's t over the fitted pulls, or 1.96 for a bootstrap), so with no systematic part the interval is the
@@ -179,9 +180,12 @@ def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
 
 
 def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dict, d: float) -> dict:
-    """{term: {parameter: u}}: the spread of the force model fitted on each load group, beyond the statistical
-    spread of groups that size (u_stat: {term: {parameter: the pooled statistical u}}; tau's in its rate; the
-    result in the parameter's unit). The delay is searched per group for its own spread; the other terms are fitted
+    """{term: {parameter: u}}: the load dependence as a random effect. The force model fitted on each of the G
+    load groups spreads with variance s^2; beyond the statistical spread of groups that size (G u_stat^2) it is
+    the between-group variance tau^2 = s^2 - G u_stat^2 (at least 0), and the pooled estimate, an average over
+    the campaign's loads, carries tau^2 / G of it (a random-effects mean over G groups), not the whole tau^2 of
+    one group (u_stat: {term: {parameter: the pooled statistical u}}; tau's in its rate; the result in the
+    parameter's unit). The delay is searched per group for its own spread; the other terms are fitted
     at the campaign's delay d (a delay's noise in a small group is not a load dependence of the gain)."""
     if len(groups) < 2:
         return {}
@@ -198,7 +202,7 @@ def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dic
             us = u_stat.get(term, {}).get(par, 0.0)
             k0 = float(np.mean(vals))
             scale = rate_scale(1.0 / k0 if k0 > 0 else math.inf) if term == 'ac_coupling' else 1.0
-            out.setdefault(term, {})[par] = math.sqrt(max(0.0, s2 - len(groups) * us ** 2)) / scale
+            out.setdefault(term, {})[par] = math.sqrt(max(0.0, s2 - len(groups) * us ** 2) / len(groups)) / scale
     return out
 
 
@@ -232,8 +236,11 @@ def statistical_u(name: str, c: Candidate, par: str) -> float:
 
 
 def stat_factor(name: str, c: Candidate) -> float:
-    """The statistical interval's coverage factor: Student's t over the fitted pulls (jackknife), 1.96 (bootstrap)."""
+    """The statistical interval's coverage factor: Student's t over the fitted pulls (jackknife; n - 2 degrees of
+    freedom for the friction's line through the pulls, friction.joint_ci), 1.96 (bootstrap)."""
     from scipy.stats import norm
+    if name == 'coulomb_friction' and c.evidence.viscous_damping_n_s_per_m is not None:
+        return t_quantile(c.ci_pulls - 1)
     return t_quantile(c.ci_pulls) if name in TERMS else float(norm.ppf(0.5 + CONFIDENCE / 2))
 
 

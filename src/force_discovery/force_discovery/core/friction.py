@@ -36,10 +36,10 @@ def current_resid(p: Pull, rig) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     return rho, np.where(p.usable(), np.where(moving, 1.0, np.where(still, 0.0, np.nan)), np.nan)
 
 
-def viscous_fit(rows: np.ndarray) -> Optional[Tuple[float, float, float]]:
-    """(F_c, db, the standard error of db) of the straight line through the pulls' (speed, moving minus still
-    residual) (rows: friction_row()s); None when the speeds do not span MIN_SPEED_SPREAD of their mean or there
-    are fewer than 3 pulls."""
+def viscous_fit(rows: np.ndarray) -> Optional[Tuple[float, float, float, float]]:
+    """(F_c, db, the standard error of db, the standard error of F_c) of the least-squares line through the pulls'
+    (speed, moving minus still residual) (rows: friction_row()s); None when the speeds do not span
+    MIN_SPEED_SPREAD of their mean or there are fewer than 3 pulls."""
     rows = np.asarray(rows, float)
     if rows.ndim != 2 or rows.shape[1] < 3 or len(rows) < 3:
         return None
@@ -50,8 +50,17 @@ def viscous_fit(rows: np.ndarray) -> Optional[Tuple[float, float, float]]:
         return None
     db = float(np.sum((v - vbar) * (y - y.mean())) / sxx)
     fc = float(y.mean() - db * vbar)
-    rss = float(np.sum((y - fc - db * v) ** 2))
-    return fc, db, math.sqrt(rss / (len(v) - 2) / sxx)
+    s2 = float(np.sum((y - fc - db * v) ** 2)) / (len(v) - 2)
+    return fc, db, math.sqrt(s2 / sxx), math.sqrt(s2 * (1.0 / len(v) + vbar * vbar / sxx))
+
+
+def joint_ci(rows: np.ndarray, confidence: float) -> Tuple[float, float]:
+    """The confidence interval of viscous_fit's F_c: Student's t with n - 2 degrees of freedom on its standard
+    error (the textbook interval of a line's intercept; a bootstrap over so few pulls is too narrow)."""
+    from scipy.stats import t
+    fc, _db, _se_db, se = viscous_fit(rows)
+    h = float(t.ppf(0.5 + confidence / 2, len(rows) - 2)) * se
+    return fc - h, fc + h
 
 
 def viscous_separable(rows: Optional[np.ndarray], u_b: float) -> bool:

@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from functools import partial
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
@@ -43,10 +42,10 @@ from force_tester_sim.core.departures import CATALOG
 
 from .candidate import Candidate, Evidence
 from .force_model import TERMS, force_params, force_params_ci
-from .friction import friction_stat
+from .friction import friction_stat, joint_ci
 from .ringing import MOUNT_MAX_FRACTION, RingPart, cell_modes, observed_mode
 from .significance import significance
-from .uncertainty import bootstrap_ci
+from .uncertainty import CONFIDENCE, bootstrap_ci
 
 MIN_PULLS = 4                 # half are fitted, half held out
 CATALOG_PARAMS = {name: tuple(params) for name, (_kind, params, _meaning) in CATALOG.items()}
@@ -192,12 +191,14 @@ def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[R
 
 def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int,
                        joint: bool = False, viscous: Optional[float] = None) -> Candidate:
-    """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf (friction_stat,
-    joint: fitted with the viscous damping), and the held-out pulls' friction_sse() without (b) and with (e) it;
-    viscous: the drive's viscous damping the joint fit measured (evidence; None: the rig YAML's was used)."""
+    """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf (friction_stat;
+    joint: fitted with the viscous damping, its interval the line's, else a bootstrap over pulls), and the held-out
+    pulls' friction_sse() without (b) and with (e) it; viscous: the drive's viscous damping the joint fit measured
+    (evidence; None: the rig YAML's was used)."""
     ev = dataclasses.replace(significance(b, e), viscous_damping_n_s_per_m=viscous)
-    return Candidate({'force_n': fcf}, {'force_n': list(bootstrap_ci(rows, partial(friction_stat, joint=joint)))},
-                     n_fit, ev, 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)')
+    ci = joint_ci(rows, CONFIDENCE) if joint else bootstrap_ci(rows, friction_stat)
+    return Candidate({'force_n': fcf}, {'force_n': list(ci)}, n_fit, ev,
+                     'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)')
 
 
 def unusable_analysis(usable: int, total: int, quality: tuple, screens: tuple, excluded: dict, **run) -> Analysis:
