@@ -179,30 +179,41 @@ def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
     return [list(a) for a in np.array_split(np.array(order), g)]
 
 
+def _group_table(fm_, gr: Sequence[int], m2: float, d: float) -> dict:
+    """_param_table of the force model fitted on the pulls gr: the delay searched on them, the other terms at d."""
+    c, _ = fm_.fit(set(TERMS), list(gr), d)
+    _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
+    return _param_table(c, dg, m2)
+
+
 def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dict, d: float) -> dict:
     """{term: {parameter: u}}: the load dependence as a random effect. The force model fitted on each of the G
-    load groups spreads with variance s^2; beyond the statistical spread of groups that size (G u_stat^2) it is
-    the between-group variance tau^2 = s^2 - G u_stat^2 (at least 0), and the pooled estimate, an average over
-    the campaign's loads, carries tau^2 / G of it (a random-effects mean over G groups), not the whole tau^2 of
-    one group (u_stat: {term: {parameter: the pooled statistical u}}; tau's in its rate; the result in the
-    parameter's unit). The delay is searched per group for its own spread; the other terms are fitted
-    at the campaign's delay d (a delay's noise in a small group is not a load dependence of the gain)."""
+    load groups spreads with variance s^2; of it, a group's own statistical variance v (the larger of its
+    delete-one-pull jackknife within the group, averaged over the groups, and G u_stat^2, the pooled one scaled
+    to a group's size) is noise, and the rest, tau^2 = s^2 - v (at least 0), is the between-group variance. The
+    pooled estimate, an average over the campaign's loads, carries tau^2 / G of it (a random-effects mean over G
+    groups), not the whole tau^2 of one group (u_stat: {term: {parameter: the pooled statistical u}}; tau's in
+    its rate; the result in the parameter's unit). The delay is searched per group for its own spread; the other
+    terms are fitted at the campaign's delay d (a delay's noise in a small group is not a load dependence of the
+    gain)."""
     if len(groups) < 2:
         return {}
-    per = []
-    for gr in groups:
-        c, _ = fm_.fit(set(TERMS), list(gr), d)
-        _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
-        per.append(_param_table(c, dg, m2))
+    per = [_group_table(fm_, gr, m2, d) for gr in groups]
+    loo = [[_group_table(fm_, [j for j in gr if j != k], m2, d) for k in gr] if len(gr) >= 2 else []
+           for gr in groups]
     out: dict = {}
     for term, params in per[0].items():
         for par in params:
             vals = np.array([p[term][par] for p in per])
             s2 = float(np.var(vals, ddof=1))
-            us = u_stat.get(term, {}).get(par, 0.0)
+            own = [(len(lg) - 1) * float(np.var([q[term][par] for q in lg])) for lg in loo if lg]
+            v_own = float(np.mean(own)) if own else 0.0
+            v_pooled = len(groups) * u_stat.get(term, {}).get(par, 0.0) ** 2
+            v = max(v_own, v_pooled) if math.isfinite(v_own) else v_pooled   # a singular one-pull fit: the pooled
             k0 = float(np.mean(vals))
             scale = rate_scale(1.0 / k0 if k0 > 0 else math.inf) if term == 'ac_coupling' else 1.0
-            out.setdefault(term, {})[par] = math.sqrt(max(0.0, s2 - len(groups) * us ** 2) / len(groups)) / scale
+            tau2 = max(0.0, s2 - v) if (math.isfinite(v) and math.isfinite(s2)) else 0.0
+            out.setdefault(term, {})[par] = math.sqrt(tau2 / len(groups)) / scale
     return out
 
 
