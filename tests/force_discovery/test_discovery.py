@@ -120,6 +120,36 @@ def test_dry_and_viscous_friction_are_fitted_together_over_the_pulls_speeds():
     assert not viscous_separable(rows[:2], u_b=7.0)
 
 
+class _PerPullGains:
+    """A force model whose fit on pulls idx is the mean of their own gains (and m2 times it): enough for
+    budget.load_dependence."""
+
+    def __init__(self, gains):
+        self.gains = gains
+
+    def fit(self, terms, idx, d):
+        g = float(np.mean([self.gains[j] for j in idx]))
+        return {'g': g, 'M': 1.152 * g}, None
+
+    def fit_delay(self, terms, idx):
+        return self.fit(terms, idx, 0.0)[0], None, 0.0
+
+
+def test_load_dependence_is_the_between_group_variance_a_random_effect():
+    """Load groups that differ only as much as their own pulls scatter carry no load dependence; groups whose
+    pulls agree but differ from group to group carry tau^2 / G (the pooled estimate averages over G groups)."""
+    from force_discovery.core.budget import load_dependence
+    groups = [[0, 1], [2, 3], [4, 5]]
+    noisy = load_dependence(_PerPullGains([0.98, 1.04, 1.00, 1.02, 1.02, 1.04]), groups, 1.152, {}, 0.0)
+    assert noisy['moving_cell_gain']['gain'] == 0.0
+    real = load_dependence(_PerPullGains([1.0, 1.0, 1.01, 1.01, 1.02, 1.02]), groups, 1.152, {}, 0.0)
+    assert real['moving_cell_gain']['gain'] == pytest.approx(np.sqrt(1e-4 / 3))
+    # the pooled statistical u, scaled to a group's size, is noise too
+    pooled = load_dependence(_PerPullGains([1.0, 1.0, 1.01, 1.01, 1.02, 1.02]), groups, 1.152,
+                             {'moving_cell_gain': {'gain': 0.01}}, 0.0)
+    assert pooled['moving_cell_gain']['gain'] == 0.0
+
+
 def test_two_effects_both_named(tmp_path):
     deps = {'moving_cell_gain': {'gain': 1.05}, 'coulomb_friction': {'force_n': 120.0}}
     report = run(make_campaign(deps, seed=7), tmp_path)
