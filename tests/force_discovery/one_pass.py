@@ -7,6 +7,7 @@ leftover.py, report's build_report), only the order of the work differs, so test
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
@@ -27,8 +28,23 @@ from force_discovery.core.errors import DiscoveryError
 from force_discovery.core.extension import extension
 from force_discovery.core.force_errors import ForceErrors, error_part
 from force_discovery.core.force_model import TERMS, ForceModel, fit_terms
-from force_discovery.core.friction import friction_row, friction_rows, friction_sse, friction_stat
-from force_discovery.core.hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
+from force_discovery.core.friction import (
+    friction_row,
+    friction_rows,
+    friction_sse,
+    friction_stat,
+    viscous_departure,
+    viscous_separable,
+    viscous_u,
+)
+from force_discovery.core.hum import (
+    few_pulls,
+    hum_frequencies,
+    hum_frequency_from,
+    hum_per_pull,
+    hum_scale,
+    pre_residual,
+)
 from force_discovery.core.identifiability import full_identifiability
 from force_discovery.core.leftover import leftover_from, leftover_part
 from force_discovery.core.outputs import write_outputs
@@ -80,14 +96,14 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
     for t, params in fs.items():
         for p, comps in params.items():
             out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
-    modes = [m for m in (free_decay_mode(pulls[j]) for j in few_pulls(fit)) if m is not None]
-    if 'mount_resonance' in cand and len(modes) >= 2:
-        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in modes], ddof=1))},
-                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in modes], ddof=1))}}
+    few = few_pulls(fit)
+    hum_freqs = hum_frequencies([pre_residual(pulls[j], m2) for j in few], cand['mains_hum'].parameters['frequency_hz'])
+    out.update(B.pull_to_pull_parts(cand, [free_decay_mode(pulls[j]) for j in few], hum_freqs))
     if 'coulomb_friction' in cand:
         rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
+        joint = viscous_separable(rows, viscous_u(rig))
         out['coulomb_friction'] = {'force_n': B.friction_systematics(
-            rows, [B.friction_variants(pulls[j], rig) for j in fit], friction_stat)}
+            rows, [B.friction_variants(pulls[j], rig) for j in fit], partial(friction_stat, joint=joint))}
     return out
 
 
@@ -104,8 +120,8 @@ def hum_stage(pulls, fit, held, m2):
     a_fit = float(np.mean([amps[k] for k in fit]))
     scales = [hum_scale(amps, a_fit, j) if j in held else 1.0 for j in range(len(pulls))]
     hums = [h * hum_scale(amps, a_fit, j) if j in held else h for j, h in enumerate(hums)]
-    cand, significant = S.hum_candidate(f_hum, pres, amps, a_fit, ForceModel(pulls, m2, hums), ForceModel(pulls, m2),
-                                      fit, held)
+    cand, significant = S.hum_candidate(f_hum, hum_frequencies(pres, f_hum), amps, a_fit, ForceModel(pulls, m2, hums),
+                                        ForceModel(pulls, m2), fit, held)
     return cand, (tuple(hums) if significant else None), S.HumScales(f_hum, tuple(scales))
 
 
@@ -129,10 +145,12 @@ def current_stage(pulls, fit, held, rig):
     rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
     if rows is None:
         return None, None
-    fcf = friction_stat(rows)
-    b = [friction_sse(pulls[j], rig, 0.0) for j in held]
-    e = [friction_sse(pulls[j], rig, fcf) for j in held]
-    return (S.friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit)),
+    joint = viscous_separable(rows, viscous_u(rig))
+    fcf, db = friction_stat(rows, joint), viscous_departure(rows, joint)
+    b = [friction_sse(pulls[j], rig, 0.0, db) for j in held]
+    e = [friction_sse(pulls[j], rig, fcf, db) for j in held]
+    return (S.friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit), joint,
+                                 rig.drive.viscous_damping_n_s_per_m + db if joint else None),
             {'sse_base': b, 'sse_ext': e, 'samples': [len(pulls[j].t) for j in held]})
 
 

@@ -20,6 +20,12 @@ from force_tester_common.core.correction import MASS_KG
 from force_tester_sim.core.params import load_rig
 
 
+def load_rig_text(text: str):
+    """load_rig of a YAML text (a rig section or an extension's section appended to nothing: the nominal rig)."""
+    from force_tester_sim.core.params import rig_from_dict
+    return rig_from_dict(yaml.safe_load(text))
+
+
 def run(camp, tmp):
     """The streamed discovery, its per-pull stages inline (test_stream.py runs them on Dask workers)."""
     return discover(camp, load_rig(), tmp, scheduler='inline')
@@ -66,6 +72,17 @@ def test_outputs_written(tmp_path):
     # nominal + extension loads with load_rig and carries the departure
     rig = rig_with(ext['departures'])
     assert 'effective_mass' in rig.departures
+    # the corrected values' standard uncertainties, in the rig YAML's uncertainty form: the named m2's is its
+    # expanded interval's half-width over k = 2; the gain kept at 1 adds the estimate's distance from 1
+    unc = ext['uncertainty']['departures']
+    lo, hi = c['parameters_ci95']['mass_kg']
+    assert unc['effective_mass']['mass_kg'] == pytest.approx((hi - lo) / 4)
+    g = doc['candidates']['moving_cell_gain']
+    g_lo, g_hi = g['parameters_ci95']['gain']
+    assert unc['moving_cell_gain']['gain'] == pytest.approx(np.hypot((g_hi - g_lo) / 4, g['parameters']['gain'] - 1))
+    assert set(unc) == {'effective_mass', 'moving_cell_gain', 'accel_delay'}
+    assert load_rig_text(yaml.safe_dump({'uncertainty': ext['uncertainty']})).uncertainty.u(
+        'departures.effective_mass.mass_kg') == unc['effective_mass']['mass_kg']
     assert report['fitted_pulls'] and report['held_out_pulls']
     assert not set(report['fitted_pulls']) & set(report['held_out_pulls'])
     # the loop closed: the held-out pulls re-simulated with and without the extension, per channel
@@ -78,6 +95,59 @@ def test_outputs_written(tmp_path):
     md = (tmp_path / 'report.md').read_text()
     assert 'Closing the loop' in md and '![simulation](simulation.png)' in md
     assert (tmp_path / 'simulation.png').stat().st_size > 10_000
+
+
+def test_dry_and_viscous_friction_are_fitted_together_over_the_pulls_speeds():
+    """The friction force is the intercept of a line through the pulls' (speed, moving minus still residual): a
+    drive whose viscous damping departs from the rig YAML's (well within its stated 50 %) leaves it right, where
+    the median residual with the YAML's damping is off by the departure times the speed. One speed: no line."""
+    from force_discovery.core.friction import friction_stat, joint_ci, viscous_departure, viscous_fit, viscous_separable
+    rng = np.random.default_rng(3)
+    v = np.repeat([2.38, 3.35, 4.57], 2)   # the test sets 4, 2, 3
+    fc, db = 120.0, 8.0
+    still = rng.normal(0.0, 0.3, 6)
+    rows = np.column_stack([still + fc + db * v + rng.normal(0.0, 0.3, 6), still, v])
+    assert viscous_separable(rows, u_b=7.0)
+    assert friction_stat(rows, joint=True) == pytest.approx(fc, abs=2.0)
+    assert viscous_departure(rows, True) == pytest.approx(db, abs=1.0)
+    assert abs(friction_stat(rows) - fc) > 20.0
+    lo, hi = joint_ci(rows, 0.95)
+    assert lo < fc < hi and hi - lo < 10.0
+    one_speed = rows.copy()
+    one_speed[:, 2] = 3.35
+    assert viscous_fit(one_speed) is None and not viscous_separable(one_speed, u_b=7.0)
+    assert friction_stat(one_speed, joint=True) == friction_stat(one_speed)
+    assert not viscous_separable(rows[:2], u_b=7.0)
+
+
+class _PerPullGains:
+    """A force model whose fit on pulls idx is the mean of their own gains (and m2 times it): enough for
+    budget.load_dependence."""
+
+    def __init__(self, gains):
+        self.gains = gains
+
+    def fit(self, terms, idx, d):
+        g = float(np.mean([self.gains[j] for j in idx]))
+        return {'g': g, 'M': 1.152 * g}, None
+
+    def fit_delay(self, terms, idx):
+        return self.fit(terms, idx, 0.0)[0], None, 0.0
+
+
+def test_load_dependence_is_the_between_group_variance_a_random_effect():
+    """Load groups that differ only as much as their own pulls scatter carry no load dependence; groups whose
+    pulls agree but differ from group to group carry tau^2 / G (the pooled estimate averages over G groups)."""
+    from force_discovery.core.budget import load_dependence
+    groups = [[0, 1], [2, 3], [4, 5]]
+    noisy = load_dependence(_PerPullGains([0.98, 1.04, 1.00, 1.02, 1.02, 1.04]), groups, 1.152, {}, 0.0)
+    assert noisy['moving_cell_gain']['gain'] == 0.0
+    real = load_dependence(_PerPullGains([1.0, 1.0, 1.01, 1.01, 1.02, 1.02]), groups, 1.152, {}, 0.0)
+    assert real['moving_cell_gain']['gain'] == pytest.approx(np.sqrt(1e-4 / 3))
+    # the pooled statistical u, scaled to a group's size, is noise too
+    pooled = load_dependence(_PerPullGains([1.0, 1.0, 1.01, 1.01, 1.02, 1.02]), groups, 1.152,
+                             {'moving_cell_gain': {'gain': 0.01}}, 0.0)
+    assert pooled['moving_cell_gain']['gain'] == 0.0
 
 
 def test_two_effects_both_named(tmp_path):

@@ -399,3 +399,16 @@ def test_halving_the_step_changes_peak_forces_by_less_than_0p1_percent(test_set)
         for key in ('force_moving_n', 'force_stationary_n'):
             a, b = coarse[key].max(), fine[key][::2].max()
             assert abs(a - b) < 1e-3 * abs(a), (key, a, b)
+
+
+def test_a_departures_uncertainty_is_stated_in_the_same_section():
+    """uncertainty.departures.<cause>.<parameter> (what `discover` writes into extension.yaml): kept as stated,
+    refused above the rig's departure value or for a parameter the cause does not have."""
+    rig = rig_from_dict({'departures': {'accel_delay': {'delay_s': 5e-5}},
+                         'uncertainty': {'departures': {'accel_delay': {'delay_s': 2e-7}}}})
+    assert rig.uncertainty.u('departures.accel_delay.delay_s') == 2e-7
+    with pytest.raises(SimError, match=r'uncertainty\.departures\.accel_delay\.delay_s is 0\.001, larger'):
+        rig_from_dict({'departures': {'accel_delay': {'delay_s': 5e-5}},
+                       'uncertainty': {'departures': {'accel_delay': {'delay_s': 1e-3}}}})
+    with pytest.raises(SimError, match=r'uncertainty\.departures\.accel_delay\.gain is not a parameter'):
+        rig_from_dict({'uncertainty': {'departures': {'accel_delay': {'gain': 0.1}}}})

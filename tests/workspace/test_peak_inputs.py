@@ -22,13 +22,64 @@ def test_the_rigs_stated_uncertainties_and_the_lags_rectangular_bound():
 
 
 def test_an_extension_states_its_own(tmp_path):
+    """The extension's uncertainty: section in the rig YAML's form: a departure's u in its own unit, relative to
+    the value the correction uses; a restated constant relative to the correction's value too."""
     rig = load_rig(NOMINAL_YAML)
     ext = tmp_path / 'extension.yaml'
     ext.write_text(yaml.safe_dump({'correction': {'mass_kg': 1.3, 'moving_cell_gain': 1.015},
-                                   'uncertainty': {'mass_kg': 0.013, 'accel_delay_s': 1e-6}}))
+                                   'uncertainty': {'departures': {'effective_mass': {'mass_kg': 0.013},
+                                                                  'accel_delay': {'delay_s': 1e-6}}}}))
     got = peak_inputs(rig, ext)
     assert got.mass_rel == pytest.approx(0.01) and got.accel_delay_s == 1e-6
     assert got.gain_rel == peak_inputs(rig).gain_rel   # not stated: the rig's
-    ext.write_text(yaml.safe_dump({'correction': {}, 'uncertainty': {'mass': 0.01}}))
-    with pytest.raises(CorrectionError, match="'mass'"):
-        peak_inputs(rig, ext)
+    ext.write_text(yaml.safe_dump({'correction': {'moving_cell_gain': 1.015},
+                                   'uncertainty': {'departures': {'moving_cell_gain': {'gain': 0.00203}},
+                                                   'sensors': {'accelerometer_sensitivity_mv_per_g': 0.05}}}))
+    got = peak_inputs(rig, ext)
+    assert got.gain_rel == pytest.approx(0.002)
+    assert got.accel_sensitivity_rel == pytest.approx(0.05 / rig.sensors.accelerometer_sensitivity_mv_per_g)
+
+
+@pytest.mark.parametrize('section, what', [
+    ({'mass_kg': 0.01}, "'mass_kg'"),                                        # the old flat form: not a section
+    ({'departures': {'effective_mass': {'mass': 0.01}}}, 'effective_mass.mass'),
+    ({'departures': {'accel_delay': {'delay_s': -1e-6}}}, '-1e-06'),
+    ({'departures': {'moving_cell_gain': {'gain': 2.0}}}, 'larger than the value'),
+    ({'departures': {'mount_resonance': {'frequency_hz': 1.0}}}, 'mount_resonance.frequency_hz'),
+])
+def test_a_bad_extension_uncertainty_is_refused_with_one_line(tmp_path, section, what):
+    ext = tmp_path / 'extension.yaml'
+    ext.write_text(yaml.safe_dump({'correction': {'moving_cell_gain': 1.0}, 'uncertainty': section}))
+    with pytest.raises(CorrectionError) as info:
+        peak_inputs(load_rig(NOMINAL_YAML), ext)
+    msg = str(info.value)
+    assert what in msg and '\n' not in msg, msg
+
+
+def test_discovers_extension_round_trips_into_the_peak_inputs(tmp_path):
+    """extension.yaml as `discover` writes it (extension(), extension_yaml()) carries the standard uncertainty of
+    each corrected value it estimated: the interval's half-width over k = 2, and, for a value the correction keeps
+    at the model of record's (a cause not named), the estimate's distance from it; peak_inputs reads them back."""
+    import math as m
+
+    from force_discovery.core.extension import extension, extension_yaml
+    rig = load_rig(NOMINAL_YAML)
+    m2 = rig.force_chain.m2
+    cands = {'effective_mass': {'parameters': {'mass_kg': 1.2}, 'parameters_ci95': {'mass_kg': [1.19, 1.21]}},
+             'moving_cell_gain': {'parameters': {'gain': 1.002}, 'parameters_ci95': {'gain': [1.001, 1.003]}},
+             'accel_delay': {'parameters': {'delay_s': 0.0}, 'parameters_ci95': {'delay_s': [0.0, 0.0]}}}
+    named = [{'name': 'effective_mass', 'parameters': {'mass_kg': 1.2}}]
+    ext = extension({'causes': named, 'candidates': cands}, rig)
+    path = tmp_path / 'extension.yaml'
+    path.write_text(extension_yaml(ext))
+    doc = yaml.safe_load(path.read_text())
+    assert doc['correction']['mass_kg'] == 1.2
+    dep = doc['uncertainty']['departures']
+    assert dep['effective_mass']['mass_kg'] == pytest.approx(0.005)              # named: (0.01 / 2)
+    assert dep['moving_cell_gain']['gain'] == pytest.approx(m.hypot(0.0005, 0.002))   # kept at 1: + the distance
+    assert dep['accel_delay']['delay_s'] == 0.0
+    got = peak_inputs(rig, path)
+    assert got.mass_rel == pytest.approx(0.005 / 1.2)
+    assert got.gain_rel == pytest.approx(m.hypot(0.0005, 0.002))
+    assert got.accel_delay_s == 0.0
+    assert got.mass_rel != peak_inputs(rig).mass_rel and m2 != 1.2

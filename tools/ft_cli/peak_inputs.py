@@ -9,9 +9,12 @@ correction's core may not import the sim).
   ``tolerances.accel_delay_s`` band unnamed (it counts as the model of record). So a lag up to that bound may be
   there, corrected or not: a rectangular distribution of half-width ``tolerances.accel_delay_s``,
   u = bound / sqrt(3) (GUM 4.3.7);
-- an extension.yaml may carry an ``uncertainty:`` mapping next to ``correction:`` ({mass_kg, moving_cell_gain,
-  accel_delay_s}: standard uncertainties of the values it corrects with); each one given replaces the rig's.
-  For a value the extension names without one, the rig's u stays (relative to the extension's value).
+- an extension.yaml may carry an ``uncertainty:`` section next to ``correction:``, in the rig YAML's form
+  (force_tester_sim.core.uncertainty: one home for it): ``./ft discover`` writes the standard uncertainties of the
+  values it corrects with as ``departures: {effective_mass: {mass_kg}, moving_cell_gain: {gain}, accel_delay:
+  {delay_s}}``; a constant's (``force_chain.moving_side_mass_kg``, ``sensors.load_cell_sensitivity_mv_per_lbf``,
+  ``sensors.accelerometer_sensitivity_mv_per_g``) may be restated too. Each one given replaces the rig's; for a
+  value the extension does not state, the rig's u stays (relative to the extension's value).
 """
 from __future__ import annotations
 
@@ -23,7 +26,17 @@ import yaml
 from force_correction.core.errors import CorrectionError
 from force_correction.core.peak_uncertainty import PeakInputs
 
-EXTENSION_KEYS = ('mass_kg', 'moving_cell_gain', 'accel_delay_s')
+#: the extension's uncertainty keys -> (the PeakInputs field, the value it is relative to: None for an absolute u;
+#: 'mass' / 'gain' for the correction's m2 / gain; a rig constant's key for that constant)
+EXTENSION_KEYS = {
+    'departures.effective_mass.mass_kg': ('mass_rel', 'mass'),
+    'force_chain.moving_side_mass_kg': ('mass_rel', 'mass'),
+    'departures.moving_cell_gain.gain': ('gain_rel', 'gain'),
+    'sensors.load_cell_sensitivity_mv_per_lbf': ('gain_rel', 'sensors.load_cell_sensitivity_mv_per_lbf'),
+    'sensors.accelerometer_sensitivity_mv_per_g': ('accel_sensitivity_rel',
+                                                   'sensors.accelerometer_sensitivity_mv_per_g'),
+    'departures.accel_delay.delay_s': ('accel_delay_s', None),
+}
 
 
 def peak_inputs(rig, extension_file: str | Path | None = None) -> PeakInputs:
@@ -37,21 +50,50 @@ def peak_inputs(rig, extension_file: str | Path | None = None) -> PeakInputs:
                                                  rig.sensors.accelerometer_sensitivity_mv_per_g),
            'accel_delay_s': rig.tolerances.accel_delay_s / math.sqrt(3.0)}
     if extension_file is not None:
-        try:
-            doc = yaml.safe_load(Path(extension_file).read_text()) or {}
-        except (OSError, yaml.YAMLError) as exc:
-            raise CorrectionError(f'extension file {str(extension_file)!r} cannot be read: {exc}') from None
-        corr, stated = doc.get('correction') or {}, doc.get('uncertainty') or {}
-        if not isinstance(stated, dict) or set(stated) - set(EXTENSION_KEYS):
-            raise CorrectionError(f'extension uncertainty {stated!r} is invalid; expected a mapping of some of '
-                                  f'{list(EXTENSION_KEYS)} to standard uncertainties')
-        if 'mass_kg' in stated:
-            out['mass_rel'] = float(stated['mass_kg']) / float(corr.get('mass_kg') or m2)
-        if 'moving_cell_gain' in stated:
-            out['gain_rel'] = float(stated['moving_cell_gain']) / float(corr.get('moving_cell_gain') or 1.0)
-        if 'accel_delay_s' in stated:
-            out['accel_delay_s'] = float(stated['accel_delay_s'])
+        out.update(extension_inputs(rig, extension_file))
     return PeakInputs(**out)
+
+
+def extension_inputs(rig, extension_file: str | Path) -> dict:
+    """{PeakInputs field: value} of what an extension.yaml's uncertainty: section states (CorrectionError, one
+    line, when it cannot be read or a value is not a standard uncertainty of its key)."""
+    from force_tester_sim.core.errors import SimError
+    from force_tester_sim.core.uncertainty import check_departure_u, overrides_from_data
+    try:
+        doc = yaml.safe_load(Path(extension_file).read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise CorrectionError(f'extension file {str(extension_file)!r} cannot be read: {exc}') from None
+    if not isinstance(doc, dict):
+        raise CorrectionError(f'extension file {str(extension_file)!r} holds {doc!r}; expected a mapping')
+    corr = doc.get('correction') or {}
+    try:
+        stated = dict(overrides_from_data(doc.get('uncertainty')))
+    except SimError as exc:
+        raise CorrectionError(f'extension file {str(extension_file)!r}: {exc}') from None
+    unknown = sorted(set(stated) - set(EXTENSION_KEYS))
+    if unknown:
+        raise CorrectionError(f'extension file {str(extension_file)!r}: uncertainty.{unknown[0]} is not an input '
+                              f'of the corrected peak; expected some of {sorted(EXTENSION_KEYS)}')
+    used = {'mass': float(corr.get('mass_kg') or rig.force_chain.moving_side_mass_kg),
+            'gain': float(corr.get('moving_cell_gain') or 1.0)}
+    out = {}
+    for key, u in stated.items():
+        field, rel_to = EXTENSION_KEYS[key]
+        if rel_to is None:
+            out[field] = u
+            continue
+        value = used[rel_to] if rel_to in used else _constant(rig, rel_to)
+        try:
+            check_departure_u(key, u, value)   # no u above its value (the rig's rule)
+        except SimError as exc:
+            raise CorrectionError(f'extension file {str(extension_file)!r}: {exc}') from None
+        out[field] = u / value
+    return out
+
+
+def _constant(rig, key: str) -> float:
+    section, name = key.split('.')
+    return float(getattr(getattr(rig, section), name))
 
 
 def validator_params(extension_file: str | Path | None = None, rig_file: str | Path | None = None) -> dict:

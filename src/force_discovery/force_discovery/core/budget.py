@@ -16,8 +16,9 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
   The samples' resolution and noise act pull to pull: they are in the statistical part.
 - definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
   pulls grouped by load (GROUPS groups by stationary peak); the spread of the groups beyond what their statistics
-  explain is the component. A mode's frequency and damping move with the load: their pull-to-pull standard
-  deviation.
+  explain is a random effect, and the pooled estimate's share of it (over GROUPS) is the component
+  (load_dependence). A mode's frequency and damping, and the hum's frequency, move from pull to pull: their
+  pull-to-pull standard deviation (pull_to_pull).
 
 The expanded uncertainty is U = sqrt((q u_stat)^2 + (COVERAGE_K u_sys)^2): q is the statistical interval's own
 factor (Student's t over the fitted pulls, or 1.96 for a bootstrap), so with no systematic part the interval is the
@@ -178,27 +179,41 @@ def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
     return [list(a) for a in np.array_split(np.array(order), g)]
 
 
+def _group_table(fm_, gr: Sequence[int], m2: float, d: float) -> dict:
+    """_param_table of the force model fitted on the pulls gr: the delay searched on them, the other terms at d."""
+    c, _ = fm_.fit(set(TERMS), list(gr), d)
+    _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
+    return _param_table(c, dg, m2)
+
+
 def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dict, d: float) -> dict:
-    """{term: {parameter: u}}: the spread of the force model fitted on each load group, beyond the statistical
-    spread of groups that size (u_stat: {term: {parameter: the pooled statistical u}}; tau's in its rate; the
-    result in the parameter's unit). The delay is searched per group for its own spread; the other terms are fitted
-    at the campaign's delay d (a delay's noise in a small group is not a load dependence of the gain)."""
+    """{term: {parameter: u}}: the load dependence as a random effect. The force model fitted on each of the G
+    load groups spreads with variance s^2; of it, a group's own statistical variance v (the larger of its
+    delete-one-pull jackknife within the group, averaged over the groups, and G u_stat^2, the pooled one scaled
+    to a group's size) is noise, and the rest, tau^2 = s^2 - v (at least 0), is the between-group variance. The
+    pooled estimate, an average over the campaign's loads, carries tau^2 / G of it (a random-effects mean over G
+    groups), not the whole tau^2 of one group (u_stat: {term: {parameter: the pooled statistical u}}; tau's in
+    its rate; the result in the parameter's unit). The delay is searched per group for its own spread; the other
+    terms are fitted at the campaign's delay d (a delay's noise in a small group is not a load dependence of the
+    gain)."""
     if len(groups) < 2:
         return {}
-    per = []
-    for gr in groups:
-        c, _ = fm_.fit(set(TERMS), list(gr), d)
-        _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
-        per.append(_param_table(c, dg, m2))
+    per = [_group_table(fm_, gr, m2, d) for gr in groups]
+    loo = [[_group_table(fm_, [j for j in gr if j != k], m2, d) for k in gr] if len(gr) >= 2 else []
+           for gr in groups]
     out: dict = {}
     for term, params in per[0].items():
         for par in params:
             vals = np.array([p[term][par] for p in per])
             s2 = float(np.var(vals, ddof=1))
-            us = u_stat.get(term, {}).get(par, 0.0)
+            own = [(len(lg) - 1) * float(np.var([q[term][par] for q in lg])) for lg in loo if lg]
+            v_own = float(np.mean(own)) if own else 0.0
+            v_pooled = len(groups) * u_stat.get(term, {}).get(par, 0.0) ** 2
+            v = max(v_own, v_pooled) if math.isfinite(v_own) else v_pooled   # a singular one-pull fit: the pooled
             k0 = float(np.mean(vals))
             scale = rate_scale(1.0 / k0 if k0 > 0 else math.inf) if term == 'ac_coupling' else 1.0
-            out.setdefault(term, {})[par] = math.sqrt(max(0.0, s2 - len(groups) * us ** 2)) / scale
+            tau2 = max(0.0, s2 - v) if (math.isfinite(v) and math.isfinite(s2)) else 0.0
+            out.setdefault(term, {})[par] = math.sqrt(tau2 / len(groups)) / scale
     return out
 
 
@@ -207,6 +222,20 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     friction_row()s; rows_v: their friction_variants(); stat: friction.friction_stat)."""
     f0 = stat(rows)
     return {name: abs(stat(np.array([r[name] for r in rows_v])) - f0) for name in DRIVE_VARIANTS}
+
+
+def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float]) -> dict:
+    """{cause: {parameter: {'pull_to_pull': u}}} of the quantities measured pull by pull whose definition moves with
+    the pull: the free-decay mode's frequency and damping (modes: (f, zeta) or None per pull) and the hum's frequency
+    (hum_freqs: the pulls' own), each their pull-to-pull standard deviation (at least 2 pulls)."""
+    out: dict = {}
+    found = [m for m in modes if m is not None]
+    if 'mount_resonance' in cand and len(found) >= 2:
+        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in found], ddof=1))},
+                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
+    if 'mains_hum' in cand and len(hum_freqs) >= 2:
+        out['mains_hum'] = {'frequency_hz': {'pull_to_pull': float(np.std(hum_freqs, ddof=1))}}
+    return out
 
 
 def statistical_u(name: str, c: Candidate, par: str) -> float:
@@ -218,8 +247,11 @@ def statistical_u(name: str, c: Candidate, par: str) -> float:
 
 
 def stat_factor(name: str, c: Candidate) -> float:
-    """The statistical interval's coverage factor: Student's t over the fitted pulls (jackknife), 1.96 (bootstrap)."""
+    """The statistical interval's coverage factor: Student's t over the fitted pulls (jackknife; n - 2 degrees of
+    freedom for the friction's line through the pulls, friction.joint_ci), 1.96 (bootstrap)."""
     from scipy.stats import norm
+    if name == 'coulomb_friction' and c.evidence.viscous_damping_n_s_per_m is not None:
+        return t_quantile(c.ci_pulls - 1)
     return t_quantile(c.ci_pulls) if name in TERMS else float(norm.ppf(0.5 + CONFIDENCE / 2))
 
 
@@ -277,4 +309,5 @@ def clock_relative(rig) -> float:
 
 __all__ = ['COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative',
            'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all',
-           'load_dependence', 'load_groups', 'rate_scale', 'rate_stat_u', 'statistical_u', 'variant_pulls']
+           'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
+           'variant_pulls']

@@ -15,7 +15,7 @@ from typing import Dict, List, Optional
 TEST_ORDER = ('statistic', 'rel_sse_reduction', 't', 'threshold', 'significant', 'rms_gain')
 UNTESTED_ORDER = ('significant', 'rel_sse_reduction', 't', 'rms_gain')
 EVIDENCE_ORDER = ('rms_gain_alone', 't_squared_rel_reduction', 'observed_frequency_hz', 'observed_damping_ratio',
-                  'cell_mode_hz', 'frequency_rule', 'ring_to_noise', 'ring_to_noise_ci95')
+                  'cell_mode_hz', 'frequency_rule', 'ring_to_noise', 'ring_to_noise_ci95', 'viscous_damping_n_s_per_m')
 
 
 @dataclass(frozen=True)
@@ -38,6 +38,7 @@ class Evidence:
     frequency_rule: Optional[str] = None              # ... and the rule that tells them apart
     ring_to_noise: Optional[float] = None             # mount_resonance: the mode's ring over the noise (its band)
     ring_to_noise_ci95: Optional[tuple] = None
+    viscous_damping_n_s_per_m: Optional[float] = None   # coulomb_friction: the drive's b fitted with it (joint)
 
     def value(self, name: str):
         """The evidence called name (a tolerance band may apply to one, tolerances.BAND_PARAMETER)."""

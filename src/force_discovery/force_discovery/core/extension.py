@@ -2,26 +2,35 @@
 undo (extension), from the report or, before the report exists, from the decision (named_extension). ROS-free."""
 from __future__ import annotations
 
-from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
+import math
 
+from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
+from force_tester_sim.core.uncertainty import DEPARTURES
+
+from .budget import COVERAGE_K
 from .decision import Decision
 from .report import candidates, clean, entry
 from .ringing import mount_from_observed
 from .stages import CATALOG_PARAMS, Analysis
+
+#: the corrected values whose uncertainty extension.yaml states: (cause, parameter, the correction's key)
+CORRECTED = (('effective_mass', 'mass_kg', 'mass_kg'), ('moving_cell_gain', 'gain', 'moving_cell_gain'),
+             ('accel_delay', 'delay_s', 'accel_delay_s'))
 
 HEAD = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig '
         'YAML,\n# reproduces the behaviour with load_rig; the correction section is what the correction node '
         'can undo\n# (the correction node and `./ft bag correct --extension` divide F_move by '
         'moving_cell_gain, undo the\n# AC coupling, notch the hum, delay F_move by accel_delay_s to line it '
         'up with a2, then subtract\n# mass_kg * a2). assumptions: what a mapping to the sim needed that the '
-        'data do not identify.\n')
+        'data do not identify. uncertainty: the\n# standard uncertainties (k = 1) of the corrected values the '
+        'campaign estimated, in the rig YAML\'s form\n# (the corrected peak\'s uncertainty takes them).\n')
 
 
 def named_extension(analysis: Analysis, decision: Decision, rig) -> dict:
     """extension() of the report build_report() will write, from the named causes alone (it needs nothing else
     of the report): the stream re-simulates with it before the report exists."""
     cand = candidates(analysis, decision)
-    return extension(clean({'causes': [entry(n, cand[n]) for n in decision.named]}), rig)
+    return extension(clean({'causes': [entry(n, cand[n]) for n in decision.named], 'candidates': cand}), rig)
 
 
 def extension(report, rig) -> dict:
@@ -53,9 +62,32 @@ def extension(report, rig) -> dict:
     if 'mains_hum' in deps:
         corr['mains_hum_hz'] = deps['mains_hum']['frequency_hz']
     out = {'departures': deps, 'correction': corr}
+    unc = correction_uncertainty(report.get('candidates') or {}, corr)
+    if unc:
+        out['uncertainty'] = unc
     if assumptions:
         out['assumptions'] = assumptions
     return out
+
+
+def correction_uncertainty(cands: dict, corr: dict) -> dict:
+    """The extension's ``uncertainty:`` section (the rig YAML's form, force_tester_sim.core.uncertainty:
+    ``departures: {cause: {parameter: u}}``): the standard uncertainty (k = 1) of each value the correction uses
+    that the campaign estimated (m2, the gain, the delay), from the candidate's expanded interval (half-width /
+    COVERAGE_K) and, where the correction keeps the model of record's value because the cause is not named, the
+    difference between the estimate and that value: u = sqrt((U / k)^2 + (estimate - used)^2)."""
+    out: dict = {}
+    for cause, par, key in CORRECTED:
+        c = cands.get(cause)
+        if not c or par not in c.get('parameters_ci95', {}):
+            continue
+        lo, hi = c['parameters_ci95'][par]
+        est = c['parameters'].get(par)
+        if lo is None or hi is None or est is None or not (math.isfinite(lo) and math.isfinite(hi)):
+            continue
+        u = math.hypot(0.5 * (hi - lo) / COVERAGE_K, est - corr[key])
+        out.setdefault(cause, {})[par] = float(u)
+    return {DEPARTURES: out} if out else {}
 
 
 def extension_yaml(ext: dict) -> str:

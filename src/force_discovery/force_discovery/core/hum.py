@@ -68,6 +68,11 @@ def hum_frequency_near(t: np.ndarray, r: np.ndarray, f0: float) -> float:
                                  options={'xatol': 1e-3}).x)
 
 
+def hum_frequencies(pres: Sequence[Tuple[np.ndarray, np.ndarray]], f0: float) -> list:
+    """hum_frequency_near() of each pre-pull residual (t, r) in pres: the pulls' own hum frequencies."""
+    return [hum_frequency_near(t, r, f0) for t, r in pres]
+
+
 def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
     """(amplitude, hum over the whole record) with the phase/amplitude fitted on the pre-pull record only."""
     t, r = pre_residual(p, m2)

@@ -42,11 +42,10 @@ from force_tester_sim.core.departures import CATALOG
 
 from .candidate import Candidate, Evidence
 from .force_model import TERMS, force_params, force_params_ci
-from .friction import friction_stat
-from .hum import hum_frequency_near
+from .friction import friction_stat, joint_ci
 from .ringing import MOUNT_MAX_FRACTION, RingPart, cell_modes, observed_mode
 from .significance import significance
-from .uncertainty import bootstrap_ci
+from .uncertainty import CONFIDENCE, bootstrap_ci
 
 MIN_PULLS = 4                 # half are fitted, half held out
 CATALOG_PARAMS = {name: tuple(params) for name, (_kind, params, _meaning) in CATALOG.items()}
@@ -112,16 +111,16 @@ class Analysis:
 FORCE_CHANNEL_TEXT = 'force_moving_n - (T + m2 a2), analysis window'
 
 
-def hum_candidate(f_hum: float, pres: Sequence[Tuple[np.ndarray, np.ndarray]], amps: Sequence[float], a_fit: float,
+def hum_candidate(f_hum: float, freqs: Sequence[float], amps: Sequence[float], a_fit: float,
                   fm_h, fm_0, fit, held) -> Tuple[Candidate, bool]:
-    """(the mains-hum candidate, whether it is significant) from the hum frequency f_hum, the few pulls' pre-pull
-    residuals pres (for its interval), every pull's hum amplitude, and the full force model with (fm_h) and without
-    (fm_0) the hum: a ForceModel or a ForceStats."""
+    """(the mains-hum candidate, whether it is significant) from the hum frequency f_hum, the few pulls' own
+    frequencies freqs (hum.hum_frequencies, for its interval), every pull's hum amplitude, and the full force model
+    with (fm_h) and without (fm_0) the hum: a ForceModel or a ForceStats."""
     c_h, _, d_h = fm_h.fit_delay(set(TERMS), fit)
     c_0, _ = fm_0.fit(set(TERMS), fit, d_h)
     sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
     alone = significance(fm_0.sse_per_pull(set(), {}, 0.0, held), fm_h.sse_per_pull(set(), {}, 0.0, held)).rms_gain
-    ci = {'frequency_hz': list(bootstrap_ci([hum_frequency_near(t, r, f_hum) for t, r in pres], np.mean)),
+    ci = {'frequency_hz': list(bootstrap_ci(freqs, np.mean)),
           'amplitude_n': list(bootstrap_ci([amps[k] for k in fit], np.mean))}
     cand = Candidate({'frequency_hz': f_hum, 'amplitude_n': a_fit}, ci, len(fit),
                      dataclasses.replace(sig, rms_gain_alone=alone), FORCE_CHANNEL_TEXT)
@@ -190,11 +189,16 @@ def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[R
     return cand, ring
 
 
-def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int) -> Candidate:
-    """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf, and the held-out
-    pulls' friction_sse() without (b) and with (e) it."""
-    return Candidate({'force_n': fcf}, {'force_n': list(bootstrap_ci(rows, friction_stat))}, n_fit,
-                     significance(b, e), 'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)')
+def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int,
+                       joint: bool = False, viscous: Optional[float] = None) -> Candidate:
+    """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf (friction_stat;
+    joint: fitted with the viscous damping, its interval the line's, else a bootstrap over pulls), and the held-out
+    pulls' friction_sse() without (b) and with (e) it; viscous: the drive's viscous damping the joint fit measured
+    (evidence; None: the rig YAML's was used)."""
+    ev = dataclasses.replace(significance(b, e), viscous_damping_n_s_per_m=viscous)
+    ci = joint_ci(rows, CONFIDENCE) if joint else bootstrap_ci(rows, friction_stat)
+    return Candidate({'force_n': fcf}, {'force_n': list(ci)}, n_fit, ev,
+                     'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)')
 
 
 def unusable_analysis(usable: int, total: int, quality: tuple, screens: tuple, excluded: dict, **run) -> Analysis:

@@ -42,6 +42,7 @@ import os
 import shutil
 import tempfile
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
@@ -58,6 +59,7 @@ from .budget import (
     honest_all,
     load_dependence,
     load_groups,
+    pull_to_pull_parts,
     rate_stat_u,
     statistical_u,
     variant_pulls,
@@ -78,8 +80,16 @@ from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
 from .free import discover_free
-from .friction import friction_row, friction_rows, friction_sse, friction_stat
-from .hum import few_pulls, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
+from .friction import (
+    friction_row,
+    friction_rows,
+    friction_sse,
+    friction_stat,
+    viscous_departure,
+    viscous_separable,
+    viscous_u,
+)
+from .hum import few_pulls, hum_frequencies, hum_frequency_from, hum_per_pull, hum_scale, pre_residual
 from .identifiability import check_core_channels, full_identifiability, needs_reference_free
 from .leftover import LeftoverPart, LeftoverSum, leftover_part
 from .outputs import write_outputs
@@ -141,6 +151,7 @@ class StatsJob:
     held: bool
     dt: float                           # the campaign's sample interval (the first usable pull's)
     fcf: Optional[float] = None         # the friction force (held-out pulls with a current channel)
+    db: float = 0.0                     # ... and the viscous damping's departure fitted with it (friction.py)
     mode: Optional[tuple] = None        # the observed free-decay mode (held-out pulls, when there is one)
     variants: bool = False              # also the force statistics under budget.force_variants (a few fitted pulls)
     fcal: Optional[tuple] = None        # ... with the measured cell frequency (cells.cell_frequency_from)
@@ -259,7 +270,7 @@ def pull_stats(item) -> PullStats:
     amp, hum = hum_per_pull(p, job.f_hum, rig.force_chain.m2)
     friction = ring = None
     if job.held and job.fcf is not None and p.current is not None:
-        friction = (friction_sse(p, rig, 0.0), friction_sse(p, rig, job.fcf))
+        friction = (friction_sse(p, rig, 0.0, job.db), friction_sse(p, rig, job.fcf, job.db))
     if job.held and job.mode is not None:
         ring = ring_part(p, job.dt, cell_modes(rig.force_chain), job.mode, keep=True)
     variants = None
@@ -385,13 +396,16 @@ class Stream:
         dt = usable[0].info.dt
         self.dt = dt
         rows = friction_rows(usable[j].friction for j in fit)
-        fcf = None if rows is None else friction_stat(rows)
+        joint = viscous_separable(rows, viscous_u(rig))
+        fcf = None if rows is None else friction_stat(rows, joint)
+        db = viscous_departure(rows, joint)
         # pass 2: the few fitted pulls' pre-pull records and free-decay modes
         few = few_pulls(fit)
         recs = self._strict('hum', self._map('hum', hum_record, [(self.sources[j], rig, self.c1) for j in few],
                                              [names[j] for j in few]))
         pres = [(r.t, r.r) for r in recs]
         f_hum, _power = hum_frequency_from(pres, usable[few[0]].info.dt)
+        hum_freqs = hum_frequencies(pres, f_hum)
         modes = [r.mode for r in recs]
         mode = observed_mode(modes)
         del recs
@@ -405,8 +419,8 @@ class Stream:
                 kept.append(i)
             stats[i] = st
         vpulls = set(variant_pulls(fit))
-        jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, mode if j in held_set else None,
-                         j in vpulls, fcal) for j in range(len(usable))]
+        jobs = [StatsJob(f_hum, j in held_set, dt, fcf if j in held_set else None, db,
+                         mode if j in held_set else None, j in vpulls, fcal) for j in range(len(usable))]
         self._strict('statistics', self._map('statistics', pull_stats,
                                              [(src, rig, self.c1, job) for src, job in zip(self.sources, jobs)], names,
                                              on_result=keep))
@@ -415,7 +429,7 @@ class Stream:
         scales = [hum_scale(amps, a_fit, j) if j in held_set else 1.0 for j in range(len(usable))]
         blocks, dts_ = [st.blocks for st in stats], [st.dt for st in stats]
         fm_h, fm_0 = ForceStats(blocks, dts_, m2, scales), ForceStats(blocks, dts_, m2)
-        hum, significant = hum_candidate(f_hum, pres, amps, a_fit, fm_h, fm_0, fit, held)
+        hum, significant = hum_candidate(f_hum, hum_freqs, amps, a_fit, fm_h, fm_0, fit, held)
         self.f_hum, self.scales = f_hum, scales
         self.fm_h, self.fm_0 = fm_h, fm_0
         force_cand, force = force_stage_from(fm_h if significant else fm_0, fit, held, m2)
@@ -425,12 +439,14 @@ class Stream:
         if fcf is not None and all(stats[j].friction is not None for j in held):
             b = [stats[j].friction[0] for j in held]
             e = [stats[j].friction[1] for j in held]
-            friction = friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit))
+            friction = friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit), joint,
+                                          rig.drive.viscous_damping_n_s_per_m + db if joint else None)
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
         sys_ = systematics(cand, stats, fit, [s.quality.peak_n for s in usable], scales if significant else None, m2,
-                           modes, rows, [usable[j].friction_variants for j in fit], force['delay_s'])
+                           modes, rows, [usable[j].friction_variants for j in fit], force['delay_s'], joint,
+                           hum_freqs)
         cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
@@ -525,10 +541,11 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             shutil.rmtree(spill, ignore_errors=True)
 
 
-def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float) -> dict:
+def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float,
+                joint: bool = False, hum_freqs: Sequence[float] = ()) -> dict:
     """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (budget.py) from pass 3's variant
-    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount) and the
-    friction rows."""
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount), the few
+    pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the viscous damping fitted)."""
     out: dict = {}
     vidx = [j for j in fit if stats[j].variants is not None]
     if vidx:
@@ -545,12 +562,9 @@ def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, r
         for t, params in fs.items():
             for p, comps in params.items():
                 out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
-    found = [m for m in modes if m is not None]
-    if 'mount_resonance' in cand and len(found) >= 2:
-        out['mount_resonance'] = {'frequency_hz': {'pull_to_pull': float(np.std([m[0] for m in found], ddof=1))},
-                                  'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
+    out.update(pull_to_pull_parts(cand, modes, hum_freqs))
     if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
-        out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, friction_stat)}
+        out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint))}
     return out
 
 

@@ -243,7 +243,7 @@ def rig_from_dict(data: Mapping) -> RigParams:
     if 'uncertainty' in data:   # kept only where it is not the default fraction, so equal rigs compare equal
         default = dict(rig.uncertainty)
         stated = tuple((k, u) for k, u in overrides_from_data(data['uncertainty'])
-                       if not math.isclose(u, default[k], rel_tol=1e-9, abs_tol=0.0))
+                       if k not in default or not math.isclose(u, default[k], rel_tol=1e-9, abs_tol=0.0))
         rig = dataclasses.replace(rig, uncertainty_stated=stated)
     validate_rig(rig)
     return rig

@@ -6,6 +6,12 @@ the others get a default fraction of their own value (``DEFAULTS_REL``; on the n
 packaged nominal.yaml's section, and the sim README justifies them), so a heavier or stiffer rig scales with them.
 A value of 0 states the constant as exact (a gear ratio, a set limit). Anything negative, missing, not finite or
 larger than the constant itself is refused with one line naming the key and the value.
+
+The section may also state the standard uncertainty of a departure's parameter (departures.CATALOG), keyed
+``departures.<cause>.<parameter>`` (``uncertainty: {departures: {accel_delay: {delay_s: 2.0e-7}}}``): an
+extension.yaml written by ``./ft discover`` states so the parameters it estimated, and the correction's peak
+uncertainty takes them (tools/ft_cli/peak_inputs.py). A departure's u may not exceed its value (where that is not
+0; an absent delay is 0 with an uncertainty).
 """
 from __future__ import annotations
 
@@ -13,7 +19,10 @@ import math
 from dataclasses import dataclass
 from typing import Any, Iterator, Mapping
 
+from .departures import CATALOG, OPTIONAL_PARAMS
 from .errors import SimError
+
+DEPARTURES = 'departures'   # the section of departure parameters' uncertainties
 
 #: section -> key -> default standard uncertainty RELATIVE to the constant (k = 1); a rig without an
 #: ``uncertainty:`` entry for a constant gets this fraction of its own value. The sim README's "Uncertainty"
@@ -92,8 +101,12 @@ def overrides_from_data(data: Any) -> tuple:
         raise SimError(f'uncertainty is {data!r}; expected a mapping of sections {sorted(DEFAULTS_REL)}')
     out = []
     for section, keys in data.items():
+        if section == DEPARTURES:
+            out += departure_overrides(keys)
+            continue
         if section not in DEFAULTS_REL:
-            raise SimError(f'uncertainty has unknown section {section!r}; expected one of {sorted(DEFAULTS_REL)}')
+            raise SimError(f'uncertainty has unknown section {section!r}; expected one of '
+                           f'{sorted(DEFAULTS_REL) + [DEPARTURES]}')
         if not isinstance(keys, Mapping):
             raise SimError(f'uncertainty.{section} is {keys!r}; expected a mapping of its constants')
         for key, u in keys.items():
@@ -101,10 +114,42 @@ def overrides_from_data(data: Any) -> tuple:
             if key not in DEFAULTS_REL[section]:
                 raise SimError(f'{where} is not a constant of {section}; expected one of '
                                f'{sorted(DEFAULTS_REL[section])}')
-            if isinstance(u, bool) or not isinstance(u, (int, float)) or not math.isfinite(u) or u < 0:
-                raise SimError(f'{where} is {u!r}; expected a standard uncertainty, a finite number >= 0')
-            out.append((f'{section}.{key}', float(u)))
+            out.append((f'{section}.{key}', standard_u(where, u)))
     return tuple(sorted(out))
+
+
+def standard_u(where: str, u: Any) -> float:
+    """u as a standard uncertainty (a finite number >= 0), or SimError naming where and the value."""
+    if isinstance(u, bool) or not isinstance(u, (int, float)) or not math.isfinite(u) or u < 0:
+        raise SimError(f'{where} is {u!r}; expected a standard uncertainty, a finite number >= 0')
+    return float(u)
+
+
+def departure_overrides(data: Any) -> list:
+    """The ``uncertainty.departures`` mapping {cause: {parameter: u}} as [(``departures.cause.parameter``, u)]."""
+    if not isinstance(data, Mapping):
+        raise SimError(f'uncertainty.{DEPARTURES} is {data!r}; expected a mapping of causes {sorted(CATALOG)}')
+    out = []
+    for cause, params in data.items():
+        where = f'uncertainty.{DEPARTURES}.{cause}'
+        if cause not in CATALOG:
+            raise SimError(f'{where} is not a catalog cause; expected one of {sorted(CATALOG)}')
+        known = sorted({**CATALOG[cause][1], **OPTIONAL_PARAMS.get(cause, {})})
+        if not isinstance(params, Mapping):
+            raise SimError(f'{where} is {params!r}; expected a mapping of its parameters {known}')
+        for par, u in params.items():
+            if par not in known:
+                raise SimError(f'{where}.{par} is not a parameter of {cause}; expected one of {known}')
+            out.append((f'{DEPARTURES}.{cause}.{par}', standard_u(f'{where}.{par}', u)))
+    return out
+
+
+def check_departure_u(key: str, u: float, value: float) -> None:
+    """Refuse a stated u (key ``section.key`` or ``departures.cause.parameter``) above the value it is the
+    uncertainty of (unless that is 0: an absent delay is 0 with an uncertainty)."""
+    if value != 0 and u > abs(value):
+        raise SimError(f'uncertainty.{key} is {u!r}, larger than the value {value!r}; expected a standard '
+                       f'uncertainty below it')
 
 
 def uncertainties(rig, overrides: tuple = ()) -> Uncertainties:
@@ -119,4 +164,12 @@ def uncertainties(rig, overrides: tuple = ()) -> Uncertainties:
                 raise SimError(f'uncertainty.{section}.{key} is {u!r}, larger than the value {value!r}; '
                                f'expected a standard uncertainty below it')
             values.append((f'{section}.{key}', u))
+    deps = getattr(rig, 'departures', None)
+    for key, u in stated.items():   # the departures' stated: checked against the rig's where it has the departure
+        if key.startswith(DEPARTURES + '.'):
+            _, cause, par = key.split('.')
+            dep = deps.get(cause) if deps is not None else None
+            if dep is not None and dep.get(par) is not None:
+                check_departure_u(key, u, dep.get(par))
+            values.append((key, u))
     return Uncertainties(tuple(sorted(values)))
