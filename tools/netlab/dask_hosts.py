@@ -1,0 +1,118 @@
+"""A Dask cluster across the hosts of a netlab Star: `dask scheduler` in one host, `dask worker`s in others.
+
+Every process runs the workspace's interpreter with the environment it is given (``./ft env``'s: the venv and
+install/), as the README's "a cluster of your own" recipe runs them; the namespaces share this machine's file
+system, which plays the cluster's shared storage (the campaign folders are seen at the same path everywhere).
+
+    cluster = DaskHosts(net, env, log_dir)        # net: an entered netns.Star
+    cluster.scheduler('a'); cluster.workers('b'); cluster.workers('c'); cluster.wait(4)
+    cluster.run('a', [...])                       # a client command inside host a (Popen)
+
+``python -m netlab.dask_hosts wait ADDRESS N TIMEOUT`` (run inside a host) waits until the scheduler has N
+workers; ``... watch ADDRESS`` prints, as JSON lines, which task keys each worker is processing whenever that
+changes (what a test waits on before it removes a host). Those two reach Dask through the engine
+(force_tester_common.engine.get_client), the one module that imports it.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from netlab.netns import NetnsError, Star
+
+PORT = 8786
+NWORKERS = 2      # worker processes per worker host (dask worker --nworkers), one thread each
+
+
+class DaskHosts:
+    """The scheduler and worker processes of one cluster on a Star; they end with the Star (its close())."""
+
+    def __init__(self, net: Star, env: dict, log_dir: Path, port: int = PORT):
+        self.net = net
+        self.env = {**env, 'PYTHONUNBUFFERED': '1'}
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.port = port
+        self.address = None
+        self.procs = {}      # name -> Popen
+
+    def _popen(self, host: str, name: str, cmd: list, stdout=None) -> subprocess.Popen:
+        log = open(self.log_dir / f'{name}.log', 'a')
+        proc = subprocess.Popen([*self.net.host(host).prefix(), *cmd], env=self.env, stdin=subprocess.DEVNULL,
+                                stdout=stdout or log, stderr=log, cwd=self.env.get('FT_ROOT'))
+        self.procs[name] = proc
+        return proc
+
+    def scheduler(self, host: str) -> str:
+        """Start `dask scheduler` in ``host``; returns its address (tcp://ADDRESS:PORT)."""
+        h = self.net.host(host)
+        self._popen(host, f'scheduler_{host}', [sys.executable, '-m', 'distributed.cli.dask_scheduler',
+                                                '--host', h.address, '--port', str(self.port), '--no-dashboard'])
+        self.address = f'tcp://{h.address}:{self.port}'
+        return self.address
+
+    def workers(self, host: str, nworkers: int = NWORKERS) -> subprocess.Popen:
+        """Start `dask worker ADDRESS --nworkers N --nthreads 1` in ``host`` (a nanny per worker process)."""
+        if self.address is None:
+            raise NetnsError('no scheduler yet; expected scheduler(host) before workers(host)')
+        h = self.net.host(host)
+        n = sum(1 for k in self.procs if k.startswith(f'workers_{host}'))
+        scratch = self.log_dir / f'scratch_{host}_{n}'
+        return self._popen(host, f'workers_{host}' + (f'_{n}' if n else ''), [
+            sys.executable, '-m', 'distributed.cli.dask_worker', self.address, '--nworkers', str(nworkers),
+            '--nthreads', '1', '--host', h.address, '--no-dashboard', '--local-directory', str(scratch)])
+
+    def run(self, host: str, name: str, cmd: list) -> subprocess.Popen:
+        """A client command inside ``host``; stdout and stderr piped (text)."""
+        proc = subprocess.Popen([*self.net.host(host).prefix(), *cmd], env=self.env, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=self.env.get('FT_ROOT'))
+        self.procs[name] = proc
+        return proc
+
+    def wait(self, n: int, host: str | None = None, timeout: float = 120.0) -> None:
+        """Wait until the scheduler has ``n`` workers (asked from ``host``, default the scheduler's)."""
+        host = host or self.address.split('//')[1].split(':')[0]
+        host = next((h.name for h in self.net.hosts if h.address == host), host)
+        res = subprocess.run([*self.net.host(host).prefix(), sys.executable, '-m', 'netlab.dask_hosts', 'wait',
+                              self.address, str(n), str(timeout)], env=self.env, capture_output=True, text=True)
+        if res.returncode:
+            raise NetnsError(f'the scheduler at {self.address} did not get {n} workers within {timeout:g} s: '
+                             f'{(res.stderr or res.stdout).strip()[-400:]}; logs in {self.log_dir}')
+
+    def watch(self, host: str) -> subprocess.Popen:
+        """The watcher in ``host``: JSON lines {worker address: [task keys processing]} on its stdout."""
+        return self.run(host, f'watch_{host}', [sys.executable, '-m', 'netlab.dask_hosts', 'watch', self.address])
+
+    def tail(self, name: str, lines: int = 15) -> str:
+        path = self.log_dir / f'{name}.log'
+        return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:]) if path.is_file() else ''
+
+
+def _wait(address: str, n: int, timeout: float) -> int:
+    from force_tester_common.engine import get_client  # the one module that imports Dask
+    client = get_client(address, connect_timeout=timeout)[0]
+    client.wait_for_workers(n, timeout=timeout)
+    return 0
+
+
+def _watch(address: str) -> int:
+    from force_tester_common.engine import get_client
+    client, last = get_client(address, connect_timeout=30.0)[0], None
+    while True:
+        now = {w: sorted(str(k) for k in keys) for w, keys in client.processing().items()}
+        if now != last:
+            print(json.dumps(now), flush=True)
+            last = now
+        time.sleep(0.05)
+
+
+if __name__ == '__main__':
+    args = sys.argv[1:]
+    if args[:1] == ['wait'] and len(args) == 4:
+        sys.exit(_wait(args[1], int(args[2]), float(args[3])))
+    if args[:1] == ['watch'] and len(args) == 2:
+        sys.exit(_watch(args[1]))
+    sys.exit('usage: python -m netlab.dask_hosts wait ADDRESS N TIMEOUT | watch ADDRESS')
