@@ -68,9 +68,8 @@ def net_bytes() -> tuple:
     return rx, tx
 
 
-def _worker_net():   # runs in each worker process (client.run): (host address, received, sent)
-    from distributed import get_worker
-    host = get_worker().address.split('://', 1)[-1].rsplit(':', 1)[0]
+def _worker_net(dask_worker=None):   # runs in each worker process (client.run): (host address, received, sent)
+    host = dask_worker.address.split('://', 1)[-1].rsplit(':', 1)[0]
     return (host, *net_bytes())
 
 
@@ -149,7 +148,7 @@ def run(n: int, scheduler: str | None, work: Path, keep: bool = False) -> dict:
     total = sum(m.wall for m in stages.values())
     return {
         'pulls': n, 'scheduler': where, 'cpus': os.cpu_count(), 'wall_s': total, 's_per_pull': total / n,
-        'retried': mapper.retried,
+        'retried': [*mapper.retried, *json.loads((out / 'report.json').read_text()).get('retried_pulls', [])],
         'stages': {k: {'wall_s': m.wall, 's_per_pull': m.wall / n, 'share': m.wall / total,
                        'client_peak_mb': m.client_mb, 'worker_peak_mb': list(m.workers_mb.values()),
                        'net_mb': {h: {'in': rx, 'out': tx} for h, (rx, tx) in m.net_mb.items()},
