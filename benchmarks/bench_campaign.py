@@ -100,7 +100,7 @@ class Meter:
     def _workers(self, reset: bool) -> dict:
         if self.client is None:
             return {}
-        return self.client.run(_worker_peak, reset)
+        return self.client.run(_worker_peak, reset, on_error='ignore')   # a worker lost meanwhile: left out
 
     def __exit__(self, *exc):
         self.wall = time.perf_counter() - self.t0

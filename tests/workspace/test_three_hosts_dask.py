@@ -14,16 +14,14 @@ from __future__ import annotations
 
 import json
 import os
-import queue
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
 
-from netlab.dask_hosts import DaskHosts
-from netlab.netns import Impairment, Star, probe
+from netlab.dask_hosts import run_campaign
+from netlab.netns import Impairment, probe
 
 pytestmark = pytest.mark.slow
 
@@ -43,12 +41,6 @@ def files(folder: Path) -> dict:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob('*')) if p.is_file()}
 
 
-def _lines(stream, q):
-    for line in stream:
-        q.put(line)
-    q.put(None)
-
-
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
     support = probe()
@@ -61,31 +53,10 @@ def runs(tmp_path_factory):
     env.pop('DASK_SCHEDULER_ADDRESS', None)
     embedded = subprocess.run(bench(work=ref), cwd=ROOT, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert embedded.returncode == 0, embedded.stderr[-2000:]
-    with Star(('a', 'b', 'c'), LINK, log_dir=out) as net:
-        cluster = DaskHosts(net, env, out / 'logs')
-        address = cluster.scheduler('a')
-        cluster.workers('b')
-        cluster.workers('c')
-        cluster.wait(4)
-        watch = cluster.watch('a')
-        seen = queue.Queue()
-        threading.Thread(target=_lines, args=(watch.stdout, seen), daemon=True).start()
-        client = cluster.run('a', 'client', bench('--scheduler', address, work=out / 'work'))
-        c = net.host('c').address
-        removed = None
-        while removed is None:   # until a worker in C is running one of discover's first-pass pulls
-            line = seen.get(timeout=TIMEOUT_S)
-            assert line is not None and client.poll() is None, \
-                f'the client ended before discover ran on C: {client.stderr.read()[-2000:]}'
-            processing = json.loads(line)
-            if any(f'//{c}:' in w and any(k.startswith('pull-survey-') for k in keys)
-                   for w, keys in processing.items()):
-                net.cut('c')          # the cable first: no FIN or RST from the dying processes gets out
-                removed = net.kill('c')
-        stdout, stderr = client.communicate(timeout=TIMEOUT_S)
-        counters = net.counters()
-    return {'embedded': embedded, 'ref': ref, 'out': out / 'work', 'rc': client.returncode, 'stdout': stdout,
-            'stderr': stderr, 'removed': removed, 'counters': counters, 'left': net.left(), 'address': address}
+    # C is lost while one of its workers runs a pull of discover's first pass (./ft discover's survey)
+    res = run_campaign(out, env, bench(work=out / 'work'), LINK, lose='c', lose_on='pull-survey-',
+                       timeout=TIMEOUT_S, say=lambda _m: None)
+    return {**res, 'embedded': embedded, 'ref': ref, 'out': out / 'work'}
 
 
 def test_the_campaign_completes_on_b_after_c_is_lost(runs):
@@ -131,3 +102,19 @@ def test_discovery_finds_the_same_with_the_host_lost(runs):
         del r['scheduler'], r['retried_pulls']
     assert a == b
     assert (ref / 'extension.yaml').read_bytes() == (out / 'extension.yaml').read_bytes()
+
+
+def test_losing_the_schedulers_host_is_one_line_and_exit_2_and_no_bag(runs, tmp_path):
+    """The client in a fourth host D imports the campaign; host A (the scheduler's) is lost while the workers
+    read its pulls. The command ends by itself: one line naming the scheduler, exit 2, and no bag (the one it
+    was writing is removed; it never had a metadata.yaml)."""
+    bag = tmp_path / 'bag'
+    cmd = [sys.executable, '-m', 'ft_cli', 'bag', 'import', str(runs['ref'] / 'campaign'), str(bag)]
+    env = {**os.environ, 'FT_ROOT': str(ROOT)}
+    res = run_campaign(tmp_path / 'net', env, cmd, LINK, lose='a', lose_on='pull-read_pull-', client='d',
+                       timeout=TIMEOUT_S, say=lambda _m: None)
+    assert res['removed'], 'no process was killed in host A'
+    lines = res['stderr'].strip().splitlines()
+    assert res['rc'] == 2 and len(lines) == 1, (res['rc'], res['stderr'][-3000:])
+    assert lines[0].startswith('./ft bag import: error: lost the scheduler ' + res['address']), lines
+    assert not bag.exists() and res['left'] == []

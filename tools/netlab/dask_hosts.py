@@ -8,6 +8,8 @@ system, which plays the cluster's shared storage (the campaign folders are seen 
     cluster.scheduler('a'); cluster.workers('b'); cluster.workers('c'); cluster.wait(4)
     cluster.run('a', [...])                       # a client command inside host a (Popen)
 
+``run_campaign`` does all of it for one client command, and can lose a host mid-run and bring it back.
+
 ``python -m netlab.dask_hosts wait ADDRESS N TIMEOUT`` (run inside a host) waits until the scheduler has N
 workers; ``... watch ADDRESS`` prints, as JSON lines, which task keys each worker is processing whenever that
 changes (what a test waits on before it removes a host). Those two reach Dask through the engine
@@ -16,12 +18,14 @@ changes (what a test waits on before it removes a host). Those two reach Dask th
 from __future__ import annotations
 
 import json
+import queue
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
-from netlab.netns import NetnsError, Star
+from netlab.netns import Impairment, NetnsError, Star
 
 PORT = 8786
 NWORKERS = 2      # worker processes per worker host (dask worker --nworkers), one thread each
@@ -89,6 +93,80 @@ class DaskHosts:
     def tail(self, name: str, lines: int = 15) -> str:
         path = self.log_dir / f'{name}.log'
         return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:]) if path.is_file() else ''
+
+
+def _lines(stream, q: queue.Queue) -> None:
+    for line in stream:
+        q.put(line)
+    q.put(None)
+
+
+def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment | None = None,
+                 lose: str | None = 'c', lose_on: str = 'pull-survey-', back: bool = False,
+                 timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
+    """Star a, b, c (and d if ``client`` is 'd'): the scheduler in a, the client command
+    (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2 --nthreads 1``
+    in b and in c. With ``lose``: once a worker in that host is
+    processing a task whose key starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch
+    port goes down and every process in it is SIGKILLed. With ``back`` too: once the scheduler has let the lost
+    workers go, the port comes up and the host's workers are started again (they join during the run). Waits for
+    the client (at most ``timeout``), then deletes the hosts. Returns what happened: the client's exit code and
+    output, the pids killed, whether a worker of the host that came back ran a task, the link counters."""
+    out = Path(out)
+    res = {'rc': None, 'stdout': '', 'stderr': '', 'removed': [], 'lost_s': None, 'back_s': None,
+           'used_after_back': [], 'address': None}
+    with Star(('a', 'b', 'c', *((client,) if client not in ('a', 'b', 'c') else ())), impairment, log_dir=out) as net:
+        cluster = DaskHosts(net, env, out / 'logs')
+        res['address'] = address = cluster.scheduler('a')
+        cluster.workers('b')
+        cluster.workers('c')
+        cluster.wait(2 * NWORKERS)
+        say(f'cluster: scheduler {address} in {net.host("a").netns}, {NWORKERS} workers in each of b and c; '
+            f'{net.impairment.describe()} ({net.method})')
+        watch, seen = cluster.watch(client), queue.Queue()
+        threading.Thread(target=_lines, args=(watch.stdout, seen), daemon=True).start()
+        t0 = time.monotonic()
+        proc = cluster.run(client, 'client', [*client_cmd, '--scheduler', address])
+        lost = net.host(lose).address if lose else None
+        state = 'watch' if lose else 'done'
+        while state != 'done' and proc.poll() is None:
+            try:
+                line = seen.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            if line is None:
+                break
+            processing = json.loads(line)
+            mine = {w: keys for w, keys in processing.items() if f'//{lost}:' in w}
+            if state == 'watch' and any(k.startswith(lose_on) for keys in mine.values() for k in keys):
+                net.cut(lose)      # the cable first: no FIN or RST of the dying processes gets out
+                res['removed'] = net.kill(lose)
+                res['lost_s'] = time.monotonic() - t0
+                say(f'host {lose} lost at {res["lost_s"]:.1f} s (processing {sorted(mine.values())})')
+                state = 'lost' if back else 'done'
+            elif state == 'lost' and not mine:   # the scheduler let the lost workers go
+                net.plug(lose)
+                cluster.workers(lose)
+                res['back_s'] = time.monotonic() - t0
+                say(f'host {lose} back at {res["back_s"]:.1f} s (its workers start again)')
+                state = 'back'
+            elif state == 'back' and any(mine.values()):
+                res['used_after_back'] = sorted({k for keys in mine.values() for k in keys})
+                say(f'host {lose} in use again at {time.monotonic() - t0:.1f} s')
+                state = 'done'
+        try:
+            res['stdout'], res['stderr'] = proc.communicate(timeout=max(1.0, timeout - (time.monotonic() - t0)))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            res['stdout'], res['stderr'] = proc.communicate()
+            res['stderr'] += f'\n(killed after {timeout:g} s)'
+        res['rc'] = proc.returncode
+        res['seconds'] = time.monotonic() - t0
+        res['after_loss_s'] = res['seconds'] - res['lost_s'] if res['lost_s'] is not None else None
+        res['counters'] = net.counters()
+        res['method'] = net.method
+    res['left'] = net.left()
+    return res
 
 
 def _wait(address: str, n: int, timeout: float) -> int:
