@@ -15,7 +15,7 @@ allowed, the figure is the peak since the process started (the table says so).
 Per-pull cost: the stage's wall time / N on this machine's workers (cost per pull x N / workers for a cluster).
 
 Bytes over the network per stage: each worker's host and the client's, from /proc/net/dev as that process sees
-it (its network namespace or host; every interface but loopback), received and sent. Workers on one host share
+it (its network namespace or host; every interface but loopback and tun/tap), received and sent. Workers on one host share
 the figure (the table shows it once per host). On the embedded cluster everything goes over loopback: 0.
 --keep keeps the campaign, bag, discover report and exported campaign in --work (the output files of a run, to
 compare with another run's).
@@ -57,12 +57,14 @@ def _worker_peak(reset: bool = False):   # runs in each worker process (client.r
 
 
 def net_bytes() -> tuple:
-    """(received, sent) bytes on every interface but loopback, as this process's network namespace counts them."""
+    """(received, sent) bytes on every interface but loopback and tun/tap devices (a user-space delay line's
+    tap would count each frame twice), as this process's network namespace counts them."""
     rx = tx = 0
     with open('/proc/net/dev') as fh:
         for line in fh.readlines()[2:]:
             name, _, fields = line.partition(':')
-            if name.strip() != 'lo':
+            name = name.strip()
+            if name != 'lo' and not os.path.exists(f'/sys/class/net/{name}/tun_flags'):
                 values = fields.split()
                 rx, tx = rx + int(values[0]), tx + int(values[8])
     return rx, tx

@@ -90,16 +90,18 @@ def test_the_files_are_byte_identical_to_the_embedded_clusters(runs, what):
 
 
 def test_discovery_finds_the_same_with_the_host_lost(runs):
-    """report.json and extension.yaml as on the embedded cluster, but for where the pulls ran and which ran again
-    (what report.json records for that: scheduler, retried_pulls)."""
+    """report.json and extension.yaml as on the embedded cluster, but for what says where and when it ran: the
+    scheduler, the rerun pulls, the plots' paths (in each run's folder) and the re-simulation's wall time."""
     assert runs['rc'] == 0, runs['stderr'][-3000:]
     ref, out = runs['ref'] / 'discover', runs['out'] / 'discover'
     a, b = (json.loads((d / 'report.json').read_text()) for d in (ref, out))
     assert a['scheduler'].startswith('embedded') and b['scheduler'].startswith(runs['address']), \
         (a['scheduler'], b['scheduler'])
     assert a['retried_pulls'] == [] and b['retried_pulls'], (a['retried_pulls'], b['retried_pulls'])
-    for r in (a, b):
-        del r['scheduler'], r['retried_pulls']
+    for r, d in ((a, ref), (b, out)):
+        del r['scheduler'], r['retried_pulls'], r['simulation_check']['time_s']
+        assert all(Path(f).parent == d for f in r['plots']), r['plots']
+        r['plots'] = [Path(f).name for f in r['plots']]
     assert a == b
     assert (ref / 'extension.yaml').read_bytes() == (out / 'extension.yaml').read_bytes()
 

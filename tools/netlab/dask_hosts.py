@@ -113,6 +113,7 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
     the client (at most ``timeout``), then deletes the hosts. Returns what happened: the client's exit code and
     output, the pids killed, whether a worker of the host that came back ran a task, the link counters."""
     out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     res = {'rc': None, 'stdout': '', 'stderr': '', 'removed': [], 'lost_s': None, 'back_s': None,
            'used_after_back': [], 'address': None}
     with Star(('a', 'b', 'c', *((client,) if client not in ('a', 'b', 'c') else ())), impairment, log_dir=out) as net:
