@@ -15,8 +15,8 @@ allowed, the figure is the peak since the process started (the table says so).
 Per-pull cost: the stage's wall time / N on this machine's workers (cost per pull x N / workers for a cluster).
 
 Bytes over the network per stage: each worker's host and the client's, from /proc/net/dev as that process sees
-it (its network namespace or host; every interface but loopback and tun/tap), received and sent. Workers on one host share
-the figure (the table shows it once per host). On the embedded cluster everything goes over loopback: 0.
+it (its network namespace or host; every interface but loopback and tun/tap), received and sent. Workers on one
+host share the figure (the table shows it once per host). On the embedded cluster everything goes over loopback: 0.
 --keep keeps the campaign, bag, discover report and exported campaign in --work (the output files of a run, to
 compare with another run's).
 """
