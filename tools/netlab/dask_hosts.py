@@ -29,6 +29,7 @@ from netlab.netns import Impairment, NetnsError, Star
 
 PORT = 8786
 NWORKERS = 2      # worker processes per worker host (dask worker --nworkers), one thread each
+WORKER_HOSTS = ('b', 'c')   # run_campaign's worker hosts (the scheduler is in a)
 
 
 class DaskHosts:
@@ -106,7 +107,7 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
                  timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
     """Star a, b, c (and d if ``client`` is 'd'): the scheduler in a, the client command
     (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2 --nthreads 1``
-    in b and in c. With ``lose``: once a worker in that host is
+    in b and in c. With ``lose``: once a worker in that host (any worker, for a host with none) is
     processing a task whose key starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch
     port goes down and every process in it is SIGKILLed. With ``back`` too: once the scheduler has let the lost
     workers go, the port comes up and the host's workers are started again (they join during the run). Waits for
@@ -119,9 +120,9 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
     with Star(('a', 'b', 'c', *((client,) if client not in ('a', 'b', 'c') else ())), impairment, log_dir=out) as net:
         cluster = DaskHosts(net, env, out / 'logs')
         res['address'] = address = cluster.scheduler('a')
-        cluster.workers('b')
-        cluster.workers('c')
-        cluster.wait(2 * NWORKERS)
+        for h in WORKER_HOSTS:
+            cluster.workers(h)
+        cluster.wait(len(WORKER_HOSTS) * NWORKERS)
         say(f'cluster: scheduler {address} in {net.host("a").netns}, {NWORKERS} workers in each of b and c; '
             f'{net.impairment.describe()} ({net.method})')
         watch, seen = cluster.watch(client), queue.Queue()
@@ -139,7 +140,9 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
                 break
             processing = json.loads(line)
             mine = {w: keys for w, keys in processing.items() if f'//{lost}:' in w}
-            if state == 'watch' and any(k.startswith(lose_on) for keys in mine.values() for k in keys):
+            # a worker host is lost while one of its workers runs such a task; another host while any worker does
+            busy = mine if lose in WORKER_HOSTS else processing
+            if state == 'watch' and any(k.startswith(lose_on) for keys in busy.values() for k in keys):
                 net.cut(lose)      # the cable first: no FIN or RST of the dying processes gets out
                 res['removed'] = net.kill(lose)
                 res['lost_s'] = time.monotonic() - t0
