@@ -6,7 +6,8 @@ Stages, in this order, each timed with the peak RSS of this process (the client)
 2. import: that campaign folder -> a bag (pull files read on the workers, the bag written here, streamed);
 3. discover: ./ft discover on the campaign folder (its CLI function, in this process, on the same scheduler);
    the generated campaign is deleted after it;
-4. export: the bag -> a campaign folder (the bag read here once, CSV formatted on the workers), then deleted.
+4. export: the bag -> a campaign folder (its pull events read here, each pull read from the bag and written as
+   CSV on a worker), then deleted.
 Disk: about 16 MB of CSV and 8 MB of bag per pull, at most campaign + bag at once (24 GB for 1,000 pulls).
 
 Peak RSS per stage: Linux's VmHWM (/proc/PID/status), reset before each stage by writing 5 to
