@@ -70,6 +70,18 @@ def test_the_campaign_completes_on_b_after_c_is_lost(runs):
     assert sum(runs['counters'][h]['lost'] for h in 'abc') > 0, runs['counters']
 
 
+def test_export_sends_no_pull_samples_to_the_workers(runs):
+    """The workers read their pulls from the bag on the shared storage: the client (host A) sends them a
+    small fraction of the bag's bytes over the network during export (17 MB a pull when it sent the arrays),
+    while during import, whose single bag writer needs every pull's arrays, it receives about the bag's size."""
+    assert runs['rc'] == 0, runs['stderr'][-3000:]
+    stages = json.loads((runs['out'] / 'bench.json').read_text())['stages']
+    bag = sum(f.stat().st_size for f in (runs['out'] / 'bag').iterdir())
+    export, imported = stages['export']['net_mb']['client'], stages['import']['net_mb']['client']
+    assert export['out'] * 1e6 < bag / 50, (export, bag)
+    assert imported['in'] * 1e6 > bag / 2, (imported, bag)
+
+
 def test_the_rerun_pulls_are_named(runs):
     """discover's CLI says which pulls ran again, and so does the run's summary; they are pulls of the campaign."""
     names = {p.name for p in (runs['ref'] / 'campaign').glob('*.csv')}
