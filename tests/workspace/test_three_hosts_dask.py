@@ -7,8 +7,9 @@ gave it); the campaign folders are on the file system they share. The client is 
 --scheduler tcp://A:8786 --keep`: generate, import, discover (./ft discover's CLI function) and export. While
 discover's first pass runs on C's workers, C's switch port goes down and every process in C is SIGKILLed, with no
 goodbye to the scheduler; the campaign ends on B. Its outputs are compared with the same campaign's on the
-embedded cluster of the default path, and the rerun pulls must be named. Needs root (skipped otherwise, with
-the reason); the hosts are deleted whatever happens.
+embedded cluster of the default path, and the rerun pulls must be named. Then a fourth host D imports that
+campaign on a fresh cluster and host A (the scheduler's) is lost. Needs root (skipped otherwise, with the
+reason); the hosts are deleted whatever happens. About 4-6 minutes on a busy 2-core machine.
 """
 from __future__ import annotations
 
