@@ -6,13 +6,20 @@ Stages, in this order, each timed with the peak RSS of this process (the client)
 2. import: that campaign folder -> a bag (pull files read on the workers, the bag written here, streamed);
 3. discover: ./ft discover on the campaign folder (its CLI function, in this process, on the same scheduler);
    the generated campaign is deleted after it;
-4. export: the bag -> a campaign folder (the bag read here once, CSV formatted on the workers), then deleted.
+4. export: the bag -> a campaign folder (its pull events read here, each pull read from the bag and written as
+   CSV on a worker), then deleted.
 Disk: about 16 MB of CSV and 8 MB of bag per pull, at most campaign + bag at once (24 GB for 1,000 pulls).
 
 Peak RSS per stage: Linux's VmHWM (/proc/PID/status), reset before each stage by writing 5 to
 /proc/PID/clear_refs, in this process and, through client.run, in each worker process. Where the reset is not
 allowed, the figure is the peak since the process started (the table says so).
 Per-pull cost: the stage's wall time / N on this machine's workers (cost per pull x N / workers for a cluster).
+
+Bytes over the network per stage: each worker's host and the client's, from /proc/net/dev as that process sees
+it (its network namespace or host; every interface but loopback and tun/tap), received and sent. Workers on one
+host share the figure (the table shows it once per host). On the embedded cluster everything goes over loopback: 0.
+--keep keeps the campaign, bag, discover report and exported campaign in --work (the output files of a run, to
+compare with another run's).
 """
 from __future__ import annotations
 
@@ -50,6 +57,25 @@ def _worker_peak(reset: bool = False):   # runs in each worker process (client.r
     return peak_rss_mb(reset)
 
 
+def net_bytes() -> tuple:
+    """(received, sent) bytes on every interface but loopback and tun/tap devices (a user-space delay line's
+    tap would count each frame twice), as this process's network namespace counts them."""
+    rx = tx = 0
+    with open('/proc/net/dev') as fh:
+        for line in fh.readlines()[2:]:
+            name, _, fields = line.partition(':')
+            name = name.strip()
+            if name != 'lo' and not os.path.exists(f'/sys/class/net/{name}/tun_flags'):
+                values = fields.split()
+                rx, tx = rx + int(values[0]), tx + int(values[8])
+    return rx, tx
+
+
+def _worker_net(dask_worker=None):   # runs in each worker process (client.run): (host address, received, sent)
+    host = dask_worker.address.split('://', 1)[-1].rsplit(':', 1)[0]
+    return (host, *net_bytes())
+
+
 class Meter:
     """Peak RSS of the client and the workers over one stage, and its wall time."""
 
@@ -59,22 +85,38 @@ class Meter:
     def __enter__(self):
         self.client_reset = peak_rss_mb(reset=True)[1]
         self.worker_reset = all(ok for _mb, ok in self._workers(True).values())
+        self.net0 = self._net()
         self.t0 = time.perf_counter()
         return self
+
+    def _net(self) -> dict:
+        """host -> (received, sent): 'client' and each worker host (a worker that left is missing)."""
+        out = {'client': net_bytes()}
+        if self.client is not None:
+            try:
+                for host, rx, tx in self.client.run(_worker_net, on_error='ignore').values():
+                    out[host] = (rx, tx)
+            except Exception:  # noqa: BLE001,S110 - a worker lost between the listing and the call: next stage
+                pass
+        return out
 
     def _workers(self, reset: bool) -> dict:
         if self.client is None:
             return {}
-        return self.client.run(_worker_peak, reset)
+        return self.client.run(_worker_peak, reset, on_error='ignore')   # a worker lost meanwhile: left out
 
     def __exit__(self, *exc):
         self.wall = time.perf_counter() - self.t0
         self.client_mb = peak_rss_mb()[0]
         self.workers_mb = {w: mb for w, (mb, _ok) in sorted(self._workers(False).items())}
+        net1 = self._net()
+        # a host whose counters went down restarted its interface (or is a new host): counted from 0
+        self.net_mb = {h: tuple(max(0, b - (a if a <= b else 0)) / 1e6 for a, b in zip(self.net0.get(h, (0, 0)), v))
+                       for h, v in net1.items()}
         return False
 
 
-def run(n: int, scheduler: str | None, work: Path) -> dict:
+def run(n: int, scheduler: str | None, work: Path, keep: bool = False) -> dict:
     from bag_tools.core.convert import bag_to_campaign, campaign_to_bag
     from bag_tools.core.daq import write_campaign
     from force_tester_common.engine import INLINE, Mapper, get_client, resolve_scheduler
@@ -94,22 +136,25 @@ def run(n: int, scheduler: str | None, work: Path) -> dict:
             fn()
         stages[name] = m
         workers = ', '.join(f'{mb:.0f}' for mb in m.workers_mb.values()) or '-'
+        net = '; '.join(f'{h} {rx:.1f}/{tx:.1f}' for h, (rx, tx) in m.net_mb.items())
         print(f'  {name:9s} {m.wall:8.1f} s  {m.wall / n:6.2f} s/pull  client peak {m.client_mb:6.0f} MB  '
-              f'workers peak {workers} MB', flush=True)
+              f'workers peak {workers} MB  network in/out MB: {net}', flush=True)
 
     print(f'campaign of {n} pulls on {where}; work folder {work}', flush=True)
     mapper = Mapper(scheduler)
     stage('generate', lambda: write_campaign(camp, jobs, mapper=mapper, produce=simulate_campaign_pull))
     stage('import', lambda: campaign_to_bag(camp, bag, mapper=mapper))
     stage('discover', lambda: discover(camp, out, scheduler))
-    shutil.rmtree(camp)
+    if not keep:
+        shutil.rmtree(camp)
     stage('export', lambda: bag_to_campaign(bag, exported, mapper=mapper))
     total = sum(m.wall for m in stages.values())
     return {
         'pulls': n, 'scheduler': where, 'cpus': os.cpu_count(), 'wall_s': total, 's_per_pull': total / n,
-        'retried': mapper.retried,
+        'retried': [*mapper.retried, *json.loads((out / 'report.json').read_text()).get('retried_pulls', [])],
         'stages': {k: {'wall_s': m.wall, 's_per_pull': m.wall / n, 'share': m.wall / total,
                        'client_peak_mb': m.client_mb, 'worker_peak_mb': list(m.workers_mb.values()),
+                       'net_mb': {h: {'in': rx, 'out': tx} for h, (rx, tx) in m.net_mb.items()},
                        'peak_reset': m.client_reset and m.worker_reset} for k, m in stages.items()},
     }
 
@@ -135,15 +180,19 @@ def main() -> int:
                     help='Dask scheduler (default: $DASK_SCHEDULER_ADDRESS, else the embedded local cluster)')
     ap.add_argument('--work', metavar='DIR', default=None,
                     help='folder for the campaign and bag (default: a temporary folder under runs/, removed)')
+    ap.add_argument('--keep', action='store_true',
+                    help='keep every output in --work: campaign/, bag/, discover/, exported/ (needs --work)')
     a = ap.parse_args()
     if a.pulls < 1:
         ap.error(f'--pulls {a.pulls} is invalid; expected an integer >= 1')
+    if a.keep and not a.work:
+        ap.error('--keep needs --work DIR; expected a folder to keep the outputs in')
     from force_tester_common.engine import EngineError
     (ROOT / 'runs').mkdir(exist_ok=True)
     work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix='bench_campaign_', dir=ROOT / 'runs'))
     work.mkdir(parents=True, exist_ok=True)
     try:
-        res = run(a.pulls, a.scheduler, work)
+        res = run(a.pulls, a.scheduler, work, keep=a.keep)
     except EngineError as exc:
         print(f'./ft bench campaign: error: {exc}', file=sys.stderr)
         return 2

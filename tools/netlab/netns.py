@@ -329,13 +329,17 @@ class TwoHosts:
         if line:  # the delay line must hold the tap open before packets are sent to it
             _run('ip', '-n', h.netns, 'tuntap', 'add', 'dev', TAP, 'mode', 'tap')
             _run('ip', '-n', h.netns, 'link', 'set', TAP, 'txqueuelen', str(TAP_QUEUE), 'up')
-            proc = self.start(h, f'delay_line_{h.name}', [sys.executable, str(Path(__file__).resolve()),
-                                                          'delay-line', TAP, DEV, str(imp.delay_ms / 1000.0)])
-            if proc.stdout.readline().strip() != b'ready':
-                raise NetnsError(f'the delay line in host {h.name} did not start (exit {proc.poll()})')
+            self._delay_line(h)
             _run(*_filter(tc, ['egress'], 1, marked_program()))
             _run(*_filter(tc, ['egress'], 2, MATCH_ALL, 'action', 'mirred', 'egress', 'redirect', 'dev', TAP,
                           direct=False))
+
+    def _delay_line(self, h: Host) -> None:
+        """Start host h's delay line (it holds the tap) and wait for its 'ready'."""
+        proc = self.start(h, f'delay_line_{h.name}', [sys.executable, str(Path(__file__).resolve()),
+                                                      'delay-line', TAP, DEV, str(self.impairment.delay_ms / 1000.0)])
+        if proc.stdout.readline().strip() != b'ready':
+            raise NetnsError(f'the delay line in host {h.name} did not start (exit {proc.poll()})')
 
     def start(self, h: Host, name: str, cmd: list) -> subprocess.Popen:
         """A helper process inside host h (stdout piped, stderr to log_dir/<name>.log); stopped by close()."""
@@ -385,6 +389,99 @@ class TwoHosts:
         """Namespaces of this run that still exist (none after close)."""
         present = namespaces()
         return [h.netns for h in self.hosts if h.netns in present]
+
+
+STAR_PREFIX = 'ftst'      # namespace names of a Star: <STAR_PREFIX>-<pid of the run>-<host> (and -sw, the switch)
+STAR_SUBNET = '10.232.0'
+SWITCH = 'sw'             # the switch's namespace suffix; its bridge is BRIDGE, its port to host X is 'p' + X
+BRIDGE = 'br0'
+
+
+class Star(TwoHosts):
+    """N hosts on one switch: a namespace per host, each with one veth end ``ft0`` (``<subnet>.<i+1>``),
+    whose other end is a port of a bridge in a switch namespace; a context manager, like TwoHosts.
+
+    Each host's end is shaped as TwoHosts shapes an end (delay on what it sends, loss on what it
+    receives, multicast dropped unless asked for), so every path between two hosts has the
+    impairment's delay and loss each way, as the two-host link has; the switch adds none.
+    ``cut(name)`` takes a host's switch port down (a pulled cable), ``kill(name)`` SIGKILLs every
+    process inside the host (a power cut), ``plug(name)`` brings the port up again."""
+
+    def __init__(self, names=('a', 'b', 'c'), impairment: Impairment | None = None, multicast: bool = False,
+                 subnet: str = STAR_SUBNET, prefix: str = STAR_PREFIX, log_dir: Path | None = None):
+        if len(set(names)) != len(names) or SWITCH in names or not 1 <= len(names) <= 250 or \
+                not all(n.isalnum() and len(n) <= 8 for n in names):
+            raise NetnsError(f'host names {list(names)} are invalid; expected 1-250 distinct alphanumeric names '
+                             f'of at most 8 characters, not {SWITCH!r}')
+        super().__init__(impairment, multicast=multicast, subnet=subnet, prefix=prefix, log_dir=log_dir)
+        tag = f'{prefix}-{os.getpid()}'
+        self.hosts = tuple(Host(n, f'{tag}-{n}', f'{subnet}.{i + 1}') for i, n in enumerate(names))
+        self.switch = f'{tag}-{SWITCH}'
+
+    def host(self, name: str) -> Host:
+        for h in self.hosts:
+            if h.name == name:
+                return h
+        raise NetnsError(f'host {name!r} is unknown; expected one of {[h.name for h in self.hosts]}')
+
+    def _make(self) -> None:
+        _run('ip', 'netns', 'add', self.switch)
+        _run('ip', '-n', self.switch, 'link', 'add', BRIDGE, 'type', 'bridge')
+        _run('ip', '-n', self.switch, 'link', 'set', BRIDGE, 'up')
+        for h in self.hosts:
+            _run('ip', 'netns', 'add', h.netns)
+            port = f'p{h.name}'
+            _run('ip', 'link', 'add', DEV, 'netns', h.netns, 'type', 'veth', 'peer', 'name', port,
+                 'netns', self.switch)
+            _run('ip', '-n', self.switch, 'link', 'set', port, 'master', BRIDGE)
+            _run('ip', '-n', self.switch, 'link', 'set', port, 'up')
+            _run('ip', '-n', h.netns, 'link', 'set', 'lo', 'up')
+            _run('ip', '-n', h.netns, 'addr', 'add', f'{h.address}/24', 'dev', DEV)
+            _run('ip', '-n', h.netns, 'link', 'set', DEV, 'up')
+            self._shape(h)
+        self._wait_up()
+
+    def _set_port(self, name: str, state: str) -> None:
+        _run('ip', '-n', self.switch, 'link', 'set', f'p{self.host(name).name}', state)
+
+    def cut(self, name: str) -> None:
+        """Take host ``name``'s switch port down: nothing it sends arrives, nothing reaches it."""
+        self._set_port(name, 'down')
+
+    def plug(self, name: str) -> None:
+        """Bring host ``name``'s switch port up again and wait for its carrier; a user-space delay line
+        that kill() ended is started again."""
+        h = self.host(name)
+        if self.impairment.delay_ms and not self.support.netem and not any(
+                _pid_alive(int(p)) for p in _run('ip', 'netns', 'pids', h.netns, check=False).stdout.split()):
+            self._delay_line(h)
+        self._set_port(name, 'up')
+        self._wait_up()
+
+    def kill(self, name: str) -> list:
+        """SIGKILL every process inside host ``name`` (no goodbye); returns their pids once they are gone.
+        The host's delay line, if any, is one of them (plug() starts it again)."""
+        netns = self.host(name).netns
+        pids = [int(p) for p in _run('ip', 'netns', 'pids', netns, check=False).stdout.split()]
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10.0
+        while any(_pid_alive(p) for p in pids):
+            if time.monotonic() > deadline:
+                raise NetnsError(f'processes {[p for p in pids if _pid_alive(p)]} in {netns} outlived SIGKILL '
+                                 'for 10 s; expected them gone')
+            time.sleep(0.02)
+        return pids
+
+    def close(self) -> None:
+        super().close()
+        if self.switch in namespaces():
+            delete_namespace(self.switch)
+
+    def left(self) -> list:
+        present = namespaces()
+        return [n for n in (*(h.netns for h in self.hosts), self.switch) if n in present]
 
 
 def delay_line(tap: str, dev: str, delay_s: float) -> None:

@@ -24,7 +24,11 @@ KilledWorker. Those reruns are read back from the scheduler's own event log: eac
 that were lost); those pulls are listed in ``PullMap.retried``.
 
 An address that does not answer within ``connect_timeout`` (3 s) raises :class:`EngineError` with
-one line naming the address and what was expected; the CLIs exit 2 on it.
+one line naming the address and what was expected; the CLIs exit 2 on it. So does a scheduler lost during
+the map (its host gone, its link cut): the client notices when its connection has had no answer for
+LINK_TIMEOUT (Dask's TCP timeout, set here for the clients this module makes), tries ``connect_timeout`` to
+reconnect, and the pulls still in flight are then cancelled: map_pulls raises EngineError instead of
+reporting them as failed pulls, and the outputs being written are removed as on any error.
 
 Workers need this workspace's packages: the embedded cluster's workers are spawned from this
 process (same interpreter, same ``sys.path``); a cluster's workers must run the same venv or have
@@ -54,6 +58,9 @@ RETRIES = 2
 #: The embedded cluster fails a task that has found no live worker for this long (Dask's no-workers-timeout;
 #: its default waits forever): workers whose restarts keep failing become a reported pull, not a hang.
 NO_WORKERS_TIMEOUT = '300s'
+#: A connection to the scheduler with no answer for this long is broken (Dask's distributed.comm.timeouts.tcp, its
+#: default, made explicit for the clients this module makes): a lost scheduler ends a map after about this long.
+LINK_TIMEOUT = '30s'
 
 
 class EngineError(Exception):
@@ -104,9 +111,15 @@ def _connect(address: str, timeout: float):
         raise EngineError(f'scheduler address {address!r} is invalid; expected tcp://HOST:PORT '
                           f'(a running dask scheduler), or leave out --scheduler and ${SCHEDULER_ENV} '
                           'for the embedded cluster')
+    import logging
+
+    import dask
     from distributed import Client
+    # a lost scheduler is reported as one EngineError line (map_pulls), not also as Dask's log of the reconnection
+    logging.getLogger('distributed.client').setLevel(logging.CRITICAL)
     try:
-        client = Client(address, timeout=timeout, set_as_default=False)
+        with dask.config.set({'distributed.comm.timeouts.tcp': LINK_TIMEOUT}):
+            client = Client(address, timeout=timeout, set_as_default=False)
     except Exception as exc:  # noqa: BLE001 - refused, unresolvable, timed out, not a scheduler
         why = f'no answer within {timeout:g} s' if 'Timed out' in str(exc) else one_line(exc)
         raise EngineError(f'scheduler {address!r} is unreachable ({why}); expected a running dask scheduler '
@@ -306,12 +319,19 @@ def _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
             exc = e
         return ('error', _death_line(exc)), type(exc).__name__ == 'KilledWorker'
 
+    def check_scheduler(fut) -> None:
+        """A future cancelled though we cancelled nothing, or a client no longer running: the scheduler is gone
+        (or dropped our tasks), and no pull still in flight can come back."""
+        if fut.status != 'finished' and (fut.status == 'cancelled' or client.status != 'running'):
+            raise OSError(f'{pull_name(names, keys[fut.key])} {fut.status}, client {client.status}')
+
     try:
         in_flight = refill(window())
         while in_flight:
             fut = next(ac)
             in_flight -= 1
             i, item, _f = pending.pop(fut.key)
+            check_scheduler(fut)
             result, killed = outcome(fut)
             fut.release()
             if killed:
@@ -328,13 +348,14 @@ def _map_dask(client, where, fn, items, names, progress, total, keep, on_result)
             except Exception:  # noqa: BLE001,S110 - outcome() reads what happened
                 pass
             pending.pop(fut.key)
+            check_scheduler(fut)
             result, _ = outcome(fut)
             fut.release()
             settle(i, result)
     except (OSError, TimeoutError) as exc:
         _cancel(client, pending)
-        raise EngineError(f'lost the scheduler {where} during the campaign ({one_line(exc)}); expected it '
-                          'to stay up until the last pull') from None
+        raise EngineError(f'lost the scheduler {where.split(" (")[0]} during the campaign ({one_line(exc)}); '
+                          'expected it to stay up until the last pull') from None
     except BaseException:   # the items' iterator or on_result raised, or Ctrl-C: stop the pulls in flight
         _cancel(client, pending)
         raise

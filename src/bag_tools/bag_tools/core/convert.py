@@ -509,6 +509,90 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
                        'to export')
 
 
+#: A pull read from a bag on its own (read_bag_pull) takes the blocks logged from this long before its START (a
+#: block is logged at or after its first sample; a block is far shorter than this) until every block topic has
+#: passed its END, as the one pass does (a late recorder's blocks are waited for as long as there).
+WINDOW_LEAD_NS = NS_PER_S
+
+
+def bag_pull_windows(bag_path: str | Path, warnings: list) -> tuple:
+    """(sample rate, {block topic: type}, [(start_ns, end_ns, meta)]) of a bag's complete pulls, in start order,
+    from its /pull_event messages and its first block alone (the blocks are not read): what read_bag_pull needs to
+    read each pull by itself. The warnings and errors are iter_bag_pulls'."""
+    with open_bag(bag_path) as bag:
+        topics = bag.topics()
+        block_topics, event_topics = {}, []
+        for name, t in sorted(topics.items()):
+            if t.type_name in EXPORT_FIELDS:
+                block_topics[name] = t.type_name
+            elif t.type_name == PULL_EVENT_TYPE:
+                event_topics.append(name)
+            elif t.type_name not in QUIET_TYPES:
+                warnings.append(f'topic {name} ({t.type_name}) skipped: not a block or pull '
+                                'event type, it has no DAQ column')
+        if not event_topics:
+            raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
+                           '/pull_event START/END messages to cut the pulls')
+        rate = None
+        for _topic, type_name, _log, cdr in bag.messages(list(block_topics)):
+            msg = bag.deserialize(cdr, type_name)
+            if any(np.asarray(getattr(msg, f)).size for f in EXPORT_FIELDS[type_name]):
+                rate = float(msg.sample_rate_hz)
+                break
+        if rate is None:
+            raise BagError(f'bag {str(bag_path)!r} has no block samples; expected /force, /accel, '
+                           '/encoder blocks')
+        if not (math.isfinite(rate) and rate > 0):
+            raise BagError(f'bag {str(bag_path)!r}: a block has sample_rate_hz {rate!r}; expected a finite '
+                           'rate > 0 Hz')
+        pulls, closed = PullWindows(), []
+        for _topic, type_name, _log, cdr in bag.messages(event_topics):
+            msg = bag.deserialize(cdr, type_name)
+            meta = {'set': int(msg.test_set), 'coupon_lbf': float(msg.coupon_break_n) / LBF_N,
+                    'velocity_fps': float(msg.velocity_m_s) / FT_M, 'decel_g': float(msg.decel_m_s2) / G_M_S2,
+                    'start_ns': stamp_of(msg), 'pull_id': int(msg.pull_id)}
+            w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), meta)
+            if w is not None and w.start_ns is None:
+                warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns without its START: skipped')
+            elif w is not None:
+                closed.append((w.start_ns, w.end_ns, w.meta))
+        for pid, (start, _meta) in pulls.open.items():
+            warnings.append(f'pull {pid} (START at {start} ns) has no END: skipped')
+    closed.sort(key=lambda c: c[0])
+    windows = []
+    for start, end, meta in closed:
+        n = int(round((end - start) * rate / NS_PER_S))
+        if n < 2:
+            warnings.append(f'pull {meta["pull_id"]}: {n} sample(s) between START and END; skipped')
+            continue
+        meta['file'] = f'pull_{len(windows) + 1:04d}.csv'
+        windows.append((start, end, meta))
+    if not windows:
+        raise BagError(f'bag {str(bag_path)!r} has no complete pull (START and END); nothing to export')
+    return rate, block_topics, windows
+
+
+def read_bag_pull(job: tuple) -> tuple:
+    """One pull of a bag, read from the bag itself (run where the pull is written: a worker reads its pull from
+    the shared storage; no samples cross between processes). job: (bag path, {block topic: type}, start_ns,
+    end_ns, meta), from bag_pull_windows. Returns (channels, (warnings, its columns)); the samples are those
+    iter_bag_pulls cuts for the pull, read from the blocks logged from WINDOW_LEAD_NS before its START until
+    every block topic has passed its END."""
+    bag_path, block_topics, start, end, meta = job
+    warnings: list = []
+    cutter = _Cutter(bag_path, warnings)
+    with open_bag(bag_path) as bag:
+        for topic, type_name, _log, cdr in bag.messages(list(block_topics), start_ns=max(0, start - WINDOW_LEAD_NS)):
+            cutter.add_block(topic, bag.deserialize(cdr, type_name), type_name)
+            if cutter.passed(end):
+                break
+    if not cutter.rates:
+        raise BagError(f'pull {meta["pull_id"]} in bag {str(bag_path)!r} has no block samples; expected /force, '
+                       '/accel, /encoder blocks')
+    pull = cutter.cut(start, end, meta)
+    return pull.channels, (warnings, sorted(pull.channels))
+
+
 def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None
                    ) -> tuple:
     """(sample_rate_hz, [DaqPull with meta start_ns/pull_id, file pull_NNNN.csv]) of a bag, all in memory."""
@@ -521,13 +605,18 @@ def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progres
                     warnings: list | None = None, mapper: Mapper | None = None) -> Path:
     """Export a bag's pulls to a campaign folder (written atomically). Returns out_dir.
 
-    The bag is read here in one pass and each pull goes to be written as soon as it is complete (bounded
-    memory); mapper formats and writes the CSV files in parallel (write_campaign), a few pulls at a time.
+    Without a mapper the bag is read here in one pass and each pull written as soon as it is complete
+    (bounded memory). With one (force_tester_common.engine.map_pulls) only the pull events are read here
+    (bag_pull_windows); each worker reads its pull's blocks from the bag itself and formats and writes the
+    CSV file (read_bag_pull, write_campaign): the pulls' samples never cross between processes (or hosts:
+    a cluster's workers need the bag and the output on shared storage, as for any campaign). Same files.
     """
     warnings = [] if warnings is None else warnings
     out_dir = Path(out_dir)
     if out_dir.exists():  # fail before the (long) read
         raise BagError(f'output {str(out_dir)!r} exists already; expected a new directory name')
+    if mapper is not None:
+        return _export_on_workers(Path(bag_path), out_dir, progress, warnings, mapper)
     state: dict = {}
     columns: list = []
 
@@ -543,6 +632,27 @@ def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progres
         warnings.append(f'bag has no samples of {", ".join(absent)}: named absent in campaign.yaml')
     out = write_campaign(out_dir, itertools.chain([first], it), sample_rate_hz=state['sample_rate_hz'],
                          mapper=mapper, absent=absent)   # progress: the reader's, by messages
+    absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
+    if absent:
+        warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')
+    return out
+
+
+def _export_on_workers(bag_path: Path, out_dir: Path, progress, warnings: list, mapper) -> Path:
+    rate, block_topics, windows = bag_pull_windows(bag_path, warnings)
+    start, end, meta = windows[0]   # its channels name what the bag lacks (as the one-pass path's first pull)
+    first = read_bag_pull((bag_path, block_topics, start, end, dict(meta)))[0]
+    absent = [c for c in ABSENTABLE_CHANNELS if c not in first]
+    del first
+    if absent:
+        warnings.append(f'bag has no samples of {", ".join(absent)}: named absent in campaign.yaml')
+    notes: list = []
+    jobs = [(meta, (bag_path, block_topics, start, end, meta)) for start, end, meta in windows]
+    out = write_campaign(out_dir, jobs, sample_rate_hz=rate, mapper=mapper, produce=read_bag_pull, absent=absent,
+                         notes=notes, progress=progress)
+    for pull_warnings, _columns in notes:
+        warnings.extend(pull_warnings)
+    columns = [set(cols) for _w, cols in notes]
     absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')

@@ -539,13 +539,17 @@ def _atomic_dir(path: Path) -> Path:
 
 
 def write_pull(job: tuple) -> float:
-    """Write one pull's CSV (the per-pull step of write_campaign, run on a worker). Returns its rate.
+    """Write one pull's CSV (the per-pull step of write_campaign, run on a worker). Returns its rate, or
+    (rate, notes) when produce gave notes.
 
     job: (CSV path, channels or produce's argument, produce or None, rate or None, name for messages).
-    produce(argument) -> channels makes the pull where it is written (a simulation, for example)."""
+    produce(argument) -> channels, or (channels, notes), makes the pull where it is written (a simulation,
+    or a pull read from a bag, for example)."""
     dest, data, produce, rate, where = job[:5]
     absent = job[5] if len(job) > 5 else ()
-    channels = produce(data) if produce is not None else data
+    channels, notes = produce(data) if produce is not None else data, None
+    if isinstance(channels, tuple):   # produce gave (channels, notes): the notes go back with the rate
+        channels, notes = channels
     chans, prate = check_channels(channels, where, rate, absent=absent)
     rate = prate if rate is None else rate
     n = len(chans['time_s'])
@@ -553,14 +557,14 @@ def write_pull(job: tuple) -> float:
     ordered.update((c, chans[c]) for c in CHANNELS[1:] if c in chans)
     ordered.update((c, v) for c, v in chans.items() if c not in ordered)
     write_csv(Path(dest), ordered)
-    return float(rate)
+    return float(rate) if notes is None else (float(rate), notes)
 
 
 def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | None = None,
                    sample_rate_hz: float | None = None, extra: Mapping | None = None,
                    progress: Callable[[int, int], None] | None = None,
                    mapper: Mapper | None = None, produce: Callable | None = None,
-                   absent: Iterable = ()) -> Path:
+                   absent: Iterable = (), notes: list | None = None) -> Path:
     """Write a campaign folder atomically (temp folder beside it, renamed when complete).
 
     pulls: (meta, channels) pairs (a list or any iterable, read once); meta needs META_REQUIRED except
@@ -575,6 +579,7 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
     written (the campaign is never whole in this process); its rate is then its own, and every pull's
     must agree.
     absent: required channels the pulls do not have, written as campaign.yaml's ``absent:``.
+    notes: when produce returns (channels, notes), each pull's notes are appended here, in pull order.
     """
     path = Path(path)
     absent = check_absent(list(absent), str(path))
@@ -620,6 +625,9 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
             if done.failed:
                 raise BagError(f'{str(path)!r}: {failed_line(done.failed)}; nothing written')
             rates = done.results
+        if notes is not None:
+            notes.extend(r[1] for r in rates if isinstance(r, tuple))
+        rates = [r[0] if isinstance(r, tuple) else r for r in rates]
         if rate is None:
             rate = rates[0]
             for name, r in zip(names, rates):

@@ -1,0 +1,200 @@
+"""A Dask cluster across the hosts of a netlab Star: `dask scheduler` in one host, `dask worker`s in others.
+
+Every process runs the workspace's interpreter with the environment it is given (``./ft env``'s: the venv and
+install/), as the README's "a cluster of your own" recipe runs them; the namespaces share this machine's file
+system, which plays the cluster's shared storage (the campaign folders are seen at the same path everywhere).
+
+    cluster = DaskHosts(net, env, log_dir)        # net: an entered netns.Star
+    cluster.scheduler('a'); cluster.workers('b'); cluster.workers('c'); cluster.wait(4)
+    cluster.run('a', [...])                       # a client command inside host a (Popen)
+
+``run_campaign`` does all of it for one client command, and can lose a host mid-run and bring it back.
+
+``python -m netlab.dask_hosts wait ADDRESS N TIMEOUT`` (run inside a host) waits until the scheduler has N
+workers; ``... watch ADDRESS`` prints, as JSON lines, which task keys each worker is processing whenever that
+changes (what a test waits on before it removes a host). Those two reach Dask through the engine
+(force_tester_common.engine.get_client), the one module that imports it.
+"""
+from __future__ import annotations
+
+import json
+import queue
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from netlab.netns import Impairment, NetnsError, Star
+
+PORT = 8786
+NWORKERS = 2      # worker processes per worker host (dask worker --nworkers), one thread each
+WORKER_HOSTS = ('b', 'c')   # run_campaign's worker hosts (the scheduler is in a)
+
+
+class DaskHosts:
+    """The scheduler and worker processes of one cluster on a Star; they end with the Star (its close())."""
+
+    def __init__(self, net: Star, env: dict, log_dir: Path, port: int = PORT):
+        self.net = net
+        self.env = {**env, 'PYTHONUNBUFFERED': '1'}
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.port = port
+        self.address = None
+        self.procs = {}      # name -> Popen
+
+    def _popen(self, host: str, name: str, cmd: list, stdout=None) -> subprocess.Popen:
+        log = open(self.log_dir / f'{name}.log', 'a')
+        proc = subprocess.Popen([*self.net.host(host).prefix(), *cmd], env=self.env, stdin=subprocess.DEVNULL,
+                                stdout=stdout or log, stderr=log, cwd=self.env.get('FT_ROOT'))
+        self.procs[name] = proc
+        return proc
+
+    def scheduler(self, host: str) -> str:
+        """Start `dask scheduler` in ``host``; returns its address (tcp://ADDRESS:PORT)."""
+        h = self.net.host(host)
+        self._popen(host, f'scheduler_{host}', [sys.executable, '-m', 'distributed.cli.dask_scheduler',
+                                                '--host', h.address, '--port', str(self.port), '--no-dashboard'])
+        self.address = f'tcp://{h.address}:{self.port}'
+        return self.address
+
+    def workers(self, host: str, nworkers: int = NWORKERS) -> subprocess.Popen:
+        """Start `dask worker ADDRESS --nworkers N --nthreads 1` in ``host`` (a nanny per worker process)."""
+        if self.address is None:
+            raise NetnsError('no scheduler yet; expected scheduler(host) before workers(host)')
+        h = self.net.host(host)
+        n = sum(1 for k in self.procs if k.startswith(f'workers_{host}'))
+        scratch = self.log_dir / f'scratch_{host}_{n}'
+        return self._popen(host, f'workers_{host}' + (f'_{n}' if n else ''), [
+            sys.executable, '-m', 'distributed.cli.dask_worker', self.address, '--nworkers', str(nworkers),
+            '--nthreads', '1', '--host', h.address, '--no-dashboard', '--local-directory', str(scratch)])
+
+    def run(self, host: str, name: str, cmd: list) -> subprocess.Popen:
+        """A client command inside ``host``; stdout and stderr piped (text)."""
+        proc = subprocess.Popen([*self.net.host(host).prefix(), *cmd], env=self.env, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=self.env.get('FT_ROOT'))
+        self.procs[name] = proc
+        return proc
+
+    def wait(self, n: int, host: str | None = None, timeout: float = 120.0) -> None:
+        """Wait until the scheduler has ``n`` workers (asked from ``host``, default the scheduler's)."""
+        host = host or self.address.split('//')[1].split(':')[0]
+        host = next((h.name for h in self.net.hosts if h.address == host), host)
+        res = subprocess.run([*self.net.host(host).prefix(), sys.executable, '-m', 'netlab.dask_hosts', 'wait',
+                              self.address, str(n), str(timeout)], env=self.env, capture_output=True, text=True)
+        if res.returncode:
+            raise NetnsError(f'the scheduler at {self.address} did not get {n} workers within {timeout:g} s: '
+                             f'{(res.stderr or res.stdout).strip()[-400:]}; logs in {self.log_dir}')
+
+    def watch(self, host: str) -> subprocess.Popen:
+        """The watcher in ``host``: JSON lines {worker address: [task keys processing]} on its stdout."""
+        return self.run(host, f'watch_{host}', [sys.executable, '-m', 'netlab.dask_hosts', 'watch', self.address])
+
+    def tail(self, name: str, lines: int = 15) -> str:
+        path = self.log_dir / f'{name}.log'
+        return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:]) if path.is_file() else ''
+
+
+def _lines(stream, q: queue.Queue) -> None:
+    for line in stream:
+        q.put(line)
+    q.put(None)
+
+
+def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment | None = None,
+                 lose: str | None = 'c', lose_on: str = 'pull-survey-', back: bool = False,
+                 timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
+    """Star a, b, c (and d if ``client`` is 'd'): the scheduler in a, the client command
+    (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2 --nthreads 1``
+    in b and in c. With ``lose``: once a worker in that host (any worker, for a host with none) is
+    processing a task whose key starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch
+    port goes down and every process in it is SIGKILLed. With ``back`` too: once the scheduler has let the lost
+    workers go, the port comes up and the host's workers are started again (they join during the run). Waits for
+    the client (at most ``timeout``), then deletes the hosts. Returns what happened: the client's exit code and
+    output, the pids killed, whether a worker of the host that came back ran a task, the link counters."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    res = {'rc': None, 'stdout': '', 'stderr': '', 'removed': [], 'lost_s': None, 'back_s': None,
+           'used_after_back': [], 'address': None}
+    with Star(('a', 'b', 'c', *((client,) if client not in ('a', 'b', 'c') else ())), impairment, log_dir=out) as net:
+        cluster = DaskHosts(net, env, out / 'logs')
+        res['address'] = address = cluster.scheduler('a')
+        for h in WORKER_HOSTS:
+            cluster.workers(h)
+        cluster.wait(len(WORKER_HOSTS) * NWORKERS)
+        say(f'cluster: scheduler {address} in {net.host("a").netns}, {NWORKERS} workers in each of b and c; '
+            f'{net.impairment.describe()} ({net.method})')
+        watch, seen = cluster.watch(client), queue.Queue()
+        threading.Thread(target=_lines, args=(watch.stdout, seen), daemon=True).start()
+        t0 = time.monotonic()
+        proc = cluster.run(client, 'client', [*client_cmd, '--scheduler', address])
+        lost = net.host(lose).address if lose else None
+        state = 'watch' if lose else 'done'
+        while state != 'done' and proc.poll() is None:
+            try:
+                line = seen.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            if line is None:
+                break
+            processing = json.loads(line)
+            mine = {w: keys for w, keys in processing.items() if f'//{lost}:' in w}
+            # a worker host is lost while one of its workers runs such a task; another host while any worker does
+            busy = mine if lose in WORKER_HOSTS else processing
+            if state == 'watch' and any(k.startswith(lose_on) for keys in busy.values() for k in keys):
+                net.cut(lose)      # the cable first: no FIN or RST of the dying processes gets out
+                res['removed'] = net.kill(lose)
+                res['lost_s'] = time.monotonic() - t0
+                say(f'host {lose} lost at {res["lost_s"]:.1f} s (processing {sorted(mine.values())})')
+                state = 'lost' if back else 'done'
+            elif state == 'lost' and not mine:   # the scheduler let the lost workers go
+                net.plug(lose)
+                cluster.workers(lose)
+                res['back_s'] = time.monotonic() - t0
+                say(f'host {lose} back at {res["back_s"]:.1f} s (its workers start again)')
+                state = 'back'
+            elif state == 'back' and any(mine.values()):
+                res['used_after_back'] = sorted({k for keys in mine.values() for k in keys})
+                say(f'host {lose} in use again at {time.monotonic() - t0:.1f} s')
+                state = 'done'
+        try:
+            res['stdout'], res['stderr'] = proc.communicate(timeout=max(1.0, timeout - (time.monotonic() - t0)))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            res['stdout'], res['stderr'] = proc.communicate()
+            res['stderr'] += f'\n(killed after {timeout:g} s)'
+        res['rc'] = proc.returncode
+        res['seconds'] = time.monotonic() - t0
+        res['after_loss_s'] = res['seconds'] - res['lost_s'] if res['lost_s'] is not None else None
+        res['counters'] = net.counters()
+        res['method'] = net.method
+    res['left'] = net.left()
+    return res
+
+
+def _wait(address: str, n: int, timeout: float) -> int:
+    from force_tester_common.engine import get_client  # the one module that imports Dask
+    client = get_client(address, connect_timeout=timeout)[0]
+    client.wait_for_workers(n, timeout=timeout)
+    return 0
+
+
+def _watch(address: str) -> int:
+    from force_tester_common.engine import get_client
+    client, last = get_client(address, connect_timeout=30.0)[0], None
+    while True:
+        now = {w: sorted(str(k) for k in keys) for w, keys in client.processing().items()}
+        if now != last:
+            print(json.dumps(now), flush=True)
+            last = now
+        time.sleep(0.05)
+
+
+if __name__ == '__main__':
+    args = sys.argv[1:]
+    if args[:1] == ['wait'] and len(args) == 4:
+        sys.exit(_wait(args[1], int(args[2]), float(args[3])))
+    if args[:1] == ['watch'] and len(args) == 2:
+        sys.exit(_watch(args[1]))
+    sys.exit('usage: python -m netlab.dask_hosts wait ADDRESS N TIMEOUT | watch ADDRESS')
