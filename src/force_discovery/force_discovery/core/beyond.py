@@ -353,6 +353,7 @@ class Term:
 @dataclass(frozen=True)
 class BeyondResult:
     terms: Tuple[Term, ...] = ()                    # named, best first
+    traces: tuple = ()                              # term_traces() of one held-out pull (the plots)
     within_tolerance: Tuple[Term, ...] = ()         # significant, inside the band
     demoted: Dict[str, str] = field(default_factory=dict)   # catalog cause -> why it does not fit
     frequencies: Dict[str, float] = field(default_factory=dict)
@@ -483,7 +484,40 @@ def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int],
         terms += [t for t in found if t.named]
         within += [t for t in found if not t.named]
     terms.sort(key=lambda t: -t.rel_sse_reduction)
-    return BeyondResult(tuple(terms), tuple(within), demoted, dict(survey.freq), time.perf_counter() - t0)
+    return BeyondResult(terms=tuple(terms), within_tolerance=tuple(within), demoted=demoted,
+                        frequencies=dict(survey.freq), seconds=time.perf_counter() - t0)
+
+
+def term_traces(series: Dict[str, tuple], terms: Sequence[Term], pull: str) -> tuple:
+    """((pull, channel, term, t, before, after), ...) of one pull (channel_series) for each named term: its
+    channel's residual with the other named terms removed (before) and with it removed too (after). A sinusoid's
+    phase is fitted on the pull (its amplitude is the term's)."""
+    contrib = {}
+    for ch in {t.channel for t in terms}:
+        if ch not in series:
+            continue
+        y, sig, _ = series[ch]
+        prods = [t for t in terms if t.channel == ch and t.frequency_hz is None]
+        rest = y - sum((t.coefficient * term_values(t.term, sig) for t in prods), np.zeros_like(y))
+        for t in terms:
+            if t.channel != ch:
+                continue
+            fac = t.coefficient * term_values(t.term, sig)
+            if t.frequency_hz is not None:
+                ph = 2 * np.pi * t.frequency_hz * sig['t']
+                X = np.column_stack([fac * np.sin(ph), fac * np.cos(ph)])
+                bs, bc = np.linalg.lstsq(X, rest, rcond=None)[0]
+                fac = fac * np.sin(ph + math.atan2(bc, bs))
+            contrib[(ch, t.term)] = (sig['t'], y, fac)
+    out = []
+    for t in terms:
+        if (t.channel, t.term) not in contrib:
+            continue
+        tt, y, c = contrib[(t.channel, t.term)]
+        others = sum((v[2] for k, v in contrib.items() if k[0] == t.channel and k != (t.channel, t.term)),
+                     np.zeros_like(y))
+        out.append((pull, t.channel, t.term, tt, y - others, y - others - c))
+    return tuple(out)
 
 
 def extra_terms(result: BeyondResult) -> list:

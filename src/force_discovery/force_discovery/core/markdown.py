@@ -96,13 +96,16 @@ def beyond_lines(r) -> list:
     L = ['## Beyond the catalog', '',
          f'A library of {b["library_terms"]} product terms and sinusoids (at {at}) '
          f'searched on {", ".join(b["channels"])}; {b["rule"]}.', '']
-    for t in r['beyond_catalog']:
+    for k, t in enumerate(r['beyond_catalog']):
         ev = t['evidence']
+        plot = f' Before/after: beyond_{k + 1}.png.' if any(Path(p).name == f'beyond_{k + 1}.png'
+                                                             for p in r.get('plots', ())) else ''
         f = f' at {t["frequency_hz"]:.2f} Hz' if t.get('frequency_hz') else ''
         L.append(f'- **{t["term"]}** on {t["channel"]}{f}: coefficient {_num(t["coefficient"])} {t["unit"]} '
                  f'(95 %: [{_num(t["ci95"][0])}, {_num(t["ci95"][1])}]); held-out SSE '
                  f'-{100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f}, gain {t["gain"]:.3g}x; contribution rms '
-                 f'{_num(ev["contribution_rms"])} against the band {_num(ev["band"])}. Usually: {t["interpretation"]}.')
+                 f'{_num(ev["contribution_rms"])} against the band {_num(ev["band"])}. Usually: '
+                 f'{t["interpretation"]}.{plot}')
     if not r['beyond_catalog']:
         L.append('No term of the library explains what the catalog leaves.')
     for t in b['within_tolerance']:

@@ -299,16 +299,19 @@ def held_out(item) -> HeldOut:
     return HeldOut(left, err, sim)
 
 
-def beyond_pass(item):
+def beyond_pass(item, series: bool = False):
     """Pass 5 (beyond.py): item = (Source, rig, c1, BeyondJob); the pull's residual spectra (job.survey None) or
-    its library statistics."""
+    its library statistics (series=True: its beyond.channel_series)."""
     src, rig, c1, job = item
     p = load_pull(src, rig, c1)
     m2 = rig.force_chain.m2
     h = None if job.hum_scale is None else hum_per_pull(p, job.f_hum, m2)[1] * job.hum_scale
     terms, coef, d = job.err_fit
     r = ForceModel([p], m2, [h]).resid(set(terms), coef, d, 0)
-    series = bey.channel_series(p, rig, r, h, job.coulomb)
+    out = bey.channel_series(p, rig, r, h, job.coulomb)
+    if series:
+        return out
+    series = out
     if job.survey is None:
         return bey.spectrum_part(series, p.dt * bey.decimation(p.dt))
     return bey.beyond_part(series, job.survey)
@@ -508,7 +511,11 @@ class Stream:
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, survey) for j in range(len(names))], names))
         res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named)
-        return dataclasses.replace(res, seconds=time.perf_counter() - t0)
+        traces = ()
+        if res.terms:   # one held-out pull's residuals before and after each term (the plots)
+            j = analysis.held[0]
+            traces = bey.term_traces(beyond_pass(job(j, survey), series=True), res.terms, names[j])
+        return dataclasses.replace(res, seconds=time.perf_counter() - t0, traces=traces)
 
     def held_out_results(self, analysis: Analysis, decision: Decision, ext: dict):
         """Pass 4: (structure check, ForceErrors, SimulationCheck or the DiscoveryError that stopped it)."""
@@ -579,7 +586,7 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             check = None
         add_simulation(report, check)
         add_beyond(report, found)
-        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext)
+        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext, found.traces)
         return report
     finally:
         if spill is not None:
