@@ -518,14 +518,3 @@ def term_traces(series: Dict[str, tuple], terms: Sequence[Term], pull: str) -> t
                      np.zeros_like(y))
         out.append((pull, t.channel, t.term, tt, y - others, y - others - c))
     return tuple(out)
-
-
-def extra_terms(result: BeyondResult) -> list:
-    """extension.yaml's extra_terms: what the sim's rig YAML takes (force_tester_sim.core.params)."""
-    out = []
-    for t in result.terms:
-        e = {'channel': t.channel, 'term': t.term, 'coefficient': t.coefficient}
-        if t.frequency_hz is not None:
-            e['frequency_hz'] = t.frequency_hz
-        out.append(e)
-    return out

@@ -14,7 +14,9 @@ HEAD = ('# Extension found by `./ft discover`: the departures section below, app
         'can undo\n# (the correction node and `./ft bag correct --extension` divide F_move by '
         'moving_cell_gain, undo the\n# AC coupling, notch the hum, delay F_move by accel_delay_s to line it '
         'up with a2, then subtract\n# mass_kg * a2). assumptions: what a mapping to the sim needed that the '
-        'data do not identify.\n')
+        'data do not identify.\n# extra_terms: terms beyond the catalog (the rig YAML takes them too); the '
+        'correction linearises the\n# moving cell by their F_move^2 and F_move^3 (moving_cell_quadratic_per_n, '
+        'moving_cell_cubic_per_n2).\n')
 
 
 def named_extension(analysis: Analysis, decision: Decision, rig) -> dict:
@@ -53,9 +55,26 @@ def extension(report, rig) -> dict:
     if 'mains_hum' in deps:
         corr['mains_hum_hz'] = deps['mains_hum']['frequency_hz']
     out = {'departures': deps, 'correction': corr}
+    add_extra_terms(out, report.get('beyond_catalog', ()))
     if assumptions:
         out['assumptions'] = assumptions
     return out
+
+
+# the force_moving terms the correction undoes (force_correction.core.extension: a non-linear cell linearised live)
+CORRECTION_TERMS = {'F_move^2': 'moving_cell_quadratic_per_n', 'F_move^3': 'moving_cell_cubic_per_n2'}
+
+
+def add_extra_terms(ext: dict, terms) -> None:
+    """ext's extra_terms: (the sim's rig YAML takes them: force_tester_sim.core.extra_terms) from report.json
+    beyond_catalog entries, and the correction's polynomial of the moving cell from its F_move^2, F_move^3."""
+    if not terms:
+        return
+    ext['extra_terms'] = [{'channel': t['channel'], 'term': t['term'], 'coefficient': t['coefficient'],
+                           **({'frequency_hz': t['frequency_hz']} if t.get('frequency_hz') else {})} for t in terms]
+    for t in terms:
+        if t['channel'] == 'force_moving' and t['term'] in CORRECTION_TERMS:
+            ext['correction'][CORRECTION_TERMS[t['term']]] = t['coefficient']
 
 
 def extension_yaml(ext: dict) -> str:

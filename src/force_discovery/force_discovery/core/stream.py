@@ -75,7 +75,7 @@ from .cells import (
 )
 from .decision import Decision, decide
 from .errors import DiscoveryError
-from .extension import named_extension
+from .extension import add_extra_terms, named_extension
 from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
@@ -575,8 +575,7 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
         found = st.beyond(analysis, decision)
         decision = with_beyond(decision, found)
         ext = named_extension(analysis, decision, rig)
-        if found.terms:
-            ext['extra_terms'] = bey.extra_terms(found)
+        add_extra_terms(ext, [t.as_dict() for t in found.terms])
         left, errors, check = st.held_out_results(analysis, decision, ext)
         analysis = _with_run(analysis, st)
         report = build_report(analysis, decision, errors, left, rig)
