@@ -4,6 +4,8 @@ term on the right channel with its coefficient, and a clean campaign gives an em
 test sees only the data and the nominal rig; the truth is used only to score."""
 from __future__ import annotations
 
+import re
+
 import pytest
 import yaml
 from generator import BEYOND, beyond_campaign, check_beyond, draw_nuisance, make_campaign
@@ -80,5 +82,5 @@ def test_the_sim_takes_extra_terms_and_refuses_bad_ones():
                       ({'channel': 'motor_current', 'term': 'v*v', 'coefficient': 1.0}, "'v*v'"),
                       ({'channel': 'motor_current', 'term': 'sin', 'coefficient': 1.0}, 'frequency_hz'),
                       ({'channel': 'motor_current', 'term': 'v', 'coefficient': 'x'}, "'x'")):
-        with pytest.raises(SimError, match=says):
+        with pytest.raises(SimError, match=re.escape(says)):
             rig_from_dict({**data, 'extra_terms': [bad]})
