@@ -65,6 +65,7 @@ SPECTRUM_POINTS = 2 ** 15
 PEAK_PROMINENCE = 10.0        # a sinusoid's line stands this far above the median spectrum around it ...
 PEAK_SPAN = 64                # ... over this many bins either side
 COULOMB = 'coulomb_friction'
+GAIN = 'moving_cell_gain'
 
 INTERPRETATION = {
     ('force_moving', 'F_move^2'): 'a non-linear moving cell: its sensitivity changes with load',
@@ -115,14 +116,16 @@ def decimation(dt: float) -> int:
 
 
 def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
-                   coulomb_n: Optional[float]) -> Dict[str, tuple]:
+                   coulomb_n: Optional[float], gain_column: Optional[float] = None) -> Dict[str, tuple]:
     """{channel: (residual, signals, catalog column or None)} of one pull, decimated, usable samples only.
 
     force_moving: the force model's residual on W after the named causes (force_resid, from ForceModel.resid);
     F_move is the model's prediction (measured minus hum minus residual). motor_current (A): the drive's force
     balance with the predicted F_move, over the samples at rest and moving, minus the pull's median at rest;
     its catalog column is the Coulomb step (1 while moving) in A per N of friction: coulomb_n is whether it
-    is named (the column is offered only then)."""
+    is named (the column is offered only then); the moving cell's is the gain's column, T + gain_column a2 as
+    the force model has it (gain_column: the mass in it, 0 when the effective mass is named; None: the gain is
+    not named)."""
     q = decimation(p.dt)
     out = {}
     w = slice(p.w0, p.w1)
@@ -131,7 +134,8 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     fm_pred[w] = fm_pred[w] - force_resid
     full = {'F_move': fm_pred, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
     ok = p.usable(p.w0, p.w1)[::q]
-    out['force_moving'] = (np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()}, None)
+    out['force_moving'] = (np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()},
+                           None if gain_column is None else (p.T + gain_column * p.a2)[w][::q][ok])
     if p.current is not None:
         d = rig.drive
         kf = d.force_per_amp_n_per_a
@@ -387,13 +391,13 @@ def _jackknife(stats, model: Model, n_prod: int) -> np.ndarray:
 
 
 def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, rig, catalog_named: bool):
-    """([Term] named and within tolerance, demoted catalog reason or None) for one channel: fit/held are the pulls'
-    stats tuples (BeyondPart.stats[channel])."""
+    """([Term] named and within tolerance, demoted catalog reason or None, the final Model) for one channel:
+    fit/held are the pulls' stats tuples (BeyondPart.stats[channel])."""
     names = fit[0][0]
     f_hz = survey.freq.get(channel)
     n_sin = sum(1 for n in names if n.endswith(SIN))
     n_prod = len(names) - n_sin
-    use_cat = catalog_named and fit[0][5] is not None
+    use_cat = catalog_named and fit[0][5] is not None and channel == 'motor_current'
     demoted = None
     if use_cat:   # the catalog keeps priority unless one library term (one parameter, as it) beats it
         m_cat = _fit(fit, (), None, True, n_prod)
@@ -456,7 +460,33 @@ def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, 
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
                           abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band)))
-    return found, demoted
+    return found, demoted, model
+
+
+def _without_gain(st, gain: float):
+    """A pull's moving-cell statistics with the named gain undone: y0 = y + (gain - 1) T (T: the catalog column)."""
+    names, G, b, s, n, (gcc, gcx, bc) = st
+    d = gain - 1.0
+    return names, G, b + d * gcx, s + 2 * d * bc + d * d * gcc, n, (gcc, gcx, bc + d * gcc)
+
+
+def gain_check(fit: Sequence, held: Sequence, model: Model, survey: Survey, rig, gain: float):
+    """(why the named moving-cell gain does not fit, or None; the terms found without it). The catalog keeps
+    priority only when its model explains the structure no worse: the library is searched again on the residual
+    with the gain undone, and if it does as well on the held-out pulls with no more parameters (the gain counts
+    one), the gain is withheld."""
+    n_prod = sum(1 for nm in fit[0][0] if not nm.endswith(SIN))
+    fit0, held0 = [_without_gain(st, gain) for st in fit], [_without_gain(st, gain) for st in held]
+    found0, _, model0 = search_channel('force_moving', fit0, held0, survey, rig, False)
+    k_cat = len(model.prod) + (model.sin is not None) + 1
+    k_lib = len(model0.prod) + (model0.sin is not None)
+    sse_cat = sum(_sse(st, model, n_prod) for st in held)
+    sse_lib = sum(_sse(st, model0, n_prod) for st in held0)
+    if k_lib <= k_cat and sse_lib <= sse_cat * (1.0 + (PRIORITY_MARGIN if k_lib < k_cat else 0.0)):
+        return (f'without the moving-cell gain ({gain:.5f}) the library explains the moving cell with {k_lib} '
+                f'term(s) as well as the gain with {k_cat - 1} (held-out SSE {sse_lib:.4g} against {sse_cat:.4g}): '
+                'the nearest catalog cause does not fit'), found0
+    return None, found0
 
 
 def si_factor(term: str, scales: Dict[str, float]) -> float:
@@ -469,18 +499,23 @@ def si_factor(term: str, scales: Dict[str, float]) -> float:
 
 
 def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int], survey: Survey, rig,
-           named: Sequence[str]) -> BeyondResult:
-    """The search over every searched channel (module docstring): parts in the usable pulls' order."""
+           named: Sequence[str], gain: Optional[float] = None) -> BeyondResult:
+    """The search over every searched channel (module docstring): parts in the usable pulls' order; gain: the
+    named moving-cell gain (None: not named)."""
     import time
     t0 = time.perf_counter()
     terms, within, demoted = [], [], {}
     for ch in SEARCHED:
         if not all(ch in parts[j].stats for j in (*fit, *held)):
             continue
-        found, why = search_channel(ch, [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held],
-                                    survey, rig, COULOMB in named and ch == 'motor_current')
+        fit_st, held_st = [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held]
+        found, why, model = search_channel(ch, fit_st, held_st, survey, rig, COULOMB in named and ch == 'motor_current')
         if why is not None:
             demoted[COULOMB] = why
+        if ch == 'force_moving' and gain is not None and fit_st[0][5] is not None and any(t.named for t in found):
+            why, _ = gain_check(fit_st, held_st, model, survey, rig, gain)
+            if why is not None:
+                demoted[GAIN] = why
         terms += [t for t in found if t.named]
         within += [t for t in found if not t.named]
     terms.sort(key=lambda t: -t.rel_sse_reduction)

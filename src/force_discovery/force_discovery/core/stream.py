@@ -180,6 +180,7 @@ class BeyondJob:
     hum_scale: Optional[float]          # the hum estimate's factor (None: the hum is not named)
     err_fit: tuple                      # (terms, coefficients, delay) of the named force-channel causes
     coulomb: Optional[float]            # the named Coulomb friction (N), or None
+    gain: Optional[float]               # the moving-cell gain is named: the mass in its column (beyond.gain_check)
     survey: Optional[bey.Survey]        # None: the spectrum pass (a few fitted pulls); else the statistics
 
 
@@ -308,7 +309,7 @@ def beyond_pass(item, series: bool = False):
     h = None if job.hum_scale is None else hum_per_pull(p, job.f_hum, m2)[1] * job.hum_scale
     terms, coef, d = job.err_fit
     r = ForceModel([p], m2, [h]).resid(set(terms), coef, d, 0)
-    out = bey.channel_series(p, rig, r, h, job.coulomb)
+    out = bey.channel_series(p, rig, r, h, job.coulomb, job.gain)
     if series:
         return out
     series = out
@@ -495,14 +496,17 @@ class Stream:
         import time
         t0 = time.perf_counter()
         err_hum, fit_ = self.err_fit(analysis, decision)
-        fcf = None
+        fcf = gain = gain_col = None
+        if 'moving_cell_gain' in decision.named:   # its column: g (T + m2 a2), or g T beside the effective mass
+            gain = analysis.candidates['moving_cell_gain'].parameters['gain']
+            gain_col = 0.0 if 'effective_mass' in decision.named else self.rig.force_chain.m2
         if 'coulomb_friction' in decision.named:
             fcf = analysis.candidates['coulomb_friction'].parameters['force_n']
         names = [p.name for p in analysis.pulls]
 
         def job(j, survey):
             return (self.sources[j], self.rig, self.c1,
-                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, survey))
+                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, gain_col, survey))
         few = few_pulls(analysis.fit)
         specs = self._strict('beyond', self._map('beyond', beyond_pass, [job(j, None) for j in few],
                                                  [names[j] for j in few]))
@@ -510,7 +514,7 @@ class Stream:
         survey = bey.survey_from(specs, dt * bey.decimation(dt))
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, survey) for j in range(len(names))], names))
-        res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named)
+        res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named, gain)
         traces = ()
         if res.terms:   # one held-out pull's residuals before and after each term (the plots)
             j = analysis.held[0]
@@ -574,6 +578,11 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             return report
         found = st.beyond(analysis, decision)
         decision = with_beyond(decision, found)
+        if bey.GAIN in found.demoted:   # the force residual changes without the gain: search it again
+            again = st.beyond(analysis, decision)
+            found = dataclasses.replace(again, demoted={**found.demoted, **again.demoted},
+                                        seconds=found.seconds + again.seconds)
+            decision = with_beyond(decision, found)
         ext = named_extension(analysis, decision, rig)
         add_extra_terms(ext, [t.as_dict() for t in found.terms])
         left, errors, check = st.held_out_results(analysis, decision, ext)
@@ -623,11 +632,12 @@ def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, r
 
 def with_beyond(decision: Decision, found: bey.BeyondResult) -> Decision:
     """The decision with the catalog causes a library term fits better (beyond.search_channel) withheld."""
-    if not found.demoted:
+    new = {n: why for n, why in found.demoted.items() if n not in decision.rejected}
+    if not new:
         return decision
-    named = tuple(n for n in decision.named if n not in found.demoted)
-    return dataclasses.replace(decision, named=named, rejected={**decision.rejected, **found.demoted},
-                               notes=decision.notes + tuple(f'{n} withheld: {why}' for n, why in found.demoted.items()))
+    named = tuple(n for n in decision.named if n not in new)
+    return dataclasses.replace(decision, named=named, rejected={**decision.rejected, **new},
+                               notes=decision.notes + tuple(f'{n} withheld: {why}' for n, why in new.items()))
 
 
 def _with_run(analysis: Analysis, st: Stream) -> Analysis:
