@@ -26,6 +26,24 @@ def test_gain_and_ac_coupling_are_undone_exactly():
     np.testing.assert_allclose(ForcePrefilter(ext, FS).process(measured), x, rtol=0, atol=1e-6)
 
 
+def test_a_non_linear_cell_is_linearised_before_its_gain():
+    """Issue 27: extension.yaml's F_move^2 and F_move^3 terms on the moving cell (measured = F + c2 F^2 + c3 F^3,
+    then the gain) are undone sample by sample, whatever the block split."""
+    x = signal()
+    c2, c3, gain = 2e-5, -3e-9, 1.03
+    measured = gain * (x + c2 * x ** 2 + c3 * x ** 3)
+    # discover fits the terms on the gained force: gain F + c2' (gain F)^2 + c3' (gain F)^3
+    ext = Extension(moving_cell_gain=gain, moving_cell_quadratic_per_n=c2 / gain,
+                    moving_cell_cubic_per_n2=c3 / gain ** 2)
+    one = ForcePrefilter(ext, FS).process(measured)
+    np.testing.assert_allclose(one, x, rtol=0, atol=1e-6)
+    pf = ForcePrefilter(ext, FS)
+    split = np.concatenate([pf.process(measured[:777]), pf.process(measured[777:])])
+    np.testing.assert_array_equal(split, one)
+    with pytest.raises(CorrectionError, match='moving_cell_quadratic_per_n'):
+        Extension(moving_cell_quadratic_per_n=0.5)
+
+
 def test_delay_lines_the_force_up_with_a_lagging_accelerometer():
     x = signal()
     ext = Extension(accel_delay_s=3 / FS)                  # whole samples: exact

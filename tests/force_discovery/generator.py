@@ -109,8 +109,10 @@ def daq_nuisances(ch: dict, nuisance: dict, seed: int) -> dict:
     return out
 
 
-def make_campaign(departures: dict | None, seed: int, sets=SETS, pulls=PULLS, nuisance: dict | None = None):
-    """[(meta, channels)] of a campaign with the hidden departures (and the model-form nuisance, if given)."""
+def make_campaign(departures: dict | None, seed: int, sets=SETS, pulls=PULLS, nuisance: dict | None = None,
+                  post=None):
+    """[(meta, channels)] of a campaign with the hidden departures (and the model-form nuisance, if given); post(ch,
+    seed) changes each pull's recorded channels (a departure outside the catalog) before the DAQ nuisances."""
     deps = dict(departures or {})
     fc = None
     if nuisance is not None:
@@ -124,6 +126,8 @@ def make_campaign(departures: dict | None, seed: int, sets=SETS, pulls=PULLS, nu
         ts = rig.test_set(s)
         for sp in truth_pull_specs(rig, s, pulls, seed):
             ch = simulate_pull(rig, sp)
+            if post is not None:
+                ch = post(dict(ch), sp.seed)
             if nuisance is not None:
                 ch = daq_nuisances(ch, nuisance, sp.seed)
             out.append(({'file': f'set{s}_pull{sp.pull + 1:02d}.csv', 'set': s, 'pull': sp.pull + 1,
@@ -193,3 +197,90 @@ def check_identified(report: dict, name: str, truth: dict) -> list:
     if not (report['gain'] and report['gain'] > 1.0):
         bad.append(f'gain {report["gain"]}')
     return bad
+
+
+# ------------------------------------------------------------------------------------------ beyond the catalog
+# Departures outside the catalog (issue 27), each its own small model of the physics applied to the recorded
+# channels (the sim knows nothing of them): kind -> (channel, term, strength drawn from the range, what it adds).
+# The strength is the size of the effect at the rig's scale: F_REF (a typical peak force), V_REF (a top carriage
+# speed); the coefficient the code should find is derived from it here, never shown to the code.
+F_REF = 2500.0      # N
+V_REF = 4.0         # m/s
+BEYOND = {
+    'quadratic_cell': ('force_moving', 'F_move^2', (0.02, 0.08)),      # reads 2-8 % high at F_REF
+    'air_drag': ('motor_current', 'v^2', (80.0, 300.0)),              # N of drag at V_REF
+    'zero_drift': ('force_moving', 't', (3.0, 12.0)),                 # N/s of drift of the cell's zero
+    'carriage_vibration': ('force_moving', 'v*sin', (6.0, 25.0)),     # N of frame vibration at V_REF
+    'viscous_friction': ('motor_current', 'v', (80.0, 250.0)),        # N of viscous friction at V_REF
+    'cable_drag': ('force_moving', 'v', (20.0, 80.0)),                # N a trailing cable pulls on the cell at V_REF
+}
+
+
+def _speed(ch: dict) -> np.ndarray:
+    """The carriage speed from the encoder (central differences, a 1 ms moving average)."""
+    t = np.asarray(ch['time_s'], float)
+    v = np.gradient(np.asarray(ch['encoder_position_m'], float), t)
+    k = max(1, int(round(1e-3 / (t[1] - t[0]))))
+    return np.convolve(v, np.ones(k) / k, mode='same')
+
+
+def draw_beyond(kind: str, seed: int) -> dict:
+    """The hidden strength (and frequency) of a departure outside the catalog, and the truth the code should find:
+    {'channel', 'term', 'coefficient' (SI, the channel's unit per the term's), 'frequency_hz' or None, ...}."""
+    r = np.random.default_rng([seed, 27, len(kind)])
+    channel, term, (lo, hi) = BEYOND[kind]
+    size = float(r.uniform(lo, hi))
+    kf = rig_with(None).drive.force_per_amp_n_per_a
+    coef = {'quadratic_cell': size / F_REF, 'air_drag': size / V_REF ** 2 / kf, 'zero_drift': size,
+            'carriage_vibration': size / V_REF, 'viscous_friction': size / V_REF / kf,
+            'cable_drag': size / V_REF}[kind]
+    f = float(r.uniform(150.0, 1500.0)) if kind == 'carriage_vibration' else None
+    return {'kind': kind, 'channel': channel, 'term': term, 'coefficient': coef, 'frequency_hz': f, 'size': size,
+            'force_per_amp': kf}
+
+
+def beyond_post(truth: dict):
+    """post(ch, seed) for make_campaign: the departure of draw_beyond's truth applied to one pull's channels."""
+    kind, c = truth['kind'], truth['coefficient']
+
+    def post(ch, seed):
+        t = np.asarray(ch['time_s'], float)
+        t = t - t[0]
+        fm = np.asarray(ch['force_moving_n'], float)
+        cur = np.asarray(ch['motor_current_a'], float)
+        v = _speed(ch)
+        if kind == 'quadratic_cell':
+            ch['force_moving_n'] = fm + c * fm ** 2
+        elif kind == 'zero_drift':
+            ch['force_moving_n'] = fm + c * t
+        elif kind == 'cable_drag':
+            ch['force_moving_n'] = fm + c * v
+        elif kind == 'carriage_vibration':   # a frame mode the carriage excites afresh each pull: its own phase
+            ph = np.random.default_rng([seed, 2027]).uniform(0, 2 * np.pi)
+            ch['force_moving_n'] = fm + c * v * np.sin(2 * np.pi * truth['frequency_hz'] * t + ph)
+        elif kind == 'air_drag':             # the drive holds its motion; the current carries the drag
+            ch['motor_current_a'] = cur + c * v * np.abs(v)
+        elif kind == 'viscous_friction':
+            ch['motor_current_a'] = cur + c * v
+        return ch
+    return post
+
+
+def beyond_campaign(kind: str, seed: int, nuisance: bool = False, sets=SETS, pulls=PULLS):
+    """(campaign, truth) with one departure outside the catalog at a random strength (and the model-form
+    nuisances when asked)."""
+    truth = draw_beyond(kind, seed)
+    camp = make_campaign(None, seed, sets, pulls, draw_nuisance(seed) if nuisance else None, beyond_post(truth))
+    return camp, truth
+
+
+def check_beyond(report: dict, truth: dict) -> dict:
+    """What the bench and tests count for one campaign: the right term on the right channel found (first on its
+    channel), its coefficient within 30 %, and whether a catalog cause was named."""
+    terms = [t for t in report.get('beyond_catalog', []) if t['channel'] == truth['channel']]
+    right = bool(terms) and terms[0]['term'] == truth['term']
+    coef = right and abs(terms[0]['coefficient'] - truth['coefficient']) <= 0.3 * abs(truth['coefficient'])
+    return {'right_term': right, 'coefficient_30pct': bool(coef), 'catalog_named': [c['name'] for c in
+                                                                                   report['causes']
+                                                                                   if c['name'] != 'unexplained'],
+            'found': [(t['channel'], t['term'], t['coefficient']) for t in report.get('beyond_catalog', [])]}

@@ -5,6 +5,9 @@ force departs from the force the m*a correction assumes, and this module undoes 
 
 - ``mass_kg``: the mass that belongs in m*a (replaces m2);
 - ``moving_cell_gain``: measured = gain x true, so the force is divided by it;
+- ``moving_cell_quadratic_per_n``, ``moving_cell_cubic_per_n2`` (issue 27: the terms F_move^2 and F_move^3 on
+  force_moving that discover found beyond the catalog): measured = F + c2 F^2 + c3 F^3, so each sample is
+  linearised (Newton's method, pointwise: no state) after the hum and before the gain;
 - ``accel_delay_s``: the accelerometer lags the force channel, so the force is delayed by the same
   amount (a fractional-delay FIR) and the two line up again: corrected(t) = F(t - d) - m a2_meas(t);
 - ``ac_coupling_time_constant_s``: the channel is first-order high-passed (piezo discharge); the
@@ -42,6 +45,8 @@ def _lfilter():
 class Extension:
     mass_kg: Optional[float] = None
     moving_cell_gain: float = 1.0
+    moving_cell_quadratic_per_n: float = 0.0
+    moving_cell_cubic_per_n2: float = 0.0
     accel_delay_s: float = 0.0
     ac_coupling_time_constant_s: Optional[float] = None
     mains_hum_hz: Optional[float] = None
@@ -55,6 +60,10 @@ class Extension:
             bad('mass_kg', self.mass_kg, 'a mass in (0, 1e4] kg')
         if not (math.isfinite(self.moving_cell_gain) and 0.1 <= self.moving_cell_gain <= 10):
             bad('moving_cell_gain', self.moving_cell_gain, 'a gain in [0.1, 10]')
+        for name, lim in (('moving_cell_quadratic_per_n', 1e-2), ('moving_cell_cubic_per_n2', 1e-4)):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and abs(v) <= lim):
+                bad(name, v, f'a coefficient in [-{lim:g}, {lim:g}]')
         if not (math.isfinite(self.accel_delay_s) and 0 <= self.accel_delay_s <= 0.01):
             bad('accel_delay_s', self.accel_delay_s, 'a delay in [0, 0.01] s')
         tau = self.ac_coupling_time_constant_s
@@ -92,6 +101,20 @@ class Extension:
             raise CorrectionError(f'extension file {str(path)!r} has no correction: mapping; '
                                   'expected the extension.yaml of ./ft discover')
         return cls.from_dict(doc.get('correction') or {})
+
+    @property
+    def nonlinear(self) -> bool:
+        return self.moving_cell_quadratic_per_n != 0.0 or self.moving_cell_cubic_per_n2 != 0.0
+
+    def linearise(self, x: np.ndarray) -> np.ndarray:
+        """F with F + c2 F^2 + c3 F^3 = x, sample by sample (Newton's method from F = x; the slope is kept
+        >= 0.1 so a sample beyond the polynomial's fold stays finite)."""
+        c2, c3 = self.moving_cell_quadratic_per_n, self.moving_cell_cubic_per_n2
+        f = np.array(x, dtype=float)
+        for _ in range(8):
+            g = f + c2 * f ** 2 + c3 * f ** 3 - x
+            f = f - g / np.maximum(1.0 + 2 * c2 * f + 3 * c3 * f ** 2, 0.1)
+        return f
 
     def stages(self, sample_rate_hz: float) -> Tuple[Tuple[np.ndarray, np.ndarray], ...]:
         """(b, a) of each linear filter stage on the moving-cell force, in order (the hum canceller
@@ -131,7 +154,7 @@ class ForcePrefilter:
 
     def process(self, force: np.ndarray) -> np.ndarray:
         x = np.asarray(force, dtype=float)
-        if (not self.stages and self.hum is None) or not len(x):
+        if (not self.stages and self.hum is None and not self.extension.nonlinear) or not len(x):
             return x
         zis, last, hum_state = self.state
         bad = ~np.isfinite(x)
@@ -145,6 +168,8 @@ class ForcePrefilter:
         y, new = x, []
         if self.hum is not None:
             y, hum_state = self.hum.process(y, hum_state)
+        if self.extension.nonlinear:
+            y = self.extension.linearise(y)
         for (b, a), zi in zip(self.stages, zis):
             if len(zi):
                 y, zf = _lfilter()(b, a, y, zi=zi)

@@ -18,6 +18,8 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - candidate.py    Candidate and Evidence: what a stage says about one cause (frozen)
 - stages.py       the stages: each turns its channel's per-pull results into Candidates; Analysis; the method
 - decision.py     the decision: named, within tolerance, inconclusive, withheld
+- beyond.py       beyond the catalog: a grammar of candidate terms searched on what the named causes leave
+                  (forward selection, held-out test, jackknife intervals, the catalog's priority, interpretation)
 - leftover.py     the leftover structure no catalog entry explains
 - force_errors.py the held-out force-channel error, model of record vs extended
 - resim.py        closing the loop: the held-out pulls re-simulated with and without the extension

@@ -23,7 +23,9 @@ HEAD = ('# Extension found by `./ft discover`: the departures section below, app
         'moving_cell_gain, undo the\n# AC coupling, notch the hum, delay F_move by accel_delay_s to line it '
         'up with a2, then subtract\n# mass_kg * a2). assumptions: what a mapping to the sim needed that the '
         'data do not identify. uncertainty: the\n# standard uncertainties (k = 1) of the corrected values the '
-        'campaign estimated, in the rig YAML\'s form\n# (the corrected peak\'s uncertainty takes them).\n')
+        'campaign estimated, in the rig YAML\'s form\n# (the corrected peak\'s uncertainty takes them). extra_terms: '
+        'terms beyond the catalog (the rig YAML\n# takes them too); the correction linearises the moving cell by '
+        'their F_move^2 and F_move^3\n# (moving_cell_quadratic_per_n, moving_cell_cubic_per_n2).\n')
 
 
 def named_extension(analysis: Analysis, decision: Decision, rig) -> dict:
@@ -65,6 +67,7 @@ def extension(report, rig) -> dict:
     unc = correction_uncertainty(report.get('candidates') or {}, corr)
     if unc:
         out['uncertainty'] = unc
+    add_extra_terms(out, report.get('beyond_catalog', ()))
     if assumptions:
         out['assumptions'] = assumptions
     return out
@@ -88,6 +91,22 @@ def correction_uncertainty(cands: dict, corr: dict) -> dict:
         u = math.hypot(0.5 * (hi - lo) / COVERAGE_K, est - corr[key])
         out.setdefault(cause, {})[par] = float(u)
     return {DEPARTURES: out} if out else {}
+
+
+# the force_moving terms the correction undoes (force_correction.core.extension: a non-linear cell linearised live)
+CORRECTION_TERMS = {'F_move^2': 'moving_cell_quadratic_per_n', 'F_move^3': 'moving_cell_cubic_per_n2'}
+
+
+def add_extra_terms(ext: dict, terms) -> None:
+    """ext's extra_terms: (the sim's rig YAML takes them: force_tester_sim.core.extra_terms) from report.json
+    beyond_catalog entries, and the correction's polynomial of the moving cell from its F_move^2, F_move^3."""
+    if not terms:
+        return
+    ext['extra_terms'] = [{'channel': t['channel'], 'term': t['term'], 'coefficient': t['coefficient'],
+                           **({'frequency_hz': t['frequency_hz']} if t.get('frequency_hz') else {})} for t in terms]
+    for t in terms:
+        if t['channel'] == 'force_moving' and t['term'] in CORRECTION_TERMS:
+            ext['correction'][CORRECTION_TERMS[t['term']]] = t['coefficient']
 
 
 def extension_yaml(ext: dict) -> str:

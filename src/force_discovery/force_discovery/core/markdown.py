@@ -73,7 +73,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
         L.append(f'- note: {note}')
     L += [''] + budget_lines(r) + Q.markdown_lines(screens, excluded) + run_lines(r)
     L += ['## Method', '', stages.__doc__.strip(), '', f'Significance rule: {r["significance_rule"]}.', '']
-    L += simulation_lines(r)
+    L += simulation_lines(r) + beyond_lines(r)
     if r.get('leftover'):
         lo = r['leftover']
         L += ['## Residual left after the extension', '',
@@ -85,6 +85,35 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
     else:
         L += ['(matplotlib not importable: no plots)']
     return '\n'.join(L) + '\n'
+
+
+def beyond_lines(r) -> list:
+    """The search beyond the catalog (report.json beyond_catalog, beyond_search)."""
+    if 'beyond_search' not in r:
+        return []
+    b = r['beyond_search']
+    at = ', '.join(f'{c} {f:.1f} Hz' for c, f in b['frequencies_hz'].items()) or 'no line in the residuals'
+    L = ['## Beyond the catalog', '',
+         f'A library of {b["library_terms"]} product terms and sinusoids (at {at}) '
+         f'searched on {", ".join(b["channels"])}; {b["rule"]}.', '']
+    for k, t in enumerate(r['beyond_catalog']):
+        ev = t['evidence']
+        plot = f' Before/after: beyond_{k + 1}.png.' if any(Path(p).name == f'beyond_{k + 1}.png'
+                                                             for p in r.get('plots', ())) else ''
+        f = f' at {t["frequency_hz"]:.2f} Hz' if t.get('frequency_hz') else ''
+        L.append(f'- **{t["term"]}** on {t["channel"]}{f}: coefficient {_num(t["coefficient"])} {t["unit"]} '
+                 f'(95 %: [{_num(t["ci95"][0])}, {_num(t["ci95"][1])}]); held-out SSE '
+                 f'-{100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f}, gain {t["gain"]:.3g}x; contribution rms '
+                 f'{_num(ev["contribution_rms"])} against the band {_num(ev["band"])}. Usually: '
+                 f'{t["interpretation"]}.{plot}')
+    if not r['beyond_catalog']:
+        L.append('No term of the library explains what the catalog leaves.')
+    for t in b['within_tolerance']:
+        L.append(f'- {t["term"]} on {t["channel"]} (significant, within the band): coefficient '
+                 f'{_num(t["coefficient"])} {t["unit"]}, contribution rms {_num(t["evidence"]["contribution_rms"])}')
+    for n, why in b['catalog_not_fitting'].items():
+        L.append(f'- catalog cause {n} withheld: {why}')
+    return L + ['']
 
 
 def budget_lines(r) -> list:

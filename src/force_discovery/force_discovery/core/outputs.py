@@ -10,15 +10,15 @@ from .extension import extension, extension_yaml
 from .force_errors import ForceErrors
 from .identifiability import identifiability_lines
 from .markdown import markdown
-from .plots import residual_plots, simulation_plot
+from .plots import beyond_plots, residual_plots, simulation_plot
 from .stages import Analysis
 
 
 def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], named, rig, out: Path, check=None,
-                  ext: dict | None = None) -> None:
+                  ext: dict | None = None, traces=()) -> None:
     """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
     simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png; ext: extension()
-    of the report when the caller has it already.
+    of the report when the caller has it already; traces: beyond.term_traces (beyond_<k>.png).
 
     Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
     leaves a half-written report."""
@@ -30,7 +30,8 @@ def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], nam
     try:
         ext = extension(report, rig) if ext is None else ext
         (stage / 'extension.yaml').write_text(extension_yaml(ext))
-        plots = residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
+        plots = (residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
+                 + beyond_plots(traces, stage))
         report['plots'] = [str(out / Path(q).name) for q in plots]
         (stage / 'report.json').write_text(json.dumps(report, indent=1))
         md = markdown(report, report['plots'], analysis.screens, analysis.excluded)

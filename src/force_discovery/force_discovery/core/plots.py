@@ -14,6 +14,35 @@ from .ringing import cell_modes, damped_basis
 from .stages import Analysis
 
 
+def beyond_plots(traces, out: Path) -> list:
+    """beyond_<k>.png: each term beyond the catalog, its channel's residual on one held-out pull before and after
+    it (beyond.term_traces)."""
+    if not traces:
+        return []
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    from force_tester_sim.core.extra_terms import CHANNEL_UNITS
+    paths = []
+    for k, (pull, ch, term, t, before, after) in enumerate(traces):
+        fig, ax = plt.subplots(figsize=(8, 2.6))
+        ax.plot(t, before, color='tab:blue', lw=0.6, label='before (the catalog and the other terms)')
+        ax.plot(t, after, color='tab:orange', lw=0.6, label=f'after {term}')
+        ax.set_title(f'{term} on {ch}: held-out pull {pull}')
+        ax.set_xlabel('s from the record start')
+        ax.set_ylabel(f'residual, {CHANNEL_UNITS[ch]}')
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        path = out / f'beyond_{k + 1}.png'
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(str(path))
+    return paths
+
+
 def simulation_plot(check, out: Path) -> list:
     """simulation.png: measured, nominal-sim and extended-sim channels of one held-out pull, from the load to
     30 ms after the break."""

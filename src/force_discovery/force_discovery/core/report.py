@@ -181,6 +181,24 @@ def add_simulation(report: dict, check) -> None:
     report['simulation_check'] = None if check is None else clean(check.details())
 
 
+def add_beyond(report: dict, found) -> None:
+    """report.json beyond_catalog (beyond.py's named terms, best first) and beyond_search (how the search ran, the
+    terms inside their band, the catalog causes a term fits better); with no catalog cause named, a term found makes
+    the cause 'beyond_catalog' instead of 'unexplained' or 'none'."""
+    from .beyond import CHANNEL_UNITS, SEARCHED, library
+    report['beyond_catalog'] = clean([t.as_dict() for t in found.terms])
+    report['beyond_search'] = clean({
+        'channels': list(SEARCHED), 'library_terms': len(library()), 'frequencies_hz': found.frequencies,
+        'within_tolerance': [t.as_dict() for t in found.within_tolerance],
+        'catalog_not_fitting': found.demoted, 'channel_units': {c: CHANNEL_UNITS[c] for c in SEARCHED},
+        'rule': 'forward selection over the library on the fitted pulls; a term joins when it passes the held-out '
+                'test of the catalog (SSE -1 %, t >= 4) and is named when its contribution rms, over its 95 % '
+                'interval, lies above the channel band (evidence.band)'})
+    if found.terms and report['cause'] in ('unexplained', 'none'):
+        report['cause'] = 'beyond_catalog'
+        report['causes'] = [c for c in report['causes'] if c['name'] != 'unexplained']
+
+
 def unusable_report(analysis: Analysis, rig) -> dict:
     """The report when the data-quality stage leaves too few pulls: unexplained, data_quality says why."""
     return clean({

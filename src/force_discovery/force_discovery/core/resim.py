@@ -49,6 +49,7 @@ from force_tester_common.core.units import LBF_N
 from force_tester_sim.core.chain import ChainParams
 from force_tester_sim.core.departures import Departures, apply_sensor_departures
 from force_tester_sim.core.errors import SimError
+from force_tester_sim.core.extra_terms import extra_channels
 from force_tester_sim.core.motion import SampledMotion
 from force_tester_sim.core.pull import PullSpec, run_pull_with_motion
 
@@ -290,15 +291,21 @@ def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) ->
     hum = _hum(pull, deps, m2_nominal)
     if hum is not None:
         fm_rec = fm_rec + hum
-    out = {'force_moving_n': fm_rec, 'force_stationary_n': truth['force_stationary_n'], 'accel_axial_m_s2': a2_rec,
-           'tension_n': truth['tension_n']}
+    extra = {}
+    if rig.extra_terms:   # terms beyond the catalog; a sinusoid's phase is each pull's own: left out here
+        extra = extra_channels(rig.extra_terms, {'F_move': fm, 'F_stat': truth['force_stationary_n'],
+                                                 'T': truth['tension_n'], 'a2': truth['a2_m_s2'], 'v': pull.v3,
+                                                 'x': pull.x3, 't': pull.t - pull.t[0]}, sinusoids=False)
+    out = {'force_moving_n': fm_rec + extra.get('force_moving', 0.0),
+           'force_stationary_n': truth['force_stationary_n'] + extra.get('force_stationary', 0.0),
+           'accel_axial_m_s2': a2_rec + extra.get('accel_axial', 0.0), 'tension_n': truth['tension_n']}
     if pull.current is not None:
         d = rig.drive
         f = drive_force_balance(pull, d, fm)
         cf = deps.get('coulomb_friction')
         if cf is not None:
             f = f + cf['force_n'] * np.where(np.abs(pull.v3) > STILL_M_S, np.sign(pull.v3), 0.0)
-        out['motor_current_a'] = f / d.force_per_amp_n_per_a
+        out['motor_current_a'] = f / d.force_per_amp_n_per_a + extra.get('motor_current', 0.0)
     return out
 
 
@@ -376,15 +383,16 @@ class ResimSetup:
     damping: dict             # the cells' damping ratio: the rig's, the one used, pulls it was measured on
 
 
-def resim_setup(rig, departures: Departures, cal: Optional[tuple] = None) -> ResimSetup:
-    """ResimSetup for the rig (model of record) and the extension's departures; cal: (damping ratio, pulls) of
-    the cells measured on the pulls checked (cells.cell_damping_ratio), or None to keep the rig's."""
+def resim_setup(rig, departures: Departures, cal: Optional[tuple] = None, extra: tuple = ()) -> ResimSetup:
+    """ResimSetup for the rig (model of record) and the extension's departures (and its extra_terms, as
+    force_tester_sim.core.extra_terms.ExtraTerm); cal: (damping ratio, pulls) of the cells measured on the pulls
+    checked (cells.cell_damping_ratio), or None to keep the rig's."""
     fc = rig.force_chain
     damping = {'rig': fc.load_cell_damping_ratio, 'used': fc.load_cell_damping_ratio, 'pulls': 0}
     if cal is not None:
         damping.update(used=cal[0], pulls=cal[1])
         rig = dataclasses.replace(rig, force_chain=dataclasses.replace(fc, load_cell_damping_ratio=cal[0]))
-    ext_rig = with_departures(rig, departures)
+    ext_rig = dataclasses.replace(with_departures(rig, departures), extra_terms=tuple(extra))
     f_cell = math.sqrt(rig.force_chain.load_cell_stiffness_n_per_m / rig.force_chain.m2) / (2 * np.pi)
     return ResimSetup(rig, ext_rig, _chain(rig) == _chain(ext_rig), rig.force_chain.m2,
                       rig.sensors.load_cell_range_lbf * LBF_N, 'mount_resonance' in departures, f_cell, damping)

@@ -49,7 +49,9 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from force_tester_sim.core.departures import departures_from_data
+from force_tester_sim.core.extra_terms import extra_terms_from_data
 
+from . import beyond as bey
 from .budget import (
     clock_relative,
     force_systematics,
@@ -75,7 +77,7 @@ from .cells import (
 )
 from .decision import Decision, decide
 from .errors import DiscoveryError
-from .extension import named_extension
+from .extension import add_extra_terms, named_extension
 from .force_errors import ErrorPart, ForceErrors, error_part
 from .force_model import TERMS, ForceModel, fit_terms
 from .force_stats import ForceStats, force_blocks
@@ -95,7 +97,7 @@ from .leftover import LeftoverPart, LeftoverSum, leftover_part
 from .outputs import write_outputs
 from .prep import Pull, PullQuality, check_quality, prepare
 from .quality import PullScreen, screen_pull
-from .report import add_simulation, build_report, unusable_report
+from .report import add_beyond, add_simulation, build_report, unusable_report
 from .resim import ResimPart, ResimSetup, ResimSum, resim_pull, resim_setup
 from .ringing import RingPart, cell_modes, free_decay_mode, observed_mode, ring_part
 from .source import PullRef, campaign_absent, campaign_refs, load_channels, memory_refs, rated_ranges
@@ -180,6 +182,18 @@ class HeldJob:
     err_fit: tuple                      # ... for the extended force error
     keep: bool                          # keep residuals and traces (plots)
     setup: Optional[ResimSetup]
+
+
+@dataclass(frozen=True)
+class BeyondJob:
+    """The search beyond the catalog (beyond.py), one pull: the residuals after the named causes."""
+
+    f_hum: float
+    hum_scale: Optional[float]          # the hum estimate's factor (None: the hum is not named)
+    err_fit: tuple                      # (terms, coefficients, delay) of the named force-channel causes
+    coulomb: Optional[float]            # the named Coulomb friction (N), or None
+    gain: Optional[float]               # the moving-cell gain is named: the mass in its column (beyond.gain_check)
+    survey: Optional[bey.Survey]        # None: the spectrum pass (a few fitted pulls); else the statistics
 
 
 @dataclass(frozen=True)
@@ -296,6 +310,24 @@ def held_out(item) -> HeldOut:
                        ForceModel([p], m2, [h_err]).resid(set(terms), coef, d, 0), keep=job.keep)
     sim = resim_pull(p, job.setup, trace=job.keep) if job.setup is not None else None
     return HeldOut(left, err, sim)
+
+
+def beyond_pass(item, series: bool = False):
+    """Pass 5 (beyond.py): item = (Source, rig, c1, BeyondJob); the pull's residual spectra (job.survey None) or
+    its library statistics (series=True: its beyond.channel_series)."""
+    src, rig, c1, job = item
+    p = load_pull(src, rig, c1)
+    m2 = rig.force_chain.m2
+    h = None if job.hum_scale is None else hum_per_pull(p, job.f_hum, m2)[1] * job.hum_scale
+    terms, coef, d = job.err_fit
+    r = ForceModel([p], m2, [h]).resid(set(terms), coef, d, 0)
+    out = bey.channel_series(p, rig, r, h, job.coulomb, job.gain)
+    if series:
+        return out
+    series = out
+    if job.survey is None:
+        return bey.spectrum_part(series, p.dt * bey.decimation(p.dt))
+    return bey.beyond_part(series, job.survey)
 
 
 # ------------------------------------------------------------------------------------------ the driver
@@ -469,16 +501,52 @@ class Stream:
                                                      [names[j] for j in todo]))
         return zetas
 
+    def err_fit(self, analysis: Analysis, decision: Decision) -> tuple:
+        """(hum on for the extended force error, (terms, coefficients, delay)) of the named force-channel causes."""
+        terms = set(n for n in decision.named if n in TERMS)
+        err_hum = analysis.hums is not None and 'mains_hum' in decision.named
+        return err_hum, (frozenset(terms), *fit_terms(self.fm_h if err_hum else self.fm_0, terms, analysis.fit))
+
+    def beyond(self, analysis: Analysis, decision: Decision) -> bey.BeyondResult:
+        """Pass 5: the search beyond the catalog (beyond.py) on the residuals the named causes leave: the residual
+        spectra of a few fitted pulls, then every usable pull's library statistics."""
+        import time
+        t0 = time.perf_counter()
+        err_hum, fit_ = self.err_fit(analysis, decision)
+        fcf = gain = gain_col = None
+        if 'moving_cell_gain' in decision.named:   # its column: g (T + m2 a2), or g T beside the effective mass
+            gain = analysis.candidates['moving_cell_gain'].parameters['gain']
+            gain_col = 0.0 if 'effective_mass' in decision.named else self.rig.force_chain.m2
+        if 'coulomb_friction' in decision.named:
+            fcf = analysis.candidates['coulomb_friction'].parameters['force_n']
+        names = [p.name for p in analysis.pulls]
+
+        def job(j, survey):
+            return (self.sources[j], self.rig, self.c1,
+                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, gain_col, survey))
+        few = few_pulls(analysis.fit)
+        specs = self._strict('beyond', self._map('beyond', beyond_pass, [job(j, None) for j in few],
+                                                 [names[j] for j in few]))
+        dt = analysis.pulls[0].dt
+        survey = bey.survey_from(specs, dt * bey.decimation(dt))
+        parts = self._strict('beyond', self._map('beyond', beyond_pass,
+                                                 [job(j, survey) for j in range(len(names))], names))
+        res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named, gain)
+        traces = ()
+        if res.terms:   # one held-out pull's residuals before and after each term (the plots)
+            j = analysis.held[0]
+            traces = bey.term_traces(beyond_pass(job(j, survey), series=True), res.terms, names[j])
+        return dataclasses.replace(res, seconds=time.perf_counter() - t0, traces=traces)
+
     def held_out_results(self, analysis: Analysis, decision: Decision, ext: dict):
         """Pass 4: (structure check, ForceErrors, SimulationCheck or the DiscoveryError that stopped it)."""
         rig, held, fit = self.rig, analysis.held, analysis.fit
         hum_on = analysis.hums is not None
         left_fit = (frozenset(TERMS), *fit_terms(self.fm_h if hum_on else self.fm_0, set(TERMS), fit))
-        terms = set(n for n in decision.named if n in TERMS)
-        err_hum = hum_on and 'mains_hum' in decision.named
-        err_fit = (frozenset(terms), *fit_terms(self.fm_h if err_hum else self.fm_0, terms, fit))
+        err_hum, err_fit = self.err_fit(analysis, decision)
         cal = cell_damping_from(self.zetas[j] for j in held if j < len(self.zetas))
-        setup = resim_setup(rig, departures_from_data(ext['departures']), cal)
+        setup = resim_setup(rig, departures_from_data(ext['departures']), cal,
+                            extra_terms_from_data(ext.get('extra_terms')))
         jobs = [HeldJob(self.f_hum, self.scales[j] if hum_on else None, self.scales[j] if err_hum else None,
                         left_fit, err_fit, k < TRACE_PULLS, setup) for k, j in enumerate(held)]
         lsum, errors, sims = LeftoverSum(), ForceErrors(), ResimSum(setup)
@@ -525,7 +593,15 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             report = unusable_report(analysis, rig)
             write_outputs(report, analysis, None, (), rig, out)
             return report
+        found = st.beyond(analysis, decision)
+        decision = with_beyond(decision, found)
+        if bey.GAIN in found.demoted:   # the force residual changes without the gain: search it again
+            again = st.beyond(analysis, decision)
+            found = dataclasses.replace(again, demoted={**found.demoted, **again.demoted},
+                                        seconds=found.seconds + again.seconds)
+            decision = with_beyond(decision, found)
         ext = named_extension(analysis, decision, rig)
+        add_extra_terms(ext, [t.as_dict() for t in found.terms])
         left, errors, check = st.held_out_results(analysis, decision, ext)
         analysis = _with_run(analysis, st)
         report = build_report(analysis, decision, errors, left, rig)
@@ -534,7 +610,8 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             report['notes'].append(f'no simulation check: {check}')
             check = None
         add_simulation(report, check)
-        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext)
+        add_beyond(report, found)
+        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext, found.traces)
         return report
     finally:
         if spill is not None:
@@ -568,9 +645,19 @@ def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, r
     return out
 
 
+def with_beyond(decision: Decision, found: bey.BeyondResult) -> Decision:
+    """The decision with the catalog causes a library term fits better (beyond.search_channel) withheld."""
+    new = {n: why for n, why in found.demoted.items() if n not in decision.rejected}
+    if not new:
+        return decision
+    named = tuple(n for n in decision.named if n not in new)
+    return dataclasses.replace(decision, named=named, rejected={**decision.rejected, **new},
+                               notes=decision.notes + tuple(f'{n} withheld: {why}' for n, why in new.items()))
+
+
 def _with_run(analysis: Analysis, st: Stream) -> Analysis:
     return dataclasses.replace(analysis, failed=tuple(st.failed), retried=tuple(st.retried), scheduler=st.where)
 
 
-__all__ = ['Stream', 'discover_stream', 'held_out', 'hum_record', 'load_pull',
+__all__ = ['Stream', 'beyond_pass', 'discover_stream', 'held_out', 'hum_record', 'load_pull',
            'map_stage', 'pull_stats', 'survey']

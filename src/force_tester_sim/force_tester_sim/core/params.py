@@ -14,6 +14,7 @@ from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
 from .departures import NO_DEPARTURES, Departures, departures_from_data
 from .errors import SimError
+from .extra_terms import extra_terms_from_data
 from .tolerances import Tolerances, tolerances_from_data
 from .uncertainty import Uncertainties, overrides_from_data, uncertainties
 
@@ -163,6 +164,7 @@ class RigParams:
     test_sets: tuple = NOMINAL_TEST_SETS
     departures: Departures = NO_DEPARTURES   # empty = the nominal rig (str() gives 'none')
     tolerances: Tolerances = field(default_factory=Tolerances)   # practical significance (core/tolerances.py)
+    extra_terms: tuple = ()          # terms beyond the catalog (core/extra_terms.py: ExtraTerm), from extra_terms:
     uncertainty_stated: tuple = ()   # the YAML's uncertainty: entries that are not the default, ((section.key, u), ...)
 
     @property
@@ -221,7 +223,7 @@ def rig_from_dict(data: Mapping) -> RigParams:
         raise SimError(f'rig description is {type(data).__name__}; expected a mapping')
     sections = {'daq': DaqParams, 'drive': DriveParams, 'force_chain': ForceChainParams,
                 'sensors': SensorParams}
-    others = ['departures', 'test_sets', 'tolerances', 'uncertainty']
+    others = ['departures', 'extra_terms', 'test_sets', 'tolerances', 'uncertainty']
     unknown = sorted(set(data) - set(sections) - set(others))
     if unknown:
         raise SimError(f'rig description has unknown section(s) {unknown}; expected only {sorted(sections) + others}')
@@ -239,6 +241,8 @@ def rig_from_dict(data: Mapping) -> RigParams:
         kwargs['departures'] = departures_from_data(data['departures'])
     if 'tolerances' in data:
         kwargs['tolerances'] = tolerances_from_data(data['tolerances'])
+    if 'extra_terms' in data:
+        kwargs['extra_terms'] = extra_terms_from_data(data['extra_terms'])
     rig = RigParams(**kwargs)
     if 'uncertainty' in data:   # kept only where it is not the default fraction, so equal rigs compare equal
         default = dict(rig.uncertainty)

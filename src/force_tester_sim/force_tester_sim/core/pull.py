@@ -12,6 +12,7 @@ from force_tester_common.core.clock import record_stamps_ns
 from .chain import ChainParams, force_move, force_stat, tension
 from .departures import apply_sensor_departures
 from .errors import SimError
+from .extra_terms import extra_channels
 from .integrate import ChainTrajectory, integrate_chain
 from .motion import MotionSource, PrescribedMotion, hold_time_s, nominal_slack_m
 from .params import RigParams
@@ -164,10 +165,12 @@ class PullResult:
         return len(self.channels['time_s'])
 
 
-def record_channels(rig: RigParams, spec: PullSpec, t, x3, fm, fs, a2, noise: bool, motor) -> Dict[str, np.ndarray]:
+def record_channels(rig: RigParams, spec: PullSpec, t, x3, fm, fs, a2, noise: bool, motor,
+                    extra: Optional[Dict[str, np.ndarray]] = None) -> Dict[str, np.ndarray]:
     """What the DAQ records of a simulated pull: the encoder quantised, the sensor departures of the rig
     applied to the moving cell and the accelerometer, seeded sensor noise. ``motor`` is
-    (commanded velocity, current, voltage)."""
+    (commanded velocity, current, voltage); ``extra``: what the rig's extra_terms add to the force and
+    accelerometer channels (extra_terms.extra_channels)."""
     deps = rig.departures
     res = rig.sensors.encoder_resolution_m
     n = len(t)
@@ -178,6 +181,10 @@ def record_channels(rig: RigParams, spec: PullSpec, t, x3, fm, fs, a2, noise: bo
         nz = {k: np.zeros(n) for k in ('ax', 'lat', 'vert', 'fm', 'fs')}
     fm_rec, a2_rec = (apply_sensor_departures(deps, t, fm, a2, spec.seed) if deps else (fm, a2))
     v_cmd, current, voltage = motor
+    extra = extra or {}
+    fm_rec = fm_rec + extra.get('force_moving', 0.0)
+    a2_rec = a2_rec + extra.get('accel_axial', 0.0)
+    fs = fs + extra.get('force_stationary', 0.0)
     return {
         'time_s': t,
         'encoder_position_m': np.round(x3 / res) * res,
@@ -244,12 +251,17 @@ def run_pull_with_motion(rig: RigParams, spec: PullSpec, motion: MotionSource, n
     else:   # dry friction F_c sign(v3) in the drive's force balance
         current = (d.reflected_mass_kg * a3 + d.viscous_damping_n_s_per_m * v3 + fm
                    + cf['force_n'] * np.sign(v3)) / d.force_per_amp_n_per_a
+    extra = None
+    if rig.extra_terms:   # terms beyond the catalog: the current's enters the drive's balance (the voltage follows)
+        extra = extra_channels(rig.extra_terms, {'F_move': fm, 'F_stat': fs, 'T': T, 'a2': a2, 'v': v3, 'x': x3,
+                                                 't': t - t[0]}, spec.seed)
+        current = current + extra.get('motor_current', 0.0)
     di = np.gradient(current, t)
     voltage = np.clip(d.armature_resistance_ohm * current + d.armature_inductance_h * di
                       + d.back_emf_v_per_m_s * v3, -d.voltage_limit_v, d.voltage_limit_v)
 
     channels = record_channels(rig, spec, t, x3, fm, fs, a2, noise,
-                               motor=(v3 * motion.command_scale, current, voltage))
+                               motor=(v3 * motion.command_scale, current, voltage), extra=extra)
     taut_index, break_index, break_end_index, truth = events_and_truth(t, traj, p, (x3, v3, a3), T, fm, fs)
     return PullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,
                       traj.break_s, truth)
