@@ -435,6 +435,30 @@ class _Cutter:
         return DaqPull(meta, ch)
 
 
+def _split_topics(topics: dict, bag_path, warnings: list) -> tuple:
+    """({block topic: type}, [pull event topics]) of a bag's topics; the others are warned about."""
+    block_topics, event_topics = {}, []
+    for name, t in sorted(topics.items()):
+        if t.type_name in EXPORT_FIELDS:
+            block_topics[name] = t.type_name
+        elif t.type_name == PULL_EVENT_TYPE:
+            event_topics.append(name)
+        elif t.type_name not in QUIET_TYPES:
+            warnings.append(f'topic {name} ({t.type_name}) skipped: not a block or pull '
+                            'event type, it has no DAQ column')
+    if not event_topics:
+        raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
+                       '/pull_event START/END messages to cut the pulls')
+    return block_topics, event_topics
+
+
+def _event_meta(msg) -> dict:
+    """A PullEvent's pull as a campaign's metadata row (display units, as the campaign format has them)."""
+    return {'set': int(msg.test_set), 'coupon_lbf': float(msg.coupon_break_n) / LBF_N,
+            'velocity_fps': float(msg.velocity_m_s) / FT_M, 'decel_g': float(msg.decel_m_s2) / G_M_S2,
+            'start_ns': stamp_of(msg), 'pull_id': int(msg.pull_id)}
+
+
 def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None,
                    state: dict | None = None) -> Iterator[DaqPull]:
     """The pulls of a bag (meta with start_ns and pull_id), in start order, each yielded as soon as every
@@ -443,18 +467,7 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
     state = {} if state is None else state
     with open_bag(bag_path) as bag:
         topics = bag.topics()
-        block_topics, event_topics = {}, []
-        for name, t in sorted(topics.items()):
-            if t.type_name in EXPORT_FIELDS:
-                block_topics[name] = t.type_name
-            elif t.type_name == PULL_EVENT_TYPE:
-                event_topics.append(name)
-            elif t.type_name not in QUIET_TYPES:
-                warnings.append(f'topic {name} ({t.type_name}) skipped: not a block or pull '
-                                'event type, it has no DAQ column')
-        if not event_topics:
-            raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
-                           '/pull_event START/END messages to cut the pulls')
+        block_topics, event_topics = _split_topics(topics, bag_path, warnings)
         cutter = _Cutter(bag_path, warnings)
         pulls = PullWindows()
         closed: list = []   # (start_ns, end_ns, meta), sorted by start
@@ -464,12 +477,7 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
                 bag.messages([*block_topics, *event_topics])):
             msg = bag.deserialize(cdr, type_name)
             if type_name == PULL_EVENT_TYPE:
-                meta = {'set': int(msg.test_set),
-                        'coupon_lbf': float(msg.coupon_break_n) / LBF_N,
-                        'velocity_fps': float(msg.velocity_m_s) / FT_M,
-                        'decel_g': float(msg.decel_m_s2) / G_M_S2,
-                        'start_ns': stamp_of(msg), 'pull_id': int(msg.pull_id)}
-                w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), meta)
+                w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), _event_meta(msg))
                 if w is not None and w.start_ns is None:
                     warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns '
                                     'without its START: skipped')
@@ -520,19 +528,7 @@ def bag_pull_windows(bag_path: str | Path, warnings: list) -> tuple:
     from its /pull_event messages and its first block alone (the blocks are not read): what read_bag_pull needs to
     read each pull by itself. The warnings and errors are iter_bag_pulls'."""
     with open_bag(bag_path) as bag:
-        topics = bag.topics()
-        block_topics, event_topics = {}, []
-        for name, t in sorted(topics.items()):
-            if t.type_name in EXPORT_FIELDS:
-                block_topics[name] = t.type_name
-            elif t.type_name == PULL_EVENT_TYPE:
-                event_topics.append(name)
-            elif t.type_name not in QUIET_TYPES:
-                warnings.append(f'topic {name} ({t.type_name}) skipped: not a block or pull '
-                                'event type, it has no DAQ column')
-        if not event_topics:
-            raise BagError(f'bag {str(bag_path)!r} has no {PULL_EVENT_TYPE} topic; expected '
-                           '/pull_event START/END messages to cut the pulls')
+        block_topics, event_topics = _split_topics(bag.topics(), bag_path, warnings)
         rate = None
         for _topic, type_name, _log, cdr in bag.messages(list(block_topics)):
             msg = bag.deserialize(cdr, type_name)
@@ -548,10 +544,7 @@ def bag_pull_windows(bag_path: str | Path, warnings: list) -> tuple:
         pulls, closed = PullWindows(), []
         for _topic, type_name, _log, cdr in bag.messages(event_topics):
             msg = bag.deserialize(cdr, type_name)
-            meta = {'set': int(msg.test_set), 'coupon_lbf': float(msg.coupon_break_n) / LBF_N,
-                    'velocity_fps': float(msg.velocity_m_s) / FT_M, 'decel_g': float(msg.decel_m_s2) / G_M_S2,
-                    'start_ns': stamp_of(msg), 'pull_id': int(msg.pull_id)}
-            w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), meta)
+            w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), _event_meta(msg))
             if w is not None and w.start_ns is None:
                 warnings.append(f'END of pull {msg.pull_id} at {stamp_of(msg)} ns without its START: skipped')
             elif w is not None:
