@@ -40,6 +40,7 @@ from force_tester_common.core.channels import (
     PULL_SCORE_TOPIC,
 )
 from force_tester_common.core.clock import NS_PER_S
+from force_tester_common.core.health import status_node
 from force_tester_common.core.scores import PULL_OK
 from force_tester_common.ros import DEFAULT_EXECUTOR, EXECUTOR_ENV, EXECUTORS
 from ft_cli.graph import Graph
@@ -113,7 +114,7 @@ class Probe:
         for status in msg.status:
             values = {kv.key: kv.value for kv in status.values}
             if values:
-                self.counters[status.hardware_id] = values
+                self.counters[status_node(status.name, status.hardware_id)] = values
 
     def counter(self, fqn: str, key: str) -> int:
         return int(self.counters.get(fqn, {}).get(key, 0))

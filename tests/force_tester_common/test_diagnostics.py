@@ -13,6 +13,7 @@ from force_tester_common.core.health import (
     LEVEL_WARN,
     STALE_S,
     NodeStates,
+    status_node,
 )
 
 
@@ -108,6 +109,7 @@ def test_a_rig_namespace_is_the_hardware_id(ros_domain):
             executor.spin_once(timeout_sec=0.1)
         assert got, 'no status arrived on /diagnostics'
         assert (got[0].name, got[0].hardware_id) == ('validator: pull scoring', 'rig_b'), got[0]
+        assert status_node(got[0].name, got[0].hardware_id) == rig.get_fully_qualified_name() == '/rig_b/validator'
         executor.shutdown()
     finally:
         rclpy.shutdown(context=context)

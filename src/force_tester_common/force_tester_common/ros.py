@@ -16,7 +16,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from .core.channels import DIAGNOSTICS_TOPIC
 from .core.clock import seconds_to_ns
-from .core.health import HEARTBEAT_S, HOLD_S
+from .core.health import HEARTBEAT_S, HOLD_S, hardware_id_of
 from .node_params import ParameterError
 
 # 10 s of 1 ms blocks: a receiver may stall that long without a block being overwritten.
@@ -112,7 +112,7 @@ class Diagnostics:
 
     def _publish(self, level: int, message: str, values: dict) -> None:
         status = DiagnosticStatus(level=level, name=self._name, message=message,
-                                  hardware_id=self._node.get_namespace().strip('/'),
+                                  hardware_id=hardware_id_of(self._node.get_namespace()),
                                   values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self._node.get_clock().now().to_msg()

@@ -23,6 +23,18 @@ LEVEL_OK, LEVEL_WARN, LEVEL_ERROR, LEVEL_STALE = 0, 1, 2, 3
 LEVEL_NAMES = {LEVEL_OK: 'OK', LEVEL_WARN: 'WARN', LEVEL_ERROR: 'ERROR', LEVEL_STALE: 'STALE'}
 
 
+def hardware_id_of(namespace: str) -> str:
+    """A node's /diagnostics hardware_id: its namespace without the slashes (the rig it serves; '' at the root)."""
+    return namespace.strip('/')
+
+
+def status_node(name: str, hardware_id: str) -> str:
+    """The fully qualified name of the node that sent a status (name "<node>: <what>", hardware_id_of its
+    namespace)."""
+    node = name.split(':', 1)[0]
+    return f'/{hardware_id}/{node}' if hardware_id else f'/{node}'
+
+
 @dataclass(frozen=True)
 class NodeState:
     name: str            # the status name, "node: what"
