@@ -161,7 +161,8 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
 
     def score(pull, test_set=1, u_n=26.7, status=0):
         return SimpleNamespace(pull_id=pull, test_set=test_set, status=status, stationary_peak_n=1000.0 + pull,
-                               corrected_peak_n=1010.0, corrected_peak_u_n=u_n, raw_diff_pct=30.123456,
+                               corrected_peak_n=1010.0, corrected_peak_u_n=u_n, filtered_peak_n=990.0,
+                               filtered_peak_u_n=30.0, raw_diff_pct=30.123456,
                                corrected_diff_pct=1.006, filtered_diff_pct=-0.5, coverage_factor=2.0)
     history = ScoreHistory(rows=3)
     for pull in range(5):

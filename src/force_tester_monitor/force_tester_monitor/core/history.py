@@ -13,6 +13,7 @@ from force_tester_common.core.scores import PULL_STATUS_NAMES, peak_short
 from force_tester_common.core.units import n_to_lbf
 
 from .errors import MonitorError
+from .live import score_lbf
 
 DIFFS = ('raw', 'corrected', 'filtered')
 
@@ -26,13 +27,13 @@ def _pct(value: float) -> float:
 
 
 def score_row(score) -> dict:
-    """A PullScore (or anything with its fields) as a ScoreRow's fields."""
-    return {'pull': int(score.pull_id), 'test_set': int(score.test_set),
-            'status': PULL_STATUS_NAMES.get(int(score.status), str(int(score.status))),
-            'stationary_lbf': _lbf(score.stationary_peak_n),
-            'corrected_lbf': peak_short(float(n_to_lbf(float(score.corrected_peak_n))),
-                                        float(n_to_lbf(float(score.corrected_peak_u_n)))),
-            **{f'{d}_pct': _pct(getattr(score, f'{d}_diff_pct')) for d in DIFFS}}
+    """A PullScore (or anything with its fields) as a ScoreRow's fields: MonitorScore's (score_lbf), rounded."""
+    s = score_lbf(score)
+    return {'pull': s['pull_id'], 'test_set': s['test_set'],
+            'status': PULL_STATUS_NAMES.get(s['status'], str(s['status'])),
+            'stationary_lbf': round(s['stationary_peak_lbf'], 1),
+            'corrected_lbf': peak_short(s['corrected_peak_lbf'], s['corrected_peak_u_lbf']),
+            **{f'{d}_pct': _pct(s[f'{d}_diff_pct']) for d in DIFFS}}
 
 
 def set_row(summary) -> dict:
