@@ -51,7 +51,15 @@ def test_drop_impactor_lvm_campaign_names_the_hidden_mount_and_delay(tmp_path):
     assert '## Not identifiable' in md and '## Identifiable from these channels' in md and 'moving_cell_gain' in md
     assert json.loads((tmp_path / 'out' / 'report.json').read_text())['cause'] == rep['cause']
     ext = yaml.safe_load((tmp_path / 'out' / 'extension.yaml').read_text())
-    assert ext['correction']['accel_delay_s'] == pytest.approx(30e-6, abs=3e-6)
+    corr = ext['correction']
+    assert corr['accel_delay_s'] == pytest.approx(30e-6, abs=3e-6)
+    # the extension states the u of what the correction uses (the rig YAML's form): g m2 as m2, the delay; the
+    # gain's stays the rig's. An interval of k = 2 holds the hidden values.
+    u = ext['uncertainty']['departures']
+    assert set(u) == {'effective_mass', 'accel_delay'}, u
+    assert 0 < u['effective_mass']['mass_kg'] < 0.01 * corr['mass_kg']
+    assert abs(corr['mass_kg'] - 0.33 * 1.02) <= 2 * u['effective_mass']['mass_kg']
+    assert abs(corr['accel_delay_s'] - 30e-6) <= 2 * u['accel_delay']['delay_s']
 
 
 def test_mdf4_campaign_of_three_records_is_leave_one_out_and_names_nothing(tmp_path):

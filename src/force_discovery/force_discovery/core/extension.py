@@ -13,9 +13,11 @@ from .report import candidates, clean, entry
 from .ringing import mount_from_observed
 from .stages import CATALOG_PARAMS, Analysis
 
-#: the corrected values whose uncertainty extension.yaml states: (cause, parameter, the correction's key)
-CORRECTED = (('effective_mass', 'mass_kg', 'mass_kg'), ('moving_cell_gain', 'gain', 'moving_cell_gain'),
-             ('accel_delay', 'delay_s', 'accel_delay_s'))
+#: the corrected values whose uncertainty extension.yaml states: (the candidate, its parameter, the correction's
+#: key, the (cause, parameter) of the rig YAML's uncertainty: form it is stated as)
+CORRECTED = (('effective_mass', 'mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
+             ('moving_cell_gain', 'gain', 'moving_cell_gain', ('moving_cell_gain', 'gain')),
+             ('accel_delay', 'delay_s', 'accel_delay_s', ('accel_delay', 'delay_s')))
 
 HEAD = ('# Extension found by `./ft discover`: the departures section below, appended to the nominal rig '
         'YAML,\n# reproduces the behaviour with load_rig; the correction section is what the correction node '
@@ -73,23 +75,23 @@ def extension(report, rig) -> dict:
     return out
 
 
-def correction_uncertainty(cands: dict, corr: dict) -> dict:
+def correction_uncertainty(cands: dict, corr: dict, corrected=CORRECTED) -> dict:
     """The extension's ``uncertainty:`` section (the rig YAML's form, force_tester_sim.core.uncertainty:
     ``departures: {cause: {parameter: u}}``): the standard uncertainty (k = 1) of each value the correction uses
-    that the campaign estimated (m2, the gain, the delay), from the candidate's expanded interval (half-width /
-    COVERAGE_K) and, where the correction keeps the model of record's value because the cause is not named, the
-    difference between the estimate and that value: u = sqrt((U / k)^2 + (estimate - used)^2)."""
+    that the campaign estimated (m2, the gain, the delay: ``corrected``), from the candidate's expanded interval
+    (half-width / COVERAGE_K) and, where the correction keeps the model of record's value because the cause is
+    not named, the difference between the estimate and that value: u = sqrt((U / k)^2 + (estimate - used)^2).
+    A candidate with no interval (one pull: per-pull estimates only) states nothing."""
     out: dict = {}
-    for cause, par, key in CORRECTED:
-        c = cands.get(cause)
-        if not c or par not in c.get('parameters_ci95', {}):
+    for cause, par, key, (as_cause, as_par) in corrected:
+        c = cands.get(cause) or {}
+        ci = (c.get('parameters_ci95') or {}).get(par)
+        est = (c.get('parameters') or {}).get(par)
+        if not ci or est is None or not all(v is not None and math.isfinite(v) for v in ci):
             continue
-        lo, hi = c['parameters_ci95'][par]
-        est = c['parameters'].get(par)
-        if lo is None or hi is None or est is None or not (math.isfinite(lo) and math.isfinite(hi)):
-            continue
+        lo, hi = ci
         u = math.hypot(0.5 * (hi - lo) / COVERAGE_K, est - corr[key])
-        out.setdefault(cause, {})[par] = float(u)
+        out.setdefault(as_cause, {})[as_par] = float(u)
     return {DEPARTURES: out} if out else {}
 
 

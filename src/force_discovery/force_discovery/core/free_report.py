@@ -10,11 +10,15 @@ from typing import Dict, Optional, Sequence
 from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 
 from . import quality as Q
+from .extension import correction_uncertainty, extension_yaml
 from .free_phases import FreePull
 from .identifiability import COMPUTED, FREE_CHANNELS, identifiability
 from .leave_one_out import validation_text
 
 REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
+#: with no reference the correction's mass is g m2 (extension.CORRECTED's form): its u is stated as m2's
+FREE_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
+                  ('accel_delay', 'delay_s', 'accel_delay_s', ('accel_delay', 'delay_s')))
 REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C over the whole record, T from '
                   'force_stationary_n (no encoder needed)')
 
@@ -144,18 +148,22 @@ def free_extension(rep: dict, rig) -> dict:
     if named & set(REFERENCE_COMPUTED):     # the stationary cell: g and m2 apart
         corr['moving_cell_gain'] = c['moving_cell_gain']['parameters']['gain']
         corr['mass_kg'] = c['effective_mass']['parameters']['mass_kg']
-        return {'departures': {}, 'correction': corr, 'assumptions': {}}
-    return {'departures': {}, 'correction': corr,
+        return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr)),
+                'assumptions': {}}
+    return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr, FREE_CORRECTED)),
             'assumptions': {'moving_cell_gain': 'not identifiable without a reference or a calibration mass: '
-                            'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force'}}
+                            'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force; '
+                            'the corrected peak\'s uncertainty keeps the rig\'s u of the gain for it'}}
+
+
+def _stated(unc: dict) -> dict:
+    return {'uncertainty': unc} if unc else {}
 
 
 def write_free_outputs(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
     """DIR/report.json, report.md and extension.yaml, written whole (into a fresh folder, moved in at the end)."""
     import shutil
     import tempfile
-
-    from .extension import extension_yaml
     out.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
     try:
