@@ -252,7 +252,7 @@ def test_two_pulls_with_every_channel_are_not_refused(tmp_path):
     assert rep['causes'] == [] and 'accel_delay' in {c['name'] for c in rep['indicated']}
 
 
-def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path):
+def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path, capsys):
     """The truth rig's tension pulls with the encoder left out (the stationary cell kept): discover runs, and the
     stationary cell separates the hidden cell gain (1.015) and effective mass (1.30 kg) that the free phases give
     only as a product; what needs the carriage motion is not identifiable, with the encoder named. The code sees
@@ -277,6 +277,12 @@ def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path):
         'encoder_position_m (absent)' in q['reason'] for q in rep['not_identifiable'])
     assert any('stationary cell separates g and m2' in n for n in rep['notes'])
     assert all(p['moving_cell_gain'] == pytest.approx(1.015, abs=0.004) for p in rep['per_pull'])
+    # the terminal says g and m2 apart, as discover's CLI prints them
+    from force_discovery.cli import print_reference_free
+    assert print_reference_free(rep, tmp_path / 'out') == 0
+    line, = [x for x in capsys.readouterr().out.splitlines() if x.startswith('with the stationary cell:')]
+    said_g, said_m = (float(x.split(' = ')[1].split()[0]) for x in line.split(': ', 1)[1].split(', '))
+    assert said_g == pytest.approx(1.015, abs=0.002) and said_m == pytest.approx(1.30, rel=0.01), line
 
 
 def test_three_pulls_with_every_channel_use_the_reference_leave_one_out(tmp_path):

@@ -64,7 +64,7 @@ def main(args) -> int:
     if report.get('retried_pulls'):
         print(f'rerun after a worker died: {", ".join(report["retried_pulls"])}', file=sys.stderr)
     if report.get('reference') is False:
-        return _reference_free(report, Path(args.out))
+        return print_reference_free(report, Path(args.out))
     if not report['fitted_pulls']:   # the data-quality screen left too few pulls: the report says which and why
         unread = f' ({len(report["failed_pulls"])} could not be read)' if report.get('failed_pulls') else ''
         return _error(f'{report["causes"][0]["evidence"]["value"]} usable pulls after the data-quality screen{unread}; '
@@ -85,7 +85,7 @@ def main(args) -> int:
     return 0
 
 
-def _reference_free(report: dict, out: Path) -> int:
+def print_reference_free(report: dict, out: Path) -> int:
     """What the reference-free path says on the terminal (force_discovery/core/free.py)."""
     if not report['fitted_pulls']:
         return _error(f'no usable pulls without a reference ({len(report["excluded_pulls"])} excluded, '
