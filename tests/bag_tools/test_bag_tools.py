@@ -357,7 +357,7 @@ write_campaign(sys.argv[1], pulls())
 import sys, time
 from daq_data import MSG_DIR
 from bag_tools.core import BagWriter, make_typestore
-with BagWriter(sys.argv[1], make_typestore([MSG_DIR])):
+with BagWriter(sys.argv[1], make_typestore([MSG_DIR]), rewritable=sys.argv[2] == 'import'):
     print('ready', flush=True)
     time.sleep(600)
 """,
@@ -378,8 +378,8 @@ def test_a_killed_commands_leftover_is_removed_by_the_next_run(tmp_path, camp, c
     src = campaign_to_bag(camp, tmp_path / 'bag') if command == 'export' else camp
     out = tmp_path / 'out'
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(map(str, [Path(__file__).parents[1], *SRC_DIRS])))
-    proc = subprocess.Popen([sys.executable, '-c', KILLED_WRITER[command], str(out)], stdout=subprocess.PIPE,
-                            text=True, env=env)
+    proc = subprocess.Popen([sys.executable, '-c', KILLED_WRITER[command], str(out), command],
+                            stdout=subprocess.PIPE, text=True, env=env)
     assert proc.stdout.readline().strip() == 'ready'
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
@@ -394,6 +394,28 @@ def test_a_killed_commands_leftover_is_removed_by_the_next_run(tmp_path, camp, c
         assert len(read_campaign(out).pulls) == 3
     else:
         assert bag_info(out)['topics'] and (out / 'metadata.yaml').is_file()
+
+
+def test_a_killed_recording_is_never_removed_by_an_import(tmp_path, camp):
+    """A recording's BagWriter is not marked: cut off (SIGKILL), its folder needs a reindex, and an import into
+    that path says it exists instead of removing it."""
+    import os
+    import signal
+    import subprocess
+    from pathlib import Path
+
+    from daq_data import SRC_DIRS
+    out = tmp_path / 'rec'
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(map(str, [Path(__file__).parents[1], *SRC_DIRS])))
+    proc = subprocess.Popen([sys.executable, '-c', KILLED_WRITER['import'], str(out), 'record'],
+                            stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == 'ready'
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    mcap = sorted(p.name for p in out.iterdir())
+    r = run_cli('import', camp, out)
+    assert r.returncode == 2 and 'exists already' in r.stderr and 'removed' not in r.stderr, r.stderr
+    assert sorted(p.name for p in out.iterdir()) == mcap and mcap and '.ft-writing' not in mcap
 
 
 def test_tdms_reader_logic_with_a_stand_in_module(tmp_path, monkeypatch):

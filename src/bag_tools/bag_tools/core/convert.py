@@ -249,7 +249,7 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
     warnings.extend(camp.warnings)
     warnings.extend(_absent_warning([set(p.channels) for p in camp.pulls]))
     done = 0
-    with BagWriter(bag_path, store, warnings=warnings) as writer:
+    with BagWriter(bag_path, store, warnings=warnings, rewritable=True) as writer:
         for topic, type_name, log_ns, cdr in iter_campaign_messages(camp, store, block_size):
             if topic not in writer.topics:
                 writer.add_topic(topic, type_name)
@@ -269,7 +269,7 @@ def _stream_to_bag(path: Path, rate, entries: list, columns: list, bag_path, blo
     state: dict = {'rate': rate, 'place': None, 'pulls': 0}
     jobs = [(path / meta['file'], entry.get('map'), rate, None, absent) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
-    with BagWriter(bag_path, store, warnings=warnings) as writer:
+    with BagWriter(bag_path, store, warnings=warnings, rewritable=True) as writer:
         def write(i: int, result: tuple) -> None:
             channels, prate, pull_warnings = result
             warnings.extend(pull_warnings)

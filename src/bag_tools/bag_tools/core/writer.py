@@ -47,19 +47,23 @@ class BagWriter:
 
     The directory must not exist. Until close() succeeds the directory holds no
     metadata.yaml, so nothing reads it as a complete bag; if an exception leaves the
-    `with` block (or abort() is called) the directory is removed. While it is written it
-    also holds a lock file (force_tester_common.core.partial): a writer killed midway
-    leaves the directory, and the next BagWriter of that path removes it, saying so in
-    ``warnings`` (logged when None); a bag folder without that file (a recording that
-    needs a reindex) is never removed.
+    `with` block (or abort() is called) the directory is removed.
+
+    rewritable: a bag made from inputs that are kept (import, correct): while it is written
+    the directory also holds a lock file (force_tester_common.core.partial), so when its
+    writer is killed midway the next BagWriter of that path removes it, saying so in
+    ``warnings`` (logged when None). A recording (the default) is never marked: cut off, it
+    is recovered by reindex, never removed.
     """
 
-    def __init__(self, path: str | Path, typestore: Typestore, warnings: list | None = None) -> None:
+    def __init__(self, path: str | Path, typestore: Typestore, warnings: list | None = None,
+                 rewritable: bool = False) -> None:
         self.path = Path(path)
         self.typestore = typestore
         tell(clear_stale(self.path), warnings)   # what a writer that died left here
         check_new_bag_path(self.path)
         self._mark: Marked | None = None
+        self._rewritable = rewritable
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
         self._closed = False
@@ -77,7 +81,8 @@ class BagWriter:
             writer.set_custom_data('writer', 'bag_tools.core')
             writer.open()
             _record_distro(writer)
-            self._mark = Marked(self.path).__enter__()
+            if self._rewritable:
+                self._mark = Marked(self.path).__enter__()
         except Exception as exc:  # noqa: BLE001
             if not isinstance(exc, FileExistsError) and 'exists already' not in str(exc):
                 self._remove()
