@@ -17,7 +17,11 @@ Per-pull cost: the stage's wall time / N on this machine's workers (cost per pul
 
 Bytes over the network per stage: each worker's host and the client's, from /proc/net/dev as that process sees
 it (its network namespace or host; every interface but loopback and tun/tap), received and sent. Workers on one
-host share the figure (the table shows it once per host). On the embedded cluster everything goes over loopback: 0.
+host share the figure (the table shows it once per host). Per worker too: the payload bytes of that worker
+process's TCP connections to other hosts, received and sent (the kernel's per-connection counters, `ss -tinp`,
+sampled at the stage's ends and every 2 s between, so a connection that closed still counts); a worker lost
+during a stage is missing from it (its bytes with it), a worker that joined counts from 0. On the embedded
+cluster everything goes over loopback: 0.
 --keep keeps the campaign, bag, discover report and exported campaign in --work (the output files of a run, to
 compare with another run's).
 """
@@ -26,9 +30,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -71,6 +78,46 @@ def net_bytes() -> tuple:
     return rx, tx
 
 
+def socket_bytes(pid: int, seen: dict) -> tuple:
+    """(received, sent) payload bytes of process ``pid``'s TCP connections to other hosts (loopback left out),
+    from the kernel's per-connection counters (`ss -tinp`: bytes_received, bytes_acked). Cumulative: ``seen``
+    keeps every connection's last counters, so one that closed since still counts (up to its last sample)."""
+    out = subprocess.run(['ss', '-tinpHO'], capture_output=True, text=True, timeout=30).stdout
+    tag = f'pid={pid},'
+    for line in out.splitlines():
+        f = line.split()
+        if tag not in line or len(f) < 5:
+            continue
+        local, peer = f[3], f[4]
+        if peer.startswith(('127.', '[::1]', '[::ffff:127.')):
+            continue
+        rx, tx = (int(m.group(1)) if m else 0 for m in (_RX.search(line), _TX.search(line)))
+        old = seen.get((local, peer), (0, 0))
+        if rx < old[0] or tx < old[1]:   # the same address pair on a new connection: keep the old one's bytes
+            seen['closed'] = tuple(a + b for a, b in zip(seen.get('closed', (0, 0)), old))
+        seen[(local, peer)] = (rx, tx)
+    return tuple(sum(v[i] for v in seen.values()) for i in (0, 1))
+
+
+_RX, _TX = re.compile(r'bytes_received:(\d+)'), re.compile(r'bytes_acked:(\d+)')
+SOCKET_SAMPLE_S = 2.0   # how often a worker samples its connections' counters between the stage boundaries
+
+
+def _worker_sockets(dask_worker=None):   # runs in each worker process (client.run): its (received, sent) bytes
+    state = getattr(dask_worker, '_bench_sockets', None)
+    if state is None:
+        state = dask_worker._bench_sockets = {'seen': {}, 'lock': threading.Lock()}
+
+        def sample():
+            while True:
+                time.sleep(SOCKET_SAMPLE_S)
+                with state['lock']:
+                    socket_bytes(os.getpid(), state['seen'])
+        threading.Thread(target=sample, daemon=True, name='bench-sockets').start()
+    with state['lock']:
+        return socket_bytes(os.getpid(), state['seen'])
+
+
 def _worker_net(dask_worker=None):   # runs in each worker process (client.run): (host address, received, sent)
     host = dask_worker.address.split('://', 1)[-1].rsplit(':', 1)[0]
     return (host, *net_bytes())
@@ -85,7 +132,7 @@ class Meter:
     def __enter__(self):
         self.client_reset = peak_rss_mb(reset=True)[1]
         self.worker_reset = all(ok for _mb, ok in self._workers(True).values())
-        self.net0 = self._net()
+        self.net0, self.sock0 = self._net(), self._sockets()
         self.t0 = time.perf_counter()
         return self
 
@@ -100,6 +147,16 @@ class Meter:
                 pass
         return out
 
+    def _sockets(self) -> dict:
+        """worker address -> (received, sent) bytes over its connections to other hosts, so far."""
+        if self.client is None:
+            return {}
+        try:
+            return {w: tuple(v) for w, v in self.client.run(_worker_sockets, on_error='ignore').items()
+                    if isinstance(v, (tuple, list))}
+        except Exception:  # noqa: BLE001 - a worker lost between the listing and the call: left out
+            return {}
+
     def _workers(self, reset: bool) -> dict:
         if self.client is None:
             return {}
@@ -109,7 +166,10 @@ class Meter:
         self.wall = time.perf_counter() - self.t0
         self.client_mb = peak_rss_mb()[0]
         self.workers_mb = {w: mb for w, (mb, _ok) in sorted(self._workers(False).items())}
-        net1 = self._net()
+        net1, sock1 = self._net(), self._sockets()
+        # a worker that joined during the stage counts from 0; one lost during it is missing (its bytes with it)
+        self.worker_net_mb = {w: tuple((b - a) / 1e6 for a, b in zip(self.sock0.get(w, (0, 0)), v))
+                              for w, v in sorted(sock1.items())}
         # a host whose counters went down restarted its interface (or is a new host): counted from 0
         self.net_mb = {h: tuple(max(0, b - (a if a <= b else 0)) / 1e6 for a, b in zip(self.net0.get(h, (0, 0)), v))
                        for h, v in net1.items()}
@@ -132,13 +192,18 @@ def run(n: int, scheduler: str | None, work: Path, keep: bool = False) -> dict:
     stages = {}
 
     def stage(name, fn):
+        before = len(mapper.retried)
         with Meter(client) as m:
             fn()
         stages[name] = m
+        m.retried = mapper.retried[before:] if name != 'discover' else \
+            json.loads((out / 'report.json').read_text()).get('retried_pulls', [])
         workers = ', '.join(f'{mb:.0f}' for mb in m.workers_mb.values()) or '-'
         net = '; '.join(f'{h} {rx:.1f}/{tx:.1f}' for h, (rx, tx) in m.net_mb.items())
+        per_worker = '; '.join(f'{w.split("://")[-1]} {rx:.1f}/{tx:.1f}' for w, (rx, tx) in m.worker_net_mb.items())
         print(f'  {name:9s} {m.wall:8.1f} s  {m.wall / n:6.2f} s/pull  client peak {m.client_mb:6.0f} MB  '
-              f'workers peak {workers} MB  network in/out MB: {net}', flush=True)
+              f'workers peak {workers} MB  network in/out MB: {net}'
+              + (f'  per worker in/out MB: {per_worker}' if per_worker else ''), flush=True)
 
     print(f'campaign of {n} pulls on {where}; work folder {work}', flush=True)
     mapper = Mapper(scheduler)
@@ -155,7 +220,9 @@ def run(n: int, scheduler: str | None, work: Path, keep: bool = False) -> dict:
         'stages': {k: {'wall_s': m.wall, 's_per_pull': m.wall / n, 'share': m.wall / total,
                        'client_peak_mb': m.client_mb, 'worker_peak_mb': list(m.workers_mb.values()),
                        'net_mb': {h: {'in': rx, 'out': tx} for h, (rx, tx) in m.net_mb.items()},
-                       'peak_reset': m.client_reset and m.worker_reset} for k, m in stages.items()},
+                       'worker_net_mb': {w: {'in': rx, 'out': tx} for w, (rx, tx) in m.worker_net_mb.items()},
+                       'peak_reset': m.client_reset and m.worker_reset, 'retried': m.retried}
+                   for k, m in stages.items()},
     }
 
 

@@ -342,6 +342,82 @@ def test_interrupted_outputs_leave_nothing(tmp_path, camp, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bag', 'camp']
 
 
+KILLED_WRITER = {   # a writer of OUT that is SIGKILLed midway (as when its host is lost): it prints 'ready' and waits
+    'export': """
+import sys, time
+from daq_data import make_pulls
+from bag_tools.core.daq import write_campaign
+def pulls():
+    yield from make_pulls(1)
+    print('ready', flush=True)
+    time.sleep(600)
+write_campaign(sys.argv[1], pulls())
+""",
+    'import': """
+import sys, time
+from daq_data import MSG_DIR
+from bag_tools.core import BagWriter, make_typestore
+with BagWriter(sys.argv[1], make_typestore([MSG_DIR]), rewritable=sys.argv[2] == 'import'):
+    print('ready', flush=True)
+    time.sleep(600)
+""",
+}
+
+
+@pytest.mark.parametrize('command', ['export', 'import'])
+def test_a_killed_commands_leftover_is_removed_by_the_next_run(tmp_path, camp, command):
+    """A command killed midway (SIGKILL: no cleanup) leaves its unfinished output: export's hidden
+    .OUT.partial-* folder, import's bag folder without metadata.yaml. Both are marked as being written;
+    the next run of the command removes the leftover with a warning naming it, and writes the output whole."""
+    import os
+    import signal
+    import subprocess
+    from pathlib import Path
+
+    from daq_data import SRC_DIRS
+    src = campaign_to_bag(camp, tmp_path / 'bag') if command == 'export' else camp
+    out = tmp_path / 'out'
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(map(str, [Path(__file__).parents[1], *SRC_DIRS])))
+    proc = subprocess.Popen([sys.executable, '-c', KILLED_WRITER[command], str(out), command],
+                            stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == 'ready'
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    left = out if command == 'import' else next(tmp_path.glob('.out.partial-*'))
+    assert left.is_dir() and not (left / 'metadata.yaml').exists() and not (left / CAMPAIGN_FILE).exists()
+    r = run_cli(command, src, out)
+    assert r.returncode == 0, r.stderr
+    assert f"./ft bag {command}: warning: removed '{left}', left unfinished by a writer that is gone" in r.stderr, \
+        r.stderr
+    assert no_partials(tmp_path) == [] and no_partials(out) == []
+    if command == 'export':
+        assert len(read_campaign(out).pulls) == 3
+    else:
+        assert bag_info(out)['topics'] and (out / 'metadata.yaml').is_file()
+
+
+def test_a_killed_recording_is_never_removed_by_an_import(tmp_path, camp):
+    """A recording's BagWriter is not marked: cut off (SIGKILL), its folder needs a reindex, and an import into
+    that path says it exists instead of removing it."""
+    import os
+    import signal
+    import subprocess
+    from pathlib import Path
+
+    from daq_data import SRC_DIRS
+    out = tmp_path / 'rec'
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(map(str, [Path(__file__).parents[1], *SRC_DIRS])))
+    proc = subprocess.Popen([sys.executable, '-c', KILLED_WRITER['import'], str(out), 'record'],
+                            stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == 'ready'
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    mcap = sorted(p.name for p in out.iterdir())
+    r = run_cli('import', camp, out)
+    assert r.returncode == 2 and 'exists already' in r.stderr and 'removed' not in r.stderr, r.stderr
+    assert sorted(p.name for p in out.iterdir()) == mcap and mcap and '.ft-writing' not in mcap
+
+
 def test_tdms_reader_logic_with_a_stand_in_module(tmp_path, monkeypatch):
     """The mapping / time logic of read_tdms, with a minimal stand-in for npTDMS."""
     import types

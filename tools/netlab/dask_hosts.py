@@ -12,8 +12,9 @@ system, which plays the cluster's shared storage (the campaign folders are seen 
 
 ``python -m netlab.dask_hosts wait ADDRESS N TIMEOUT`` (run inside a host) waits until the scheduler has N
 workers; ``... watch ADDRESS`` prints, as JSON lines, which task keys each worker is processing whenever that
-changes (what a test waits on before it removes a host). Those two reach Dask through the engine
-(force_tester_common.engine.get_client), the one module that imports it.
+changes (what a test waits on before it removes a host); ``... executed ADDRESS`` prints how many tasks each
+worker has run, from the worker's own state machine (what shows that a host brought back was used). They reach
+Dask through the engine (force_tester_common.engine.get_client), the one module that imports it.
 """
 from __future__ import annotations
 
@@ -91,6 +92,13 @@ class DaskHosts:
         """The watcher in ``host``: JSON lines {worker address: [task keys processing]} on its stdout."""
         return self.run(host, f'watch_{host}', [sys.executable, '-m', 'netlab.dask_hosts', 'watch', self.address])
 
+    def executed(self, host: str = 'a') -> dict:
+        """{worker address: tasks it has run}, as each worker's own state machine counts them (asked from
+        ``host``); {} when the scheduler does not answer."""
+        res = subprocess.run([*self.net.host(host).prefix(), sys.executable, '-m', 'netlab.dask_hosts', 'executed',
+                              self.address], env=self.env, capture_output=True, text=True, timeout=120)
+        return json.loads(res.stdout) if res.returncode == 0 and res.stdout.strip() else {}
+
     def tail(self, name: str, lines: int = 15) -> str:
         path = self.log_dir / f'{name}.log'
         return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:]) if path.is_file() else ''
@@ -102,21 +110,63 @@ def _lines(stream, q: queue.Queue) -> None:
     q.put(None)
 
 
+#: The stages of `./ft bench campaign`, in order, and the function each maps over the pulls (the engine's task
+#: keys are pull-<function>-<token>-<i>); None: discover's, any function but import's.
+STAGES = (('generate', 'write_pull'), ('import', 'read_pull'), ('discover', None), ('export', 'write_pull'))
+
+
+class StageClock:
+    """Which stage of `./ft bench campaign` the cluster is in, from the task keys the scheduler reports: a key
+    of a map not seen before (a new token) whose function is the next stage's moves it on (-1: none yet)."""
+
+    def __init__(self, stages=STAGES):
+        self.stages = stages
+        self.i = -1
+        self.tokens = set()
+
+    @property
+    def name(self) -> str | None:
+        return self.stages[self.i][0] if self.i >= 0 else None
+
+    def see(self, key: str) -> None:
+        parts = key.split('-')
+        if len(parts) < 4 or parts[0] != 'pull' or parts[2] in self.tokens:
+            return
+        fn, token = parts[1], parts[2]
+        self.tokens.add(token)
+        if self.i + 1 < len(self.stages):
+            want = self.stages[self.i + 1][1]
+            now = self.stages[self.i][1] if self.i >= 0 else None
+            if fn == want or (want is None and fn != now):
+                self.i += 1
+
+
 def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment | None = None,
                  lose: str | None = 'c', lose_on: str = 'pull-survey-', back: bool = False,
-                 timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
+                 lose_in: tuple = (), timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
     """Star a, b, c (and d if ``client`` is 'd'): the scheduler in a, the client command
     (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2 --nthreads 1``
-    in b and in c. With ``lose``: once a worker in that host (any worker, for a host with none) is
-    processing a task whose key starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch
-    port goes down and every process in it is SIGKILLed. With ``back`` too: once the scheduler has let the lost
-    workers go, the port comes up and the host's workers are started again (they join during the run). Waits for
-    the client (at most ``timeout``), then deletes the hosts. Returns what happened: the client's exit code and
-    output, the pids killed, whether a worker of the host that came back ran a task, the link counters."""
+    in b and in c.
+
+    With ``lose``: once a worker in that host (any worker, for a host with none) is processing a task whose key
+    starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch port goes down and every
+    process in it is SIGKILLed. With ``back`` too: once the scheduler has let the lost workers go, the port comes
+    up and the host's workers are started again (they join during the run).
+    With ``lose_in`` (stage names of `./ft bench campaign`, see STAGES; a worker host only): the host is lost in
+    each of those stages, once one of its workers processes a task of it, and brought back after each loss (after
+    the last one only with ``back``); a stage that ended before the host was back is listed in ``missed``.
+
+    Waits for the client (at most ``timeout``), asks every worker still there how many tasks it ran, then deletes
+    the hosts. Returns what happened: the client's exit code and output, the pids killed, each loss's timeline
+    (``losses``: stage, lost_s, dropped_s when the scheduler let its workers go, back_s, registered_s, used_s and
+    the first task a new worker of the host processed), the tasks each worker ran (``executed``), the link
+    counters."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     res = {'rc': None, 'stdout': '', 'stderr': '', 'removed': [], 'lost_s': None, 'back_s': None,
-           'used_after_back': [], 'address': None}
+           'used_after_back': [], 'address': None, 'losses': [], 'missed': [], 'executed': {}, 'lost_workers': []}
+    if lose_in and lose not in WORKER_HOSTS:
+        raise NetnsError(f'lose_in needs a worker host ({WORKER_HOSTS}); got {lose!r}')
     with Star(('a', 'b', 'c', *((client,) if client not in ('a', 'b', 'c') else ())), impairment, log_dir=out) as net:
         cluster = DaskHosts(net, env, out / 'logs')
         res['address'] = address = cluster.scheduler('a')
@@ -130,7 +180,14 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
         t0 = time.monotonic()
         proc = cluster.run(client, 'client', [*client_cmd, '--scheduler', address])
         lost = net.host(lose).address if lose else None
-        state = 'watch' if lose else 'done'
+        clock, todo = StageClock(), list(lose_in)
+        state = 'up' if lose else 'done'
+        gone: set = set()     # worker addresses of the host that were lost
+        loss: dict = {}
+
+        def now() -> float:
+            return round(time.monotonic() - t0, 1)
+
         while state != 'done' and proc.poll() is None:
             try:
                 line = seen.get(timeout=1.0)
@@ -139,25 +196,49 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
             if line is None:
                 break
             processing = json.loads(line)
+            for keys in processing.values():
+                for k in keys:
+                    clock.see(k)
             mine = {w: keys for w, keys in processing.items() if f'//{lost}:' in w}
+            if lose_in:
+                while todo and clock.i > [s for s, _ in STAGES].index(todo[0]):   # that stage ended meanwhile
+                    res['missed'].append(todo.pop(0))
             # a worker host is lost while one of its workers runs such a task; another host while any worker does
             busy = mine if lose in WORKER_HOSTS else processing
-            if state == 'watch' and any(k.startswith(lose_on) for keys in busy.values() for k in keys):
+            keys = [k for ks in busy.values() for k in ks]
+            hit = (todo and clock.name == todo[0] and keys) if lose_in else \
+                any(k.startswith(lose_on) for k in keys)
+            if state == 'starting' and set(mine) - gone:   # its new workers registered
+                loss['registered_s'] = now()
+                state = 'up'
+            if state == 'up' and loss and 'used_s' not in loss and any(mine.get(w) for w in set(mine) - gone):
+                loss['used_s'] = now()
+                loss['used'] = sorted({k for w in set(mine) - gone for k in mine[w]})
+                res['used_after_back'] = loss['used']
+                say(f'host {lose} in use again at {loss["used_s"]:.1f} s ({clock.name}: {loss["used"][:2]})')
+                if not lose_in and back:
+                    state = 'done'
+            if state == 'up' and hit:
                 net.cut(lose)      # the cable first: no FIN or RST of the dying processes gets out
-                res['removed'] = net.kill(lose)
-                res['lost_s'] = time.monotonic() - t0
-                say(f'host {lose} lost at {res["lost_s"]:.1f} s (processing {sorted(mine.values())})')
-                state = 'lost' if back else 'done'
-            elif state == 'lost' and not mine:   # the scheduler let the lost workers go
+                res['removed'] += net.kill(lose)
+                gone |= set(mine)
+                loss = {'stage': clock.name, 'lost_s': now(), 'processing': sorted(k for ks in mine.values()
+                                                                                    for k in ks)}
+                res['losses'].append(loss)
+                res['lost_s'] = res['lost_s'] if res['lost_s'] is not None else loss['lost_s']
+                if lose_in:
+                    todo.pop(0)
+                say(f'host {lose} lost at {loss["lost_s"]:.1f} s in {clock.name or "the run"} '
+                    f'(processing {loss["processing"]})')
+                state = 'lost' if (back or todo) else 'done'
+            elif state == 'lost' and not (set(mine) & gone):   # the scheduler let the lost workers go
+                loss['dropped_s'] = now()
                 net.plug(lose)
                 cluster.workers(lose)
-                res['back_s'] = time.monotonic() - t0
-                say(f'host {lose} back at {res["back_s"]:.1f} s (its workers start again)')
-                state = 'back'
-            elif state == 'back' and any(mine.values()):
-                res['used_after_back'] = sorted({k for keys in mine.values() for k in keys})
-                say(f'host {lose} in use again at {time.monotonic() - t0:.1f} s')
-                state = 'done'
+                loss['back_s'] = res['back_s'] = now()
+                say(f'host {lose} back at {loss["back_s"]:.1f} s (the scheduler dropped its workers at '
+                    f'{loss["dropped_s"]:.1f} s; they start again)')
+                state = 'starting'
         try:
             res['stdout'], res['stderr'] = proc.communicate(timeout=max(1.0, timeout - (time.monotonic() - t0)))
         except subprocess.TimeoutExpired:
@@ -166,7 +247,11 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
             res['stderr'] += f'\n(killed after {timeout:g} s)'
         res['rc'] = proc.returncode
         res['seconds'] = time.monotonic() - t0
-        res['after_loss_s'] = res['seconds'] - res['lost_s'] if res['lost_s'] is not None else None
+        res['missed'] += todo
+        res['lost_workers'] = sorted(gone)
+        res['after_loss_s'] = res['seconds'] - res['losses'][-1]['lost_s'] if res['losses'] else None
+        if lose != 'a':
+            res['executed'] = cluster.executed()
         res['counters'] = net.counters()
         res['method'] = net.method
     res['left'] = net.left()
@@ -191,10 +276,23 @@ def _watch(address: str) -> int:
         time.sleep(0.05)
 
 
+def _executed_count(dask_worker=None) -> int:   # runs in each worker (client.run)
+    return dask_worker.state.executed_count
+
+
+def _executed(address: str) -> int:
+    from force_tester_common.engine import get_client
+    client = get_client(address, connect_timeout=30.0)[0]
+    print(json.dumps(client.run(_executed_count, on_error='ignore')))
+    return 0
+
+
 if __name__ == '__main__':
     args = sys.argv[1:]
     if args[:1] == ['wait'] and len(args) == 4:
         sys.exit(_wait(args[1], int(args[2]), float(args[3])))
     if args[:1] == ['watch'] and len(args) == 2:
         sys.exit(_watch(args[1]))
-    sys.exit('usage: python -m netlab.dask_hosts wait ADDRESS N TIMEOUT | watch ADDRESS')
+    if args[:1] == ['executed'] and len(args) == 2:
+        sys.exit(_executed(args[1]))
+    sys.exit('usage: python -m netlab.dask_hosts wait ADDRESS N TIMEOUT | watch ADDRESS | executed ADDRESS')

@@ -249,7 +249,7 @@ def campaign_to_bag(src: str | Path | Campaign, bag_path: str | Path, block_size
     warnings.extend(camp.warnings)
     warnings.extend(_absent_warning([set(p.channels) for p in camp.pulls]))
     done = 0
-    with BagWriter(bag_path, store) as writer:
+    with BagWriter(bag_path, store, warnings=warnings, rewritable=True) as writer:
         for topic, type_name, log_ns, cdr in iter_campaign_messages(camp, store, block_size):
             if topic not in writer.topics:
                 writer.add_topic(topic, type_name)
@@ -269,7 +269,7 @@ def _stream_to_bag(path: Path, rate, entries: list, columns: list, bag_path, blo
     state: dict = {'rate': rate, 'place': None, 'pulls': 0}
     jobs = [(path / meta['file'], entry.get('map'), rate, None, absent) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
-    with BagWriter(bag_path, store) as writer:
+    with BagWriter(bag_path, store, warnings=warnings, rewritable=True) as writer:
         def write(i: int, result: tuple) -> None:
             channels, prate, pull_warnings = result
             warnings.extend(pull_warnings)
@@ -624,7 +624,7 @@ def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progres
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: named absent in campaign.yaml')
     out = write_campaign(out_dir, itertools.chain([first], it), sample_rate_hz=state['sample_rate_hz'],
-                         mapper=mapper, absent=absent)   # progress: the reader's, by messages
+                         mapper=mapper, absent=absent, warnings=warnings)   # progress: the reader's, by messages
     absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')
@@ -642,7 +642,7 @@ def _export_on_workers(bag_path: Path, out_dir: Path, progress, warnings: list, 
     notes: list = []
     jobs = [(meta, (bag_path, block_topics, start, end, meta)) for start, end, meta in windows]
     out = write_campaign(out_dir, jobs, sample_rate_hz=rate, mapper=mapper, produce=read_bag_pull, absent=absent,
-                         notes=notes, progress=progress)
+                         notes=notes, progress=progress, warnings=warnings)
     for pull_warnings, _columns in notes:
         warnings.extend(pull_warnings)
     columns = [set(cols) for _w, cols in notes]

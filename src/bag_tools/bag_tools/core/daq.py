@@ -35,6 +35,7 @@ from force_tester_common.core.channels import (
 )
 from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.core.mapping import map_here
+from force_tester_common.core.partial import Marked, clear_stale, tell
 
 from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of this module's interface
     FORMATS,
@@ -564,7 +565,7 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                    sample_rate_hz: float | None = None, extra: Mapping | None = None,
                    progress: Callable[[int, int], None] | None = None,
                    mapper: Mapper | None = None, produce: Callable | None = None,
-                   absent: Iterable = (), notes: list | None = None) -> Path:
+                   absent: Iterable = (), notes: list | None = None, warnings: list | None = None) -> Path:
     """Write a campaign folder atomically (temp folder beside it, renamed when complete).
 
     pulls: (meta, channels) pairs (a list or any iterable, read once); meta needs META_REQUIRED except
@@ -580,10 +581,15 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
     must agree.
     absent: required channels the pulls do not have, written as campaign.yaml's ``absent:``.
     notes: when produce returns (channels, notes), each pull's notes are appended here, in pull order.
+    While it is written the hidden folder holds a lock file (force_tester_common.core.partial): a writer killed
+    midway leaves it behind, and the next write of ``path`` removes it, saying so in ``warnings`` (logged when
+    None).
     """
     path = Path(path)
     absent = check_absent(list(absent), str(path))
+    tell(clear_stale(path), warnings)   # what a writer that died left here
     tmp = _atomic_dir(path)
+    mark = Marked(tmp).__enter__()      # until the rename: the next writer removes tmp only once we are gone
     try:
         entries: list = []
         names: list = []
@@ -651,9 +657,12 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
         # campaign.yaml last: a folder without it is never read as a campaign.
         (tmp / CAMPAIGN_FILE).write_text(yaml.safe_dump(doc, sort_keys=False), encoding='utf-8')
         os.chmod(tmp, 0o755)
+        mark.unmark()
         os.rename(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        mark.__exit__()
     return path
 

@@ -45,6 +45,8 @@ from mcap.records import (
 )
 from mcap.summary import Summary
 
+from force_tester_common.core.partial import Marked, clear_stale, tell
+
 from .errors import BagError, one_line
 from .fastcdr import FastPathError, gather_struct, stride_runs
 from .metadata import METADATA_VERSION, dump_info, load_metadata, write_metadata
@@ -299,7 +301,9 @@ class ExtendedBag:
 
     def __init__(self, src: McapBag, dst: str | Path) -> None:
         self.dst = Path(dst)
+        tell(clear_stale(self.dst))   # a bag folder a killed writer left (marked, as BagWriter marks its own)
         check_new_bag_path(self.dst)
+        self._mark: Marked | None = None
         self.info = src.info
         self.mcap = src.mcap
         self.summary = s = src.summary
@@ -324,6 +328,7 @@ class ExtendedBag:
         check_new_bag_path(self.dst)
         self.dst.mkdir()
         try:
+            self._mark = Marked(self.dst).__enter__()   # until metadata.yaml is written
             self.out = self.dst / f'{self.dst.name}.mcap'
             self._fd = os.open(self.out, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
             os.ftruncate(self._fd, self.copy_end)
@@ -398,6 +403,7 @@ class ExtendedBag:
                 os.close(self._fd)
                 self._fd = -1
             shutil.rmtree(self.dst, ignore_errors=True)
+            self._release()
 
     # -- topics and messages -----------------------------------------------------------
     def add_topic(self, topic: str, type_name: str, msgdef: str, rihs01: str) -> int:
@@ -614,4 +620,11 @@ class ExtendedBag:
         self._join()  # the copied input bytes must be complete before the bag is
         os.close(self._fd)
         self._fd = -1
+        self._mark.unmark()
         write_metadata(self.dst, info)
+        self._release()
+
+    def _release(self) -> None:
+        if self._mark is not None:
+            self._mark.__exit__()
+            self._mark = None

@@ -12,6 +12,8 @@ from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys.store import Typestore
 
+from force_tester_common.core.partial import Marked, clear_stale, tell
+
 from .errors import BagError, one_line
 from .metadata import METADATA_VERSION, ROS_DISTRO, load_metadata, write_metadata
 
@@ -46,12 +48,22 @@ class BagWriter:
     The directory must not exist. Until close() succeeds the directory holds no
     metadata.yaml, so nothing reads it as a complete bag; if an exception leaves the
     `with` block (or abort() is called) the directory is removed.
+
+    rewritable: a bag made from inputs that are kept (import, correct): while it is written
+    the directory also holds a lock file (force_tester_common.core.partial), so when its
+    writer is killed midway the next BagWriter of that path removes it, saying so in
+    ``warnings`` (logged when None). A recording (the default) is never marked: cut off, it
+    is recovered by reindex, never removed.
     """
 
-    def __init__(self, path: str | Path, typestore: Typestore) -> None:
+    def __init__(self, path: str | Path, typestore: Typestore, warnings: list | None = None,
+                 rewritable: bool = False) -> None:
         self.path = Path(path)
         self.typestore = typestore
+        tell(clear_stale(self.path), warnings)   # what a writer that died left here
         check_new_bag_path(self.path)
+        self._mark: Marked | None = None
+        self._rewritable = rewritable
         self._writer: Writer | None = None
         self._connections: dict[str, Connection] = {}
         self._closed = False
@@ -69,6 +81,8 @@ class BagWriter:
             writer.set_custom_data('writer', 'bag_tools.core')
             writer.open()
             _record_distro(writer)
+            if self._rewritable:
+                self._mark = Marked(self.path).__enter__()
         except Exception as exc:  # noqa: BLE001
             if not isinstance(exc, FileExistsError) and 'exists already' not in str(exc):
                 self._remove()
@@ -151,6 +165,7 @@ class BagWriter:
         self._writer = None
         self._closed = True
         try:
+            self._unmark()
             writer.close()
             # rosbags writes ros_distro 'rosbags' into metadata.yaml; ours are Jazzy bags
             info = load_metadata(self.path)
@@ -160,7 +175,18 @@ class BagWriter:
             self._remove()
             raise BagError(f'cannot finalise bag {str(self.path)!r} (removed): '
                            f'{one_line(exc)}') from None
+        finally:
+            self._release()
         return self.path
+
+    def _unmark(self) -> None:
+        if self._mark is not None:
+            self._mark.unmark()
+
+    def _release(self) -> None:
+        if self._mark is not None:
+            self._mark.__exit__()
+            self._mark = None
 
     def abort(self) -> None:
         """Discard the bag being written (removes its directory)."""
@@ -175,6 +201,7 @@ class BagWriter:
 
     def _remove(self) -> None:
         shutil.rmtree(self.path, ignore_errors=True)
+        self._release()
 
     @property
     def topics(self) -> dict[str, str]:

@@ -317,7 +317,7 @@ def rewrite_bag(src: Path, dst: Path, arrays: dict, read: BagRead, pulls, runnin
                  for lg, a, k in zip(last.tolist(), starts.tolist(), lengths.tolist())]
     generated += result_messages(store, pulls, running)
     generated.sort(key=lambda g: (g[0], g[1]))
-    with open_bag(src) as bag, BagWriter(dst, store) as writer:
+    with open_bag(src) as bag, BagWriter(dst, store, rewritable=True) as writer:
         topics = bag.topics()
         keep = [t for t in topics if t not in OUTPUT_TOPICS]
         replaced = [t for t in topics if t in OUTPUT_TOPICS]

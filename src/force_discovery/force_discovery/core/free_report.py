@@ -162,16 +162,14 @@ def _stated(unc: dict) -> dict:
 
 def write_free_outputs(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
     """DIR/report.json, report.md and extension.yaml, written whole (into a fresh folder, moved in at the end)."""
-    import shutil
-    import tempfile
-    out.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
-    try:
+    from force_tester_common.core.partial import staging
+
+    with staging(out, '.discover-') as mark:   # a staging folder a killed run left here is removed first
+        stage = mark.folder
         (stage / 'extension.yaml').write_text(extension_yaml(free_extension(rep, rig)))
         (stage / 'report.md').write_text(free_markdown(rep, screens, method))
         (stage / 'report.json').write_text(json.dumps(rep, indent=1))
+        mark.unmark()
         for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):
             f.replace(out / f.name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
 

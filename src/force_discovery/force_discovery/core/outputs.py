@@ -22,12 +22,10 @@ def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], nam
 
     Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
     leaves a half-written report."""
-    import shutil
-    import tempfile
+    from force_tester_common.core.partial import staging
 
-    out.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix='.discover-', dir=out))
-    try:
+    with staging(out, '.discover-') as mark:   # a staging folder a killed run left here is removed first
+        stage = mark.folder
         ext = extension(report, rig) if ext is None else ext
         (stage / 'extension.yaml').write_text(extension_yaml(ext))
         plots = (residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
@@ -37,7 +35,6 @@ def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], nam
         md = markdown(report, report['plots'], analysis.screens, analysis.excluded)
         more = identifiability_lines(report)
         (stage / 'report.md').write_text(md + ('\n' + '\n'.join(more) if more else ''))
+        mark.unmark()
         for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):   # report.json last
             f.replace(out / f.name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
