@@ -593,9 +593,9 @@ def cause_check(fit: Sequence, held: Sequence, model: Model, survey: Survey, rig
     sse_lib = sum(_sse(st, model0, n_prod) for st in held0)
     if k_lib <= k_cat and sse_lib <= sse_cat * (1.0 + (PRIORITY_MARGIN if k_lib < k_cat else 0.0)):
         what = ', '.join(t.term for t in found0) or 'no term at all'
-        return (f'without {cause} the library explains the moving cell with {k_lib} term(s) ({what}) as well as '
-                f'{cause} ({n_cause} parameter(s)) with {k_cat - n_cause} (held-out SSE {sse_lib:.4g} against '
-                f'{sse_cat:.4g}): the nearest catalog cause does not fit'), found0
+        return (f'without {cause} the library explains the moving cell with {k_lib} parameter(s) ({what}) as well '
+                f'as the model with it does with {k_cat} ({n_cause} of them its own; held-out SSE {sse_lib:.4g} '
+                f'against {sse_cat:.4g}): the nearest catalog cause does not fit'), found0
     return None, found0
 
 
