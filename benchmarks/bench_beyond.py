@@ -7,7 +7,8 @@ For every departure of the generator outside the catalog (generator.BEYOND: quad
 carriage-excited vibration, viscous friction, cable drag), N campaigns (3 sets x 4 pulls) with it hidden at a
 random strength, every other one through the model-form nuisances. Counted: the right term first on the right
 channel of beyond_catalog; its coefficient within 30 % of the truth; no catalog cause named (the truth is outside
-the catalog); and whether its ci95 (statistical and systematic parts, beyond.py) holds the true coefficient. Then M campaigns with nothing to act on (clean and nuisance in turn): a false alarm is any entry in
+the catalog); and whether its ci95 (statistical and systematic parts, beyond.py) holds the true coefficient.
+Then M campaigns with nothing to act on (clean and nuisance in turn): a false alarm is any entry in
 beyond_catalog. The cost: the wall time of the search's passes (Clock)
 against the whole discovery's, side by side in one run. The code under test sees only the data and the nominal rig.
 """

@@ -289,7 +289,6 @@ def check_beyond(report: dict, truth: dict) -> dict:
     right = bool(terms) and terms[0]['term'] == truth['term']
     coef = right and abs(terms[0]['coefficient'] - truth['coefficient']) <= 0.3 * abs(truth['coefficient'])
     holds = right and min(terms[0]['ci95']) <= truth['coefficient'] <= max(terms[0]['ci95'])
-    return {'right_term': right, 'coefficient_30pct': bool(coef), 'ci95_holds': bool(holds), 'catalog_named': [c['name'] for c in
-                                                                                   report['causes']
-                                                                                   if c['name'] != 'unexplained'],
+    named = [c['name'] for c in report['causes'] if c['name'] != 'unexplained']
+    return {'right_term': right, 'coefficient_30pct': bool(coef), 'ci95_holds': bool(holds), 'catalog_named': named,
             'found': [(t['channel'], t['term'], t['coefficient']) for t in report.get('beyond_catalog', [])]}

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 import yaml
 from generator import BEYOND, beyond_campaign, check_beyond, draw_nuisance, make_campaign
 
 from force_correction.core.extension import Extension
-import numpy as np
-
 from force_discovery.core.beyond import Survey, beyond_part, interpretation, library, search
 from force_discovery.core.pipeline import discover
 from force_tester_sim.core.errors import SimError

@@ -2,8 +2,12 @@
 candidate terms with sparse regression, fitted on the fitted pulls and scored on the held-out ones. ROS-free.
 
 The grammar (its one home: force_tester_sim.core.extra_terms). A term is added to one channel's model; the search
-forms the residual of SEARCHED: the moving cell over the analysis window after the named force-channel causes, and
-the motor current's force balance after the model of record. It is either a product of SIGNALS with integer powers
+forms the residual of SEARCHED: the stationary cell and the accelerometer on their own, in the free phases (lanyard
+slack, T = 0: the stationary cell's model is 0, the accelerometer's the encoder's acceleration), the moving cell over
+the analysis window after the named force-channel causes, and the motor current's force balance after the model of
+record. The sensors come first: their product terms are taken out of F_stat (and T) and a2 (sensor_corrected)
+before the moving cell and the current are searched, so a drifting stationary cell is named on its own channel.
+A term is either a product of SIGNALS with integer powers
 (every product of total degree <= 2 and every single signal cubed; written in the SIGNALS order, joined by ``*``,
 ``^k`` for k > 1), or a sinusoid ``sin`` at the frequency where the channel's residual spectrum peaks, optionally
 times a signal (``v*sin``). A sinusoid's amplitude is one coefficient for the campaign; its phase is each pull's own
@@ -18,15 +22,19 @@ and the new term is kept only if it passes the held-out test of significance.sig
 squares: it is not in the lock, and its threshold is a coefficient size, which means nothing across terms of
 different units; forward selection with a held-out stopping rule is the catalog's own rule applied term by term.
 
-Each coefficient gets a 95 % interval from a jackknife over the fitted pulls (Student's t, n-1): the pull-to-pull
-part; the systematic parts the catalog budgets (budget.py) are not estimated for library terms. A term is named
-when it is significant AND its contribution's rms on the held-out pulls, over its interval, lies above the
-channel's band (practical significance: CHANNEL_BAND, from the rig's tolerances).
+Each coefficient gets an uncertainty budget as the catalog's parameters do (budget.honest; _budget): the statistical
+part from a jackknife over the fitted pulls (Student's t, n-1), each systematic part the coefficient's shift when
+one rig constant is one stated standard uncertainty off (m2 on the moving cell, each drive constant on the current:
+the residual's change kept as a Gram column per pull) or the channel's sensor calibration (relative), and the 95 %
+interval +/- sqrt((t u_stat)^2 + (COVERAGE_K u_sys)^2). A term is named when it is significant AND its
+contribution's rms on the held-out pulls, over that interval, lies above the channel's band (practical
+significance: channel_band, from the rig's tolerances).
 
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
-PRIORITY_MARGIN more than it does (the same number of parameters: one) -- then the report names the term and says
-the nearest catalog cause does not fit (BeyondResult.demoted)."""
+PRIORITY_MARGIN more than it does (the same number of parameters: one). On the moving cell each named force-model
+cause (CAUSE_PARAMS) is checked by cause_check with the cause undone. A cause a library term explains better is
+withheld: the report names the term and says the nearest catalog cause does not fit (BeyondResult.demoted)."""
 from __future__ import annotations
 
 import dataclasses
