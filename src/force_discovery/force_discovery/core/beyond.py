@@ -38,6 +38,7 @@ withheld: the report names the term and says the nearest catalog cause does not 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -79,6 +80,7 @@ RELATIVE = {'force_moving': ('cell_sensitivity', 'sensors.load_cell_sensitivity_
                                  'load_cell_sensitivity_mv_per_lbf'),
             'accel_axial': ('accelerometer_sensitivity', 'sensors.accelerometer_sensitivity_mv_per_g',
                             'accelerometer_sensitivity_mv_per_g')}
+FREE_SPAN_S = 0.5              # the sensors' free phases: at most this long before the pull and after its ringing
 EDGE_S = 0.02                  # the free phases leave the record's first and last 20 ms out (the filters' edges)
 MAX_TERMS = 3
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
@@ -172,12 +174,12 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
                            {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()},
                            {'m2': (u_m2 * p.a2)[w][::q][ok]})
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
-    # the record's edges left out): there T = 0, so the stationary cell's model is 0 and the accelerometer's the
-    # carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
+    # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
+    # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
     free = np.zeros(len(p.t), bool)
-    e = int(round(EDGE_S / p.dt))
-    free[e:p.pre1] = True
-    free[p.w1:len(p.t) - e] = True
+    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
+    free[max(e, p.pre1 - span):p.pre1] = True
+    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
     sel = np.flatnonzero(free & p.usable())[::q]
     if len(sel):
         from scipy.signal import savgol_filter
@@ -279,15 +281,18 @@ def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
 
 def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], f_hz: Optional[float]):
     """(names, scaled product columns, sinusoid factor columns: [(name, cos, sin)]) of one channel's library."""
-    names, cols = [], []
-    skip = CATALOG_FORMS.get(channel, ())
+    names = channel_library(channel)
+    scaled = {s: np.asarray(sig[s], float) / scales[s] for s in SIGNALS}
+    powers = {(s, 1): v for s, v in scaled.items()}
+    X = np.empty((len(scaled['t']), len(names)))
+    for k, term in enumerate(names):   # each column one product of cached powers (the library has degree <= 3)
+        factors = []
+        for s, e in parse_term(term).items():
+            if (s, e) not in powers:
+                powers[(s, e)] = scaled[s] ** e
+            factors.append(powers[(s, e)])
+        X[:, k] = functools.reduce(np.multiply, factors)
     own = set(OWN_SIGNALS.get(channel, ()))
-    scaled = {s: sig[s] / scales[s] for s in SIGNALS}
-    for term in library():
-        if term in skip or own & set(parse_term(term)):
-            continue
-        names.append(term)
-        cols.append(term_values(term, scaled))
     sins = []
     if f_hz is not None:
         ph = 2 * np.pi * f_hz * sig['t']
@@ -296,7 +301,15 @@ def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], 
                 continue
             m = scaled[fac] if fac else np.ones_like(ph)
             sins.append((term_name({fac: 1, SIN: 1}) if fac else SIN, m * np.cos(ph), m * np.sin(ph)))
-    return names, np.column_stack(cols), sins
+    return list(names), X, sins
+
+
+@functools.lru_cache(maxsize=None)
+def channel_library(channel: str) -> Tuple[str, ...]:
+    """The product terms searched on a channel: the library less the catalog's forms and the channel's own
+    signals (CATALOG_FORMS, OWN_SIGNALS)."""
+    skip, own = CATALOG_FORMS.get(channel, ()), set(OWN_SIGNALS.get(channel, ()))
+    return tuple(t for t in library() if t not in skip and not own & set(parse_term(t)))
 
 
 @dataclass(frozen=True)
