@@ -91,7 +91,6 @@ SPECTRUM_POINTS = 2 ** 15
 PEAK_PROMINENCE = 10.0        # a sinusoid's line stands this far above the median spectrum around it ...
 PEAK_SPAN = 64                # ... over this many bins either side
 COULOMB = 'coulomb_friction'
-GAIN = 'moving_cell_gain'
 
 INTERPRETATION = {
     ('force_moving', 'F_move^2'): 'a non-linear moving cell: its sensitivity changes with load',
