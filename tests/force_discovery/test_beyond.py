@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 import yaml
 from generator import BEYOND, beyond_campaign, check_beyond, draw_nuisance, make_campaign
 
 from force_correction.core.extension import Extension
-from force_discovery.core.beyond import interpretation, library
+from force_discovery.core.beyond import Survey, beyond_part, interpretation, library, search
 from force_discovery.core.pipeline import discover
 from force_tester_sim.core.errors import SimError
 from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, parse_term, term_name
@@ -32,6 +33,9 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
     report = run(camp, tmp_path)
     got = check_beyond(report, truth)
     assert got['right_term'], (truth['channel'], truth['term'], got['found'])
+    # on its own channel only: a drifting stationary cell is not a drift of the moving cell (T comes from it)
+    assert not [t for t in report['beyond_catalog'] if t['term'] == truth['term'] and
+                t['channel'] != truth['channel']], got['found']
     assert got['coefficient_30pct'], (truth['coefficient'], got['found'])
     assert report['cause'] == 'beyond_catalog', (report['cause'], got['catalog_named'])
     first = next(t for t in report['beyond_catalog'] if t['channel'] == truth['channel'])
@@ -46,8 +50,13 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
     rig_x = rig_from_dict({**yaml.safe_load(NOMINAL_YAML.read_text()), **{k: ext[k] for k in ('departures',
                                                                                              'extra_terms')}})
     assert truth['term'] in [e.term for e in rig_x.extra_terms]
+    left_out = [(e['channel'], e['term']) for e in report['simulation_check']['terms_not_resimulated']]
     if truth['frequency_hz'] is None:   # a sinusoid's phase is each pull's own: not re-simulated
         assert report['simulation'][CHANNEL_COLUMNS[truth['channel']]]['gain'] > 1.0, report['simulation']
+    else:
+        assert (truth['channel'], truth['term']) in left_out, left_out
+    budget = first['uncertainty_budget']   # the statistical and systematic parts, as the catalog's parameters
+    assert 'statistical' in budget and len(budget) > 2 and budget['combined'] >= budget['statistical'], budget
     if kind == 'quadratic_cell':        # the correction linearises the cell
         c2 = Extension.from_yaml(tmp_path / 'extension.yaml').moving_cell_quadratic_per_n
         assert abs(c2 - truth['coefficient']) <= 0.3 * truth['coefficient']
@@ -72,6 +81,15 @@ def test_the_grammar_writes_and_reads_its_terms():
             parse_term(bad)
 
 
+def test_the_coupled_drive_refuses_extra_terms():
+    from force_tester_sim.core.campaign import truth_pull_specs
+    from force_tester_sim.core.coupled import run_coupled_pull
+    data = yaml.safe_load(NOMINAL_YAML.read_text())
+    rig = rig_from_dict({**data, 'extra_terms': [{'channel': 'motor_current', 'term': 'v^2', 'coefficient': 0.1}]})
+    with pytest.raises(SimError, match=re.escape("motor_current: v^2")):
+        run_coupled_pull(rig, truth_pull_specs(rig, 2, 1, 5)[0])
+
+
 def test_the_sim_takes_extra_terms_and_refuses_bad_ones():
     data = yaml.safe_load(NOMINAL_YAML.read_text())
     rig = rig_from_dict({**data, 'extra_terms': [{'channel': 'motor_current', 'term': 'v^2', 'coefficient': 0.1},
@@ -84,3 +102,39 @@ def test_the_sim_takes_extra_terms_and_refuses_bad_ones():
                       ({'channel': 'motor_current', 'term': 'v', 'coefficient': 'x'}, "'x'")):
         with pytest.raises(SimError, match=re.escape(says)):
             rig_from_dict({**data, 'extra_terms': [bad]})
+
+
+def _cause_campaign(real_mass: bool, pulls: int = 8, n: int = 4000):
+    """Moving-cell series of a made-up campaign: v^2 is the truth beyond the catalog; the named effective mass's
+    contribution (beta a2) is either real (undone, a2 structure comes back) or a fit to the v^2 structure."""
+    rng = np.random.default_rng(2727)
+    parts = []
+    for k in range(pulls):
+        t = np.linspace(0.0, 0.2, n)
+        v = 3.0 * np.sin(np.pi * t / 0.2) * (1 + 0.1 * k)
+        a2 = np.gradient(v, t) + 40.0 * np.sin(2 * np.pi * 35.0 * t + k)
+        sig = {'F_move': 2000.0 * np.exp(-((t - 0.1) / 0.01) ** 2), 'F_stat': rng.normal(0, 1, n),
+               'T': 2000.0 * np.exp(-((t - 0.1) / 0.01) ** 2), 'a2': a2, 'v': v, 'x': np.cumsum(v) * (t[1] - t[0]),
+               't': t + 0.6}
+        noise = rng.normal(0.0, 0.3, n)
+        if real_mass:    # the residual after the (real) mass is v^2; undone, the mass's a2 comes back
+            y, col = 4.0 * v ** 2 + noise, 0.05 * a2
+        else:            # the "mass" fitted part of the v^2 structure: undone, the library explains it all
+            col = 0.05 * a2
+            y = 4.0 * v ** 2 - col + noise
+        parts.append({'force_moving': (y, sig, None, {'effective_mass': col}, {})})
+    scales = {s: float(np.sqrt(np.mean(parts[0]['force_moving'][1][s] ** 2))) for s in parts[0]['force_moving'][1]}
+    survey = Survey(scales, {})
+    return [beyond_part(p, survey) for p in parts], survey
+
+
+@pytest.mark.parametrize('real_mass', [False, True])
+def test_a_catalog_cause_a_library_term_explains_better_is_withheld(real_mass):
+    parts, survey = _cause_campaign(real_mass)
+    res = search(parts, [0, 2, 4, 6], [1, 3, 5, 7], survey, load_rig(), ('effective_mass',),
+                 channels=('force_moving',))
+    assert [t.term for t in res.terms][:1] == ['v^2'], [(t.term, t.coefficient) for t in res.terms]
+    if real_mass:
+        assert 'effective_mass' not in res.demoted, res.demoted
+    else:
+        assert 'effective_mass' in res.demoted and 'does not fit' in res.demoted['effective_mass'], res.demoted

@@ -2,8 +2,12 @@
 candidate terms with sparse regression, fitted on the fitted pulls and scored on the held-out ones. ROS-free.
 
 The grammar (its one home: force_tester_sim.core.extra_terms). A term is added to one channel's model; the search
-forms the residual of SEARCHED: the moving cell over the analysis window after the named force-channel causes, and
-the motor current's force balance after the model of record. It is either a product of SIGNALS with integer powers
+forms the residual of SEARCHED: the stationary cell and the accelerometer on their own, in the free phases (lanyard
+slack, T = 0: the stationary cell's model is 0, the accelerometer's the encoder's acceleration), the moving cell over
+the analysis window after the named force-channel causes, and the motor current's force balance after the model of
+record. The sensors come first: their product terms are taken out of F_stat (and T) and a2 (sensor_corrected)
+before the moving cell and the current are searched, so a drifting stationary cell is named on its own channel.
+A term is either a product of SIGNALS with integer powers
 (every product of total degree <= 2 and every single signal cubed; written in the SIGNALS order, joined by ``*``,
 ``^k`` for k > 1), or a sinusoid ``sin`` at the frequency where the channel's residual spectrum peaks, optionally
 times a signal (``v*sin``). A sinusoid's amplitude is one coefficient for the campaign; its phase is each pull's own
@@ -18,17 +22,23 @@ and the new term is kept only if it passes the held-out test of significance.sig
 squares: it is not in the lock, and its threshold is a coefficient size, which means nothing across terms of
 different units; forward selection with a held-out stopping rule is the catalog's own rule applied term by term.
 
-Each coefficient gets a 95 % interval from a jackknife over the fitted pulls (Student's t, n-1): the pull-to-pull
-part; the systematic parts the catalog budgets (budget.py) are not estimated for library terms. A term is named
-when it is significant AND its contribution's rms on the held-out pulls, over its interval, lies above the
-channel's band (practical significance: CHANNEL_BAND, from the rig's tolerances).
+Each coefficient gets an uncertainty budget as the catalog's parameters do (budget.honest; _budget): the statistical
+part from a jackknife over the fitted pulls (Student's t, n-1), each systematic part the coefficient's shift when
+one rig constant is one stated standard uncertainty off (m2 on the moving cell, each drive constant on the current:
+the residual's change kept as a Gram column per pull) or the channel's sensor calibration (relative), and the 95 %
+interval +/- sqrt((t u_stat)^2 + (COVERAGE_K u_sys)^2). A term is named when it is significant AND its
+contribution's rms on the held-out pulls, over that interval, lies above the channel's band (practical
+significance: channel_band, from the rig's tolerances).
 
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
-PRIORITY_MARGIN more than it does (the same number of parameters: one) -- then the report names the term and says
-the nearest catalog cause does not fit (BeyondResult.demoted)."""
+PRIORITY_MARGIN more than it does (the same number of parameters: one). On the moving cell each named force-model
+cause (CAUSE_PARAMS) is checked by cause_check with the cause undone. A cause a library term explains better is
+withheld: the report names the term and says the nearest catalog cause does not fit (BeyondResult.demoted)."""
 from __future__ import annotations
 
+import dataclasses
+import functools
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -47,15 +57,31 @@ from force_tester_sim.core.extra_terms import (
     term_values,
 )
 
+from .budget import COVERAGE_K, DRIVE_VARIANTS, STATISTICAL
 from .friction import MOVING_M_S, STILL_M_S
 from .leftover import LEFTOVER_BAND_HZ
 from .prep import Pull
 from .significance import significance
 
-SEARCHED = ('force_moving', 'motor_current')   # the channels whose residual the search forms (module docstring)
+# the channels whose residual the search forms (module docstring), in the order they are searched: the sensors
+# seen on their own (in the free phases) first, then the moving cell and the motor current, whose residuals are
+# formed with the stationary cell and the accelerometer (SENSORS: their terms are taken out of T and a2 first)
+SEARCHED = ('force_stationary', 'accel_axial', 'force_moving', 'motor_current')
+SENSORS = ('force_stationary', 'accel_axial')
 SIN_FACTORS = ('', 'v', 'F_move')              # sin, v*sin, F_move*sin
 # terms on a channel that are catalog entries in another form (the force model's gain and mass): not searched
 CATALOG_FORMS = {'force_moving': ('F_move', 'F_stat', 'T', 'a2')}
+# signals a channel's residual is made of (in the free phases F_move is m2 a2): no term of its library uses them
+OWN_SIGNALS = {'force_stationary': ('F_stat', 'T'), 'accel_axial': ('a2', 'F_move')}
+# each channel's scale factor (its sensor's calibration, rig sensors.*): a relative component of every coefficient
+RELATIVE = {'force_moving': ('cell_sensitivity', 'sensors.load_cell_sensitivity_mv_per_lbf',
+                             'load_cell_sensitivity_mv_per_lbf'),
+            'force_stationary': ('cell_sensitivity', 'sensors.load_cell_sensitivity_mv_per_lbf',
+                                 'load_cell_sensitivity_mv_per_lbf'),
+            'accel_axial': ('accelerometer_sensitivity', 'sensors.accelerometer_sensitivity_mv_per_g',
+                            'accelerometer_sensitivity_mv_per_g')}
+FREE_SPAN_S = 0.5              # the sensors' free phases: at most this long before the pull and after its ringing
+EDGE_S = 0.02                  # the free phases leave the record's first and last 20 ms out (the filters' edges)
 MAX_TERMS = 3
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
@@ -65,7 +91,6 @@ SPECTRUM_POINTS = 2 ** 15
 PEAK_PROMINENCE = 10.0        # a sinusoid's line stands this far above the median spectrum around it ...
 PEAK_SPAN = 64                # ... over this many bins either side
 COULOMB = 'coulomb_friction'
-GAIN = 'moving_cell_gain'
 
 INTERPRETATION = {
     ('force_moving', 'F_move^2'): 'a non-linear moving cell: its sensitivity changes with load',
@@ -76,6 +101,14 @@ INTERPRETATION = {
                            'leakage)',
     ('force_moving', 'v'): 'a velocity-dependent force on the moving cell: cable drag or a viscous coupling',
     ('force_moving', 'x'): 'a force that grows along the travel on the moving cell: a cable or hose pulling on it',
+    ('force_stationary', 't'): "the stationary cell's zero drifts through the record (thermal drift, "
+                               'charge-amplifier leakage); the tension T it gives drifts with it',
+    ('force_stationary', 'x'): 'the stationary cell reads a force that follows the carriage: crosstalk or a '
+                               'cable pulling on the fixture',
+    ('accel_axial', 't'): "the accelerometer's zero drifts through the record (thermal drift, a conditioner's "
+                          'offset creeping)',
+    ('accel_axial', 'v'): 'the accelerometer reads a share of the speed: a cable whipping or a mounting that '
+                          'flexes with the motion',
     ('motor_current', 'v^2'): 'aerodynamic drag on the carriage',
     ('motor_current', 'v'): "viscous friction beyond the drive model's (lubricated guides, a damper)",
     ('motor_current', 'x'): 'a force that grows along the travel: a binding rail or a cable acting as a spring',
@@ -104,7 +137,8 @@ def interpretation(channel: str, term: str, f_hz: Optional[float] = None) -> str
         factor = next((s for s in p if s != SIN), '')
         return SIN_INTERPRETATION.get(factor, 'a structural mode at {f:.1f} Hz, modulated by ' + factor).format(
             f=f_hz or 0.0)
-    if channel == 'force_moving' and set(p) <= {'F_move', 'F_stat', 'T'} and sum(p.values()) > 1:
+    if channel in ('force_moving', 'force_stationary') and set(p) <= {'F_move', 'F_stat', 'T'} \
+            and sum(p.values()) > 1:
         return INTERPRETATION[('force_moving', 'F_move^2')]
     return INTERPRETATION.get((channel, term), 'a term the catalog has no entry for; no usual physical reading: '
                                                 'look at where it acts (report.md)')
@@ -116,16 +150,16 @@ def decimation(dt: float) -> int:
 
 
 def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
-                   coulomb_n: Optional[float], gain_column: Optional[float] = None) -> Dict[str, tuple]:
-    """{channel: (residual, signals, catalog column or None)} of one pull, decimated, usable samples only.
+                   coulomb_n: Optional[float], causes: Optional[Dict[str, np.ndarray]] = None) -> Dict[str, tuple]:
+    """{channel: (residual, signals, catalog column or None, {cause: its contribution})} of one pull, decimated,
+    usable samples only.
 
     force_moving: the force model's residual on W after the named causes (force_resid, from ForceModel.resid);
     F_move is the model's prediction (measured minus hum minus residual). motor_current (A): the drive's force
     balance with the predicted F_move, over the samples at rest and moving, minus the pull's median at rest;
     its catalog column is the Coulomb step (1 while moving) in A per N of friction: coulomb_n is whether it
-    is named (the column is offered only then); the moving cell's is the gain's column, T + gain_column a2 as
-    the force model has it (gain_column: the mass in it, 0 when the effective mass is named; None: the gain is
-    not named)."""
+    is named (the column is offered only then). causes: each named force-model cause's contribution to the moving
+    cell's residual on W (what the residual would gain were the cause undone, at its fitted parameters; cause_check)."""
     q = decimation(p.dt)
     out = {}
     w = slice(p.w0, p.w1)
@@ -134,22 +168,63 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     fm_pred[w] = fm_pred[w] - force_resid
     full = {'F_move': fm_pred, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
     ok = p.usable(p.w0, p.w1)[::q]
-    out['force_moving'] = (np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()},
-                           None if gain_column is None else (p.T + gain_column * p.a2)[w][::q][ok])
+    u_m2 = rig.uncertainty.u('force_chain.moving_side_mass_kg')
+    out['force_moving'] = (np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()}, None,
+                           {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()},
+                           {'m2': (u_m2 * p.a2)[w][::q][ok]})
+    # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
+    # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
+    # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
+    free = np.zeros(len(p.t), bool)
+    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
+    free[max(e, p.pre1 - span):p.pre1] = True
+    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
+    sel = np.flatnonzero(free & p.usable())[::q]
+    if len(sel):
+        from scipy.signal import savgol_filter
+        win = max(5, int(round(2e-3 / p.dt)) | 1)
+        a2s = savgol_filter(p.a2, win, 3)
+        sig = {k: v[sel] for k, v in full.items()}
+        out['force_stationary'] = (p.fs[sel], sig, None, {}, {})
+        out['accel_axial'] = ((a2s - p.a3)[sel], sig, None, {}, {})
     if p.current is not None:
         d = rig.drive
         kf = d.force_per_amp_n_per_a
-        rho = p.current * kf - (d.reflected_mass_kg * p.a3 + d.viscous_damping_n_s_per_m * p.v3 + fm_pred)
         moving = p.v3 > MOVING_M_S
         still = np.abs(p.v3) < STILL_M_S
         use = (moving | still) & p.usable()
+
+        def balance(d):   # the current's force balance in A with the drive constants d
+            rho = p.current * d.force_per_amp_n_per_a - (d.reflected_mass_kg * p.a3
+                                                         + d.viscous_damping_n_s_per_m * p.v3 + fm_pred)
+            return (rho - np.median(rho[still & p.usable()])) / d.force_per_amp_n_per_a
         if still.any() and moving.any():
-            y = (rho - np.median(rho[still & p.usable()])) / kf
+            y = balance(d)
             col = None if coulomb_n is None else (moving.astype(float) / kf)
             sel = np.flatnonzero(use)[::q]
+            sys_ = {}
+            for name, key in DRIVE_VARIANTS.items():   # each drive constant one standard uncertainty off
+                u = rig.uncertainty.u(f'drive.{key}')
+                if u > 0:
+                    sys_[name] = (balance(dataclasses.replace(d, **{key: getattr(d, key) + u})) - y)[sel]
             out['motor_current'] = (y[sel], {k: v[sel] for k, v in full.items()},
-                                    None if col is None else col[sel])
+                                    None if col is None else col[sel], {}, sys_)
     return out
+
+
+def sensor_corrected(p: Pull, terms: Sequence, rig, cal: Optional[tuple]) -> Pull:
+    """The pull with the sensors' product terms found on their own (SENSORS: force_stationary, accel_axial; terms
+    with .channel, .term, .coefficient) taken out of F_stat and a2, and T recomputed from the corrected stationary
+    cell (cal: cells.with_tension's (K_LC1, c1); None: the rig's): the moving cell and the motor current are then
+    searched against what the sensors would have read without them."""
+    from .prep import tension_from_stationary
+    full = {'F_move': p.fm, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
+    d = {ch: sum((t.coefficient * term_values(t.term, full) for t in terms
+                  if t.channel == ch and SIN not in parse_term(t.term)), np.zeros(len(p.t))) for ch in SENSORS}
+    fc = rig.force_chain
+    k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
+    dT = tension_from_stationary(d['force_stationary'], p.dt, fc.m1, k1, c1)
+    return dataclasses.replace(p, fs=p.fs - d['force_stationary'], T=p.T - dT, a2=p.a2 - d['accel_axial'])
 
 
 @dataclass(frozen=True)
@@ -177,7 +252,7 @@ def _peak(P: np.ndarray, band: np.ndarray) -> Optional[int]:
 def spectrum_part(series: Dict[str, tuple], dt_dec: float) -> Dict[str, tuple]:
     """{channel: (power spectrum of the residual, rms of each signal)} of one pull."""
     out = {}
-    for ch, (y, sig, _) in series.items():
+    for ch, (y, sig, *_rest) in series.items():
         yy = (y - y.mean()) * np.hanning(len(y))
         P = np.abs(np.fft.rfft(yy, SPECTRUM_POINTS)) ** 2
         out[ch] = (P, {k: float(np.sqrt(np.mean(v ** 2))) for k, v in sig.items()})
@@ -205,34 +280,49 @@ def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
 
 def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], f_hz: Optional[float]):
     """(names, scaled product columns, sinusoid factor columns: [(name, cos, sin)]) of one channel's library."""
-    names, cols = [], []
-    skip = CATALOG_FORMS.get(channel, ())
-    scaled = {s: sig[s] / scales[s] for s in SIGNALS}
-    for term in library():
-        if term in skip:
-            continue
-        names.append(term)
-        cols.append(term_values(term, scaled))
+    names = channel_library(channel)
+    scaled = {s: np.asarray(sig[s], float) / scales[s] for s in SIGNALS}
+    powers = {(s, 1): v for s, v in scaled.items()}
+    X = np.empty((len(scaled['t']), len(names)))
+    for k, term in enumerate(names):   # each column one product of cached powers (the library has degree <= 3)
+        factors = []
+        for s, e in parse_term(term).items():
+            if (s, e) not in powers:
+                powers[(s, e)] = scaled[s] ** e
+            factors.append(powers[(s, e)])
+        X[:, k] = functools.reduce(np.multiply, factors)
+    own = set(OWN_SIGNALS.get(channel, ()))
     sins = []
     if f_hz is not None:
         ph = 2 * np.pi * f_hz * sig['t']
         for fac in SIN_FACTORS:
+            if fac in own:
+                continue
             m = scaled[fac] if fac else np.ones_like(ph)
             sins.append((term_name({fac: 1, SIN: 1}) if fac else SIN, m * np.cos(ph), m * np.sin(ph)))
-    return names, np.column_stack(cols), sins
+    return list(names), X, sins
+
+
+@functools.lru_cache(maxsize=None)
+def channel_library(channel: str) -> Tuple[str, ...]:
+    """The product terms searched on a channel: the library less the catalog's forms and the channel's own
+    signals (CATALOG_FORMS, OWN_SIGNALS)."""
+    skip, own = CATALOG_FORMS.get(channel, ()), set(OWN_SIGNALS.get(channel, ()))
+    return tuple(t for t in library() if t not in skip and not own & set(parse_term(t)))
 
 
 @dataclass(frozen=True)
 class BeyondPart:
-    """One pull's normal equations per channel: {channel: (names, G, b, s, n, catalog)} with G over the product
-    columns then each sinusoid's (cos, sin) pair, catalog = (g_cc, g_cX, b_c) of the catalog column or None."""
+    """One pull's normal equations per channel: {channel: (names, G, b, s, n, catalog, causes)} with G over the
+    product columns then each sinusoid's (cos, sin) pair, catalog = (g_cc, g_cX, b_c) of the catalog column or None,
+    causes = {cause: (g_cc, g_cX, b_c)} of each named cause's contribution (cause_check)."""
 
     stats: dict
 
 
 def beyond_part(series: Dict[str, tuple], survey: Survey) -> BeyondPart:
     out = {}
-    for ch, (y, sig, cat) in series.items():
+    for ch, (y, sig, cat, contrib, sys_) in series.items():
         names, X, sins = columns(ch, sig, survey.scales, survey.freq.get(ch))
         full = np.column_stack([X] + [np.column_stack([c, s]) for _, c, s in sins]) if sins else X
         G = full.T @ full
@@ -240,7 +330,9 @@ def beyond_part(series: Dict[str, tuple], survey: Survey) -> BeyondPart:
         catalog = None
         if cat is not None:
             catalog = (float(cat @ cat), full.T @ cat, float(cat @ y))
-        out[ch] = (tuple(names + [n for n, _, _ in sins]), G, b, float(y @ y), len(y), catalog)
+        causes = {c: (float(v @ v), full.T @ v, float(v @ y)) for c, v in contrib.items()}
+        out[ch] = (tuple(names + [n for n, _, _ in sins]), G, b, float(y @ y), len(y), catalog, causes,
+                   {c: full.T @ z for c, z in sys_.items()})
     return BeyondPart(out)
 
 
@@ -262,7 +354,7 @@ def _pair(n_prod: int, k: int) -> List[int]:
 
 def _aug(st, use_cat: bool):
     """(G, b, s) with the catalog column appended last (when use_cat)."""
-    names, G, b, s, n, cat = st
+    names, G, b, s, n, cat = st[:6]
     if not use_cat or cat is None:
         return G, b, s
     gcc, gcx, bc = cat
@@ -341,6 +433,7 @@ class Term:
     rms_ci95: Tuple[float, float]
     band: float
     named: bool
+    budget: Dict[str, float] = field(default_factory=dict)   # standard uncertainties: statistical, systematic parts
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -351,7 +444,8 @@ class Term:
                 'interpretation': interpretation(self.channel, self.term, self.frequency_hz),
                 'evidence': {'rel_sse_reduction': self.rel_sse_reduction, 't': self.t,
                              'contribution_rms': self.rms, 'contribution_rms_ci95': list(self.rms_ci95),
-                             'band': self.band}}
+                             'band': self.band},
+                'uncertainty_budget': dict(self.budget)}
 
 
 @dataclass(frozen=True)
@@ -454,38 +548,74 @@ def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, 
             norm = sum(st[1][col, col] for st in held)
         rms_unit = math.sqrt(norm / max(n_held, 1))
         lo, hi = sorted(cif)
+        si = si_factor(name, survey.scales)
+        budget, (lo, hi) = _budget(channel, fit, model, col, coef, (lo, hi), si, rig)
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
-        si = si_factor(name, survey.scales)
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
-                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band)))
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget))
     return found, demoted, model
 
 
-def _without_gain(st, gain: float):
-    """A pull's moving-cell statistics with the named gain undone: y0 = y + (gain - 1) T (T: the catalog column)."""
-    names, G, b, s, n, (gcc, gcx, bc) = st
-    d = gain - 1.0
-    return names, G, b + d * gcx, s + 2 * d * bc + d * d * gcc, n, (gcc, gcx, bc + d * gcc)
+def _budget(channel: str, fit: Sequence, model: Model, col: Optional[int], coef: float, ci: Tuple[float, float],
+            si: float, rig) -> Tuple[Dict[str, float], Tuple[float, float]]:
+    """({component: standard uncertainty, SI}, the expanded interval on the scaled coefficient) of one coefficient,
+    as budget.honest makes the catalog's: the statistical part from the jackknife interval (ci, its own Student
+    factor), each systematic part the coefficient's shift when a rig constant is one standard uncertainty off
+    (the channel's residual column of that change, regressed on the model's product columns over the fitted pulls:
+    the moving mass m2 on the moving cell, each drive constant on the motor current) or a relative one (the
+    channel's sensor calibration, rig sensors.*); U = sqrt((q u_stat)^2 + (COVERAGE_K u_sys)^2)."""
+    from .uncertainty import t_quantile
+    q = t_quantile(len(fit))
+    u_stat = 0.5 * abs(ci[1] - ci[0]) / q
+    sys_: Dict[str, float] = {}
+    if col is not None and fit[0][7]:
+        idx = list(model.prod)
+        pos = idx.index(col)
+        Gs = sum(st[1][np.ix_(idx, idx)] for st in fit)
+        for comp in fit[0][7]:
+            bz = sum(st[7][comp][idx] for st in fit)
+            sys_[comp] = abs(float(np.linalg.lstsq(Gs, bz, rcond=1e-12)[0][pos]))
+    if channel in RELATIVE:
+        comp, key, attr = RELATIVE[channel]
+        sys_[comp] = rig.uncertainty.relative(key, getattr(rig.sensors, attr)) * abs(coef)
+    u_sys = math.sqrt(sum(v * v for v in sys_.values()))
+    U = math.sqrt((q * u_stat) ** 2 + (COVERAGE_K * u_sys) ** 2)
+    budget = {STATISTICAL: u_stat, **sys_}
+    budget['combined'] = math.sqrt(sum(v * v for v in budget.values()))
+    return {k: v * abs(si) for k, v in budget.items()}, (coef - U, coef + U)
 
 
-def gain_check(fit: Sequence, held: Sequence, model: Model, survey: Survey, rig, gain: float):
-    """(why the named moving-cell gain does not fit, or None; the terms found without it). The catalog keeps
-    priority only when its model explains the structure no worse: the library is searched again on the residual
-    with the gain undone, and if it does as well on the held-out pulls with no more parameters (the gain counts
-    one), the gain is withheld."""
+# parameters of each force-model cause the check weighs against library terms (the hum: amplitude and phase)
+CAUSE_PARAMS = {'moving_cell_gain': 1, 'effective_mass': 1, 'accel_delay': 1, 'ac_coupling': 1, 'mains_hum': 2}
+
+
+def _undone(st, cause: str):
+    """A pull's moving-cell statistics with a named cause undone: y0 = y + c (c: its contribution, channel_series)."""
+    names, G, b, s, n, cat, causes, sys_ = st
+    gcc, gcx, bc = causes[cause]
+    return names, G, b + gcx, s + 2 * bc + gcc, n, cat, causes, sys_
+
+
+def cause_check(fit: Sequence, held: Sequence, model: Model, survey: Survey, rig, cause: str):
+    """(why the named force-model cause does not fit, or None; the terms found without it). The catalog keeps
+    priority only when its model explains the structure no worse than library terms with the same number of
+    parameters: the library is searched again on the moving cell's residual with the cause undone, and if it does
+    as well on the held-out pulls with no more parameters (CAUSE_PARAMS: the cause's), the cause is withheld."""
     n_prod = sum(1 for nm in fit[0][0] if not nm.endswith(SIN))
-    fit0, held0 = [_without_gain(st, gain) for st in fit], [_without_gain(st, gain) for st in held]
+    fit0, held0 = [_undone(st, cause) for st in fit], [_undone(st, cause) for st in held]
     found0, _, model0 = search_channel('force_moving', fit0, held0, survey, rig, False)
-    k_cat = len(model.prod) + (model.sin is not None) + 1
+    n_cause = CAUSE_PARAMS.get(cause, 1)
+    k_cat = len(model.prod) + (model.sin is not None) + n_cause
     k_lib = len(model0.prod) + (model0.sin is not None)
     sse_cat = sum(_sse(st, model, n_prod) for st in held)
     sse_lib = sum(_sse(st, model0, n_prod) for st in held0)
     if k_lib <= k_cat and sse_lib <= sse_cat * (1.0 + (PRIORITY_MARGIN if k_lib < k_cat else 0.0)):
-        return (f'without the moving-cell gain ({gain:.5f}) the library explains the moving cell with {k_lib} '
-                f'term(s) as well as the gain with {k_cat - 1} (held-out SSE {sse_lib:.4g} against {sse_cat:.4g}): '
-                'the nearest catalog cause does not fit'), found0
+        what = ', '.join(t.term for t in found0) or 'no term at all'
+        return (f'without {cause} the library explains the moving cell with {k_lib} parameter(s) ({what}) as well '
+                f'as the model with it does with {k_cat} ({n_cause} of them its own; held-out SSE {sse_lib:.4g} '
+                f'against {sse_cat:.4g}): the nearest catalog cause does not fit'), found0
     return None, found0
 
 
@@ -499,23 +629,26 @@ def si_factor(term: str, scales: Dict[str, float]) -> float:
 
 
 def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int], survey: Survey, rig,
-           named: Sequence[str], gain: Optional[float] = None) -> BeyondResult:
-    """The search over every searched channel (module docstring): parts in the usable pulls' order; gain: the
-    named moving-cell gain (None: not named)."""
+           named: Sequence[str], channels: Sequence[str] = SEARCHED, sensors: bool = False) -> BeyondResult:
+    """The search over the channels (module docstring; default every searched one): parts in the usable pulls'
+    order; sensors: terms were found on the sensors on their own (the force model's causes are checked then)."""
     import time
     t0 = time.perf_counter()
     terms, within, demoted = [], [], {}
-    for ch in SEARCHED:
+    for ch in channels:
         if not all(ch in parts[j].stats for j in (*fit, *held)):
             continue
         fit_st, held_st = [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held]
         found, why, model = search_channel(ch, fit_st, held_st, survey, rig, COULOMB in named and ch == 'motor_current')
         if why is not None:
             demoted[COULOMB] = why
-        if ch == 'force_moving' and gain is not None and fit_st[0][5] is not None and any(t.named for t in found):
-            why, _ = gain_check(fit_st, held_st, model, survey, rig, gain)
-            if why is not None:
-                demoted[GAIN] = why
+        if ch == 'force_moving' and (any(t.named for t in found) or sensors):
+            # a term on the moving cell, or a sensor the force model was fitted with read wrong: does each named
+            # force-model cause still explain more than library terms would?
+            for cause in fit_st[0][6]:
+                why, _ = cause_check(fit_st, held_st, model, survey, rig, cause)
+                if why is not None:
+                    demoted[cause] = why
         terms += [t for t in found if t.named]
         within += [t for t in found if not t.named]
     terms.sort(key=lambda t: -t.rel_sse_reduction)
@@ -531,7 +664,7 @@ def term_traces(series: Dict[str, tuple], terms: Sequence[Term], pull: str) -> t
     for ch in {t.channel for t in terms}:
         if ch not in series:
             continue
-        y, sig, _ = series[ch]
+        y, sig = series[ch][:2]
         prods = [t for t in terms if t.channel == ch and t.frequency_hz is None]
         rest = y - sum((t.coefficient * term_values(t.term, sig) for t in prods), np.zeros_like(y))
         for t in terms:

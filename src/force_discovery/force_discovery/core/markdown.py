@@ -106,6 +106,9 @@ def beyond_lines(r) -> list:
                  f'-{100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f}, gain {t["gain"]:.3g}x; contribution rms '
                  f'{_num(ev["contribution_rms"])} against the band {_num(ev["band"])}. Usually: '
                  f'{t["interpretation"]}.{plot}')
+        parts = [f'{k} {_num(v)}' for k, v in t.get('uncertainty_budget', {}).items()]
+        if parts:
+            L.append(f'  Standard uncertainties ({t["unit"]}): {", ".join(parts)}.')
     if not r['beyond_catalog']:
         L.append('No term of the library explains what the catalog leaves.')
     for t in b['within_tolerance']:

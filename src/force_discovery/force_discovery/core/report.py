@@ -194,6 +194,11 @@ def add_beyond(report: dict, found) -> None:
         'rule': 'forward selection over the library on the fitted pulls; a term joins when it passes the held-out '
                 'test of the catalog (SSE -1 %, t >= 4) and is named when its contribution rms, over its 95 % '
                 'interval, lies above the channel band (evidence.band)'})
+    if report.get('simulation_check') is not None:   # a sinusoid's phase is each pull's own: not re-simulated
+        report['simulation_check']['terms_not_resimulated'] = [
+            {'channel': t.channel, 'term': t.term, 'why': "a sinusoid's phase is each pull's own; the re-simulation "
+                                                          'leaves it out'} for t in found.terms
+            if t.frequency_hz is not None]
     if found.terms and report['cause'] in ('unexplained', 'none'):
         report['cause'] = 'beyond_catalog'
         report['causes'] = [c for c in report['causes'] if c['name'] != 'unexplained']

@@ -192,8 +192,8 @@ class BeyondJob:
     hum_scale: Optional[float]          # the hum estimate's factor (None: the hum is not named)
     err_fit: tuple                      # (terms, coefficients, delay) of the named force-channel causes
     coulomb: Optional[float]            # the named Coulomb friction (N), or None
-    gain: Optional[float]               # the moving-cell gain is named: the mass in its column (beyond.gain_check)
     survey: Optional[bey.Survey]        # None: the spectrum pass (a few fitted pulls); else the statistics
+    sensors: tuple = ()                 # terms found on the sensors on their own (beyond.sensor_corrected)
 
 
 @dataclass(frozen=True)
@@ -317,11 +317,17 @@ def beyond_pass(item, series: bool = False):
     its library statistics (series=True: its beyond.channel_series)."""
     src, rig, c1, job = item
     p = load_pull(src, rig, c1)
+    if job.sensors:
+        p = bey.sensor_corrected(p, job.sensors, rig, c1)
     m2 = rig.force_chain.m2
     h = None if job.hum_scale is None else hum_per_pull(p, job.f_hum, m2)[1] * job.hum_scale
     terms, coef, d = job.err_fit
-    r = ForceModel([p], m2, [h]).resid(set(terms), coef, d, 0)
-    out = bey.channel_series(p, rig, r, h, job.coulomb, job.gain)
+    fm_ = ForceModel([p], m2, [h])
+    r = fm_.resid(set(terms), coef, d, 0)
+    causes = {k: fm_.resid(set(terms) - {k}, coef, d, 0) - r for k in terms}   # each cause undone (cause_check)
+    if h is not None:
+        causes['mains_hum'] = h[p.w0:p.w1]
+    out = bey.channel_series(p, rig, r, h, job.coulomb, causes)
     if series:
         return out
     series = out
@@ -513,17 +519,14 @@ class Stream:
         import time
         t0 = time.perf_counter()
         err_hum, fit_ = self.err_fit(analysis, decision)
-        fcf = gain = gain_col = None
-        if 'moving_cell_gain' in decision.named:   # its column: g (T + m2 a2), or g T beside the effective mass
-            gain = analysis.candidates['moving_cell_gain'].parameters['gain']
-            gain_col = 0.0 if 'effective_mass' in decision.named else self.rig.force_chain.m2
+        fcf = None
         if 'coulomb_friction' in decision.named:
             fcf = analysis.candidates['coulomb_friction'].parameters['force_n']
         names = [p.name for p in analysis.pulls]
 
-        def job(j, survey):
+        def job(j, survey, sensors=()):
             return (self.sources[j], self.rig, self.c1,
-                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, gain_col, survey))
+                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, survey, sensors))
         few = few_pulls(analysis.fit)
         specs = self._strict('beyond', self._map('beyond', beyond_pass, [job(j, None) for j in few],
                                                  [names[j] for j in few]))
@@ -531,11 +534,26 @@ class Stream:
         survey = bey.survey_from(specs, dt * bey.decimation(dt))
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, survey) for j in range(len(names))], names))
-        res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named, gain)
+        res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named)
+        sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS and t.frequency_hz is None)
+        if sensors:   # the moving cell and the current again, against what the sensors read without their terms
+            parts = self._strict('beyond', self._map('beyond', beyond_pass,
+                                                     [job(j, survey, sensors) for j in range(len(names))], names))
+            rest = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named,
+                              channels=tuple(c for c in bey.SEARCHED if c not in bey.SENSORS), sensors=True)
+            keep = [t for t in res.terms if t.channel in bey.SENSORS]
+            res = dataclasses.replace(
+                res, terms=tuple(sorted(keep + list(rest.terms), key=lambda t: -t.rel_sse_reduction)),
+                within_tolerance=tuple(t for t in res.within_tolerance if t.channel in bey.SENSORS)
+                + rest.within_tolerance, demoted=rest.demoted)
         traces = ()
         if res.terms:   # one held-out pull's residuals before and after each term (the plots)
             j = analysis.held[0]
-            traces = bey.term_traces(beyond_pass(job(j, survey), series=True), res.terms, names[j])
+            series = beyond_pass(job(j, survey), series=True)
+            if sensors:   # the sensors' residuals as they were, the others' against the corrected sensors
+                series = {**beyond_pass(job(j, survey, sensors), series=True),
+                          **{c: series[c] for c in bey.SENSORS if c in series}}
+            traces = bey.term_traces(series, res.terms, names[j])
         return dataclasses.replace(res, seconds=time.perf_counter() - t0, traces=traces)
 
     def held_out_results(self, analysis: Analysis, decision: Decision, ext: dict):
@@ -595,7 +613,7 @@ def discover_stream(campaign, rig, out_dir, scheduler: Optional[str] = None,
             return report
         found = st.beyond(analysis, decision)
         decision = with_beyond(decision, found)
-        if bey.GAIN in found.demoted:   # the force residual changes without the gain: search it again
+        if set(found.demoted) & set(bey.CAUSE_PARAMS):   # the force residual changes without the cause: again
             again = st.beyond(analysis, decision)
             found = dataclasses.replace(again, demoted={**found.demoted, **again.demoted},
                                         seconds=found.seconds + again.seconds)

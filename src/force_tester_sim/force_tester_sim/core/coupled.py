@@ -192,6 +192,10 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
         raise SimError(f'tol_m is {tol_m!r}; expected a positive length in metres')
     if not (isinstance(tol_n, (int, float)) and not isinstance(tol_n, bool) and tol_n > 0):
         raise SimError(f'tol_n is {tol_n!r}; expected a positive force in newtons (inf: x3 alone)')
+    if rig.extra_terms:   # issue 27: refused, not ignored
+        raise SimError(f'extra_terms {[f"{e.channel}: {e.term}" for e in rig.extra_terms]} are not simulated with '
+                       'the drive coupled to the force chain; expected a rig without extra_terms here (the '
+                       'prescribed-motion pull, drive=False, takes them)')
     p = chain_params(rig, spec)
     prescribed = motion_for(rig, spec)          # raises if the prescribed pull does not fit
     t = sample_times_s(rig)
