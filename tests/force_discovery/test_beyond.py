@@ -81,15 +81,6 @@ def test_the_grammar_writes_and_reads_its_terms():
             parse_term(bad)
 
 
-def test_the_coupled_drive_refuses_extra_terms():
-    from force_tester_sim.core.campaign import truth_pull_specs
-    from force_tester_sim.core.coupled import run_coupled_pull
-    data = yaml.safe_load(NOMINAL_YAML.read_text())
-    rig = rig_from_dict({**data, 'extra_terms': [{'channel': 'motor_current', 'term': 'v^2', 'coefficient': 0.1}]})
-    with pytest.raises(SimError, match=re.escape("motor_current: v^2")):
-        run_coupled_pull(rig, truth_pull_specs(rig, 2, 1, 5)[0])
-
-
 def test_the_sim_takes_extra_terms_and_refuses_bad_ones():
     data = yaml.safe_load(NOMINAL_YAML.read_text())
     rig = rig_from_dict({**data, 'extra_terms': [{'channel': 'motor_current', 'term': 'v^2', 'coefficient': 0.1},

@@ -18,6 +18,7 @@ from force_tester_sim.core.coupled import (
 from force_tester_sim.core.departures import Departures
 from force_tester_sim.core.drive import DriveControl
 from force_tester_sim.core.errors import SimError
+from force_tester_sim.core.extra_terms import extra_terms_from_data
 from force_tester_sim.core.params import TRUTH_YAML
 from force_tester_sim.core.pull import chain_params
 
@@ -117,6 +118,33 @@ def test_channels_come_from_the_drive(rig, spec, coupled):
     assert len(ch['time_s']) == len(sample_times_s(rig))
     assert np.max(r.drive['position_m']) <= rig.drive.usable_track_m
     assert abs(r.drive['velocity_m_s'][-1]) < 1e-3
+
+
+def test_extra_terms_enter_the_coupled_drive(rig, spec, coupled):
+    """A term on the motor current is a load the drive must supply (the PID draws the current for it); a term on a
+    sensor channel is added to what the DAQ records; as in the prescribed pull (a rig YAML's extra_terms)."""
+    base, _ = coupled
+    drag, drift = 0.02, 7.0        # A per (m/s)^2; N/s
+    terms = (('motor_current', 'v^2', drag), ('force_moving', 't', drift))
+    x = dataclasses.replace(rig, extra_terms=extra_terms_from_data(
+        [{'channel': ch, 'term': term, 'coefficient': c} for ch, term, c in terms]))
+    r = run_coupled_pull(x, spec, noise=False)
+    t, v = r.channels['time_s'], r.drive['velocity_m_s']
+    cruise = (v > 0.95 * np.max(v)) & (t < t[r.taut_index] - 0.01)    # at speed, the lanyard still slack
+    assert np.count_nonzero(cruise) > 100
+    added = r.channels['motor_current_a'] - base.channels['motor_current_a']
+    # in the cruise the drive holds its speed, so the current carries the drag, and nothing else changed
+    np.testing.assert_allclose(added[cruise], drag * v[cruise] ** 2, rtol=0.03)
+    assert np.max(np.abs(v - base.drive['velocity_m_s'])) < 0.02 * np.max(v)
+    # the drag acts after the break too, beside the free chain's F_move (the drive's load there)
+    after = np.arange(r.break_end_index, len(t))
+    moving = after[v[after] > 1.0]
+    drag_n = rig.drive.force_per_amp_n_per_a * drag * v[moving] ** 2
+    assert len(moving) > 100 and np.max(drag_n) > 10.0
+    np.testing.assert_allclose(r.drive['load_n'][moving] - r.truth['force_moving_n'][moving], drag_n, atol=2.0)
+    # the moving cell's record drifts by drift * t on top of the same physics
+    dfm = r.channels['force_moving_n'] - r.truth['force_moving_n']
+    np.testing.assert_allclose(dfm, drift * (t - t[0]), atol=1e-9)
 
 
 def test_simulate_pull_switch(rig):

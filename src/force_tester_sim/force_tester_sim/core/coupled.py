@@ -16,7 +16,9 @@ load: relaxing the 1 kHz mount mode against the carriage does not converge (loop
 DRIVE.md "Ringing after the break". ``integrate_coupled_reference`` integrates the whole coupled model as one
 ODE for verification. Dry friction (departure ``coulomb_friction``) acts inside the
 drive integration on the current v3 (not lagged), smoothed over |v3| < V_EPS so the right-hand side
-stays continuous.
+stays continuous. The rig's extra_terms on the motor current (A each) are a further load on the carriage, their
+force per amp times the term, from the previous pass's motion and chain (``extra_load``): the drive supplies it, so the
+recorded current carries them; the sensors' terms are added to what the DAQ records, as in the prescribed pull.
 
 The drive on the grid (``drive_on_grid``, exact where LTI, LSODA elsewhere) is core/drive_grid.py.
 """
@@ -43,6 +45,7 @@ from .drive_grid import (
     linearised_after_break,
 )
 from .errors import SimError
+from .extra_terms import extra_channels, signals
 from .integrate import ChainTrajectory, integrate_chain
 from .params import RigParams
 from .pull import PullResult, PullSpec, chain_params, events_and_truth, motion_for, record_channels, sample_times_s
@@ -149,6 +152,19 @@ def check_fits(rig: RigParams, x3, v3) -> None:
                        f'|v3| < {REST_TOL_M_S} m/s within the {rig.daq.record_length_s} s record')
 
 
+def extra_load(rig: RigParams, spec: PullSpec, terms, p: ChainParams, traj, kin, fm,
+               overrides=None) -> Optional[np.ndarray]:
+    """The load, N, that the rig's extra_terms on the motor current put on the carriage (``terms``, A each, times
+    the drive's force per amp), from one pass's carriage motion ``kin`` and chain solve; None without such terms.
+    The drive then supplies it, so the recorded current carries the terms as the prescribed pull's balance does."""
+    if not terms:
+        return None
+    T = chain_tension(p, traj, kin)
+    sig = signals(traj.t, fm, force_stat(traj.x, p), T, (fm - T) / p.m2, kin[1], kin[0])
+    kf = apply_overrides(rig.drive, overrides).force_per_amp_n_per_a
+    return kf * extra_channels(terms, sig, spec.seed)['motor_current']
+
+
 def chain_tension(p, traj, kin) -> np.ndarray:
     """Lanyard tension of a chain trajectory (the flow piece's from the yield on)."""
     U = np.column_stack([kin[0], kin[1], kin[2], traj.beta])
@@ -192,10 +208,6 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
         raise SimError(f'tol_m is {tol_m!r}; expected a positive length in metres')
     if not (isinstance(tol_n, (int, float)) and not isinstance(tol_n, bool) and tol_n > 0):
         raise SimError(f'tol_n is {tol_n!r}; expected a positive force in newtons (inf: x3 alone)')
-    if rig.extra_terms:   # issue 27: refused, not ignored
-        raise SimError(f'extra_terms {[f"{e.channel}: {e.term}" for e in rig.extra_terms]} are not simulated with '
-                       'the drive coupled to the force chain; expected a rig without extra_terms here (the '
-                       'prescribed-motion pull, drive=False, takes them)')
     p = chain_params(rig, spec)
     prescribed = motion_for(rig, spec)          # raises if the prescribed pull does not fit
     t = sample_times_s(rig)
@@ -207,6 +219,7 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
     f_changes: List[float] = []
     fm_last = None
     converged = False
+    on_current = tuple(e for e in rig.extra_terms if e.channel == 'motor_current')
     for _ in range(int(iterations)):
         motion = drive_motion(dr)
         kin = (dr['position_m'], dr['velocity_m_s'], dr['acceleration_m_s2'])
@@ -215,7 +228,8 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
         f_changes.append(math.inf if fm_last is None else float(np.max(np.abs(fm - fm_last))))
         fm_last = fm
         new = drive_on_grid(rig, t, cmd, fm, control, overrides, method=method,
-                            free_chain=free_after_break(p, traj) if joint_after_break else None)
+                            free_chain=free_after_break(p, traj) if joint_after_break else None,
+                            extra_load_n=extra_load(rig, spec, on_current, p, traj, kin, fm, overrides))
         check_fits(rig, new['position_m'], new['velocity_m_s'])
         changes.append(float(np.max(np.abs(new['position_m'] - dr['position_m']))))
         dr = new
@@ -231,9 +245,12 @@ def run_coupled_pull(rig: RigParams, spec: PullSpec, noise: bool = True, control
     T = chain_tension(p, traj, kin)
     fs = force_stat(X, p)
     a2 = (fm - T) / p.m2
+    extra = None
+    if rig.extra_terms:   # the current's terms are in the drive's load above; the sensors' are recorded here
+        extra = extra_channels(rig.extra_terms, signals(t, fm, fs, T, a2, v3, x3), spec.seed)
 
     channels = record_channels(rig, spec, t, dr['position_m'], fm, fs, a2, noise,
-                               motor=(dr['command_m_s'], dr['current_a'], dr['voltage_v']))
+                               motor=(dr['command_m_s'], dr['current_a'], dr['voltage_v']), extra=extra)
     taut_index, break_index, break_end_index, truth = events_and_truth(t, traj, p, kin, T, fm, fs)
     truth['v3_no_load_m_s'] = first['velocity_m_s']
     return CoupledPullResult(channels, spec, motion, taut_index, break_index, break_end_index, traj.taut_s,

@@ -209,12 +209,15 @@ def linearised_after_break(rig: RigParams, p: ChainParams, control: DriveControl
 
 def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveControl | None = None,
                   overrides=None, friction_n: Optional[float] = None, method: str = 'exact',
-                  free_chain=None) -> Dict[str, np.ndarray]:
+                  free_chain=None, extra_load_n=None) -> Dict[str, np.ndarray]:
     """The drive from rest on the uniform grid ``t`` (from 0): command and load (N, tension) given as samples
     on the grid (linear between samples); dry friction ``friction_n`` (None: from the rig's departures) acts
     on the current v3. Returns samples: time_s, position_m, velocity_m_s, acceleration_m_s2, current_a, voltage_v,
-    command_m_s, load_n (F_move), friction_n, integrator, and power_w (= V i),
+    command_m_s, load_n (F_move, plus ``extra_load_n``), friction_n, integrator, and power_w (= V i),
     input_power_w (= K_t/K_e V i), mech_power_w (= F_drive v3) as in ``simulate_drive``.
+
+    ``extra_load_n``: a further load on the carriage, N, as samples on the grid (the rig's extra_terms on the motor
+    current times the force per amp, core/coupled.py); unlike ``load_n`` it acts after ``free_chain``'s k_s too.
 
     ``free_chain``: None, or (ChainParams p, sample k_s, chain state at t[k_s]) for a chain that is free from
     t[k_s] on for good (the coupon broken, beta = 0): from k_s the drive is integrated together with the free
@@ -238,8 +241,11 @@ def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveCon
     h = float(t[1] - t[0])
     cmd = np.broadcast_to(np.asarray(command_m_s, dtype=float), t.shape).astype(float)
     load = np.zeros(n) if load_n is None else np.broadcast_to(np.asarray(load_n, dtype=float), t.shape).astype(float)
-    if not (np.all(np.isfinite(cmd)) and np.all(np.isfinite(load))):
+    extra = (np.zeros(n) if extra_load_n is None
+             else np.broadcast_to(np.asarray(extra_load_n, dtype=float), t.shape).astype(float))
+    if not (np.all(np.isfinite(cmd)) and np.all(np.isfinite(load)) and np.all(np.isfinite(extra))):
         raise SimError('command or load contains non-finite samples; expected finite m/s and N')
+    load = load + extra
     drive = apply_overrides(rig.drive, overrides)
     validate_drive(drive)
     setup = DriveSetup(drive, control)
@@ -261,7 +267,7 @@ def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveCon
     load_s = load
     if stack is not None:                # the free chain is the load from k_s on
         load_s = load.copy()
-        load_s[k_s:] = 0.0
+        load_s[k_s:] = extra[k_s:]
     inv_h, last = 1.0 / h, n - 2
     lists = {}          # command and load as plain floats, made on the first LSODA call of each phase
 
@@ -301,7 +307,7 @@ def drive_on_grid(rig: RigParams, t, command_m_s, load_n=None, control: DriveCon
     x3, v3, i, z = X[:, :4].T.copy()
     fl = load_s.copy()
     if stack is not None:
-        fl[k_s:] = columns(X[k_s:, 4:], c_s)
+        fl[k_s:] = columns(X[k_s:, 4:], c_s) + extra[k_s:]
     fric = fc * np.clip(v3 / V_EPS_M_S, -1.0, 1.0)
     acc = (setup.k_force * i - setup.damping * v3 - fl - fric) / setup.mass_kg
     volt = drive_voltage_array(v3, i, z, cmd, acc, setup)

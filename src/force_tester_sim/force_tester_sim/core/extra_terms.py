@@ -120,6 +120,12 @@ def extra_terms_from_data(data: Any) -> Tuple[ExtraTerm, ...]:
     return tuple(out)
 
 
+def signals(t, F_move, F_stat, T, a2, v, x) -> Dict[str, np.ndarray]:
+    """The SIGNALS of one pull as a term's values take them (t: the sample times; the record starts at t = 0)."""
+    t = np.asarray(t, float)
+    return {'F_move': F_move, 'F_stat': F_stat, 'T': T, 'a2': a2, 'v': v, 'x': x, 't': t - t[0]}
+
+
 def sin_phase(seed: int) -> float:
     """A pull's phase of the sinusoid terms (seeded: the same pull gives the same phase)."""
     return float(np.random.default_rng([int(seed), 0x27]).uniform(0.0, 2.0 * math.pi))

@@ -12,7 +12,7 @@ from force_tester_common.core.clock import record_stamps_ns
 from .chain import ChainParams, force_move, force_stat, tension
 from .departures import apply_sensor_departures
 from .errors import SimError
-from .extra_terms import extra_channels
+from .extra_terms import extra_channels, signals
 from .integrate import ChainTrajectory, integrate_chain
 from .motion import MotionSource, PrescribedMotion, hold_time_s, nominal_slack_m
 from .params import RigParams
@@ -253,8 +253,7 @@ def run_pull_with_motion(rig: RigParams, spec: PullSpec, motion: MotionSource, n
                    + cf['force_n'] * np.sign(v3)) / d.force_per_amp_n_per_a
     extra = None
     if rig.extra_terms:   # terms beyond the catalog: the current's enters the drive's balance (the voltage follows)
-        extra = extra_channels(rig.extra_terms, {'F_move': fm, 'F_stat': fs, 'T': T, 'a2': a2, 'v': v3, 'x': x3,
-                                                 't': t - t[0]}, spec.seed)
+        extra = extra_channels(rig.extra_terms, signals(t, fm, fs, T, a2, v3, x3), spec.seed)
         current = current + extra.get('motor_current', 0.0)
     di = np.gradient(current, t)
     voltage = np.clip(d.armature_resistance_ohm * current + d.armature_inductance_h * di
