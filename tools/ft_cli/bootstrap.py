@@ -30,8 +30,10 @@ SDIST_BUILD_TOOLS = ('setuptools', 'wheel')
 NPM_CACHE = 'npm-cache'   # the folder of `./ft wheels DIR` that holds the npm packages' tarballs
 # Debian's Chromium for the viewer's browser test, pinned. Debian's archive keeps only the newest build of a
 # release (each security update replaces it), so when the pin is gone from the archive the newest is installed
-# and the step says so: bump the pin then.
+# and the step says so: bump the pin then. chromium depends on chromium-common of its own version exactly, so both
+# are pinned: with chromium alone pinned, apt takes the newest chromium-common (a security update's) and refuses.
 CHROMIUM = 'chromium'
+CHROMIUM_PACKAGES = (CHROMIUM, 'chromium-common')
 CHROMIUM_VERSION = '150.0.7871.100-1~deb12u1'
 
 
@@ -132,11 +134,16 @@ def install_chromium(log: Path) -> str:
     apt = [*sudo, 'apt-get', '-y', '-q', '--no-install-recommends']
     _run('apt-get update', [*sudo, 'apt-get', '-q', 'update'], log, env=env)
     policy = subprocess.run(['apt-cache', 'madison', CHROMIUM], capture_output=True, text=True).stdout
+    why = 'the archive no longer has'
     if f'| {CHROMIUM_VERSION} |' in policy:
-        _run('apt-get install', [*apt, 'install', f'{CHROMIUM}={CHROMIUM_VERSION}'], log, env=env)
-        return f'{CHROMIUM} {CHROMIUM_VERSION}'
+        try:
+            _run('apt-get install', [*apt, 'install', *(f'{p}={CHROMIUM_VERSION}' for p in CHROMIUM_PACKAGES)],
+                 log, env=env)
+            return f'{CHROMIUM} {CHROMIUM_VERSION}'
+        except SetupError:   # the pinned set no longer installs together: the newest, said so (the log has why)
+            why = 'apt-get could not install'
     _run('apt-get install', [*apt, 'install', CHROMIUM], log, env=env)
-    return f'{CHROMIUM} (the archive no longer has the pinned {CHROMIUM_VERSION}: the newest instead; bump the pin)'
+    return f'{CHROMIUM} ({why} the pinned {CHROMIUM_VERSION}: the newest instead; bump the pin)'
 
 
 def download(lock: Path, into: Path, log: Path, npm_folders: tuple = ()) -> int:
