@@ -90,3 +90,22 @@ def test_bad_extensions_are_refused_with_the_value(tmp_path):
     f.write_text('correction: [1, 2]\n')
     with pytest.raises(CorrectionError, match='correction'):
         Extension.from_yaml(f)
+
+
+def test_terms_the_correction_cannot_undo_are_named_not_ignored(tmp_path):
+    f = tmp_path / 'ext.yaml'
+    f.write_text('correction: {moving_cell_quadratic_per_n: 1.0e-05}\n'
+                 'extra_terms:\n'
+                 '  - {channel: force_moving, term: F_move^2, coefficient: 1.0e-05}\n'
+                 '  - {channel: force_moving, term: v, coefficient: 12.0}\n'
+                 '  - {channel: accel_axial, term: t, coefficient: 2.5}\n'
+                 '  - {channel: motor_current, term: v^2, coefficient: 0.1}\n')
+    ext = Extension.from_yaml(f)
+    # the polynomial is undone; the drag and the accelerometer's drift change the corrected force and are not;
+    # the current's drag does not enter the corrected force at all
+    assert ext.not_applied == ('force_moving: v', 'accel_axial: t')
+    assert ext.moving_cell_quadratic_per_n == 1.0e-05
+    assert 'not undone: force_moving: v, accel_axial: t' in ext.describe()
+    f.write_text('correction: {}\nextra_terms: {channel: force_moving}\n')
+    with pytest.raises(CorrectionError, match="'channel': 'force_moving'"):
+        Extension.from_yaml(f)

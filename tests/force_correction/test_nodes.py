@@ -243,7 +243,12 @@ def test_extension_file_sets_the_mass_and_a_bad_one_is_refused(ros, tmp_path):
         (ok,) = node.set_parameters([Parameter('extension_file', value=str(good))])
         assert ok.successful, ok.reason
         assert node.corrector.params.mass_kg == 1.3
-        assert node.extension.accel_delay_s == 4.0e-5
+        assert node.extension.accel_delay_s == 4.0e-5 and node.extension.not_applied == ()
+        dragged = tmp_path / 'dragged.yaml'
+        dragged.write_text('correction: {}\nextra_terms: [{channel: force_moving, term: v, coefficient: 9.0}]\n')
+        (ok,) = node.set_parameters([Parameter('extension_file', value=str(dragged))])
+        assert ok.successful and node.extension.not_applied == ('force_moving: v',)
+        (ok,) = node.set_parameters([Parameter('extension_file', value=str(good))])
         (bad,) = node.set_parameters([Parameter('extension_file', value=str(tmp_path / 'missing.yaml'))])
         assert not bad.successful and 'missing.yaml' in bad.reason
         assert node.get_parameter('extension_file').value == str(good)

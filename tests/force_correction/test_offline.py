@@ -288,6 +288,12 @@ def test_cli_correct_prints_the_set_table(tmp_path, camp):
     head, _units, _rule, *rows = r.stdout.splitlines()
     assert head.split()[:4] == ['set', 'pulls', 'stationary', 'diff']
     assert [row.split()[:2] for row in rows[:2]] == [['1', '2'], ['2', '1']]
+    assert 'cannot be undone' not in r.stderr
+    ext = tmp_path / 'ext.yaml'    # an extension with a term the correction cannot undo: said in one warning
+    ext.write_text('correction: {}\nextra_terms: [{channel: force_moving, term: v, coefficient: 9.0}]\n')
+    r = offline_cli('correct', bag, tmp_path / 'corr2', '--extension', ext)
+    assert r.returncode == 0, r.stderr
+    assert "warning: the extension's force_moving: v cannot be undone" in r.stderr, r.stderr
     for cmd in ('correct', 'plot', 'info', 'export'):
         r = offline_cli(cmd, '--help')
         assert r.returncode == 0 and 'usage: ./ft bag ' + cmd in r.stdout

@@ -24,7 +24,7 @@ cannot poison their state) and leaves as NaN at its own index.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Optional, Tuple
 
@@ -41,6 +41,13 @@ def _lfilter():
     return lfilter
 
 
+# the terms beyond the catalog (extension.yaml extra_terms:, force_discovery's beyond_catalog) that the correction
+# undoes: on the moving cell, a polynomial linearised live -> the correction key that carries its coefficient
+CORRECTION_TERMS = {'F_move^2': 'moving_cell_quadratic_per_n', 'F_move^3': 'moving_cell_cubic_per_n2'}
+# the channels a term changes the corrected force through: F_move itself, and a2 in m*a2
+CORRECTED_CHANNELS = ('force_moving', 'accel_axial')
+
+
 @dataclass(frozen=True)
 class Extension:
     mass_kg: Optional[float] = None
@@ -52,6 +59,8 @@ class Extension:
     mains_hum_hz: Optional[float] = None
     hum_memory_s: float = 0.5
     hum_unloaded_n: float = 50.0
+    # extra_terms on CORRECTED_CHANNELS that the correction cannot undo ('force_moving: v'): said, not ignored
+    not_applied: Tuple[str, ...] = ()
 
     def __post_init__(self):
         def bad(name, value, expected):
@@ -74,7 +83,7 @@ class Extension:
 
     @classmethod
     def from_dict(cls, data: dict) -> 'Extension':
-        known = {f.name for f in fields(cls)}
+        known = {f.name for f in fields(cls)} - {'not_applied'}
         unknown = sorted(set(data) - known)
         if unknown:
             raise CorrectionError(f'extension key {unknown[0]!r} is unknown; expected some of {sorted(known)}')
@@ -86,8 +95,10 @@ class Extension:
     def describe(self) -> str:
         """What the extension changes, briefly: 'none', or 'moving_cell_gain 1.02, accel_delay_s 2.1e-05'."""
         default = type(self)()
-        changed = [f'{f.name} {v:.6g}' if isinstance(v, float) else f'{f.name} {v}'
-                   for f in fields(self) if (v := getattr(self, f.name)) != getattr(default, f.name)]
+        changed = [f'{f.name} {v:.6g}' if isinstance(v, float) else f'{f.name} {v}' for f in fields(self)
+                   if f.name != 'not_applied' and (v := getattr(self, f.name)) != getattr(default, f.name)]
+        if self.not_applied:
+            changed.append(f'not undone: {", ".join(self.not_applied)}')
         return ', '.join(changed) or 'none'
 
     @classmethod
@@ -100,7 +111,8 @@ class Extension:
         if not isinstance(doc, dict) or not isinstance(doc.get('correction', {}), dict):
             raise CorrectionError(f'extension file {str(path)!r} has no correction: mapping; '
                                   'expected the extension.yaml of ./ft discover')
-        return cls.from_dict(doc.get('correction') or {})
+        ext = cls.from_dict(doc.get('correction') or {})
+        return replace(ext, not_applied=not_undone(doc.get('extra_terms') or []))
 
     @property
     def nonlinear(self) -> bool:
@@ -133,6 +145,18 @@ class Extension:
             h[k], h[k + 1] = 1.0 - f, f
             out.append((h, np.array([1.0])))
         return tuple(out)
+
+
+def not_undone(extra_terms) -> Tuple[str, ...]:
+    """'channel: term' of each of an extension's extra_terms that changes the corrected force (CORRECTED_CHANNELS)
+    and that the correction does not undo (not in CORRECTION_TERMS): a cable's drag on the moving cell, a drifting
+    accelerometer zero, a frame mode. The correction cannot see the signals they need (v, t) or their phase."""
+    if not isinstance(extra_terms, list) or not all(isinstance(e, dict) for e in extra_terms):
+        raise CorrectionError(f'extension extra_terms {extra_terms!r} is invalid; expected a list of '
+                              '{channel, term, coefficient} mappings')
+    return tuple(f'{e.get("channel")}: {e.get("term")}' for e in extra_terms
+                 if e.get('channel') in CORRECTED_CHANNELS
+                 and not (e.get('channel') == 'force_moving' and e.get('term') in CORRECTION_TERMS))
 
 
 class ForcePrefilter:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from force_correction.core.extension import CORRECTION_TERMS
 from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
 from force_tester_sim.core.uncertainty import DEPARTURES
 
@@ -27,7 +28,8 @@ HEAD = ('# Extension found by `./ft discover`: the departures section below, app
         'data do not identify. uncertainty: the\n# standard uncertainties (k = 1) of the corrected values the '
         'campaign estimated, in the rig YAML\'s form\n# (the corrected peak\'s uncertainty takes them). extra_terms: '
         'terms beyond the catalog (the rig YAML\n# takes them too); the correction linearises the moving cell by '
-        'their F_move^2 and F_move^3\n# (moving_cell_quadratic_per_n, moving_cell_cubic_per_n2).\n')
+        'their F_move^2 and F_move^3\n# (moving_cell_quadratic_per_n, moving_cell_cubic_per_n2); it names any other '
+        'term on the moving cell\n# or the accelerometer, which it cannot undo, in a warning.\n')
 
 
 def named_extension(analysis: Analysis, decision: Decision, rig) -> dict:
@@ -93,10 +95,6 @@ def correction_uncertainty(cands: dict, corr: dict, corrected=CORRECTED) -> dict
         u = math.hypot(0.5 * (hi - lo) / COVERAGE_K, est - corr[key])
         out.setdefault(as_cause, {})[as_par] = float(u)
     return {DEPARTURES: out} if out else {}
-
-
-# the force_moving terms the correction undoes (force_correction.core.extension: a non-linear cell linearised live)
-CORRECTION_TERMS = {'F_move^2': 'moving_cell_quadratic_per_n', 'F_move^3': 'moving_cell_cubic_per_n2'}
 
 
 def add_extra_terms(ext: dict, terms) -> None:
