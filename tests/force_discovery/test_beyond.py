@@ -44,6 +44,7 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
     assert first['interpretation'] == interpretation(truth['channel'], truth['term'], first['frequency_hz'])
     md = (tmp_path / 'report.md').read_text()
     assert '## Beyond the catalog' in md and truth['term'] in md
+    assert f"{truth['term']} on {truth['channel']}: " in md   # and the simulation check's section says how
     ext = yaml.safe_load((tmp_path / 'extension.yaml').read_text())
     assert truth['term'] in [e['term'] for e in ext['extra_terms']]
     # the sim's rig YAML takes the extension whole, and the re-simulation with the term is closer to the data

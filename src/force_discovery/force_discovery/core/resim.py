@@ -421,8 +421,8 @@ class SimulationCheck:
                 'quantities': [dict(q) for q in self.quantities]}
 
 
-SIN_HOW = ("its amplitude the campaign's coefficient, its phase fitted on each held-out pull (one nuisance parameter "
-           "a pull, as the hum's phase; quantities[].sin_phase_rad)")
+SIN_HOW = ("amplitude the campaign's coefficient, phase fitted on each held-out pull as the hum's is (one nuisance "
+           "parameter a pull, simulation_check.quantities[].sin_phase_rad)")
 
 
 def resimulated_terms(terms) -> tuple:
