@@ -1,13 +1,15 @@
 """Benchmark of the search beyond the catalog (issue 27, docs/discovery.md): how often `discover` finds a departure
 outside the catalog as the right term, and its cost.
 
-    ./ft bench beyond [--trials N] [--clean M] [--seed S]
+    ./ft bench beyond [--trials N] [--clean M] [--seed S] [--kind KIND ...]
 
 For every departure of the generator outside the catalog (generator.BEYOND: quadratic cell, air drag, zero drift,
 carriage-excited vibration, viscous friction, cable drag), N campaigns (3 sets x 4 pulls) with it hidden at a
 random strength, every other one through the model-form nuisances. Counted: the right term first on the right
 channel of beyond_catalog; its coefficient within 30 % of the truth; no catalog cause named (the truth is outside
 the catalog); and whether its ci95 (statistical and systematic parts, beyond.py) holds the true coefficient.
+Beside them, each campaign's gain through the simulator on the truth's channel (report.json simulation: the
+held-out pulls re-simulated with the model of record and with the extension; '-' when the check did not run).
 Then M campaigns with nothing to act on (clean and nuisance in turn): a false alarm is any entry in
 beyond_catalog. The cost: the wall time of the search's passes (Clock)
 against the whole discovery's, side by side in one run. The code under test sees only the data and the nominal rig.
@@ -26,6 +28,7 @@ sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generat
 import generator as G  # the generator
 
 from force_discovery.core.pipeline import discover
+from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS
 from force_tester_sim.core.params import load_rig
 
 
@@ -60,6 +63,8 @@ def main() -> int:
     ap.add_argument('--trials', type=int, default=4, help='campaigns per departure (default 4)')
     ap.add_argument('--clean', type=int, default=6, help='campaigns with nothing to act on (default 6)')
     ap.add_argument('--seed', type=int, default=2700, help='first seed (default 2700)')
+    ap.add_argument('--kind', action='append', choices=sorted(G.BEYOND),
+                    help='only this departure (repeatable; default every one)')
     a = ap.parse_args()
     if a.trials < 0 or a.clean < 0:
         print(f'bench_beyond: error: --trials {a.trials} / --clean {a.clean}; expected >= 0', file=sys.stderr)
@@ -68,17 +73,19 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix='bench_beyond_'))
     tot = {'right_term': 0, 'coefficient_30pct': 0, 'no_catalog': 0, 'covered': 0, 'n': 0}
     t_all = t_search = 0.0
-    print(f'{"departure":<20} {"right term":>10} {"coef 30%":>9} {"no catalog":>10} {"ci95 holds":>10}  misses',
-          flush=True)
-    for kind in sorted(G.BEYOND):
+    print(f'{"departure":<20} {"right term":>10} {"coef 30%":>9} {"no catalog":>10} {"ci95 holds":>10}  '
+          f'{"sim gain":<20}  misses', flush=True)
+    for kind in sorted(a.kind or G.BEYOND):
         row = {'right_term': 0, 'coefficient_30pct': 0, 'no_catalog': 0, 'covered': 0}
-        misses = []
+        misses, gains = [], []
         for k in range(a.trials):
             seed = a.seed + k
             camp, truth = G.beyond_campaign(kind, seed, nuisance=k % 2 == 1)
             report, t, ts = run(camp, rig, tmp / f'{kind}_{k}')
             t_all, t_search = t_all + t, t_search + ts
             got = G.check_beyond(report, truth)
+            sim = (report.get('simulation') or {}).get(CHANNEL_COLUMNS[truth['channel']])
+            gains.append('-' if sim is None or sim['gain'] is None else f'{sim["gain"]:.3g}')
             row['right_term'] += got['right_term']
             row['coefficient_30pct'] += got['coefficient_30pct']
             row['no_catalog'] += not got['catalog_named']
@@ -90,7 +97,8 @@ def main() -> int:
             tot[key] += row[key]
         tot['n'] += a.trials
         print(f'{kind:<20} {row["right_term"]:>7}/{a.trials:<2} {row["coefficient_30pct"]:>6}/{a.trials:<2} '
-              f'{row["no_catalog"]:>7}/{a.trials:<2} {row["covered"]:>7}/{a.trials:<2}  {"; ".join(misses)}',
+              f'{row["no_catalog"]:>7}/{a.trials:<2} {row["covered"]:>7}/{a.trials:<2}  {"/".join(gains):<20}  '
+              f'{"; ".join(misses)}',
               flush=True)
     false = 0
     for k in range(a.clean):

@@ -44,17 +44,23 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
     assert first['interpretation'] == interpretation(truth['channel'], truth['term'], first['frequency_hz'])
     md = (tmp_path / 'report.md').read_text()
     assert '## Beyond the catalog' in md and truth['term'] in md
+    assert f"{truth['term']} on {truth['channel']}: " in md   # and the simulation check's section says how
     ext = yaml.safe_load((tmp_path / 'extension.yaml').read_text())
     assert truth['term'] in [e['term'] for e in ext['extra_terms']]
     # the sim's rig YAML takes the extension whole, and the re-simulation with the term is closer to the data
     rig_x = rig_from_dict({**yaml.safe_load(NOMINAL_YAML.read_text()), **{k: ext[k] for k in ('departures',
                                                                                              'extra_terms')}})
     assert truth['term'] in [e.term for e in rig_x.extra_terms]
-    left_out = [(e['channel'], e['term']) for e in report['simulation_check']['terms_not_resimulated']]
-    if truth['frequency_hz'] is None:   # a sinusoid's phase is each pull's own: not re-simulated
-        assert report['simulation'][CHANNEL_COLUMNS[truth['channel']]]['gain'] > 1.0, report['simulation']
+    how = report['simulation_check']
+    resim = {(e['channel'], e['term']): e['how'] for e in how['terms_resimulated']}
+    assert (truth['channel'], truth['term']) in resim, resim   # a sinusoid too: its phase fitted per held-out pull
+    assert report['simulation'][CHANNEL_COLUMNS[truth['channel']]]['gain'] > 1.0, report['simulation']
+    key = f"{truth['channel']}: {truth['term']}"
+    if truth['frequency_hz'] is not None:
+        assert 'phase fitted on each held-out pull' in resim[(truth['channel'], truth['term'])], resim
+        assert all(key in q['sin_phase_rad'] for q in how['quantities']), how['quantities']
     else:
-        assert (truth['channel'], truth['term']) in left_out, left_out
+        assert not any('sin_phase_rad' in q for q in how['quantities']), how['quantities']
     budget = first['uncertainty_budget']   # the statistical and systematic parts, as the catalog's parameters
     assert 'statistical' in budget and len(budget) > 2 and budget['combined'] >= budget['statistical'], budget
     if kind == 'quadratic_cell':        # the correction linearises the cell

@@ -191,6 +191,9 @@ def simulation_lines(r) -> list:
     if cd.get('pulls'):
         L += ['', f'Both sims use the cells\' damping ratio measured on {cd["pulls"]} pulls\' free decay, '
                   f'{cd["used"]:.4g} (the rig says {cd["rig"]:.4g}).']
+    if how.get('terms_resimulated'):
+        L += ['', 'Terms beyond the catalog in the extended sim: '
+              + '; '.join(f'{e["term"]} on {e["channel"]}: {e["how"]}' for e in how['terms_resimulated']) + '.']
     if how.get('skipped'):
         L += ['', 'Not re-simulated: ' + '; '.join(f'{k}: {v}' for k, v in how['skipped'].items())]
     return L + ['']

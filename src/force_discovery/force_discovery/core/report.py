@@ -176,7 +176,8 @@ def quality_section(analysis: Analysis) -> list:
 
 def add_simulation(report: dict, check) -> None:
     """report.json simulation: {channel: {baseline_rms, extended_rms, gain}} from the re-simulation of the held-out
-    pulls (None when no pull could be re-simulated), and simulation_check: how (pulls, ring frequency, damping)."""
+    pulls (None when no pull could be re-simulated), and simulation_check: how (pulls, ring frequency, damping, the
+    extra terms re-simulated and how)."""
     report['simulation'] = None if check is None else clean(check.as_dict())
     report['simulation_check'] = None if check is None else clean(check.details())
 
@@ -194,11 +195,6 @@ def add_beyond(report: dict, found) -> None:
         'rule': 'forward selection over the library on the fitted pulls; a term joins when it passes the held-out '
                 'test of the catalog (SSE -1 %, t >= 4) and is named when its contribution rms, over its 95 % '
                 'interval, lies above the channel band (evidence.band)'})
-    if report.get('simulation_check') is not None:   # a sinusoid's phase is each pull's own: not re-simulated
-        report['simulation_check']['terms_not_resimulated'] = [
-            {'channel': t.channel, 'term': t.term, 'why': "a sinusoid's phase is each pull's own; the re-simulation "
-                                                          'leaves it out'} for t in found.terms
-            if t.frequency_hz is not None]
     if found.terms and report['cause'] in ('unexplained', 'none'):
         report['cause'] = 'beyond_catalog'
         report['causes'] = [c for c in report['causes'] if c['name'] != 'unexplained']

@@ -19,7 +19,9 @@ Per pull, from that pull's own measured channels only:
   quasi-static tension, refitted DYNAMIC_PASSES times (defect correction). The break force is then calibrated on
   that sim: the sim breaks when F_stat first reaches it, and F_stat rings, so it is set where the sim's F_stat
   crosses it nearest the fitted break instant. Each model (baseline, extended) fits its own quantities;
-- the mains-hum phase (random per pull) when the extension has a hum: fitted on the pull's pre-pull record.
+- the mains-hum phase (random per pull) when the extension has a hum: fitted on the pull's pre-pull record;
+- each sinusoid term's phase (extra_terms: a frame mode excited afresh each pull) when the extension has one:
+  fitted on the pull's analysis window with the amplitude fixed at the campaign's coefficient (sin_phases).
 
 Once per check, from the pulls checked: the cells' damping ratio, from the stationary cell's free decay after the
 break (m1 alone on its cell); both models use it (``calibrate``), since the cells ring after every fast break and a
@@ -39,7 +41,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Dict, Optional, Sequence
+from typing import Dict, Mapping, Optional, Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -49,7 +51,7 @@ from force_tester_common.core.units import LBF_N
 from force_tester_sim.core.chain import ChainParams
 from force_tester_sim.core.departures import Departures, apply_sensor_departures
 from force_tester_sim.core.errors import SimError
-from force_tester_sim.core.extra_terms import extra_channels
+from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, ExtraTerm, extra_channels
 from force_tester_sim.core.motion import SampledMotion
 from force_tester_sim.core.pull import PullSpec, run_pull_with_motion
 
@@ -283,8 +285,16 @@ def _physics(pull: Pull, rig, q: PullQuantities) -> Dict[str, np.ndarray]:
     return run_pull_with_motion(rig, q.spec(v_max if v_max > 0 else 1.0), motion, noise=False, t=pull.t).truth
 
 
-def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) -> Dict[str, np.ndarray]:
-    """What the DAQ records of the clean signals: the rig's sensor departures, the drive's current."""
+def _signals(pull: Pull, truth: Dict[str, np.ndarray]) -> Dict[str, np.ndarray]:
+    """The extra terms' signals (force_tester_sim.core.extra_terms.SIGNALS) of the sim's clean signals."""
+    return {'F_move': truth['force_moving_n'], 'F_stat': truth['force_stationary_n'], 'T': truth['tension_n'],
+            'a2': truth['a2_m_s2'], 'v': pull.v3, 'x': pull.x3, 't': pull.t - pull.t[0]}
+
+
+def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float,
+            phases: Optional[Mapping[ExtraTerm, float]] = None) -> Dict[str, np.ndarray]:
+    """What the DAQ records of the clean signals: the rig's sensor departures, its extra terms, the drive's
+    current. phases: the sinusoid terms' phases on this pull (sin_phases); a sin term without one is left out."""
     deps = rig.departures
     fm = truth['force_moving_n']
     fm_rec, a2_rec = apply_sensor_departures(deps.without('mains_hum'), pull.t, fm, truth['a2_m_s2'], 0)
@@ -292,10 +302,8 @@ def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) ->
     if hum is not None:
         fm_rec = fm_rec + hum
     extra = {}
-    if rig.extra_terms:   # terms beyond the catalog; a sinusoid's phase is each pull's own: left out here
-        extra = extra_channels(rig.extra_terms, {'F_move': fm, 'F_stat': truth['force_stationary_n'],
-                                                 'T': truth['tension_n'], 'a2': truth['a2_m_s2'], 'v': pull.v3,
-                                                 'x': pull.x3, 't': pull.t - pull.t[0]}, sinusoids=False)
+    if rig.extra_terms:   # terms beyond the catalog
+        extra = extra_channels(rig.extra_terms, _signals(pull, truth), phases={} if phases is None else phases)
     out = {'force_moving_n': fm_rec + extra.get('force_moving', 0.0),
            'force_stationary_n': truth['force_stationary_n'] + extra.get('force_stationary', 0.0),
            'accel_axial_m_s2': a2_rec + extra.get('accel_axial', 0.0), 'tension_n': truth['tension_n']}
@@ -310,17 +318,61 @@ def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float) ->
 
 
 def resimulate(pull: Pull, rig, departures: Departures, q: PullQuantities) -> Dict[str, np.ndarray]:
-    """Simulated channels of ``pull`` on its own time base: the rig (model of record) plus ``departures``, driven
-    by the pull's measured carriage motion, with the per-pull quantities ``q``; noise off. Keys: SIM_CHANNELS
-    (motor_current_a only when the pull has a current channel) and tension_n."""
+    """Simulated channels of ``pull`` on its own time base: the rig (model of record, with its extra terms) plus
+    ``departures``, driven by the pull's measured carriage motion, with the per-pull quantities ``q``; noise off;
+    a sinusoid term at the phase fitted on the pull (sin_phases). Keys: SIM_CHANNELS (motor_current_a only when the
+    pull has a current channel) and tension_n."""
     rig_x = with_departures(rig, departures)
-    return _record(pull, rig_x, _physics(pull, rig_x, q), rig.force_chain.m2)
+    truth = _physics(pull, rig_x, q)
+    m2 = rig.force_chain.m2
+    phases = sin_phases(pull, rig_x, truth, m2, rig.sensors.load_cell_range_lbf * LBF_N)
+    return _record(pull, rig_x, truth, m2, phases)
 
 
 def _measured(pull: Pull) -> Dict[str, np.ndarray]:
     out = {'force_moving_n': pull.fm, 'force_stationary_n': filtered(pull.fs, pull.dt), 'accel_axial_m_s2': pull.a2}
     if pull.current is not None:
         out['motor_current_a'] = filtered(pull.current, pull.dt)
+    return out
+
+
+def _compared(ch: str, m: np.ndarray, cell_range_n: float) -> np.ndarray:
+    """Which samples m of the measured channel ch (on the analysis window) are compared: not a force sample at the
+    cells' range (SATURATION_SHARE of it; a DAQ clips there)."""
+    return np.abs(m) < SATURATION_SHARE * cell_range_n if ch in FORCE_CHANNELS else np.ones(len(m), bool)
+
+
+def sin_phases(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float,
+               cell_range_n: float) -> Dict[ExtraTerm, float]:
+    """{sinusoid term of rig.extra_terms: its phase on this pull, rad}: one nuisance parameter a pull, as the hum's
+    phase and the per-pull quantities are; the amplitude stays the campaign's coefficient.
+
+    On the analysis window, after the comparison's low-pass, what the measured channel leaves of the sim without
+    its sinusoids (truth recorded by _record) is regressed on each term at phase 0 and at pi/2 (its own values,
+    ExtraTerm.values: coefficient x factor x sin / cos); the sin terms of one channel together. The phase is
+    atan2 of the two weights. With the amplitude fixed, a sinusoid s the data do not hold cannot lower the channel's
+    RMS: at any phase it changes the squared error by |s|^2 - 2 <r, s>, below 0 only when the residual r holds
+    more than half of s along it."""
+    sins = [e for e in rig.extra_terms if e.is_sin]
+    if not sins:
+        return {}
+    rest = _record(pull, rig, truth, m2_nominal, {})
+    meas = _measured(pull)
+    sig = _signals(pull, truth)
+    w = slice(pull.w0, pull.w1)
+    out: Dict[ExtraTerm, float] = {}
+    for ch in dict.fromkeys(e.channel for e in sins):
+        col = CHANNEL_COLUMNS[ch]
+        if col not in meas:           # no such channel measured: nothing to fit the phase on, nothing compared
+            continue
+        terms = [e for e in sins if e.channel == ch]
+        ok = _compared(col, meas[col][w], cell_range_n)
+        basis = np.column_stack([filtered(e.values(sig, ph), pull.dt)[w][ok] for e in terms
+                                 for ph in (0.0, 0.5 * math.pi)])
+        r = (meas[col][w] - filtered(rest[col], pull.dt)[w])[ok]
+        weights = np.linalg.lstsq(basis, r, rcond=None)[0]
+        for k, e in enumerate(terms):
+            out[e] = float(math.atan2(weights[2 * k + 1], weights[2 * k]))
     return out
 
 
@@ -357,6 +409,7 @@ class SimulationCheck:
     cell_damping: dict = dataclasses.field(default_factory=dict)   # the cells' damping ratio: rig's and used
     skipped: dict = dataclasses.field(default_factory=dict)        # pull name -> why it was not re-simulated
     saturated: dict = dataclasses.field(default_factory=dict)      # channel -> samples left out (at the range)
+    terms: tuple = ()       # the extension's extra terms re-simulated: {channel, term, how} (resimulated_terms)
 
     def as_dict(self) -> dict:
         return {ch: dict(v) for ch, v in self.channels.items()}
@@ -364,8 +417,17 @@ class SimulationCheck:
     def details(self) -> dict:
         return {'pulls': list(self.pulls), 'ring': self.ring, 'time_s': self.time_s,
                 'cell_damping': dict(self.cell_damping), 'skipped': dict(self.skipped),
-                'saturated_samples': dict(self.saturated),
+                'saturated_samples': dict(self.saturated), 'terms_resimulated': [dict(e) for e in self.terms],
                 'quantities': [dict(q) for q in self.quantities]}
+
+
+SIN_HOW = ("amplitude the campaign's coefficient, phase fitted on each held-out pull as the hum's is (one nuisance "
+           "parameter a pull, simulation_check.quantities[].sin_phase_rad)")
+
+
+def resimulated_terms(terms) -> tuple:
+    """SimulationCheck.terms: each extra term (ExtraTerm) as {channel, term, how it was re-simulated}."""
+    return tuple({'channel': e.channel, 'term': e.term, 'how': SIN_HOW if e.is_sin else 'as found'} for e in terms)
 
 
 @dataclass(frozen=True)
@@ -426,7 +488,9 @@ def resim_pull(p: Pull, setup: ResimSetup, trace: bool = False) -> ResimPart:
         clean_e = clean_b if same_chain else _physics(p, ext_rig, qe)
     except (DiscoveryError, SimError) as exc:   # one pull the sim cannot reproduce does not end the check
         return ResimPart(p.name, skipped=str(exc), time_s=time.perf_counter() - t0)
-    sims = {'baseline': _record(p, base_rig, clean_b, setup.m2), 'extended': _record(p, ext_rig, clean_e, setup.m2)}
+    phases = sin_phases(p, ext_rig, clean_e, setup.m2, setup.cell_range_n)
+    sims = {'baseline': _record(p, base_rig, clean_b, setup.m2),
+            'extended': _record(p, ext_rig, clean_e, setup.m2, phases)}
     meas = _measured(p)
     w = slice(p.w0, p.w1)
     tr = None
@@ -436,8 +500,7 @@ def resim_pull(p: Pull, setup: ResimSetup, trace: bool = False) -> ResimPart:
                           float(p.t[min(p.w1 - 1, p.brk + int(30e-3 / p.dt))]))}
     rows = []
     for ch, m in meas.items():
-        ok = np.abs(m[w]) < SATURATION_SHARE * setup.cell_range_n if ch in FORCE_CHANNELS else np.ones(p.w1 - p.w0,
-                                                                                                      bool)
+        ok = _compared(ch, m[w], setup.cell_range_n)
         sse = {}
         for kind, sim in sims.items():
             y = filtered(sim[ch], p.dt)
@@ -448,8 +511,10 @@ def resim_pull(p: Pull, setup: ResimSetup, trace: bool = False) -> ResimPart:
     windows = None
     if setup.mount:
         windows = (ring_window(p, p.a2), ring_window(p, filtered(sims['extended']['accel_axial_m_s2'], p.dt)))
-    return ResimPart(p.name, None, tuple(rows), {'baseline': qb.as_dict(), 'extended': qe.as_dict()}, windows, tr,
-                     time.perf_counter() - t0, p.dt)
+    quantities = {'baseline': qb.as_dict(), 'extended': qe.as_dict()}
+    if phases:
+        quantities['sin_phase_rad'] = {f'{e.channel}: {e.term}': ph for e, ph in phases.items()}
+    return ResimPart(p.name, None, tuple(rows), quantities, windows, tr, time.perf_counter() - t0, p.dt)
 
 
 class ResimSum:
@@ -509,12 +574,14 @@ class ResimSum:
                 ring = {'measured_hz': None, 'extended_sim_hz': None, 'rel_error': None, 'max_pull_rel_error': None,
                         'tolerance': RING_TOLERANCE, 'within_tolerance': False, 'pulls': 0}
         return SimulationCheck(channels, tuple(self.names), tuple(self.quants), ring, self.trace, self.time_s,
-                               dict(self.setup.damping), self.skipped, saturated)
+                               dict(self.setup.damping), self.skipped, saturated,
+                               resimulated_terms(self.setup.ext_rig.extra_terms))
 
 
 def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures: Departures,
-                     trace_pull: Optional[int] = None, calibrate: bool = True) -> SimulationCheck:
-    """Re-simulate pulls[idx] twice (model of record; plus ``departures``) and compare with the measurements.
+                     trace_pull: Optional[int] = None, calibrate: bool = True, extra: tuple = ()) -> SimulationCheck:
+    """Re-simulate pulls[idx] twice (model of record; plus ``departures`` and the ``extra`` terms, ExtraTerm; a
+    sinusoid at its phase fitted per pull, sin_phases) and compare with the measurements.
 
     RMS per channel over each pull's analysis window w0:w1 after the discovery low-pass (7-9 kHz, zero phase),
     pooled over the pulls. ``trace_pull``: list position of the pull whose traces are kept (default: the first
@@ -527,7 +594,7 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
     The same work one pull at a time: resim_setup, resim_pull per pull, ResimSum (what discover's stream does)."""
     if not len(idx):
         raise DiscoveryError('simulation check has no pulls; expected at least one held-out pull')
-    setup = resim_setup(rig, departures, cell_damping_ratio(pulls, idx, rig) if calibrate else None)
+    setup = resim_setup(rig, departures, cell_damping_ratio(pulls, idx, rig) if calibrate else None, extra)
     acc = ResimSum(setup, trace_pull)
     for j in idx:
         want = j == trace_pull if trace_pull is not None else acc.keep is None
@@ -537,5 +604,5 @@ def simulation_check(pulls: Sequence[Pull], idx: Sequence[int], rig, departures:
 
 __all__ = ['PullQuantities', 'ResimPart', 'ResimSetup', 'ResimSum', 'SimulationCheck', 'SIM_CHANNELS',
            'cell_damping_ratio', 'fit_pull_quantities', 'quasi_static_tension', 'resim_pull', 'resim_setup',
-           'resimulate', 'ring_mode', 'ring_window', 'sample_beta', 'simulation_check', 'window_mode',
+           'resimulate', 'ring_mode', 'ring_window', 'sample_beta', 'simulation_check', 'sin_phases', 'window_mode',
            'with_departures']

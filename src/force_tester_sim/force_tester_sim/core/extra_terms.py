@@ -6,7 +6,8 @@ written in the SIGNALS order, joined by ``*``, with ``^k`` for k > 1 (``F_move^2
 or a sinusoid ``sin`` at ``frequency_hz``, optionally times signals (``v*sin``). The signals: F_move, the moving
 cell's force (the clean one); F_stat; T, the lanyard tension; a2; v and x, the carriage velocity and position; t,
 the time from the record's start, s. The coefficient is in the channel's SI unit per the term's. A sinusoid's phase
-is each pull's own (seeded, as the hum's); its coefficient is the amplitude.
+is each pull's own (seeded in the sim, as the hum's; fitted per pull when discover re-simulates a measured pull);
+its coefficient is the amplitude.
 
     extra_terms:
       - {channel: motor_current, term: v^2, coefficient: 0.05}
@@ -132,12 +133,13 @@ def sin_phase(seed: int) -> float:
 
 
 def extra_channels(terms, sig: Mapping[str, np.ndarray], seed: int = 0,
-                   sinusoids: bool = True) -> Dict[str, np.ndarray]:
-    """{channel: what the terms add to it} for one pull's signals (sinusoids=False leaves the sin terms out)."""
+                   phases: Optional[Mapping[ExtraTerm, float]] = None) -> Dict[str, np.ndarray]:
+    """{channel: what the terms add to it} for one pull's signals. A sinusoid's phase: the pull's seeded one
+    (sin_phase(seed)), or with ``phases`` given, the term's phase there (rad); a sin term not in it is left out."""
     out: Dict[str, np.ndarray] = {}
     for e in terms:
-        if e.is_sin and not sinusoids:
+        if e.is_sin and phases is not None and e not in phases:
             continue
-        v = e.values(sig, sin_phase(seed) if e.is_sin else 0.0)
+        v = e.values(sig, (sin_phase(seed) if phases is None else phases[e]) if e.is_sin else 0.0)
         out[e.channel] = out[e.channel] + v if e.channel in out else v
     return out
