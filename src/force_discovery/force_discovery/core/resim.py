@@ -51,7 +51,7 @@ from force_tester_common.core.units import LBF_N
 from force_tester_sim.core.chain import ChainParams
 from force_tester_sim.core.departures import Departures, apply_sensor_departures
 from force_tester_sim.core.errors import SimError
-from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, ExtraTerm, extra_channels
+from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, ExtraTerm, extra_channels, signals
 from force_tester_sim.core.motion import SampledMotion
 from force_tester_sim.core.pull import PullSpec, run_pull_with_motion
 
@@ -287,8 +287,8 @@ def _physics(pull: Pull, rig, q: PullQuantities) -> Dict[str, np.ndarray]:
 
 def _signals(pull: Pull, truth: Dict[str, np.ndarray]) -> Dict[str, np.ndarray]:
     """The extra terms' signals (force_tester_sim.core.extra_terms.SIGNALS) of the sim's clean signals."""
-    return {'F_move': truth['force_moving_n'], 'F_stat': truth['force_stationary_n'], 'T': truth['tension_n'],
-            'a2': truth['a2_m_s2'], 'v': pull.v3, 'x': pull.x3, 't': pull.t - pull.t[0]}
+    return signals(pull.t, truth['force_moving_n'], truth['force_stationary_n'], truth['tension_n'], truth['a2_m_s2'],
+                   pull.v3, pull.x3)
 
 
 def _record(pull: Pull, rig, truth: Dict[str, np.ndarray], m2_nominal: float,
