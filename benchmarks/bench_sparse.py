@@ -1,7 +1,7 @@
 """Benchmark of the sparse regression beyond the catalog (issue 27, beyond.py): forward selection with a held-out
 stopping rule, as `discover` runs it, against PySINDy's default optimiser, STLSQ, on the same statistics.
 
-    ./ft bench sparse [--trials N] [--clean M] [--seed S]
+    ./ft bench sparse [--trials N] [--clean M] [--seed S] [--kinds KIND ...]
 
 For every departure of the generator outside the catalog (generator.BEYOND), N campaigns (3 sets x 4 pulls) with it
 hidden at a random strength (every other one through the model-form nuisances), then M campaigns with nothing to act
@@ -25,7 +25,9 @@ Gram matrix of the scaled library columns, the columns' products with the residu
                       channel's unit), so the threshold is stated as an rms contribution. It is swept over 0 and
                       THRESHOLDS x the rms of the channel's residual over the fitted pulls, and chosen as a user
                       without the truth would, on the held-out pulls: `min` the threshold of least held-out SSE,
-                      `1%` the largest threshold within 1 % of that least SSE.
+                      `1%` the largest threshold within 1 % of that least SSE; and `band` the channel's band
+                      (beyond.channel_band: the smallest contribution the rig's tolerances care about), the
+                      threshold a user who knows the tolerances would set, with no held-out pulls at all.
 
 Adaptations both ways, so that STLSQ sees what forward selection sees: a sinusoid (sin, v*sin, F_move*sin at the
 channel's spectral peak) has each pull's own phase, so STLSQ gives it a (cos, sin) pair per fitted pull and
@@ -66,6 +68,7 @@ ALPHA = 0.05                                  # PySINDy STLSQ's default ridge we
 MAX_ITER = 20                                 # ... and its default number of iterations
 THRESHOLDS = np.geomspace(1e-4, 1.0, 17)      # x the channel's residual rms over the fitted pulls
 PARSIMONY = 0.01                              # the `1%` rule: within this share of the least held-out SSE
+SHOWN = 6                                     # terms shown per method and campaign
 
 
 # ------------------------------------------------------------------------------------------ recording
@@ -176,8 +179,9 @@ class Design:
         return total
 
 
-def stlsq_channel(fit, held, cat: bool) -> dict:
-    """{rule: [(term, rms contribution), ...] largest first} of STLSQ on one channel, per threshold rule."""
+def stlsq_channel(fit, held, cat: bool, band: float) -> dict:
+    """{rule: [(term, rms contribution), ...] largest first} of STLSQ on one channel, per threshold rule (band:
+    the channel's, the `band` rule's threshold)."""
     d = Design(fit, cat)
     runs = []
     for thr in np.concatenate([[0.0], THRESHOLDS * d.rms_y]):
@@ -185,12 +189,14 @@ def stlsq_channel(fit, held, cat: bool) -> dict:
         runs.append((thr, d.held_sse(held, groups, c), size))
     least = min(e for _, e, _ in runs)
     pick = {'min': max((r for r in runs if r[1] <= least), key=lambda r: r[0]),
-            '1%': max((r for r in runs if r[1] <= least * (1 + PARSIMONY)), key=lambda r: r[0])}
+            '1%': max((r for r in runs if r[1] <= least * (1 + PARSIMONY)), key=lambda r: r[0]),
+            'band': (band, 0.0, d.stlsq(band)[2])}
     return {rule: sorted(((d.names[g], v) for g, v in r[2].items()), key=lambda tv: -tv[1]) for rule, r in pick.items()}
 
 
 # ------------------------------------------------------------------------------------------ scoring
-METHODS = ('forward', 'stlsq min', 'stlsq 1%')
+RULES = ('min', '1%', 'band')
+METHODS = ('forward', *(f'stlsq {r}' for r in RULES))
 
 
 def compare(report, last, rig, truth) -> dict:
@@ -207,9 +213,9 @@ def compare(report, last, rig, truth) -> dict:
     picks, t_st = {}, 0.0
     for ch, (fit, held, _survey, cat, _found) in last.items():
         t0 = time.perf_counter()
-        picks[ch] = stlsq_channel(fit, held, cat)
+        picks[ch] = stlsq_channel(fit, held, cat, bey.channel_band(ch, rig))
         t_st += time.perf_counter() - t0
-    for rule in ('min', '1%'):
+    for rule in RULES:
         chosen = [(ch, term, v > bey.channel_band(ch, rig)) for ch in picks for term, v in picks[ch][rule]]
         first = picks.get(truth['channel'], {}).get(rule, []) if truth else []
         out[f'stlsq {rule}'] = (bool(first) and first[0][0] == truth['term'], chosen, t_st)
@@ -221,6 +227,8 @@ def main() -> int:
     ap.add_argument('--trials', type=int, default=1, help='campaigns per departure (default 1)')
     ap.add_argument('--clean', type=int, default=2, help='campaigns with nothing to act on (default 2)')
     ap.add_argument('--seed', type=int, default=3100, help='first seed (default 3100)')
+    ap.add_argument('--kinds', nargs='*', choices=sorted(G.BEYOND), default=sorted(G.BEYOND),
+                    help='the departures (default all)')
     a = ap.parse_args()
     if a.trials < 0 or a.clean < 0:
         print(f'bench_sparse: error: --trials {a.trials} / --clean {a.clean}; expected >= 0', file=sys.stderr)
@@ -229,7 +237,7 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix='bench_sparse_'))
     tot = {m: {'right': 0, 'extra': 0, 'extra_band': 0, 'clean_sel': 0, 'false': 0, 'time': 0.0} for m in METHODS}
     runs = []
-    for kind in sorted(G.BEYOND):
+    for kind in a.kinds:
         for k in range(a.trials):
             seed = a.seed + k
             camp, truth = G.beyond_campaign(kind, seed, nuisance=k % 2 == 1)
@@ -255,8 +263,10 @@ def main() -> int:
                 row['right'] += right
                 row['extra'] += len(extra)
                 row['extra_band'] += sum(s[2] for s in extra)
-            shown = ', '.join(f'{c}:{t}{"*" if b else ""}' for c, t, b in sel) or '-'
-            print(f'  {m:<10} right first {"yes" if right else "no ":<3} {secs * 1e3:7.1f} ms  {shown}', flush=True)
+            shown = ', '.join(f'{c}:{t}{"*" if b else ""}' for c, t, b in sel[:SHOWN]) or '-'
+            more = f' (+{len(sel) - SHOWN} more)' if len(sel) > SHOWN else ''
+            print(f'  {m:<10} right first {"yes" if right else "no ":<3} {secs * 1e3:7.1f} ms  {len(sel):>3} terms: '
+                  f'{shown}{more}', flush=True)
     n_dep, n_clean = len(runs) - a.clean, a.clean
     print('\n(* above the channel band)')
     print(f'{"method":<10} {"right first":>11} {"extra terms":>11} {"above band":>10} {"clean: terms":>12} '
