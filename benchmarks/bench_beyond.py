@@ -60,9 +60,17 @@ def main() -> int:
     ap.add_argument('--trials', type=int, default=4, help='campaigns per departure (default 4)')
     ap.add_argument('--clean', type=int, default=6, help='campaigns with nothing to act on (default 6)')
     ap.add_argument('--seed', type=int, default=2700, help='first seed (default 2700)')
+    ap.add_argument('--kinds', default=','.join(sorted(G.BEYOND)),
+                    help='the departures to hide, comma-separated (default every one of generator.BEYOND)')
     a = ap.parse_args()
     if a.trials < 0 or a.clean < 0:
         print(f'bench_beyond: error: --trials {a.trials} / --clean {a.clean}; expected >= 0', file=sys.stderr)
+        return 2
+    kinds = [k for k in a.kinds.split(',') if k]
+    unknown = [k for k in kinds if k not in G.BEYOND]
+    if unknown:
+        print(f'bench_beyond: error: --kinds {",".join(unknown)}; expected some of {",".join(sorted(G.BEYOND))}',
+              file=sys.stderr)
         return 2
     rig = load_rig()
     tmp = Path(tempfile.mkdtemp(prefix='bench_beyond_'))
@@ -70,7 +78,7 @@ def main() -> int:
     t_all = t_search = 0.0
     print(f'{"departure":<20} {"right term":>10} {"coef 30%":>9} {"no catalog":>10} {"ci95 holds":>10}  misses',
           flush=True)
-    for kind in sorted(G.BEYOND):
+    for kind in kinds:
         row = {'right_term': 0, 'coefficient_30pct': 0, 'no_catalog': 0, 'covered': 0}
         misses = []
         for k in range(a.trials):
