@@ -227,7 +227,7 @@ BEYOND = {
     'rate_cell': ('force_moving', 'F_move*v', (0.01, 0.04)),          # the cell reads this share high at V_REF
 }
 X_REF = 1.5         # m: about the usable track's length
-T_REF = 2.0         # s: the record's length
+T_REF = 1.0         # s: about when a pull loads the cells (the record is 2 s)
 MAINS_CLEAR_HZ = 5.0   # a pickup's frequency stays this far from every multiple of 50 Hz and 60 Hz
 
 

@@ -86,10 +86,13 @@ MAX_TERMS = 3
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (module docstring)
+NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
+                              # are listed beside it: the data cannot tell them apart
 MIN_HZ = 20.0                  # a sinusoid's frequency lies above this (and below LEFTOVER_BAND_HZ)
 SPECTRUM_POINTS = 2 ** 15
 PEAK_PROMINENCE = 10.0        # a sinusoid's line stands this far above the median spectrum around it ...
 PEAK_SPAN = 64                # ... over this many bins either side
+REFINE_BINS = 2               # the line's frequency is refined this many bins either side of the peak
 COULOMB = 'coulomb_friction'
 
 INTERPRETATION = {
@@ -149,6 +152,22 @@ def decimation(dt: float) -> int:
     return max(1, int(round(1.0 / (SEARCH_RATE_HZ * dt))))
 
 
+def free_samples(p: Pull) -> np.ndarray:
+    """The sensors' free phases of a pull, decimated: lanyard slack before the pull and after the break's ringing,
+    FREE_SPAN_S each, the record's edges (EDGE_S) left out, usable samples only."""
+    free = np.zeros(len(p.t), bool)
+    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
+    free[max(e, p.pre1 - span):p.pre1] = True
+    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
+    return np.flatnonzero(free & p.usable())[::decimation(p.dt)]
+
+
+def smoothed_a2(p: Pull) -> np.ndarray:
+    """a2 smoothed as the encoder's a3 is (the accelerometer's free-phase model is a3)."""
+    from scipy.signal import savgol_filter
+    return savgol_filter(p.a2, max(5, int(round(2e-3 / p.dt)) | 1), 3)
+
+
 def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
                    coulomb_n: Optional[float], causes: Optional[Dict[str, np.ndarray]] = None) -> Dict[str, tuple]:
     """{channel: (residual, signals, catalog column or None, {cause: its contribution})} of one pull, decimated,
@@ -175,18 +194,11 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
     # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
     # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
-    free = np.zeros(len(p.t), bool)
-    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
-    free[max(e, p.pre1 - span):p.pre1] = True
-    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
-    sel = np.flatnonzero(free & p.usable())[::q]
+    sel = free_samples(p)
     if len(sel):
-        from scipy.signal import savgol_filter
-        win = max(5, int(round(2e-3 / p.dt)) | 1)
-        a2s = savgol_filter(p.a2, win, 3)
         sig = {k: v[sel] for k, v in full.items()}
         out['force_stationary'] = (p.fs[sel], sig, None, {}, {})
-        out['accel_axial'] = ((a2s - p.a3)[sel], sig, None, {}, {})
+        out['accel_axial'] = ((smoothed_a2(p) - p.a3)[sel], sig, None, {}, {})
     if p.current is not None:
         d = rig.drive
         kf = d.force_per_amp_n_per_a
@@ -213,14 +225,26 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
 
 
 def sensor_corrected(p: Pull, terms: Sequence, rig, cal: Optional[tuple]) -> Pull:
-    """The pull with the sensors' product terms found on their own (SENSORS: force_stationary, accel_axial; terms
-    with .channel, .term, .coefficient) taken out of F_stat and a2, and T recomputed from the corrected stationary
-    cell (cal: cells.with_tension's (K_LC1, c1); None: the rig's): the moving cell and the motor current are then
-    searched against what the sensors would have read without them."""
+    """The pull with the sensors' terms found on their own (SENSORS: force_stationary, accel_axial; terms with
+    .channel, .term, .coefficient, .frequency_hz) taken out of F_stat and a2, and T recomputed from the corrected
+    stationary cell (cal: cells.with_tension's (K_LC1, c1); None: the rig's): the moving cell and the motor current
+    are then searched against what the sensors would have read without them. A sinusoid's phase is each pull's own:
+    it is fitted (with the pull's amplitude) on the sensor's free phases, after its product terms, and taken out of
+    the whole record."""
     from .prep import tension_from_stationary
     full = {'F_move': p.fm, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
     d = {ch: sum((t.coefficient * term_values(t.term, full) for t in terms
                   if t.channel == ch and SIN not in parse_term(t.term)), np.zeros(len(p.t))) for ch in SENSORS}
+    sines = [t for t in terms if t.channel in SENSORS and SIN in parse_term(t.term)]
+    if sines:
+        sel = free_samples(p)
+        own = {'force_stationary': p.fs, 'accel_axial': smoothed_a2(p) - p.a3}   # the free phases' residuals
+        for t in sines:
+            fac = term_values(t.term, full)
+            ph = 2 * np.pi * t.frequency_hz * full['t']
+            X = np.column_stack([fac * np.cos(ph), fac * np.sin(ph)])
+            c = np.linalg.lstsq(X[sel], (own[t.channel] - d[t.channel])[sel], rcond=None)[0]
+            d[t.channel] = d[t.channel] + X @ c
     fc = rig.force_chain
     k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
     dT = tension_from_stationary(d['force_stationary'], p.dt, fc.m1, k1, c1)
@@ -250,13 +274,38 @@ def _peak(P: np.ndarray, band: np.ndarray) -> Optional[int]:
 
 
 def spectrum_part(series: Dict[str, tuple], dt_dec: float) -> Dict[str, tuple]:
-    """{channel: (power spectrum of the residual, rms of each signal)} of one pull."""
+    """{channel: (power spectrum of the residual, rms of each signal, (times s, residual))} of one pull. The
+    spectrum treats the samples as evenly spaced; the sensors' free phases are two stretches with the pull between
+    them, so the line's frequency is refined on the samples' own times (refine_frequency)."""
     out = {}
     for ch, (y, sig, *_rest) in series.items():
         yy = (y - y.mean()) * np.hanning(len(y))
         P = np.abs(np.fft.rfft(yy, SPECTRUM_POINTS)) ** 2
-        out[ch] = (P, {k: float(np.sqrt(np.mean(v ** 2))) for k, v in sig.items()})
+        out[ch] = (P, {k: float(np.sqrt(np.mean(v ** 2))) for k, v in sig.items()},
+                   (np.asarray(sig['t'], float), np.asarray(y, float)))
     return out
+
+
+def refine_frequency(f0: float, step: float, records: Sequence[Tuple[np.ndarray, np.ndarray]]) -> float:
+    """The frequency within f0 +/- REFINE_BINS step that maximizes the summed power of the pulls' least-squares
+    sinusoids on their samples' own times (records: [(t, residual)], each pull its own phase and amplitude): the
+    spectrum's peak is off by up to a bin, and by more where the record has a gap (the free phases either side of
+    the pull); one phase across such a gap needs the frequency to a small share of a bin."""
+    def power(f):
+        tot = 0.0
+        for t, y in records:
+            ph = 2 * np.pi * f * t
+            X = np.column_stack([np.cos(ph), np.sin(ph), np.ones_like(t)])
+            c = np.linalg.lstsq(X, y, rcond=None)[0]
+            tot += float(np.sum((X[:, :2] @ c[:2]) ** 2))
+        return tot
+    grid = f0 + step * np.linspace(-REFINE_BINS, REFINE_BINS, 8 * REFINE_BINS + 1)
+    for _ in range(3):   # a coarse grid, then finer ones around its best
+        pw = np.array([power(f) for f in grid])
+        k = int(np.argmax(pw))
+        h = grid[1] - grid[0]
+        grid = grid[k] + h * np.linspace(-1.0, 1.0, 9)
+    return float(grid[4])
 
 
 def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
@@ -268,9 +317,7 @@ def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
         P = sum(part[ch][0] for part in parts if ch in part)
         k = _peak(P, ok)
         if k is not None:
-            den = P[k - 1] - 2 * P[k] + P[k + 1]
-            off = float(np.clip(0.5 * (P[k - 1] - P[k + 1]) / den, -0.5, 0.5)) if den < 0 else 0.0
-            freq[ch] = float(f[k] + off * (f[1] - f[0]))
+            freq[ch] = refine_frequency(float(f[k]), float(f[1] - f[0]), [part[ch][2] for part in parts if ch in part])
         for part in parts:
             if ch in part:
                 for s, r in part[ch][1].items():
@@ -434,6 +481,7 @@ class Term:
     band: float
     named: bool
     budget: Dict[str, float] = field(default_factory=dict)   # standard uncertainties: statistical, systematic parts
+    alternatives: Tuple[str, ...] = ()   # terms the held-out pulls cannot tell from it (near_tied), best first
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -445,7 +493,7 @@ class Term:
                 'evidence': {'rel_sse_reduction': self.rel_sse_reduction, 't': self.t,
                              'contribution_rms': self.rms, 'contribution_rms_ci95': list(self.rms_ci95),
                              'band': self.band},
-                'uncertainty_budget': dict(self.budget)}
+                'uncertainty_budget': dict(self.budget), 'near_tied': list(self.alternatives)}
 
 
 @dataclass(frozen=True)
@@ -529,6 +577,9 @@ def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, 
         ev = significance(base, ext)
         if not ev.significant:
             break
+        alternatives = near_tied([(names[k] if s is None else names[n_prod + s], base.sum()
+                                   - sum(_sse(st, m, n_prod) for st in held)) for (k, s), (m, _) in zip(trials, tried)
+                                  if m is not best], base.sum() - ext.sum())
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
         model = best
@@ -554,8 +605,18 @@ def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, 
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
-                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget))
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives))
     return found, demoted, model
+
+
+def near_tied(others: Sequence[Tuple[str, float]], chosen: float) -> Tuple[str, ...]:
+    """The terms (others: (name, held-out SSE reduction in its place)) that come within NEAR_TIE of the chosen
+    term's held-out reduction, best first: on this campaign's motion the data cannot tell them from it (t and t^2
+    over a short window, F_move and T), so the report lists them beside the term instead of hiding them."""
+    if chosen <= 0:
+        return ()
+    close = sorted(((r, n) for n, r in others if r >= (1.0 - NEAR_TIE) * chosen), key=lambda x: -x[0])
+    return tuple(n for _, n in close)
 
 
 def _budget(channel: str, fit: Sequence, model: Model, col: Optional[int], coef: float, ci: Tuple[float, float],
