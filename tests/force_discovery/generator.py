@@ -226,6 +226,8 @@ BEYOND = {
                                                                       # stationary cell, not at a mains frequency
     'rate_cell': ('force_moving', 'F_move*v', (0.01, 0.04)),          # the cell reads this share high at V_REF
 }
+# the departures added after the search was built and benchmarked on the ones above (its generality: docs/discovery.md)
+UNTUNED = ('cubic_cell', 'rail_friction', 'quadratic_drift', 'stationary_pickup', 'rate_cell')
 X_REF = 1.5         # m: about the usable track's length
 T_REF = 1.0         # s: about when a pull loads the cells (the record is 2 s)
 MAINS_CLEAR_HZ = 5.0   # a pickup's frequency stays this far from every multiple of 50 Hz and 60 Hz
@@ -316,11 +318,14 @@ def beyond_campaign(kind: str, seed: int, nuisance: bool = False, sets=SETS, pul
 
 def check_beyond(report: dict, truth: dict) -> dict:
     """What the bench and tests count for one campaign: the right term on the right channel found (first on its
-    channel), its coefficient within 30 %, and whether a catalog cause was named."""
+    channel), its coefficient within 30 %, whether a catalog cause was named, and (when another term is first) whether
+    the right one is listed beside it as near-tied."""
     terms = [t for t in report.get('beyond_catalog', []) if t['channel'] == truth['channel']]
     right = bool(terms) and terms[0]['term'] == truth['term']
     coef = right and abs(terms[0]['coefficient'] - truth['coefficient']) <= 0.3 * abs(truth['coefficient'])
     holds = right and min(terms[0]['ci95']) <= truth['coefficient'] <= max(terms[0]['ci95'])
     named = [c['name'] for c in report['causes'] if c['name'] != 'unexplained']
+    tied = bool(terms) and not right and truth['term'] in terms[0].get('near_tied', ())
     return {'right_term': right, 'coefficient_30pct': bool(coef), 'ci95_holds': bool(holds), 'catalog_named': named,
+            'near_tied': tied,
             'found': [(t['channel'], t['term'], t['coefficient']) for t in report.get('beyond_catalog', [])]}

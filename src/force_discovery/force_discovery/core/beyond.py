@@ -115,6 +115,9 @@ INTERPRETATION = {
     ('motor_current', 'v^2'): 'aerodynamic drag on the carriage',
     ('motor_current', 'v'): "viscous friction beyond the drive model's (lubricated guides, a damper)",
     ('motor_current', 'x'): 'a force that grows along the travel: a binding rail or a cable acting as a spring',
+    ('motor_current', 'v*x'): 'a friction that grows along the travel and acts only while sliding (a binding or '
+                              'misaligned rail): the grammar has no while-sliding factor, and x times the speed, 0 at '
+                              'rest, stands for it (its coefficient times the speed is the friction per metre)',
     ('motor_current', 't'): "the current sensor's zero drifts through the record",
     ('motor_current', 'F_move'): "the drive's force constant or the moving cell's gain is off (force per amp)",
     ('motor_current', 'a2'): 'a mass the drive moves that the model of record does not have',
