@@ -11,7 +11,8 @@ mains, rate-dependent cell), N campaigns (3 sets x 4 pulls) with it hidden at a 
 through the model-form nuisances. Counted: the right term first on the right channel of beyond_catalog; its
 coefficient within 30 % of the truth; no catalog cause named (the truth is outside the catalog); whether its ci95
 (statistical and systematic parts, beyond.py) holds the true coefficient; and, when another term is first, whether
-the right one is listed beside it as near-tied (beyond.near_tied: the data cannot tell them apart).
+the right one is listed beside it as near-tied (beyond.near_tied: the data cannot tell them apart). A miss's line
+gives what was named, what was significant but within the band, and any catalog name.
 Then M campaigns with nothing to act on (clean and nuisance in turn): a false alarm is any entry in
 beyond_catalog. The cost: the wall time of the search's passes (Clock)
 against the whole discovery's, side by side in one run. The code under test sees only the data and the nominal rig.
@@ -97,8 +98,10 @@ def main() -> int:
             row['covered'] += got['ci95_holds']
             row['near_tied'] += got['near_tied']
             if not (got['right_term'] and got['coefficient_30pct'] and not got['catalog_named']):
+                band = report.get('beyond_search', {}).get('within_tolerance', [])
+                within = [(t['channel'], t['term']) for t in band]
                 misses.append(f'seed {seed}: truth {truth["term"]}={truth["coefficient"]:.4g}, found {got["found"]}, '
-                              f'catalog {got["catalog_named"]}')
+                              f'within the band {within}, catalog {got["catalog_named"]}')
         for key in row:
             tot[key] += row[key]
         tot['n'] += a.trials

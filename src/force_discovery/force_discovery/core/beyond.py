@@ -24,11 +24,11 @@ different units; forward selection with a held-out stopping rule is the catalog'
 
 Each coefficient gets an uncertainty budget as the catalog's parameters do (budget.honest; _budget): the statistical
 part from a jackknife over the fitted pulls (Student's t, n-1), each systematic part the coefficient's shift when
-one rig constant is one stated standard uncertainty off (m2 on the moving cell, each drive constant on the current:
-the residual's change kept as a Gram column per pull) or the channel's sensor calibration (relative), and the 95 %
-interval +/- sqrt((t u_stat)^2 + (COVERAGE_K u_sys)^2). A term is named when it is significant AND its
-contribution's rms on the held-out pulls, over that interval, lies above the channel's band (practical
-significance: channel_band, from the rig's tolerances).
+one rig constant is one stated standard uncertainty off (m2 and the cell's gain on the moving cell, each drive
+constant on the current: the residual's change kept as a Gram column per pull) or the channel's sensor calibration
+(relative), and the 95 % interval +/- sqrt((t u_stat)^2 + (COVERAGE_K u_sys)^2). A term is named when it is
+significant AND its contribution's rms on the held-out pulls, over that interval, lies above the channel's band
+(practical significance: channel_band, from the rig's tolerances).
 
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
@@ -191,9 +191,13 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     full = {'F_move': fm_pred, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
     ok = p.usable(p.w0, p.w1)[::q]
     u_m2 = rig.uncertainty.u('force_chain.moving_side_mass_kg')
+    # the cell's gain one standard uncertainty off (its calibration): a gain inside its tolerance is not fitted by
+    # the catalog, and its linear error leaks into any term that grows with the load (F_move^3, F_move*v)
+    _, key, attr = RELATIVE['force_moving']
+    u_g = rig.uncertainty.relative(key, getattr(rig.sensors, attr))
     out['force_moving'] = (np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()}, None,
                            {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()},
-                           {'m2': (u_m2 * p.a2)[w][::q][ok]})
+                           {'m2': (u_m2 * p.a2)[w][::q][ok], 'gain': (u_g * fm_pred)[w][::q][ok]})
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
     # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
     # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
