@@ -36,7 +36,7 @@ def run(camp, tmp):
 # then those of the departures it was not tuned on (generator.UNTUNED) that it finds (the others: tests below and
 # docs/discovery.md)
 CASES = [(kind, 11 + i, i % 2 == 1) for i, kind in enumerate(sorted(set(BEYOND) - set(UNTUNED)))] + [
-    ('stationary_pickup', 41, True), ('cubic_cell', 42, False), ('rate_cell', 43, True)]
+    ('stationary_pickup', 41, True), ('cubic_cell', 3401, True), ('rate_cell', 43, True)]
 
 
 @pytest.mark.parametrize('kind,seed,nuisance', CASES)
@@ -69,6 +69,11 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
         assert (truth['channel'], truth['term']) in left_out, left_out
     budget = first['uncertainty_budget']   # the statistical and systematic parts, as the catalog's parameters
     assert 'statistical' in budget and len(budget) > 2 and budget['combined'] >= budget['statistical'], budget
+    # the interval holds the truth; on the moving cell it has a part for the cell's gain, which the catalog leaves
+    # unfitted inside its tolerance (cubic cell, seed 3401, nuisance gain 1.0006: 2 % high, outside without it)
+    assert got['ci95_holds'], (truth['coefficient'], first['ci95'], budget)
+    if truth['channel'] == 'force_moving' and truth['frequency_hz'] is None:   # a product term's budget
+        assert budget.get('gain', 0.0) > 0, budget
     if kind in ('quadratic_cell', 'cubic_cell'):        # the correction linearises the cell
         x = Extension.from_yaml(tmp_path / 'extension.yaml')
         c = x.moving_cell_quadratic_per_n if kind == 'quadratic_cell' else x.moving_cell_cubic_per_n2
