@@ -217,7 +217,22 @@ BEYOND = {
     'cable_drag': ('force_moving', 'v', (20.0, 80.0)),                # N a trailing cable pulls on the cell at V_REF
     'stationary_drift': ('force_stationary', 't', (3.0, 12.0)),       # N/s of drift of the stationary cell's zero
     'accel_drift': ('accel_axial', 't', (1.5, 5.0)),                  # m/s^2 per s of drift of the accelerometer's zero
+    # departures the search was not tuned on (issue 27, generality): each its own model, as the ones above
+    'cubic_cell': ('force_moving', 'F_move^3', (0.02, 0.08)),         # reads 2-8 % high at F_REF, as F^3
+    'rail_friction': ('motor_current', 'x', (30.0, 150.0)),           # N of friction at X_REF while sliding: a
+                                                                      # misaligned rail binding along the track
+    'quadratic_drift': ('force_moving', 't^2', (3.0, 12.0)),          # N of zero drift at T_REF, growing as t^2
+    'stationary_pickup': ('force_stationary', 'sin', (2.0, 8.0)),     # N amplitude of electrical pickup on the
+                                                                      # stationary cell, not at a mains frequency
+    'rate_cell': ('force_moving', 'F_move*v', (0.01, 0.04)),          # the cell reads this share high at V_REF
+    'accel_whip': ('accel_axial', 'v', (1.5, 5.0)),                   # m/s^2 the accelerometer misreads at V_REF:
+                                                                      # its cable whipping, a mount flexing with speed
 }
+# the departures added after the search was built and benchmarked on the ones above (its generality: docs/discovery.md)
+UNTUNED = ('cubic_cell', 'rail_friction', 'quadratic_drift', 'stationary_pickup', 'rate_cell', 'accel_whip')
+X_REF = 1.5         # m: about the usable track's length
+T_REF = 1.0         # s: about when a pull loads the cells (the record is 2 s)
+MAINS_CLEAR_HZ = 5.0   # a pickup's frequency stays this far from every multiple of 50 Hz and 60 Hz
 
 
 def _speed(ch: dict) -> np.ndarray:
@@ -237,8 +252,16 @@ def draw_beyond(kind: str, seed: int) -> dict:
     kf = rig_with(None).drive.force_per_amp_n_per_a
     coef = {'quadratic_cell': size / F_REF, 'air_drag': size / V_REF ** 2 / kf, 'zero_drift': size,
             'carriage_vibration': size / V_REF, 'viscous_friction': size / V_REF / kf,
-            'cable_drag': size / V_REF, 'stationary_drift': size, 'accel_drift': size}[kind]
-    f = float(r.uniform(150.0, 1500.0)) if kind == 'carriage_vibration' else None
+            'cable_drag': size / V_REF, 'stationary_drift': size, 'accel_drift': size,
+            'cubic_cell': size / F_REF ** 2, 'rail_friction': size / X_REF / kf, 'quadratic_drift': size / T_REF ** 2,
+            'stationary_pickup': size, 'rate_cell': size / V_REF, 'accel_whip': size / V_REF}[kind]
+    f = None
+    if kind == 'carriage_vibration':
+        f = float(r.uniform(150.0, 1500.0))
+    elif kind == 'stationary_pickup':    # a switching supply or a motor drive's PWM alias, clear of the mains
+        f = float(r.uniform(70.0, 900.0))
+        while min(min(f % m, m - f % m) for m in (50.0, 60.0)) < MAINS_CLEAR_HZ:
+            f = float(r.uniform(70.0, 900.0))
     return {'kind': kind, 'channel': channel, 'term': term, 'coefficient': coef, 'frequency_hz': f, 'size': size,
             'force_per_amp': kf}
 
@@ -270,6 +293,21 @@ def beyond_post(truth: dict):
             ch['motor_current_a'] = cur + c * v * np.abs(v)
         elif kind == 'viscous_friction':
             ch['motor_current_a'] = cur + c * v
+        elif kind == 'cubic_cell':
+            ch['force_moving_n'] = fm + c * fm ** 3
+        elif kind == 'rail_friction':        # friction opposes the sliding only; at rest the rail holds nothing
+            x = np.asarray(ch['encoder_position_m'], float)
+            ch['motor_current_a'] = cur + c * x * np.sign(v) * (np.abs(v) > 1e-3)
+        elif kind == 'quadratic_drift':      # a zero that drifts faster as the cell warms through the record
+            ch['force_moving_n'] = fm + c * t ** 2
+        elif kind == 'stationary_pickup':    # on the stationary cell's cable the whole record: T carries it too
+            ph = np.random.default_rng([seed, 2028]).uniform(0, 2 * np.pi)
+            ch['force_stationary_n'] = (np.asarray(ch['force_stationary_n'], float)
+                                        + c * np.sin(2 * np.pi * truth['frequency_hz'] * t + ph))
+        elif kind == 'rate_cell':            # a cell whose reading grows with the loading rate (speed)
+            ch['force_moving_n'] = fm + c * fm * v
+        elif kind == 'accel_whip':           # the force model's m2 a2 carries it too
+            ch['accel_axial_m_s2'] = np.asarray(ch['accel_axial_m_s2'], float) + c * v
         return ch
     return post
 
@@ -284,11 +322,14 @@ def beyond_campaign(kind: str, seed: int, nuisance: bool = False, sets=SETS, pul
 
 def check_beyond(report: dict, truth: dict) -> dict:
     """What the bench and tests count for one campaign: the right term on the right channel found (first on its
-    channel), its coefficient within 30 %, and whether a catalog cause was named."""
+    channel), its coefficient within 30 %, whether a catalog cause was named, and (when another term is first) whether
+    the right one is listed beside it as near-tied."""
     terms = [t for t in report.get('beyond_catalog', []) if t['channel'] == truth['channel']]
     right = bool(terms) and terms[0]['term'] == truth['term']
     coef = right and abs(terms[0]['coefficient'] - truth['coefficient']) <= 0.3 * abs(truth['coefficient'])
     holds = right and min(terms[0]['ci95']) <= truth['coefficient'] <= max(terms[0]['ci95'])
     named = [c['name'] for c in report['causes'] if c['name'] != 'unexplained']
+    tied = bool(terms) and not right and truth['term'] in terms[0].get('near_tied', ())
     return {'right_term': right, 'coefficient_30pct': bool(coef), 'ci95_holds': bool(holds), 'catalog_named': named,
+            'near_tied': tied,
             'found': [(t['channel'], t['term'], t['coefficient']) for t in report.get('beyond_catalog', [])]}

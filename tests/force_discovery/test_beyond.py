@@ -9,10 +9,19 @@ import re
 import numpy as np
 import pytest
 import yaml
-from generator import BEYOND, beyond_campaign, check_beyond, draw_nuisance, make_campaign
+from generator import BEYOND, UNTUNED, beyond_campaign, check_beyond, draw_nuisance, make_campaign
 
 from force_correction.core.extension import Extension
-from force_discovery.core.beyond import Survey, beyond_part, interpretation, library, search
+from force_discovery.core.beyond import (
+    Survey,
+    beyond_part,
+    interpretation,
+    library,
+    near_tied,
+    search,
+    spectrum_part,
+    survey_from,
+)
 from force_discovery.core.pipeline import discover
 from force_tester_sim.core.errors import SimError
 from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, parse_term, term_name
@@ -23,8 +32,11 @@ def run(camp, tmp):
     return discover(camp, load_rig(), tmp, scheduler='inline')
 
 
-# each kind once, at a seed of its own; every other one through the model-form nuisances
-CASES = [(kind, 11 + i, i % 2 == 1) for i, kind in enumerate(sorted(BEYOND))]
+# each kind the search was built on once, at a seed of its own; every other one through the model-form nuisances;
+# then those of the departures it was not tuned on (generator.UNTUNED) that it finds (the others: tests below and
+# docs/discovery.md)
+CASES = [(kind, 11 + i, i % 2 == 1) for i, kind in enumerate(sorted(set(BEYOND) - set(UNTUNED)))] + [
+    ('stationary_pickup', 41, True), ('cubic_cell', 3401, True), ('rate_cell', 43, True)]
 
 
 @pytest.mark.parametrize('kind,seed,nuisance', CASES)
@@ -63,9 +75,47 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
         assert not any('sin_phase_rad' in q for q in how['quantities']), how['quantities']
     budget = first['uncertainty_budget']   # the statistical and systematic parts, as the catalog's parameters
     assert 'statistical' in budget and len(budget) > 2 and budget['combined'] >= budget['statistical'], budget
-    if kind == 'quadratic_cell':        # the correction linearises the cell
-        c2 = Extension.from_yaml(tmp_path / 'extension.yaml').moving_cell_quadratic_per_n
-        assert abs(c2 - truth['coefficient']) <= 0.3 * truth['coefficient']
+    # the interval holds the truth; on the moving cell it has a part for the cell's gain, which the catalog leaves
+    # unfitted inside its tolerance (cubic cell, seed 3401, nuisance gain 1.0006: 2 % high, outside without it)
+    assert got['ci95_holds'], (truth['coefficient'], first['ci95'], budget)
+    if truth['channel'] == 'force_moving' and truth['frequency_hz'] is None:   # a product term's budget
+        assert budget.get('gain', 0.0) > 0, budget
+    if kind in ('quadratic_cell', 'cubic_cell'):        # the correction linearises the cell
+        x = Extension.from_yaml(tmp_path / 'extension.yaml')
+        c = x.moving_cell_quadratic_per_n if kind == 'quadratic_cell' else x.moving_cell_cubic_per_n2
+        assert abs(c - truth['coefficient']) <= 0.3 * truth['coefficient']
+
+
+def test_a_drift_the_window_cannot_tell_from_its_neighbours_is_named_with_them(tmp_path):
+    # a zero drifting as t^2: over the moving cell's analysis window (about 0.3 s, at about the same time in every
+    # pull) t and t^2 differ by less than the noise, so the report names one and lists the other beside it
+    camp, truth = beyond_campaign('quadratic_drift', 44)
+    report = run(camp, tmp_path)
+    first = next(t for t in report['beyond_catalog'] if t['channel'] == truth['channel'])
+    assert {'t', 't^2'} <= {first['term'], *first['near_tied']}, (first['term'], first['near_tied'])
+    assert report['cause'] == 'beyond_catalog', report['cause']
+    assert 'cannot tell it from' in (tmp_path / 'report.md').read_text()
+
+
+def test_near_tied_terms_are_those_within_the_share_of_the_chosen_reduction():
+    assert near_tied([('x', 0.5), ('t^2', 0.95), ('t^3', 0.91), ('v', 1.2)], 1.0) == ('v', 't^2', 't^3')
+    assert near_tied([('t^2', 0.85)], 1.0) == ()
+    assert near_tied([('t^2', 0.0)], 0.0) == ()
+
+
+def test_a_line_across_the_gap_of_the_free_phases_has_its_frequency_on_the_samples_own_times():
+    # the sensors' free phases are two stretches with the pull between them: a spectrum of the samples run together
+    # puts the line off by a share of a bin, enough to lose one phase across the gap
+    f0, fs = 592.7031, 20000.0
+    parts = []
+    for k in range(4):
+        t = np.concatenate([np.arange(0.02, 0.52, 1 / fs), np.arange(0.83 + 0.03 * k, 1.33 + 0.03 * k, 1 / fs)])
+        rng = np.random.default_rng(k)
+        y = 4.0 * np.sin(2 * np.pi * f0 * t + rng.uniform(0, 2 * np.pi)) + rng.normal(0, 0.3, len(t))
+        sig = {'t': t, 'v': np.ones_like(t)}
+        parts.append(spectrum_part({'force_stationary': (y, sig, None, {}, {})}, 1 / fs))
+    f = survey_from(parts, 1 / fs).freq['force_stationary']
+    assert abs(f - f0) < 0.05, f
 
 
 @pytest.mark.parametrize('nuisance', [False, True])

@@ -19,16 +19,18 @@ chosen product terms are refitted together (least squares on the summed normal e
 each pull is kept as the Gram matrix of its library columns, BeyondPart, so memory does not grow with the pulls),
 and the new term is kept only if it passes the held-out test of significance.significance (held-out SSE -1 %, t >=
 4 over the held-out pulls). At most MAX_TERMS per channel. Why not PySINDy's sequentially thresholded least
-squares: it is not in the lock, and its threshold is a coefficient size, which means nothing across terms of
-different units; forward selection with a held-out stopping rule is the catalog's own rule applied term by term.
+squares (STLSQ): measured on the same statistics (benchmarks/bench_sparse.py, docs/discovery.md), it kept dozens of
+collinear companions with a threshold chosen on the held-out error, and at the channel's band it spread a true term
+over its collinear neighbours until each fell below it; forward selection with a held-out stopping rule, the
+catalog's own rule applied term by term, keeps them out.
 
 Each coefficient gets an uncertainty budget as the catalog's parameters do (budget.honest; _budget): the statistical
 part from a jackknife over the fitted pulls (Student's t, n-1), each systematic part the coefficient's shift when
-one rig constant is one stated standard uncertainty off (m2 on the moving cell, each drive constant on the current:
-the residual's change kept as a Gram column per pull) or the channel's sensor calibration (relative), and the 95 %
-interval +/- sqrt((t u_stat)^2 + (COVERAGE_K u_sys)^2). A term is named when it is significant AND its
-contribution's rms on the held-out pulls, over that interval, lies above the channel's band (practical
-significance: channel_band, from the rig's tolerances).
+one rig constant is one stated standard uncertainty off (m2 and the cell's gain on the moving cell, each drive
+constant on the current: the residual's change kept as a Gram column per pull) or the channel's sensor calibration
+(relative), and the 95 % interval +/- sqrt((t u_stat)^2 + (COVERAGE_K u_sys)^2). A term is named when it is
+significant AND its contribution's rms on the held-out pulls, over that interval, lies above the channel's band
+(practical significance: channel_band, from the rig's tolerances).
 
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
@@ -86,10 +88,13 @@ MAX_TERMS = 3
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (module docstring)
+NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
+                              # are listed beside it: the data cannot tell them apart
 MIN_HZ = 20.0                  # a sinusoid's frequency lies above this (and below LEFTOVER_BAND_HZ)
 SPECTRUM_POINTS = 2 ** 15
 PEAK_PROMINENCE = 10.0        # a sinusoid's line stands this far above the median spectrum around it ...
 PEAK_SPAN = 64                # ... over this many bins either side
+REFINE_BINS = 2               # the line's frequency is refined this many bins either side of the peak
 COULOMB = 'coulomb_friction'
 
 INTERPRETATION = {
@@ -112,6 +117,9 @@ INTERPRETATION = {
     ('motor_current', 'v^2'): 'aerodynamic drag on the carriage',
     ('motor_current', 'v'): "viscous friction beyond the drive model's (lubricated guides, a damper)",
     ('motor_current', 'x'): 'a force that grows along the travel: a binding rail or a cable acting as a spring',
+    ('motor_current', 'v*x'): 'a friction that grows along the travel and acts only while sliding (a binding or '
+                              'misaligned rail): the grammar has no while-sliding factor, and x times the speed, 0 at '
+                              'rest, stands for it (its coefficient times the speed is the friction per metre)',
     ('motor_current', 't'): "the current sensor's zero drifts through the record",
     ('motor_current', 'F_move'): "the drive's force constant or the moving cell's gain is off (force per amp)",
     ('motor_current', 'a2'): 'a mass the drive moves that the model of record does not have',
@@ -149,6 +157,22 @@ def decimation(dt: float) -> int:
     return max(1, int(round(1.0 / (SEARCH_RATE_HZ * dt))))
 
 
+def free_samples(p: Pull) -> np.ndarray:
+    """The sensors' free phases of a pull, decimated: lanyard slack before the pull and after the break's ringing,
+    FREE_SPAN_S each, the record's edges (EDGE_S) left out, usable samples only."""
+    free = np.zeros(len(p.t), bool)
+    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
+    free[max(e, p.pre1 - span):p.pre1] = True
+    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
+    return np.flatnonzero(free & p.usable())[::decimation(p.dt)]
+
+
+def smoothed_a2(p: Pull) -> np.ndarray:
+    """a2 smoothed as the encoder's a3 is (the accelerometer's free-phase model is a3)."""
+    from scipy.signal import savgol_filter
+    return savgol_filter(p.a2, max(5, int(round(2e-3 / p.dt)) | 1), 3)
+
+
 def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
                    coulomb_n: Optional[float], causes: Optional[Dict[str, np.ndarray]] = None) -> Dict[str, tuple]:
     """{channel: (residual, signals, catalog column or None, {cause: its contribution})} of one pull, decimated,
@@ -169,24 +193,21 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     full = {'F_move': fm_pred, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
     ok = p.usable(p.w0, p.w1)[::q]
     u_m2 = rig.uncertainty.u('force_chain.moving_side_mass_kg')
+    # the cell's gain one standard uncertainty off (its calibration): a gain inside its tolerance is not fitted by
+    # the catalog, and its linear error leaks into any term that grows with the load (F_move^3, F_move*v)
+    _, key, attr = RELATIVE['force_moving']
+    u_g = rig.uncertainty.relative(key, getattr(rig.sensors, attr))
     out['force_moving'] = (np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()}, None,
                            {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()},
-                           {'m2': (u_m2 * p.a2)[w][::q][ok]})
+                           {'m2': (u_m2 * p.a2)[w][::q][ok], 'gain': (u_g * fm_pred)[w][::q][ok]})
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
     # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
     # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
-    free = np.zeros(len(p.t), bool)
-    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
-    free[max(e, p.pre1 - span):p.pre1] = True
-    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
-    sel = np.flatnonzero(free & p.usable())[::q]
+    sel = free_samples(p)
     if len(sel):
-        from scipy.signal import savgol_filter
-        win = max(5, int(round(2e-3 / p.dt)) | 1)
-        a2s = savgol_filter(p.a2, win, 3)
         sig = {k: v[sel] for k, v in full.items()}
         out['force_stationary'] = (p.fs[sel], sig, None, {}, {})
-        out['accel_axial'] = ((a2s - p.a3)[sel], sig, None, {}, {})
+        out['accel_axial'] = ((smoothed_a2(p) - p.a3)[sel], sig, None, {}, {})
     if p.current is not None:
         d = rig.drive
         kf = d.force_per_amp_n_per_a
@@ -213,14 +234,26 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
 
 
 def sensor_corrected(p: Pull, terms: Sequence, rig, cal: Optional[tuple]) -> Pull:
-    """The pull with the sensors' product terms found on their own (SENSORS: force_stationary, accel_axial; terms
-    with .channel, .term, .coefficient) taken out of F_stat and a2, and T recomputed from the corrected stationary
-    cell (cal: cells.with_tension's (K_LC1, c1); None: the rig's): the moving cell and the motor current are then
-    searched against what the sensors would have read without them."""
+    """The pull with the sensors' terms found on their own (SENSORS: force_stationary, accel_axial; terms with
+    .channel, .term, .coefficient, .frequency_hz) taken out of F_stat and a2, and T recomputed from the corrected
+    stationary cell (cal: cells.with_tension's (K_LC1, c1); None: the rig's): the moving cell and the motor current
+    are then searched against what the sensors would have read without them. A sinusoid's phase is each pull's own:
+    it is fitted (with the pull's amplitude) on the sensor's free phases, after its product terms, and taken out of
+    the whole record."""
     from .prep import tension_from_stationary
     full = {'F_move': p.fm, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
     d = {ch: sum((t.coefficient * term_values(t.term, full) for t in terms
                   if t.channel == ch and SIN not in parse_term(t.term)), np.zeros(len(p.t))) for ch in SENSORS}
+    sines = [t for t in terms if t.channel in SENSORS and SIN in parse_term(t.term)]
+    if sines:
+        sel = free_samples(p)
+        own = {'force_stationary': p.fs, 'accel_axial': smoothed_a2(p) - p.a3}   # the free phases' residuals
+        for t in sines:
+            fac = term_values(t.term, full)
+            ph = 2 * np.pi * t.frequency_hz * full['t']
+            X = np.column_stack([fac * np.cos(ph), fac * np.sin(ph)])
+            c = np.linalg.lstsq(X[sel], (own[t.channel] - d[t.channel])[sel], rcond=None)[0]
+            d[t.channel] = d[t.channel] + X @ c
     fc = rig.force_chain
     k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
     dT = tension_from_stationary(d['force_stationary'], p.dt, fc.m1, k1, c1)
@@ -250,13 +283,38 @@ def _peak(P: np.ndarray, band: np.ndarray) -> Optional[int]:
 
 
 def spectrum_part(series: Dict[str, tuple], dt_dec: float) -> Dict[str, tuple]:
-    """{channel: (power spectrum of the residual, rms of each signal)} of one pull."""
+    """{channel: (power spectrum of the residual, rms of each signal, (times s, residual))} of one pull. The
+    spectrum treats the samples as evenly spaced; the sensors' free phases are two stretches with the pull between
+    them, so the line's frequency is refined on the samples' own times (refine_frequency)."""
     out = {}
     for ch, (y, sig, *_rest) in series.items():
         yy = (y - y.mean()) * np.hanning(len(y))
         P = np.abs(np.fft.rfft(yy, SPECTRUM_POINTS)) ** 2
-        out[ch] = (P, {k: float(np.sqrt(np.mean(v ** 2))) for k, v in sig.items()})
+        out[ch] = (P, {k: float(np.sqrt(np.mean(v ** 2))) for k, v in sig.items()},
+                   (np.asarray(sig['t'], float), np.asarray(y, float)))
     return out
+
+
+def refine_frequency(f0: float, step: float, records: Sequence[Tuple[np.ndarray, np.ndarray]]) -> float:
+    """The frequency within f0 +/- REFINE_BINS step that maximizes the summed power of the pulls' least-squares
+    sinusoids on their samples' own times (records: [(t, residual)], each pull its own phase and amplitude): the
+    spectrum's peak is off by up to a bin, and by more where the record has a gap (the free phases either side of
+    the pull); one phase across such a gap needs the frequency to a small share of a bin."""
+    def power(f):
+        tot = 0.0
+        for t, y in records:
+            ph = 2 * np.pi * f * t
+            X = np.column_stack([np.cos(ph), np.sin(ph), np.ones_like(t)])
+            c = np.linalg.lstsq(X, y, rcond=None)[0]
+            tot += float(np.sum((X[:, :2] @ c[:2]) ** 2))
+        return tot
+    grid = f0 + step * np.linspace(-REFINE_BINS, REFINE_BINS, 8 * REFINE_BINS + 1)
+    for _ in range(3):   # a coarse grid, then finer ones around its best
+        pw = np.array([power(f) for f in grid])
+        k = int(np.argmax(pw))
+        h = grid[1] - grid[0]
+        grid = grid[k] + h * np.linspace(-1.0, 1.0, 9)
+    return float(grid[4])
 
 
 def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
@@ -268,9 +326,7 @@ def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
         P = sum(part[ch][0] for part in parts if ch in part)
         k = _peak(P, ok)
         if k is not None:
-            den = P[k - 1] - 2 * P[k] + P[k + 1]
-            off = float(np.clip(0.5 * (P[k - 1] - P[k + 1]) / den, -0.5, 0.5)) if den < 0 else 0.0
-            freq[ch] = float(f[k] + off * (f[1] - f[0]))
+            freq[ch] = refine_frequency(float(f[k]), float(f[1] - f[0]), [part[ch][2] for part in parts if ch in part])
         for part in parts:
             if ch in part:
                 for s, r in part[ch][1].items():
@@ -434,6 +490,7 @@ class Term:
     band: float
     named: bool
     budget: Dict[str, float] = field(default_factory=dict)   # standard uncertainties: statistical, systematic parts
+    alternatives: Tuple[str, ...] = ()   # terms the held-out pulls cannot tell from it (near_tied), best first
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -445,7 +502,7 @@ class Term:
                 'evidence': {'rel_sse_reduction': self.rel_sse_reduction, 't': self.t,
                              'contribution_rms': self.rms, 'contribution_rms_ci95': list(self.rms_ci95),
                              'band': self.band},
-                'uncertainty_budget': dict(self.budget)}
+                'uncertainty_budget': dict(self.budget), 'near_tied': list(self.alternatives)}
 
 
 @dataclass(frozen=True)
@@ -529,6 +586,9 @@ def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, 
         ev = significance(base, ext)
         if not ev.significant:
             break
+        alternatives = near_tied([(names[k] if s is None else names[n_prod + s], base.sum()
+                                   - sum(_sse(st, m, n_prod) for st in held)) for (k, s), (m, _) in zip(trials, tried)
+                                  if m is not best], base.sum() - ext.sum())
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
         model = best
@@ -554,8 +614,18 @@ def search_channel(channel: str, fit: Sequence, held: Sequence, survey: Survey, 
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
-                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget))
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives))
     return found, demoted, model
+
+
+def near_tied(others: Sequence[Tuple[str, float]], chosen: float) -> Tuple[str, ...]:
+    """The terms (others: (name, held-out SSE reduction in its place)) that come within NEAR_TIE of the chosen
+    term's held-out reduction, best first: on this campaign's motion the data cannot tell them from it (t and t^2
+    over a short window, F_move and T), so the report lists them beside the term instead of hiding them."""
+    if chosen <= 0:
+        return ()
+    close = sorted(((r, n) for n, r in others if r >= (1.0 - NEAR_TIE) * chosen), key=lambda x: -x[0])
+    return tuple(n for _, n in close)
 
 
 def _budget(channel: str, fit: Sequence, model: Model, col: Optional[int], coef: float, ci: Tuple[float, float],

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from . import quality as Q
 from . import stages
+from .beyond import NEAR_TIE
 from .budget import COMBINED, KIND
 
 
@@ -106,6 +107,9 @@ def beyond_lines(r) -> list:
                  f'-{100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f}, gain {t["gain"]:.3g}x; contribution rms '
                  f'{_num(ev["contribution_rms"])} against the band {_num(ev["band"])}. Usually: '
                  f'{t["interpretation"]}.{plot}')
+        if t.get('near_tied'):
+            L.append(f'  The held-out pulls cannot tell it from {", ".join(t["near_tied"])} (within '
+                     f'{100 * NEAR_TIE:g} % of its held-out reduction): read the term as one of these.')
         parts = [f'{k} {_num(v)}' for k, v in t.get('uncertainty_budget', {}).items()]
         if parts:
             L.append(f'  Standard uncertainties ({t["unit"]}): {", ".join(parts)}.')
@@ -113,7 +117,8 @@ def beyond_lines(r) -> list:
         L.append('No term of the library explains what the catalog leaves.')
     for t in b['within_tolerance']:
         L.append(f'- {t["term"]} on {t["channel"]} (significant, within the band): coefficient '
-                 f'{_num(t["coefficient"])} {t["unit"]}, contribution rms {_num(t["evidence"]["contribution_rms"])}')
+                 f'{_num(t["coefficient"])} {t["unit"]}, contribution rms {_num(t["evidence"]["contribution_rms"])}'
+                 + (f'; near-tied: {", ".join(t["near_tied"])}' if t.get('near_tied') else ''))
     for n, why in b['catalog_not_fitting'].items():
         L.append(f'- catalog cause {n} withheld: {why}')
     return L + ['']

@@ -535,7 +535,7 @@ class Stream:
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, survey) for j in range(len(names))], names))
         res = bey.search(parts, analysis.fit, analysis.held, survey, self.rig, decision.named)
-        sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS and t.frequency_hz is None)
+        sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS)
         if sensors:   # the moving cell and the current again, against what the sensors read without their terms
             parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                      [job(j, survey, sensors) for j in range(len(names))], names))
