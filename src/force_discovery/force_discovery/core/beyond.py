@@ -94,7 +94,8 @@ MIN_HZ = 20.0                  # a sinusoid's frequency lies above this (and bel
 SPECTRUM_POINTS = 2 ** 15
 PEAK_PROMINENCE = 10.0        # a sinusoid's line stands this far above the median spectrum around it ...
 PEAK_SPAN = 64                # ... over this many bins either side
-REFINE_BINS = 2               # the line's frequency is refined this many bins either side of the peak
+REFINE_BINS = 2               # the line's frequency is refined this many bins either side of the peak ...
+REFINE_PULLS = 4              # ... on the samples of at most this many pulls (memory flat in the pulls)
 COULOMB = 'coulomb_friction'
 
 INTERPRETATION = {
@@ -282,16 +283,17 @@ def _peak(P: np.ndarray, band: np.ndarray) -> Optional[int]:
     return None
 
 
-def spectrum_part(series: Dict[str, tuple], dt_dec: float) -> Dict[str, tuple]:
-    """{channel: (power spectrum of the residual, rms of each signal, (times s, residual))} of one pull. The
+def spectrum_part(series: Dict[str, tuple], dt_dec: float, records: bool = True) -> Dict[str, tuple]:
+    """{channel: (power spectrum of the residual, rms of each signal, (times s, residual) or None)} of one pull. The
     spectrum treats the samples as evenly spaced; the sensors' free phases are two stretches with the pull between
-    them, so the line's frequency is refined on the samples' own times (refine_frequency)."""
+    them, so the line's frequency is refined on the samples' own times (refine_frequency), kept where ``records``
+    (the first REFINE_PULLS pulls of the survey)."""
     out = {}
     for ch, (y, sig, *_rest) in series.items():
         yy = (y - y.mean()) * np.hanning(len(y))
         P = np.abs(np.fft.rfft(yy, SPECTRUM_POINTS)) ** 2
         out[ch] = (P, {k: float(np.sqrt(np.mean(v ** 2))) for k, v in sig.items()},
-                   (np.asarray(sig['t'], float), np.asarray(y, float)))
+                   (np.asarray(sig['t'], float), np.asarray(y, float)) if records else None)
     return out
 
 
@@ -325,8 +327,9 @@ def survey_from(parts: Sequence[Dict[str, tuple]], dt_dec: float) -> Survey:
     for ch in {c for part in parts for c in part}:
         P = sum(part[ch][0] for part in parts if ch in part)
         k = _peak(P, ok)
+        records = [part[ch][2] for part in parts if ch in part and part[ch][2] is not None]
         if k is not None:
-            freq[ch] = refine_frequency(float(f[k]), float(f[1] - f[0]), [part[ch][2] for part in parts if ch in part])
+            freq[ch] = refine_frequency(float(f[k]), float(f[1] - f[0]), records) if records else float(f[k])
         for part in parts:
             if ch in part:
                 for s, r in part[ch][1].items():

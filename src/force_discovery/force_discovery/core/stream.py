@@ -194,6 +194,7 @@ class BeyondJob:
     coulomb: Optional[float]            # the named Coulomb friction (N), or None
     survey: Optional[bey.Survey]        # None: the spectrum pass (a few fitted pulls); else the statistics
     sensors: tuple = ()                 # terms found on the sensors on their own (beyond.sensor_corrected)
+    records: bool = False               # the spectrum pass keeps the residual's samples (beyond.REFINE_PULLS pulls)
 
 
 @dataclass(frozen=True)
@@ -332,7 +333,7 @@ def beyond_pass(item, series: bool = False):
         return out
     series = out
     if job.survey is None:
-        return bey.spectrum_part(series, p.dt * bey.decimation(p.dt))
+        return bey.spectrum_part(series, p.dt * bey.decimation(p.dt), job.records)
     return bey.beyond_part(series, job.survey)
 
 
@@ -524,12 +525,12 @@ class Stream:
             fcf = analysis.candidates['coulomb_friction'].parameters['force_n']
         names = [p.name for p in analysis.pulls]
 
-        def job(j, survey, sensors=()):
+        def job(j, survey, sensors=(), records=False):
             return (self.sources[j], self.rig, self.c1,
-                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, survey, sensors))
+                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, survey, sensors, records))
         few = few_pulls(analysis.fit)
-        specs = self._strict('beyond', self._map('beyond', beyond_pass, [job(j, None) for j in few],
-                                                 [names[j] for j in few]))
+        jobs = [job(j, None, records=i < bey.REFINE_PULLS) for i, j in enumerate(few)]
+        specs = self._strict('beyond', self._map('beyond', beyond_pass, jobs, [names[j] for j in few]))
         dt = analysis.pulls[0].dt
         survey = bey.survey_from(specs, dt * bey.decimation(dt))
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
