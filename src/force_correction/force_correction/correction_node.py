@@ -81,8 +81,7 @@ class CorrectionNode(Node):
         self.diag.report(OK, f'(re)started: m = {params.mass_kg:g} kg, N = {params.window}, '
                              f'extension: {ext.describe()}')
         if ext.not_applied:   # an extension term the correction cannot undo: the corrected force is off by it
-            self.diag.report(WARN, f'the extension\'s {", ".join(ext.not_applied)} cannot be undone here: the '
-                                   'corrected force is off by them')
+            self.diag.report(WARN, ext.not_applied_warning())
 
     def _prefilter(self, rate_hz: float) -> ForcePrefilter:
         if rate_hz not in self.prefilters:

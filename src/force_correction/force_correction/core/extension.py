@@ -114,6 +114,11 @@ class Extension:
         ext = cls.from_dict(doc.get('correction') or {})
         return replace(ext, not_applied=not_undone(doc.get('extra_terms') or []))
 
+    def not_applied_warning(self) -> str:
+        """The one line that names the terms the correction cannot undo ('' when there are none)."""
+        return (f'the extension\'s {", ".join(self.not_applied)} cannot be undone by the correction: the corrected '
+                'force is off by them') if self.not_applied else ''
+
     @property
     def nonlinear(self) -> bool:
         return self.moving_cell_quadratic_per_n != 0.0 or self.moving_cell_cubic_per_n2 != 0.0

@@ -89,8 +89,7 @@ def run_correct(args) -> int:
                                   window_from_bandwidth=args.window_from_bandwidth,
                                   peak_inputs=peak_inputs_arg(args.peak_u))
     if setup.extension is not None and setup.extension.not_applied:
-        warn('correct', [f'the extension\'s {", ".join(setup.extension.not_applied)} cannot be undone by the '
-                         'correction: its corrected force is off by them'])
+        warn('correct', [setup.extension.not_applied_warning()])
     prog = Progress('correct', 'messages')
     try:
         result = correct(args.src, args.dst, setup, to=args.to, progress=prog, mapper=mapper,

@@ -54,6 +54,7 @@ from force_tester_sim.core.extra_terms import (
     SIGNALS,
     SIN,
     parse_term,
+    signals,
     term_name,
     term_unit,
     term_values,
@@ -191,7 +192,7 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     fm_pred = p.fm - (0.0 if hum is None else hum)
     fm_pred = fm_pred.copy()
     fm_pred[w] = fm_pred[w] - force_resid
-    full = {'F_move': fm_pred, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
+    full = signals(p.t, fm_pred, p.fs, p.T, p.a2, p.v3, p.x3)
     ok = p.usable(p.w0, p.w1)[::q]
     u_m2 = rig.uncertainty.u('force_chain.moving_side_mass_kg')
     # the cell's gain one standard uncertainty off (its calibration): a gain inside its tolerance is not fitted by
@@ -242,7 +243,7 @@ def sensor_corrected(p: Pull, terms: Sequence, rig, cal: Optional[tuple]) -> Pul
     it is fitted (with the pull's amplitude) on the sensor's free phases, after its product terms, and taken out of
     the whole record."""
     from .prep import tension_from_stationary
-    full = {'F_move': p.fm, 'F_stat': p.fs, 'T': p.T, 'a2': p.a2, 'v': p.v3, 'x': p.x3, 't': p.t - p.t[0]}
+    full = signals(p.t, p.fm, p.fs, p.T, p.a2, p.v3, p.x3)
     d = {ch: sum((t.coefficient * term_values(t.term, full) for t in terms
                   if t.channel == ch and SIN not in parse_term(t.term)), np.zeros(len(p.t))) for ch in SENSORS}
     sines = [t for t in terms if t.channel in SENSORS and SIN in parse_term(t.term)]
