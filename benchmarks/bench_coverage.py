@@ -30,7 +30,7 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generator (./ft gives install/, tools/)
+sys.path[:0] = [str(ROOT / 'tests' / 'force_discovery'), str(ROOT / 'tests')]   # the test generator, its timing
 
 import generator as G  # the generator
 

@@ -79,7 +79,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tests' / 'force_discovery'))   # the test generator (./ft gives install/, tools/)
+sys.path[:0] = [str(ROOT / 'tests' / 'force_discovery'), str(ROOT / 'tests')]   # the test generator, its timing
 
 import generator as G  # the generator
 

@@ -1,19 +1,174 @@
-"""Shared fixtures. Tests that talk over DDS get their own ROS domain and localhost-only discovery."""
+"""The suite's tiers, its workers' isolation, its bookkeeping, and the shared fixtures (docs/tests.md).
+
+Tiers. `./ft test` runs everything; `./ft test --fast` runs `-m "not slow"`. A test is `slow` when it is marked so
+by hand (it takes more than FAST_S seconds on its own) or when it has a kind marker: `ros` (it starts ROS 2 nodes;
+given automatically to every test that uses the ros_domain fixtures), `browser` or `netns`. A test of the fast
+tier that takes longer than FAST_S is named at the end of the run, to be marked.
+
+Workers. `./ft test` runs on pytest-xdist's workers (`--dist loadgroup`). Each worker has its own share of the ROS
+domains (every test that talks over DDS takes one from the ros_domain fixtures; the worker's own default covers
+the rest), so two workers' graphs never see each other. A test that cannot share the machine carries
+`@pytest.mark.xdist_group(SOLO)`: those tests run one after another on one worker, beside the others.
+
+Bookkeeping. Each test's report carries the seconds it spent making campaigns and in `discover` (tests/kinds.py);
+`--record-durations FILE` writes every test's time, kind and those seconds as JSON (`./ft bench tests`).
+
+Skips. Under CI=true a skipped test fails the run unless its node id is in tests/skips_allowed.txt, with its reason.
+"""
+from __future__ import annotations
+
+import fnmatch
 import itertools
+import json
 import os
+from pathlib import Path
 
 import pytest
+from kinds import MARKED_KINDS, kind_of, take, timed
 
+HERE = Path(__file__).resolve().parent
+SKIPS_ALLOWED = HERE / 'skips_allowed.txt'
+FAST_S = 5.0          # the fast tier's limit per test, seconds (setup + call + teardown)
+SOLO = 'solo'         # the xdist group of the tests that cannot share the machine with each other
+ROS_DOMAINS = 100     # ROS_DOMAIN_ID 1..100 are shared out among the workers
+_ROS_FIXTURES = {'ros_domain', 'module_ros_domain'}
 _domains = itertools.count()
+_RUN = {'tests': {}, 'skips': []}   # what the reports said, for the summary and --record-durations
+
+MARKERS = {
+    'slow': f'takes more than {FAST_S:g} s on its own: left out of ./ft test --fast',
+    'ros': 'starts ROS 2 nodes (in this process or as processes over Fast DDS); slow',
+    'browser': 'drives a real browser; slow',
+    'netns': 'makes network namespaces (needs root); slow',
+}
+
+
+def _worker() -> tuple:
+    """(this xdist worker's index, the number of workers); (0, 1) without xdist."""
+    name = os.environ.get('PYTEST_XDIST_WORKER', 'gw0')
+    return int(name.removeprefix('gw') or 0), int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+
+
+def _domain_range() -> range:
+    """This worker's ROS domains: the last is its default, the others are handed out by the fixtures."""
+    k, n = _worker()
+    span = ROS_DOMAINS // max(n, 1)
+    return range(1 + k * span, 1 + (k + 1) * span)
+
+
+def pytest_addoption(parser):
+    parser.addoption('--record-durations', metavar='FILE', default=None,
+                     help="write each test's time, kind and campaign/discover seconds to FILE (JSON)")
 
 
 def pytest_configure(config):
-    config.addinivalue_line('markers', 'slow: long-running; deselect with -m "not slow"')
+    for name, text in MARKERS.items():
+        config.addinivalue_line('markers', f'{name}: {text}')
+    # a worker's ROS domain for the tests that start a graph without a domain fixture: never another worker's
+    os.environ['ROS_DOMAIN_ID'] = str(_domain_range()[-1])
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    # the expensive steps, timed where they are defined (test modules import the timed names)
+    import force_discovery.core.pipeline as pipeline
+    import force_tester_sim.core.campaign as campaign
+    pipeline.discover = timed('discover')(pipeline.discover)
+    campaign.generate_campaign = timed('campaign')(campaign.generate_campaign)
 
 
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if _ROS_FIXTURES & set(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.ros)
+        if any(item.get_closest_marker(k) for k in MARKED_KINDS):
+            item.add_marker(pytest.mark.slow)
+        if item.get_closest_marker('netns'):
+            item.add_marker(pytest.mark.xdist_group(SOLO))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    take()
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    report = outcome.get_result()
+    if call.when == 'teardown':
+        report.user_properties.append(('spent', json.dumps(take())))
+
+
+def pytest_runtest_logreport(report):
+    """Collected where the reports arrive (the controller under xdist): each test's phases, and every skip."""
+    if report.skipped and not hasattr(report, 'wasxfail'):
+        _RUN['skips'].append((report.nodeid, _skip_reason(report)))
+    rec = _RUN['tests'].setdefault(report.nodeid, {'nodeid': report.nodeid, 'seconds': 0.0, 'outcome': 'passed'})
+    rec['seconds'] = round(rec['seconds'] + report.duration, 4)
+    rec['kind'] = kind_of(report.keywords)
+    rec['slow'] = 'slow' in report.keywords
+    if report.failed or report.skipped:
+        rec['outcome'] = report.outcome
+    for key, value in report.user_properties:
+        if key == 'spent':
+            rec.update(json.loads(value))
+
+
+def _skip_reason(report) -> str:
+    longrepr = report.longrepr
+    return str(longrepr[2] if isinstance(longrepr, tuple) else longrepr).removeprefix('Skipped: ')
+
+
+def allowed_skips(path: Path = SKIPS_ALLOWED) -> list:
+    """[(node-id pattern, reason)] of the skips CI accepts: 'PATTERN  # REASON' per line, '#' lines are comments."""
+    out = []
+    for line in path.read_text().splitlines() if path.exists() else []:
+        if line.strip() and not line.lstrip().startswith('#'):
+            pattern, _, reason = line.partition('#')
+            out.append((pattern.strip(), reason.strip()))
+    return out
+
+
+def unallowed_skips(skips, allowed) -> list:
+    return [(nodeid, why) for nodeid, why in skips if not any(fnmatch.fnmatchcase(nodeid, p) for p, _ in allowed)]
+
+
+def pytest_sessionfinish(session, exitstatus):
+    config = session.config
+    if hasattr(config, 'workerinput'):
+        return
+    records = list(_RUN['tests'].values())
+    path = config.getoption('--record-durations')
+    if path:
+        Path(path).write_text(json.dumps(records, indent=1))
+    _RUN['slow_unmarked'] = sorted((r for r in records if not r['slow'] and r['seconds'] > FAST_S),
+                                   key=lambda r: -r['seconds'])
+    if os.environ.get('CI') == 'true':
+        _RUN['bad_skips'] = unallowed_skips(_RUN['skips'], allowed_skips())
+        if _RUN['bad_skips'] and session.exitstatus == 0:
+            session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    tr = terminalreporter
+    slow = _RUN.get('slow_unmarked', [])
+    if slow:
+        tr.section(f'fast-tier tests over {FAST_S:g} s: mark them slow (docs/tests.md)', yellow=True)
+        for r in slow[:20]:
+            tr.write_line(f"{r['seconds']:7.1f} s  {r['nodeid']}")
+    bad = _RUN.get('bad_skips', [])
+    if bad:
+        tr.section('skipped under CI=true, not in tests/skips_allowed.txt: the run fails', red=True)
+        for nodeid, why in bad:
+            tr.write_line(f'{nodeid}: {why}')
+
+
+# ------------------------------------------------------------------------------------------------ fixtures
 def isolated_ros_env(mp: pytest.MonkeyPatch) -> int:
-    """Give this process (and the nodes it starts) a ROS domain of its own, discovery on localhost."""
-    domain = 1 + (os.getpid() + 17 * next(_domains)) % 100
+    """Give this process (and the nodes it starts) a ROS domain of its own, discovery on localhost: one of this
+    worker's domains (its last is kept as the worker's default), offset by the process id so that two runs on one
+    machine seldom meet."""
+    own = _domain_range()[:-1]
+    domain = own[(os.getpid() + 17 * next(_domains)) % len(own)]
     mp.setenv('ROS_DOMAIN_ID', str(domain))
     mp.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     return domain

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from kinds import timed
 
 from force_tester_common.core.correction import MASS_KG
 from force_tester_common.core.units import G_M_S2, LBF_N
@@ -109,6 +110,7 @@ def daq_nuisances(ch: dict, nuisance: dict, seed: int) -> dict:
     return out
 
 
+@timed('campaign')
 def make_campaign(departures: dict | None, seed: int, sets=SETS, pulls=PULLS, nuisance: dict | None = None,
                   post=None):
     """[(meta, channels)] of a campaign with the hidden departures (and the model-form nuisance, if given); post(ch,
@@ -135,6 +137,7 @@ def make_campaign(departures: dict | None, seed: int, sets=SETS, pulls=PULLS, nu
     return out
 
 
+@timed('campaign')
 def out_of_catalog(kind: str, seed: int, sets=SETS, pulls=PULLS):
     """Effects outside the catalog, applied to the recorded moving cell of a nominal campaign."""
     rng = np.random.default_rng([seed, 99])
@@ -312,6 +315,7 @@ def beyond_post(truth: dict):
     return post
 
 
+@timed('campaign')
 def beyond_campaign(kind: str, seed: int, nuisance: bool = False, sets=SETS, pulls=PULLS):
     """(campaign, truth) with one departure outside the catalog at a random strength (and the model-form
     nuisances when asked)."""

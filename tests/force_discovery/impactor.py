@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, write_lvm
+from kinds import timed
 
 from force_tester_common.core.units import G_M_S2
 from force_tester_sim.core.params import NOMINAL_YAML
@@ -151,6 +152,7 @@ def write_mf4(path: Path, v: dict, rate: float) -> Path:
     return path
 
 
+@timed('campaign')
 def lab_campaign(folder: Path, imp: Impactor, records: int = 4, fmt: str = '.lvm', seed0: int = 0,
                  channel_map: dict = CHANNEL_MAP) -> Path:
     """A campaign folder as the lab hands it over: one DAQ file per record in volts, channels.yaml (the channel
@@ -168,6 +170,7 @@ def lab_campaign(folder: Path, imp: Impactor, records: int = 4, fmt: str = '.lvm
     return folder
 
 
+@timed('campaign')
 def memory_campaign(imp: Impactor, records: int = 4, seed0: int = 0) -> list:
     """[(meta, SI channels)] of the same records, for the in-memory path."""
     return [({'file': f'drop{i + 1}', 'set': 0, 'coupon_lbf': 0.0, 'velocity_fps': 0.0, 'decel_g': 0.0},

@@ -10,6 +10,8 @@ from pathlib import Path
 
 from ..paths import ROOT, executable
 
+DURATIONS = ROOT / '.ft' / 'test-durations.json'   # each test's time in the last ./ft test (tests/conftest.py)
+
 ENV_VARS = (
     'VIRTUAL_ENV', 'PATH', 'LD_LIBRARY_PATH', 'PYTHONPATH', 'AMENT_PREFIX_PATH',
     'CMAKE_PREFIX_PATH', 'COLCON_PREFIX_PATH', 'RMW_IMPLEMENTATION', '_ROS_WHEELS_BOOTSTRAP_COMPLETE',
@@ -18,21 +20,52 @@ ENV_VARS = (
 
 
 class Test:
+    """./ft test: the whole suite on every core (pytest-xdist); --fast: the inner loop (docs/tests.md)."""
     PASSTHROUGH = 'pytest_args'
 
     @staticmethod
     def add_arguments(p):
+        p.description = ('Run the test suite with pytest on pytest-xdist\'s workers (one per core; FT_TEST_WORKERS '
+                         'sets another number, -n 0 runs in this process). Each test\'s time is written to '
+                         f'{DURATIONS.relative_to(ROOT)} (./ft bench tests prints the table). Other arguments go to '
+                         'pytest.')
+        p.add_argument('--fast', action='store_true',
+                       help='only the tests not marked slow (each under a few seconds): the inner loop, <= 3 min')
         p.add_argument('pytest_args', nargs=argparse.REMAINDER)
 
     @staticmethod
     def run(args) -> int:
-        chosen = any(Path(a.split('::')[0]).exists() for a in args.pytest_args if not a.startswith('-'))
-        cmd = [sys.executable, '-m', 'pytest', *([] if chosen else [str(ROOT / 'tests')]), *args.pytest_args]
-        rc = subprocess.call(cmd, cwd=ROOT)
+        rc = subprocess.call(pytest_command(args.pytest_args, args.fast), cwd=ROOT)
         if rc == 5:
             print('ft: error: pytest collected no tests', file=sys.stderr)
             return 1
         return rc
+
+
+def _has_option(args: list, *names: str) -> bool:
+    """Whether ARGS give one of the options NAMES ('-n 2', '-n2', '--dist=load', ...)."""
+    return any(a == n or a.startswith(n + '=') or (len(n) == 2 and a.startswith(n)) for a in args for n in names)
+
+
+def pytest_command(args: list, fast: bool = False) -> list:
+    """The pytest command line of ./ft test ARGS: the tests folder unless ARGS name tests, the workers and their
+    distribution unless ARGS set them, the fast tier's marker expression (joined to one of ARGS), and the durations
+    file."""
+    args = list(args)
+    chosen = any(Path(a.split('::')[0]).exists() for a in args if not a.startswith('-'))
+    if fast:
+        if '-m' in args:
+            i = args.index('-m') + 1
+            args[i] = f'not slow and ({args[i]})'
+        else:
+            args += ['-m', 'not slow']
+    if 'no:xdist' not in args and not _has_option(args, '-n', '--numprocesses'):
+        args += ['-n', os.environ.get('FT_TEST_WORKERS', 'auto')]
+    if 'no:xdist' not in args and not _has_option(args, '--dist'):
+        args += ['--dist', 'loadgroup']
+    if not _has_option(args, '--record-durations'):
+        args += ['--record-durations', str(DURATIONS)]
+    return [sys.executable, '-m', 'pytest', *([] if chosen else [str(ROOT / 'tests')]), *args]
 
 
 class Run:

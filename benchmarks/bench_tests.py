@@ -1,0 +1,103 @@
+"""Where the test suite's time goes: the slowest tests and the time by kind (the tables of docs/tests.md).
+
+    ./ft bench tests [--run [PYTEST_ARGS]] [--file FILE] [--baseline FILE] [--top 25]
+
+Reads the durations the last `./ft test` wrote (.ft/test-durations.json; tests/conftest.py records each test's
+time, its kind and the seconds it spent making campaigns and in `discover`), or with --run runs `./ft test`
+first (the whole suite, or PYTEST_ARGS). Prints the TOP slowest tests, the test time by kind (the seconds inside
+the campaign makers and `discover`, measured; the rest of each test's time under its kind marker: ros, browser,
+netns, or the rest) and the tiers: the time of the fast tier (the tests not marked slow) and any of its tests
+over the limit. --baseline adds the same figures of an earlier file (a durations file, or pytest's --junitxml
+report, whose tests have no kinds) side by side. The sums are test seconds: with several workers the wall time
+is shorter (pytest prints it).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / 'tests'))
+from kinds import KINDS, LABELS  # noqa: E402  (the tests' own definition of the kinds)
+
+DURATIONS = ROOT / '.ft' / 'test-durations.json'
+FAST_S = 5.0
+
+
+def load(path: Path) -> list:
+    """[{nodeid, seconds, kind, slow, campaign, discover}] from a durations file or a JUnit XML report."""
+    if path.suffix == '.xml':
+        out = []
+        for case in ET.parse(path).getroot().iter('testcase'):
+            module = case.get('classname', '').rsplit('.', 1)[0].replace('.', '/') + '.py'
+            cls = case.get('classname', '').rsplit('.', 1)[-1]
+            nodeid = f"{module}::{cls + '::' if cls[:1].isupper() else ''}{case.get('name')}"
+            out.append({'nodeid': nodeid, 'seconds': float(case.get('time', 0.0)), 'kind': None, 'slow': None})
+        return out
+    return json.loads(path.read_text())
+
+
+def by_kind(records: list) -> dict:
+    """{kind: seconds}: campaign and discover as measured, each test's remainder under its own kind."""
+    out = defaultdict(float)
+    for r in records:
+        measured = sum(r.get(k, 0.0) for k in ('campaign', 'discover'))
+        for k in ('campaign', 'discover'):
+            out[k] += r.get(k, 0.0)
+        out[r['kind'] or 'unknown'] += max(r['seconds'] - measured, 0.0)
+    return out
+
+
+def print_tables(records: list, top: int, baseline: list | None = None) -> None:
+    total = sum(r['seconds'] for r in records)
+    base = {r['nodeid']: r['seconds'] for r in baseline or []}
+    print(f'{len(records)} tests, {total:.0f} s of test time ({total / 60:.1f} min)'
+          + (f'; baseline {len(base)} tests, {sum(base.values()):.0f} s' if baseline else ''))
+    print(f'\nThe {top} slowest tests (seconds: setup + call + teardown)\n')
+    print('| # | seconds |' + (' baseline |' if baseline else '') + ' kind | test |')
+    print('|---|---|' + ('---|' if baseline else '') + '---|---|')
+    for i, r in enumerate(sorted(records, key=lambda r: -r['seconds'])[:top], 1):
+        was = f" {base[r['nodeid']]:.1f} |" if r['nodeid'] in base else (' - |' if baseline else '')
+        print(f"| {i} | {r['seconds']:.1f} |{was} {r['kind'] or '-'} | `{r['nodeid']}` |")
+    kinds = by_kind(records)
+    print('\nTest time by kind (campaigns and discover measured inside the tests; the rest of a test under its '
+          'marker)\n')
+    print('| kind | seconds | share |')
+    print('|---|---|---|')
+    for k in (*KINDS, 'unknown'):
+        if kinds.get(k):
+            print(f'| {LABELS.get(k, k)} | {kinds[k]:.0f} | {100 * kinds[k] / total:.0f} % |')
+    fast = [r for r in records if r['slow'] is False]
+    if fast:
+        over = [r for r in fast if r['seconds'] > FAST_S]
+        print(f'\nfast tier (not slow): {len(fast)} tests, {sum(r["seconds"] for r in fast):.0f} s of test time; '
+              f'slow: {len(records) - len(fast)} tests; fast-tier tests over {FAST_S:g} s: {len(over)}')
+        for r in sorted(over, key=lambda r: -r['seconds']):
+            print(f"  {r['seconds']:.1f} s  {r['nodeid']}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(prog='./ft bench tests', description=__doc__.splitlines()[0])
+    ap.add_argument('--run', action='store_true', help='run ./ft test first (with the arguments after --run)')
+    ap.add_argument('--file', type=Path, default=DURATIONS, help=f'the durations file (default {DURATIONS})')
+    ap.add_argument('--baseline', type=Path, help='an earlier durations file or JUnit XML report, side by side')
+    ap.add_argument('--top', type=int, default=25, help='how many of the slowest tests to list (default 25)')
+    args, pytest_args = ap.parse_known_args()
+    if args.run:
+        rc = subprocess.call([str(ROOT / 'ft'), 'test', '--record-durations', str(args.file), *pytest_args])
+        print(f'./ft test exited {rc}')
+    elif pytest_args:
+        ap.error(f"unrecognized arguments: {' '.join(pytest_args)} (pytest's arguments go after --run)")
+    if not args.file.is_file():
+        raise SystemExit(f'./ft bench tests: error: no durations file {args.file}; run ./ft test first (or --run)')
+    print_tables(load(args.file), args.top, load(args.baseline) if args.baseline else None)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

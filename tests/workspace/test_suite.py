@@ -1,0 +1,122 @@
+"""The suite's own machinery (tests/conftest.py, ./ft test, ./ft bench tests): tiers, workers' ROS domains, the
+durations record, and no silent skips under CI=true."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import conftest
+import pytest
+
+from ft_cli.commands.workspace import pytest_command
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SAMPLE = '''
+import pytest
+from force_tester_sim.core.campaign import generate_campaign
+from force_tester_sim.core.params import load_rig
+
+def test_passes():
+    assert True
+
+def test_skips():
+    pytest.skip('nothing to run here')
+
+def test_talks_over_dds(ros_domain):
+    import os
+    assert os.environ['ROS_DOMAIN_ID'] == str(ros_domain)
+
+def test_makes_a_campaign():
+    assert len(generate_campaign(load_rig(), (3,), 1, 0)) == 1
+
+@pytest.mark.slow
+def test_marked_slow():
+    assert True
+'''
+
+
+def run_sample(tmp_path: Path, *args: str, ci: bool) -> subprocess.CompletedProcess:
+    """pytest on SAMPLE in its own folder with this suite's conftest.py as a plugin."""
+    (tmp_path / 'test_sample.py').write_text(SAMPLE)
+    env = {**os.environ, 'PYTHONPATH': f"{ROOT / 'tests'}:{os.environ.get('PYTHONPATH', '')}"}
+    env.pop('PYTEST_XDIST_WORKER', None)
+    env.pop('PYTEST_XDIST_WORKER_COUNT', None)
+    env['CI'] = 'true' if ci else 'false'
+    return subprocess.run([sys.executable, '-m', 'pytest', '-p', 'conftest', '-p', 'no:cacheprovider',
+                           '--rootdir', str(tmp_path), str(tmp_path / 'test_sample.py'), *args],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_a_skip_fails_the_run_under_ci_unless_allowed(tmp_path):
+    out = tmp_path / 'durations.json'
+    quiet = run_sample(tmp_path, '--record-durations', str(out), ci=False)
+    assert quiet.returncode == 0, quiet.stdout[-2000:]
+    ci = run_sample(tmp_path, ci=True)
+    assert ci.returncode == 1, ci.stdout[-2000:]
+    assert 'not in tests/skips_allowed.txt' in ci.stdout and 'test_skips: nothing to run here' in ci.stdout
+    # the durations record: every test, its kind and tier, the seconds spent making its campaign
+    rec = {r['nodeid'].split('::')[-1]: r for r in json.loads(out.read_text())}
+    assert set(rec) == {'test_passes', 'test_skips', 'test_talks_over_dds', 'test_makes_a_campaign',
+                        'test_marked_slow'}
+    assert rec['test_talks_over_dds']['kind'] == 'ros' and rec['test_talks_over_dds']['slow']
+    assert rec['test_passes']['kind'] == 'rest' and not rec['test_passes']['slow']
+    assert rec['test_marked_slow']['slow'] and rec['test_skips']['outcome'] == 'skipped'
+    assert 0 < rec['test_makes_a_campaign']['campaign'] <= rec['test_makes_a_campaign']['seconds']
+    # the fast tier leaves out the slow and the ros test
+    fast = run_sample(tmp_path, '-m', 'not slow', '-q', ci=False)
+    assert '3 passed' not in fast.stdout and '2 passed, 1 skipped, 2 deselected' in fast.stdout, fast.stdout
+
+
+def test_the_allow_list_is_short_and_every_line_has_a_reason():
+    allowed = conftest.allowed_skips()
+    assert 0 < len(allowed) <= 6
+    assert all(pattern.startswith('tests/') and len(reason) > 10 for pattern, reason in allowed), allowed
+    skips = [('tests/workspace/test_two_hosts.py::test_x', 'no netns'), ('tests/a.py::test_b', 'why not')]
+    assert conftest.unallowed_skips(skips, allowed) == [('tests/a.py::test_b', 'why not')]
+
+
+def test_each_worker_has_its_own_ros_domains(monkeypatch):
+    seen = []
+    for k in range(3):
+        monkeypatch.setenv('PYTEST_XDIST_WORKER', f'gw{k}')
+        monkeypatch.setenv('PYTEST_XDIST_WORKER_COUNT', '3')
+        seen.append(set(conftest._domain_range()))
+        with pytest.MonkeyPatch.context() as mp:
+            assert conftest.isolated_ros_env(mp) in seen[-1]
+    assert not (seen[0] & seen[1] or seen[1] & seen[2] or seen[0] & seen[2])
+    assert min(map(min, seen)) >= 1 and max(map(max, seen)) <= conftest.ROS_DOMAINS
+
+
+def test_ft_test_command_line():
+    def option(cmd, name):   # the value after NAME among pytest's own arguments
+        args = cmd[3:]
+        return args[args.index(name) + 1]
+    cmd = pytest_command([])
+    assert cmd[:4] == [sys.executable, '-m', 'pytest', str(ROOT / 'tests')]
+    assert option(cmd, '-n') in ('auto', os.environ.get('FT_TEST_WORKERS')) and option(cmd, '--dist') == 'loadgroup'
+    assert '--record-durations' in cmd and '-m' not in cmd[3:]
+    fast = pytest_command(['-m', 'ros', '-n', '3'], fast=True)
+    assert option(fast, '-m') == 'not slow and (ros)' and fast.count('-n') == 1 and option(fast, '-n') == '3'
+    assert option(pytest_command([], fast=True), '-m') == 'not slow'
+    assert '-n' not in pytest_command(['-p', 'no:xdist'])
+    assert pytest_command(['tests/workspace/test_suite.py'])[3] == 'tests/workspace/test_suite.py'
+
+
+def test_bench_tests_prints_the_tables(tmp_path):
+    records = [{'nodeid': f'tests/x/test_a.py::test_{i}', 'seconds': float(i), 'kind': kind, 'slow': i > 5,
+                'outcome': 'passed', **({'campaign': 0.5, 'discover': 1.0} if i == 9 else {})}
+               for i, kind in zip(range(1, 10), ['rest'] * 5 + ['ros'] * 2 + ['netns', 'rest'])]
+    (tmp_path / 'd.json').write_text(json.dumps(records))
+    r = subprocess.run([sys.executable, str(ROOT / 'benchmarks' / 'bench_tests.py'), '--file', str(tmp_path / 'd.json'),
+                        '--top', '3'], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert '9 tests, 45 s' in r.stdout and '| 1 | 9.0 | rest | `tests/x/test_a.py::test_9` |' in r.stdout
+    assert '| making campaigns | 0 |' in r.stdout or '| making campaigns | 1 |' in r.stdout
+    assert '| ROS graphs and nodes | 13 |' in r.stdout and '| network namespaces | 8 |' in r.stdout
+    assert '| the rest | 22 |' in r.stdout   # 1..5 and 9 - 1.5 measured
+    assert 'fast tier (not slow): 5 tests, 15 s' in r.stdout
