@@ -34,9 +34,9 @@ def load(path: Path) -> list:
     if path.suffix == '.xml':
         out = []
         for case in ET.parse(path).getroot().iter('testcase'):
-            module = case.get('classname', '').rsplit('.', 1)[0].replace('.', '/') + '.py'
-            cls = case.get('classname', '').rsplit('.', 1)[-1]
-            nodeid = f"{module}::{cls + '::' if cls[:1].isupper() else ''}{case.get('name')}"
+            parts = case.get('classname', '').split('.')
+            cls = parts.pop() if parts and parts[-1][:1].isupper() else None
+            nodeid = '::'.join(['/'.join(parts) + '.py', *([cls] if cls else []), case.get('name')])
             out.append({'nodeid': nodeid, 'seconds': float(case.get('time', 0.0)), 'kind': None, 'slow': None})
         return out
     return json.loads(path.read_text())

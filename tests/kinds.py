@@ -16,8 +16,9 @@ from collections import defaultdict
 KINDS = ('campaign', 'discover', 'ros', 'browser', 'netns', 'rest')
 LABELS = {'campaign': 'making campaigns', 'discover': '`discover`', 'ros': 'ROS graphs and nodes',
           'browser': 'the browser', 'netns': 'network namespaces', 'rest': 'the rest'}
-#: the markers that name a test's kind (conftest.py registers them); each also makes the test `slow`
-MARKED_KINDS = ('ros', 'browser', 'netns')
+#: the markers that name a test's kind (conftest.py registers them; each also makes the test `slow`), the most
+#: telling first: a browser test also starts ROS nodes
+MARKED_KINDS = ('netns', 'browser', 'ros')
 
 _spent: dict = defaultdict(float)
 _depth: dict = defaultdict(int)

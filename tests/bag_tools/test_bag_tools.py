@@ -298,6 +298,7 @@ def test_cli_errors_are_one_line(tmp_path, camp):
         assert 'Traceback' not in r.stderr
 
 
+@pytest.mark.slow
 def test_cli_import_export(tmp_path, camp):
     r = run_cli('import', camp, tmp_path / 'bag')
     assert r.returncode == 0 and 'imported 3 pull(s)' in r.stdout, r.stderr
@@ -360,6 +361,7 @@ with BagWriter(sys.argv[1], make_typestore([MSG_DIR]), rewritable=sys.argv[2] ==
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('command', ['export', 'import'])
 def test_a_killed_commands_leftover_is_removed_by_the_next_run(tmp_path, camp, command):
     """A command killed midway (SIGKILL: no cleanup) leaves its unfinished output: export's hidden

@@ -39,6 +39,7 @@ CASES = [(kind, 11 + i, i % 2 == 1) for i, kind in enumerate(sorted(set(BEYOND) 
     ('stationary_pickup', 41, True), ('cubic_cell', 3401, True), ('rate_cell', 43, True)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('kind,seed,nuisance', CASES)
 def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisance, tmp_path):
     camp, truth = beyond_campaign(kind, seed, nuisance)
@@ -86,6 +87,7 @@ def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisan
         assert abs(c - truth['coefficient']) <= 0.3 * truth['coefficient']
 
 
+@pytest.mark.slow
 def test_a_drift_the_window_cannot_tell_from_its_neighbours_is_named_with_them(tmp_path):
     # a zero drifting as t^2: over the moving cell's analysis window (about 0.3 s, at about the same time in every
     # pull) t and t^2 differ by less than the noise, so the report names one and lists the other beside it
@@ -118,6 +120,7 @@ def test_a_line_across_the_gap_of_the_free_phases_has_its_frequency_on_the_sampl
     assert abs(f - f0) < 0.05, f
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('nuisance', [False, True])
 def test_a_clean_campaign_has_nothing_beyond_the_catalog(nuisance, tmp_path):
     report = run(make_campaign(None, seed=31, nuisance=draw_nuisance(31) if nuisance else None), tmp_path)

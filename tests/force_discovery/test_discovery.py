@@ -31,6 +31,7 @@ def run(camp, tmp):
     return discover(camp, load_rig(), tmp, scheduler='inline')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', sorted(PLAUSIBLE))
 def test_each_catalog_entry_is_identified(name, tmp_path):
     truth = draw(name, seed=3)
@@ -39,12 +40,14 @@ def test_each_catalog_entry_is_identified(name, tmp_path):
     assert report['causes'][0]['gain'] > 1.0
 
 
+@pytest.mark.slow
 def test_no_effect_gives_none(tmp_path):
     report = run(make_campaign(None, seed=4), tmp_path)
     assert report['cause'] == 'none', report['causes']
     assert report['causes'] == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('kind', OUT_OF_CATALOG)
 def test_out_of_catalog_effect_is_not_named_wrongly(kind, tmp_path):
     report = run(out_of_catalog(kind, seed=5), tmp_path)
@@ -61,6 +64,7 @@ def test_out_of_catalog_effect_is_not_named_wrongly(kind, tmp_path):
         assert {'dominant_frequency_hz', 'correlated_channel', 'share_of_residual_variance'} <= set(p)
 
 
+@pytest.mark.slow
 def test_outputs_written(tmp_path):
     truth = {'mass_kg': 1.4}
     report = run(make_campaign({'effective_mass': truth}, seed=6, sets=(3,), pulls=4), tmp_path)
@@ -157,6 +161,7 @@ def test_load_dependence_is_the_between_group_variance_a_random_effect():
     assert pooled['moving_cell_gain']['gain'] == 0.0
 
 
+@pytest.mark.slow
 def test_two_effects_both_named(tmp_path):
     deps = {'moving_cell_gain': {'gain': 1.05}, 'coulomb_friction': {'force_n': 120.0}}
     report = run(make_campaign(deps, seed=7), tmp_path)
@@ -164,6 +169,7 @@ def test_two_effects_both_named(tmp_path):
     assert set(names[:2]) == set(deps), names
 
 
+@pytest.mark.slow
 def test_cli_on_campaign_folder(tmp_path, capsys):
     import argparse
 
@@ -238,6 +244,7 @@ def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
         assert s['corrected_mean_pct'] < min(3.0, table8[k], table9[k]), s
 
 
+@pytest.mark.slow
 def test_stages_leave_their_inputs_unchanged(tmp_path):
     """analyse -> decide -> held-out checks -> report: each stage returns a typed result and changes
     neither the measured channels nor an earlier stage's result."""
@@ -284,6 +291,7 @@ def _tolerant_rig(**tol):
     return dataclasses.replace(rig, tolerances=dataclasses.replace(rig.tolerances, **tol))
 
 
+@pytest.mark.slow
 def test_verdict_follows_the_tolerance_band():
     """One campaign with a 5 % gain departure; the user's tolerance decides: named outside the band, within
     tolerance inside it, inconclusive when the interval straddles the edge (with the pulls that would settle it)."""
@@ -327,6 +335,7 @@ def test_pulls_to_settle_leaves_the_systematic_part():
     assert pulls_to_settle(1.02, (1.0, 1.04), b, 10, fixed_half=0.012) is None  # the systematic part reaches the edge
 
 
+@pytest.mark.slow
 def test_departure_inside_the_tolerance_is_reported_not_named(tmp_path):
     """A 0.2 % gain and a 0.6 % heavier m2: statistically clear, practically nothing. Reported as within
     tolerance, with estimate and interval; the cause is none."""
@@ -344,6 +353,7 @@ def test_departure_inside_the_tolerance_is_reported_not_named(tmp_path):
     assert 'within tolerance' in (tmp_path / 'report.md').read_text()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('base_fraction', [0.15, 0.6])
 def test_mount_is_reported_as_the_observed_mode_whatever_the_bracket(base_fraction, tmp_path):
     """The mount is identified as the mode in the measured channels (right within 1 % whatever the bracket mass);
@@ -390,6 +400,7 @@ def test_malformed_tolerances_exit_2_with_one_line(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------ issue 12: data quality before physics
+@pytest.mark.slow
 def test_data_defects_never_yield_a_catalog_name(tmp_path):
     """Under-runs (every channel held 1-5 ms), 200-500 N spikes on the moving cell, a clipped moving cell and a
     few NaNs: each found and listed in data_quality, masked, and none of them named as a cause."""
@@ -410,6 +421,7 @@ def test_data_defects_never_yield_a_catalog_name(tmp_path):
     assert '## Data quality' in (tmp_path / 'report.md').read_text()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('seed', [2002, 2008])
 def test_data_defects_leave_no_structure(seed, tmp_path):
     """Under-runs and spikes, masked, are not `unexplained` either (before the leftover check zeroed masked
@@ -419,6 +431,7 @@ def test_data_defects_leave_no_structure(seed, tmp_path):
     assert report['cause'] == 'none', (report['causes'], report['leftover'])
 
 
+@pytest.mark.slow
 def test_a_real_effect_is_still_found_through_data_defects(tmp_path):
     from defects import real_world_defects
     truth = {'mass_kg': 1.4}
@@ -451,6 +464,7 @@ def test_too_few_usable_pulls_is_unexplained_with_the_reason(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------ issue 12: model-form nuisances
+@pytest.mark.slow
 @pytest.mark.parametrize('seed', [41, 42])
 def test_model_form_nuisances_give_none(seed, tmp_path):
     """Cell and lanyard damping 2-4x, a common anti-alias filter, 1/f noise, 16-bit samples and departures well
@@ -463,6 +477,7 @@ def test_model_form_nuisances_give_none(seed, tmp_path):
     assert cells['used_for_tension'] and cells['measured_damping_ratio'] > 1.5 * cells['rig_damping_ratio'], cells
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['mount_resonance', 'coulomb_friction', 'effective_mass'])
 def test_effects_are_found_through_the_nuisances(name, tmp_path):
     from generator import draw_nuisance

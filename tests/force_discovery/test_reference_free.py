@@ -200,6 +200,7 @@ def test_nothing_hidden_names_nothing_in_the_force_channel(tmp_path):
     assert c['mains_hum']['verdict'] in ('within_tolerance', 'not_significant')
 
 
+@pytest.mark.slow
 def test_heavier_carriage_at_25_khz_with_and_without_its_reference(tmp_path):
     """Section 4's second rig: our rig with an 80 kg carriage sampled at 25 kHz, a 60 us accelerometer delay hidden.
     The code sees the data and that rig's YAML (25 kHz, 80 kg, no departures). With every channel the full path
@@ -285,6 +286,7 @@ def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path, capsy
     assert said_g == pytest.approx(1.015, abs=0.002) and said_m == pytest.approx(1.30, rel=0.01), line
 
 
+@pytest.mark.slow
 def test_three_pulls_with_every_channel_use_the_reference_leave_one_out(tmp_path):
     """Fewer than 4 pulls with the reference: leave-one-out across pulls with the stationary cell, so a hidden gain
     and mass come out apart (indicated: 3 held-out pulls cannot name them)."""

@@ -61,6 +61,7 @@ def _args(*argv):
     return ap.parse_args([str(a) for a in argv])
 
 
+@pytest.mark.slow
 def test_streamed_report_is_the_one_pass_report(tmp_path):
     """Every decision the same; every number to rounding, and the re-simulation bit for bit given the same
     extension. The mount, hum, friction, gain, mass and delay are all in the campaign, so every stage's per-pull
@@ -124,6 +125,7 @@ def _traced_peak(camp, tmp, live: list) -> int:
         tracemalloc.stop()
 
 
+@pytest.mark.slow
 def test_memory_is_flat_in_the_number_of_pulls(tmp_path):
     """The streamed discovery of 16 pulls allocates at its peak no more than that of 8 pulls (plus 10 %): the pulls
     pass through one at a time and only small results stay. Not timed: tracemalloc counts every numpy allocation
@@ -141,6 +143,7 @@ def test_memory_is_flat_in_the_number_of_pulls(tmp_path):
     assert len(live_large) >= 2 * 16 and max(live_small + live_large) == 0, (live_small, live_large)
 
 
+@pytest.mark.slow
 def test_a_corrupt_pull_is_named_and_dask_workers_give_the_same_report(tmp_path, capsys):
     """A campaign folder with one unreadable pull file: discover leaves it out, names it in report.json, report.md
     and on stderr, and finishes. Run on a distributed.LocalCluster of 2 worker processes (real workers: they import
@@ -168,6 +171,7 @@ def test_a_corrupt_pull_is_named_and_dask_workers_give_the_same_report(tmp_path,
     assert _differences(inline, on_dask, rtol=1e-12, skip={'scheduler', 'plots'}) == []
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
     from bag_tools.core.daq import write_campaign
     write_campaign(tmp_path / 'camp', make_campaign(None, seed=64, sets=(2,), pulls=4))
@@ -179,6 +183,7 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
     assert not (tmp_path / 'o' / 'report.json').exists()
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_discovery_is_rerun_and_the_report_says_so(tmp_path):
     """discover on a LocalCluster of 2 worker processes; one worker is SIGKILLed while it runs a pull. Dask reruns
     that worker's pulls; the report lists them as rerun (retried_pulls, report.md) and is otherwise the inline

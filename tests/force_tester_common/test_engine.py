@@ -92,6 +92,7 @@ def test_a_pull_that_kills_every_worker_fails_alone(tmp_path, monkeypatch):
     engine.shutdown(None)   # the next test starts a fresh embedded cluster, not one whose workers were killed 6 times
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_one_error_within_10_s():
     address = f'tcp://127.0.0.1:{free_port()}'
     t0 = time.monotonic()

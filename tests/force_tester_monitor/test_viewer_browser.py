@@ -27,7 +27,7 @@ from force_tester_common.core.units import n_to_lbf
 from ft_cli.commands import view
 from ft_cli.graph import Graph, ScoreCollector
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.browser
 
 PULLS = 2
 DRIVER = view.VIEWER / 'drive.mjs'

@@ -359,7 +359,9 @@ def test_free_chain_drive_exact_matches_lsoda(truth, truth_coupled):
     n = fc[1] + 5000                                                    # 0.1 s after the break (LSODA is slow)
     a = drive_on_grid(rig, t[:n], cmd[:n], fm[:n], free_chain=fc, method='exact')
     b = drive_on_grid(rig, t[:n], cmd[:n], fm[:n], free_chain=fc, method='lsoda')
-    _agree(a, b, x_tol_m=1e-8)
+    # LSODA's rtol is 1e-8 of the 1.44 m travel: 1.9e-8 m apart on this machine, under 1e-8 on the last CI's (the CPU's
+    # floating-point paths), so a bound at 1e-8 tested the machine; 5e-8 is a few of the integrator's own steps
+    _agree(a, b, x_tol_m=5e-8)
     assert np.max(np.abs(a['load_n'] - b['load_n'])) < 1e-4 * np.max(np.abs(a['load_n']))
     # from the break on the drive's load is the free chain's F_move, which the next chain solve reproduces
     k = fc[1]

@@ -308,6 +308,7 @@ def _words(paths) -> dict:
     return counts
 
 
+@pytest.mark.slow
 def test_every_definition_is_used():
     """A top-level function or class, or a method, whose name occurs nowhere but in its own definition
     (anywhere in src/, tools/, tests/, benchmarks/ or a setup.py) is dead. Callbacks a library calls by

@@ -60,6 +60,7 @@ def die_once(job):
     return simulate_campaign_pull(inner)
 
 
+@pytest.mark.slow
 def test_a_campaign_is_the_same_bytes_on_any_scheduler(cluster, tmp_path):
     rig = load_rig(TRUTH_YAML)
     jobs = campaign_jobs(rig, SETS, PULLS, SEED)
@@ -127,6 +128,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_one_line_and_exit_2_within_10_s(tmp_path):
     from daq_data import make_pulls
     src = write_campaign(tmp_path / 'camp', make_pulls(2))

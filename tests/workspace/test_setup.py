@@ -93,6 +93,7 @@ def installed_version(python: Path, name: str) -> str:
     return out.stdout.strip()
 
 
+@pytest.mark.slow
 def test_a_newer_release_of_a_dependency_required_with_an_extra_does_not_change_the_install(
         registry, tmp_path, monkeypatch):
     folder, lock_file = registry
@@ -107,6 +108,7 @@ def test_a_newer_release_of_a_dependency_required_with_an_extra_does_not_change_
     assert 'No broken requirements found' in log.read_text()
 
 
+@pytest.mark.slow
 def test_the_resolving_install_of_before_fails_on_the_same_folder(registry, tmp_path):
     """What broke every fresh machine: pip resolves `beta[fast]` on its own, takes the newer beta and
     refuses it for having no hash. Kept so that the test above is known to test something."""
@@ -118,6 +120,7 @@ def test_the_resolving_install_of_before_fails_on_the_same_folder(registry, tmp_
     assert f'beta-{NEWER_BETA}' in res.stdout + res.stderr
 
 
+@pytest.mark.slow
 def test_a_failing_install_says_the_step_the_log_and_the_line_that_explains_it(registry, tmp_path):
     folder, lock_file = registry
     text = lock_file.read_text()
@@ -132,6 +135,7 @@ def test_a_failing_install_says_the_step_the_log_and_the_line_that_explains_it(r
     assert '\n' not in message and 'hash' in message.lower()
 
 
+@pytest.mark.slow
 def test_the_wheels_folder_installs_with_no_network(registry, tmp_path):
     """`./ft wheels DIR` fills DIR from the lock (hashes checked); FT_WHEELS=DIR installs from it in a
     network namespace with no interface but loopback."""

@@ -27,7 +27,7 @@ import pytest
 from netlab.dask_hosts import run_campaign
 from netlab.netns import STAR_SUBNET, Impairment, probe
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.netns
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = ROOT / 'benchmarks' / 'bench_campaign.py'

@@ -14,7 +14,7 @@ import pytest
 from netlab.netns import PREFIX, Impairment, namespaces, probe
 from netlab.two_hosts import BLOCK_TOPIC_NAMES, LINK_TOPICS, run_two_hosts
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.netns
 
 RUNS = {'clean': (Impairment(), 'static_peers'), 'lossy': (Impairment(loss_pct=2.0, delay_ms=5.0), 'xml')}
 
