@@ -74,7 +74,18 @@ def pytest_configure(config):
     campaign.generate_campaign = timed('campaign')(campaign.generate_campaign)
 
 
+def _shares_a_module_fixture(item) -> bool:
+    """Whether ITEM uses a fixture its own module defines for more than one test (a graph, a campaign, a cluster)."""
+    module = item.nodeid.split('::')[0]
+    defs = getattr(getattr(item, '_fixtureinfo', None), 'name2fixturedefs', {})
+    return any(d.scope != 'function' and d.baseid == module for ds in defs.values() for d in ds)
+
+
+@pytest.hookimpl(tryfirst=True)   # before pytest-xdist's own, which reads the groups
 def pytest_collection_modifyitems(config, items):
+    """Kinds and tiers; the xdist groups (SOLO, and a module's tests that share its fixture: it is made once, on one
+    worker); the order: the groups first (xdist hands out the larger ones first), then the slow tests, so that no
+    long test starts last."""
     for item in items:
         if _ROS_FIXTURES & set(getattr(item, 'fixturenames', ())):
             item.add_marker(pytest.mark.ros)
@@ -82,6 +93,22 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.slow)
         if item.get_closest_marker('netns'):
             item.add_marker(pytest.mark.xdist_group(SOLO))
+        elif not item.get_closest_marker('xdist_group') and _shares_a_module_fixture(item):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split('::')[0]))
+    items.sort(key=lambda i: (not i.get_closest_marker('xdist_group'), not i.get_closest_marker('slow')))
+    if config.getvalue('loadgroup'):
+        for item in items:
+            _name_the_group(item)
+
+
+def _name_the_group(item) -> None:
+    """'NODEID@GROUP', the id by which pytest-xdist's loadgroup scheduler keeps a group on one worker. xdist 3.8
+    writes it to `item._nodeid`, which pytest 9 no longer reads (the id is `item._id`, a NodeId), so every group
+    was spread over the workers; this writes it where pytest 9 keeps it. NodeId.parse gives back the same string."""
+    from _pytest.nodeid import NodeId
+    group = item.get_closest_marker('xdist_group')
+    if group is not None and '@' not in item.nodeid:
+        item._id = NodeId.parse(f'{item.nodeid}@{group.args[0]}')
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -101,8 +128,9 @@ def pytest_runtest_makereport(item, call):
 def pytest_runtest_logreport(report):
     """Collected where the reports arrive (the controller under xdist): each test's phases, and every skip."""
     if report.skipped and not hasattr(report, 'wasxfail'):
-        _RUN['skips'].append((report.nodeid, _skip_reason(report)))
-    rec = _RUN['tests'].setdefault(report.nodeid, {'nodeid': report.nodeid, 'seconds': 0.0, 'outcome': 'passed'})
+        _RUN['skips'].append((report.nodeid.split('@')[0], _skip_reason(report)))
+    nodeid = report.nodeid.split('@')[0]   # without its xdist group
+    rec = _RUN['tests'].setdefault(nodeid, {'nodeid': nodeid, 'seconds': 0.0, 'outcome': 'passed'})
     rec['seconds'] = round(rec['seconds'] + report.duration, 4)
     rec['kind'] = kind_of(report.keywords)
     rec['slow'] = 'slow' in report.keywords

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -61,6 +62,13 @@ def run_cli(*args, module='bag_tools.cli'):
                _ROS_WHEELS_BOOTSTRAP_COMPLETE='1')
     return subprocess.run([sys.executable, '-m', module, *map(str, args)],
                           capture_output=True, text=True, env=env, timeout=120)
+
+
+def removed_warning(command: str, left: Path) -> re.Pattern:
+    """The warning of `./ft bag COMMAND` that it removed LEFT, a killed writer's leftover: its path whole, or as
+    '.../PARENT/NAME' when the whole line would be too long (bag_tools.cli.shorten)."""
+    shown = f'(?:{re.escape(str(left))}|\\.\\.\\./{re.escape(left.parent.name)}/{re.escape(left.name)})'
+    return re.compile(rf"\./ft bag {command}: warning: removed '{shown}', left unfinished by a writer that is gone")
 
 
 def no_partials(folder: Path):

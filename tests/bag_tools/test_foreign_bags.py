@@ -141,6 +141,11 @@ def test_error_lines_are_short_unless_verbose(tmp_path, capsys):
         code = exc.code
     err = capsys.readouterr().err
     assert code == 2 and str(missing) in err and 'does not exist' in err
+    # a long path loses its leading folders before the reason after it is cut
+    deep = tmp_path / ('g' * 60) / ('h' * 60) / 'campaign'
+    code, _out, err = run(capsys, 'info', deep)
+    assert code == 2 and len(err.strip()) <= MAX_LINE and 'does not exist' in err, err
+    assert f"'.../{'h' * 60}/campaign'" in err, err
 
 
 # --------------------------------------------------------------------------- every command

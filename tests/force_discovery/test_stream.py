@@ -14,6 +14,7 @@ import time
 import tracemalloc
 
 import numpy as np
+import pytest
 from generator import make_campaign
 from one_pass import discover_in_memory
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -25,10 +26,24 @@ MAX_LINE = 200
 _verbose = False
 
 
+#: An absolute path in a message (up to a space, a quote, a colon or a comma).
+_PATH = re.compile(r"(?<![\w.])/(?:[^\s'\":,/]+/)+[^\s'\":,/]+")
+
+
+def _short_path(m: re.Match) -> str:
+    """A long absolute path as '.../PARENT/NAME': the folders above say less than what follows the path."""
+    path = m.group(0)
+    return path if len(path) <= 40 else '.../' + '/'.join(path.rsplit('/', 2)[-2:])
+
+
 def shorten(text: object, prefix: str = '') -> str:
-    """prefix + text on one line, cut to MAX_LINE characters unless --verbose was given."""
+    """prefix + text on one line, within MAX_LINE characters unless --verbose was given: long paths first lose
+    their leading folders (the reason after them stays), then the line is cut."""
     line = prefix + one_line(text)
     if _verbose or len(line) <= MAX_LINE:
+        return line
+    line = _PATH.sub(_short_path, line)
+    if len(line) <= MAX_LINE:
         return line
     tail = ' ... (--verbose: whole message)'
     return line[:MAX_LINE - len(tail)] + tail
