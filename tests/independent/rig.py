@@ -409,7 +409,7 @@ class Model:
 
     # ---- pieces
     def F_flow(self, p):
-        return self.Fy + (self.Fu - self.Fy) * (1 - np.exp(-p / self.ph)) / (1 - math.exp(-self.pf / self.ph))
+        return self.Fy + (self.Fu - self.Fy) * (1 - np.exp(-np.maximum(p, 0.0) / self.ph)) / (1 - math.exp(-self.pf / self.ph))
 
     def damage(self, t):
         t = np.asarray(t, dtype=float)
@@ -539,10 +539,11 @@ class Model:
         T = pdot = P_damp = P_cut = P_frac = 0.0
         if self.lanyard_on and e > 0:
             T0 = self.Ks * e + self.cL * etdot
-            if True:                  # flow through the damage ramp too (see alg)
-                Ff = self.Fy + (self.Fu - self.Fy) * (1 - math.exp(-p / self.ph)) / (1 - math.exp(-self.pf / self.ph))
-                if T0 > Ff:
-                    pdot = (T0 - Ff) / (self.eta + self.cL)
+            # flow through the damage ramp too (see alg)
+            Ff = self.Fy + (self.Fu - self.Fy) * (1 - math.exp(-max(p, 0.0) / self.ph)) / (
+                1 - math.exp(-self.pf / self.ph))
+            if T0 > Ff:
+                pdot = (T0 - Ff) / (self.eta + self.cL)
             edot = etdot - pdot
             Tel = self.Ks * e + self.cL * edot
             if Tel > 0:
@@ -838,8 +839,11 @@ def fine_factor(fs: float) -> int:
 
 def foh_sos(b, a, h: float) -> np.ndarray:
     """A continuous transfer function, discretised with a first-order hold at step h, as second-order sections."""
-    A, B, C, D = signal.tf2ss(b, a)
-    Ad, Bd, Cd, Dd, _ = signal.cont2discrete((A, B, C, D), h, method='foh')
+    z, p, k = signal.tf2zpk(b, a)
+    w0 = float(np.exp(np.mean(np.log(np.abs(p))))) if len(p) else 1.0     # work in time scaled by w0: O(1) numbers
+    z, p, k = z / w0, p / w0, k * w0 ** (len(z) - len(p))
+    A, B, C, D = signal.zpk2ss(z, p, k)
+    Ad, Bd, Cd, Dd, _ = signal.cont2discrete((A, B, C, D), h * w0, method='foh')
     z, p, k = signal.ss2zpk(Ad, Bd, Cd, Dd)
     return signal.zpk2sos(z, p, k)
 
