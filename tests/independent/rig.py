@@ -635,6 +635,14 @@ class Model:
             out[k] = d
         return out
 
+    def jac(self, t, y) -> np.ndarray:
+        """Forward-difference Jacobian with fixed steps scaled by each state's tolerance (one vectorised call)."""
+        y = np.asarray(y, dtype=float).ravel()
+        f0 = self.rhs_scalar(float(t), y)
+        hk = 1e-7 * np.maximum(np.abs(y), self.atol() * 1e4)
+        Y = y[:, None] + np.diag(hk)
+        return (self.rhs_vec(np.float64(t), Y) - f0[:, None]) / hk[None, :]
+
     def stored_energy(self, t, y):
         o = self.alg(t, y)
         v3, w1 = y[V3], y[W1]
@@ -749,7 +757,7 @@ def integrate(model: Model, t_end: float, y0: np.ndarray | None = None, rtol: fl
         ms = max_step
         if math.isfinite(model.t_b0) and t < model.t_b0 + model.tbr:
             ms = min(ms, model.tbr / 8)
-        r = solve_ivp(fun, (t, t1), y, method='Radau', rtol=rtol, atol=atol, dense_output=True,
+        r = solve_ivp(fun, (t, t1), y, method='Radau', rtol=rtol, atol=atol, dense_output=True, jac=model.jac,
                       events=events or None, vectorized=True, max_step=ms)
         if r.status < 0:
             raise RuntimeError(f'integration failed at t={r.t[-1]}: {r.message}')
@@ -1041,7 +1049,7 @@ def _draw_departure(name: str, r: np.random.Generator, rig: Mapping, given: Mapp
         dflt('z1', lambda: _pm(r, lo, hi, log=True))
         dflt('z2', lambda: 0.0 if r.random() < 0.5 else _pm(r, 1e-3, 1.0) * abs(q['z1']))
         dflt('t_d_mode', lambda: 'launch' if r.random() < 0.5 else 'uniform')
-        inst.update(acts_on=f'conditioner:{LONG2SHORT[ch]}', exact=False,
+        inst.update(acts_on=f'conditioner:{LONG2SHORT[ch]}', exact=q['t_d_mode'] == 'zero' and q['z2'] == 0,
                     note='t_d per pull (pulls[].t_d_s): exact only when t_d = 0 and z2 = 0')
         if LONG2SHORT[ch] in GRAMMAR_CHANNELS:
             inst['terms'] = [{'channel': LONG2SHORT[ch], 'term': 't', 'coefficient': q['z1']}]
@@ -1296,7 +1304,8 @@ def _pull_context(seed: int, set_no: int, pull_no: int, deps: Sequence[Mapping],
         r = _rng(seed, 3, set_no, pull_no, k)
         ctx['phase'][id(d)] = _u(r, 0.0, 2 * math.pi)
         if d['name'] == 'zero_drift':
-            ctx['t_d'][id(d)] = t_launch if d['params']['t_d_mode'] == 'launch' else _u(r, 0.0, t_taut_exp - 0.05)
+            mode = d['params']['t_d_mode']
+            ctx['t_d'][id(d)] = t_launch if mode == 'launch' else 0.0 if mode == 'zero' else _u(r, 0.0, t_taut_exp - 0.05)
         if d['name'] == 'gain_drift' and d['form'] == 'thermal':
             ctx['t_on'][id(d)] = d['params']['t_on_fraction'] * t_launch
     return ctx
