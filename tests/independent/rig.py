@@ -201,7 +201,8 @@ def _derive(d: dict, overrides: Mapping) -> None:
     k_t = d['drive.torque_constant_nm_per_a']
     d['derived.k_F_n_per_a'] = n * k_t / r_p
     d['derived.M_eff_kg'] = (d['drive.actuator_inertia_kg_m2'] + n ** 2 * d['drive.motor_inertia_kg_m2']) / r_p ** 2
-    d['derived.b_n_s_per_m'] = d['drive.viscous_damping_motor_n_s_per_m'] + d['drive.viscous_damping_actuator_n_s_per_m']
+    d['derived.b_n_s_per_m'] = (d['drive.viscous_damping_motor_n_s_per_m']
+                                + d['drive.viscous_damping_actuator_n_s_per_m'])
     d['derived.v_emf_limit_m_s'] = d['drive.voltage_limit_v'] * r_p / (d['drive.back_emf_constant_v_s_per_rad'] * n)
     d['derived.a_max_m_s2'] = d['derived.k_F_n_per_a'] * d['drive.current_limit_a'] / d['derived.M_eff_kg']
     kcat = d['force_chain.load_cell_stiffness_n_per_m']
@@ -353,7 +354,7 @@ class Command:
 
 # ----------------------------------------------------------------------------------------------- the model
 # state layout
-X3, V3, U1, W1, D2, W2, DM, WM, ET, P, I, IV, IC = range(13)
+X3, V3, U1, W1, D2, W2, DM, WM, ET, P, IA, IV, IC = range(13)
 Q_SUP, Q_CU, Q_B, Q_CELLS, Q_BODY, Q_PL, Q_DAMP, Q_CUT, Q_FRAC = range(13, 22)
 N_STATES = 22
 STATE_NAMES = ('x3', 'v3', 'u1', 'w1', 'd2', 'w2', 'dm', 'wm', 'e_tot', 'p', 'i', 'I_v', 'I_c', 'E_supply',
@@ -388,10 +389,12 @@ class Model:
         self.Meff = g('derived.M_eff_kg')
         self.b = g('derived.b_n_s_per_m')
         self.Ra, self.La = g('drive.armature_resistance_ohm'), g('drive.armature_inductance_h')
-        self.Ke, self.N, self.r = g('drive.back_emf_constant_v_s_per_rad'), g('drive.gear_ratio'), g('drive.pulley_radius_m')
+        self.Ke = g('drive.back_emf_constant_v_s_per_rad')
+        self.N, self.r = g('drive.gear_ratio'), g('drive.pulley_radius_m')
         self.kappa = g('drive.torque_constant_nm_per_a') / self.Ke
         self.Imax, self.Vmax = g('drive.current_limit_a'), g('drive.voltage_limit_v')
-        self.Kpv, self.Kiv, self.Kpi, self.Kii = g('control.K_pv'), g('control.K_iv'), g('control.K_pi'), g('control.K_ii')
+        self.Kpv, self.Kiv = g('control.K_pv'), g('control.K_iv')
+        self.Kpi, self.Kii = g('control.K_pi'), g('control.K_ii')
         self.Tawv, self.Tawc, self.fff = g('control.T_aw_v_s'), g('control.T_aw_c_s'), g('control.f_ff')
         self.drive_on = bool(g('drive.enabled', True))
         self.lanyard_on = bool(g('lanyard.enabled', True))
@@ -409,7 +412,8 @@ class Model:
 
     # ---- pieces
     def F_flow(self, p):
-        return self.Fy + (self.Fu - self.Fy) * (1 - np.exp(-np.maximum(p, 0.0) / self.ph)) / (1 - math.exp(-self.pf / self.ph))
+        return self.Fy + (self.Fu - self.Fy) * (1 - np.exp(-np.maximum(p, 0.0) / self.ph)) / (
+            1 - math.exp(-self.pf / self.ph))
 
     def damage(self, t):
         t = np.asarray(t, dtype=float)
@@ -618,7 +622,7 @@ class Model:
 
     def rhs_vec(self, t, y):
         o = self.alg(t, y)
-        v3, w1, w2, wm, i = y[V3], y[W1], y[W2], y[WM], y[I]
+        v3, w1, w2, wm, i = y[V3], y[W1], y[W2], y[WM], y[IA]
         dy = [v3, o['a3'], w1, o['a1'], w2, o['xbdd'] - o['a2'], wm, o['a3'] - o['xbdd'],
               o['u2dot'] - w1, o['pdot'], o['idot'], o['Ivdot'], o['Icdot'],
               self.kappa * o['V'] * i, self.kappa * self.Ra * i ** 2, self.b * v3 ** 2,
@@ -651,15 +655,15 @@ class Model:
         if self.mount is not None:
             ke = ke + 0.5 * self.mount[0] * (v3 - y[WM]) ** 2
             pe = pe + 0.5 * self.mount[1] * y[DM] ** 2
-        mag = self.kappa * 0.5 * self.La * y[I] ** 2
+        mag = self.kappa * 0.5 * self.La * y[IA] ** 2
         return ke + pe + mag
 
     def equilibrium(self, initial: Mapping | None = None) -> np.ndarray:
         """Rest at t = 0 with v_cmd = 0: every state at equilibrium, lanyard slack."""
         y = np.zeros(N_STATES)
         y[ET] = -self.s
-        free = [V3, U1, W1, D2, W2, DM, WM, I, IV, IC]
-        eqs = [X3, V3, U1, W1, D2, W2, DM, WM, I, IC]
+        free = [V3, U1, W1, D2, W2, DM, WM, IA, IV, IC]
+        eqs = [X3, V3, U1, W1, D2, W2, DM, WM, IA, IC]
         for _ in range(6):
             f0 = self.rhs(0.0, y)[eqs]
             J = np.zeros((len(eqs), len(free)))
@@ -687,7 +691,7 @@ class Model:
         km = self.mount[1] if self.mount else self.K2
         a[DM], a[WM] = fa / km, fa / km * w2
         a[ET], a[P] = fa / self.Ks, fa / self.Ks
-        a[I], a[IV], a[IC] = 1e-5, 1e-5, 1e-4
+        a[IA], a[IV], a[IC] = 1e-5, 1e-5, 1e-4
         a[13:] = 1e-4
         return a
 
@@ -923,7 +927,7 @@ def simulate(rig: Mapping, pull: Mapping, body: Sequence[Mapping] = (), *, t_end
             clean[k][c0:c0 + tt.size] = o[k]
         clean['v'][c0:c0 + tt.size] = Y[V3]
         clean['x'][c0:c0 + tt.size] = Y[X3]
-        clean['i'][c0:c0 + tt.size] = Y[I]
+        clean['i'][c0:c0 + tt.size] = Y[IA]
         clean['p'][c0:c0 + tt.size] = Y[P]
     # transverse modes (one-way: driven by T sin(phi) and by the rail roughness, no feed-back)
     m2 = model.m2
@@ -1005,7 +1009,8 @@ def _draw_departure(name: str, r: np.random.Generator, rig: Mapping, given: Mapp
         dflt('frequency_hz', lambda: 50.0 if r.random() < 0.5 else 60.0)
         dflt('amplitude_n', lambda: _lu(r, 1.0, 10.0))
         inst.update(acts_on='conditioner:force_moving', exact=True,
-                    catalog={'name': name, 'params': {'frequency_hz': q['frequency_hz'], 'amplitude_n': q['amplitude_n']}},
+                    catalog={'name': name,
+                             'params': {'frequency_hz': q['frequency_hz'], 'amplitude_n': q['amplitude_n']}},
                     terms=[{'channel': 'force_moving', 'term': 'sin', 'coefficient': q['amplitude_n'],
                             'frequency_hz': q['frequency_hz']}])
     elif name == 'coulomb_friction':
@@ -1031,7 +1036,8 @@ def _draw_departure(name: str, r: np.random.Generator, rig: Mapping, given: Mapp
         inst['acts_on'] = f'sensor:{LONG2SHORT[ch]}'
         if form == 'linear':
             dflt('kappa_per_s', lambda: _pm(r, 0.001, 0.02, log=True))
-            inst.update(exact=True, terms=[{'channel': LONG2SHORT[ch], 'term': f'{sig}*t', 'coefficient': q['kappa_per_s']}])
+            inst.update(exact=True, terms=[{'channel': LONG2SHORT[ch], 'term': f'{sig}*t',
+                                            'coefficient': q['kappa_per_s']}])
         elif form == 'thermal':
             dflt('alpha_dT', lambda: _pm(r, 0.002, 0.03, log=True))
             dflt('tau_T_s', lambda: _lu(r, 2.0, 30.0))
@@ -1113,8 +1119,8 @@ def _draw_departure(name: str, r: np.random.Generator, rig: Mapping, given: Mapp
         dflt('F_0', lambda: _u(r, 0.0, 50.0))
         dflt('x_a', lambda: _u(r, 0.0, 0.3))
         inst['acts_on'] = f'body:{body}'
-        inst['terms'] = [{'channel': 'motor_current', 'term': 'x', 'coefficient': q['k_b'] / kF}] if body == 'carriage' \
-            else [{'channel': 'force_moving', 'term': 'x', 'coefficient': q['k_b']}]
+        inst['terms'] = ([{'channel': 'motor_current', 'term': 'x', 'coefficient': q['k_b'] / kF}] if body == 'carriage'
+                         else [{'channel': 'force_moving', 'term': 'x', 'coefficient': q['k_b']}])
     elif name == 'binding_rail':
         body = 'carriage'
         dflt('mu_b', lambda: _lu(r, 0.01, 0.2))
@@ -1128,8 +1134,8 @@ def _draw_departure(name: str, r: np.random.Generator, rig: Mapping, given: Mapp
         body = body or ('carriage' if r.random() < 0.5 else 'm2')
         dflt('c_g', lambda: _lu(r, 20.0, 500.0))
         inst['acts_on'] = f'body:{body}'
-        inst['terms'] = [{'channel': 'motor_current', 'term': 'v', 'coefficient': q['c_g'] / kF}] if body == 'carriage' \
-            else [{'channel': 'force_moving', 'term': 'v', 'coefficient': q['c_g']}]
+        inst['terms'] = ([{'channel': 'motor_current', 'term': 'v', 'coefficient': q['c_g'] / kF}] if body == 'carriage'
+                         else [{'channel': 'force_moving', 'term': 'v', 'coefficient': q['c_g']}])
     elif name == 'clipping':
         ch = ch or str(r.choice(['force_moving_n', 'force_stationary_n']))
         dflt('fraction', lambda: _u(r, 0.3, 0.8))
@@ -1305,7 +1311,8 @@ def _pull_context(seed: int, set_no: int, pull_no: int, deps: Sequence[Mapping],
         ctx['phase'][id(d)] = _u(r, 0.0, 2 * math.pi)
         if d['name'] == 'zero_drift':
             mode = d['params']['t_d_mode']
-            ctx['t_d'][id(d)] = t_launch if mode == 'launch' else 0.0 if mode == 'zero' else _u(r, 0.0, t_taut_exp - 0.05)
+            ctx['t_d'][id(d)] = (t_launch if mode == 'launch' else 0.0 if mode == 'zero'
+                                 else _u(r, 0.0, t_taut_exp - 0.05))
         if d['name'] == 'gain_drift' and d['form'] == 'thermal':
             ctx['t_on'][id(d)] = d['params']['t_on_fraction'] * t_launch
     return ctx
@@ -1382,7 +1389,8 @@ def run_pull(seed: int, rig: Mapping, set_no: int, pull_no: int, deps: Sequence[
              't_brake_s': ev['t_brake'], 'v_at_taut_m_s': float(np.interp(ev['t_taut'], t_f, c['v'])),
              'F_u_n': model.Fu, 'y': pull['coupon']['y'], 'p_f_m': model.pf, 'p_h_m': model.ph, 'k_c_n_per_m': model.kc,
              'eta_n_s_per_m': model.eta, 't_br_s': model.tbr, 'slack_m': model.s, 'K_L_n_per_m': model.KL,
-             'K_s_n_per_m': model.Ks, 'c_L_n_s_per_m': model.cL, 'd_hold_m': pull['d_hold'], 'command': dict(pull['command']),
+             'K_s_n_per_m': model.Ks, 'c_L_n_s_per_m': model.cL, 'd_hold_m': pull['d_hold'],
+             'command': dict(pull['command']),
              'clock_delta': delta, 'phases_rad': [ctx['phase'][id(d)] for d in deps],
              't_d_s': [ctx['t_d'].get(id(d)) for d in deps], 't_on_s': [ctx['t_on'].get(id(d)) for d in deps],
              'clipped': clipped, 'n_steps': ev['n_steps']}

@@ -3,8 +3,28 @@ import math
 
 import numpy as np
 import pytest
-from rig import (ANALOG, DAQ, FT_M, I, N_STATES, Q_CU, Q_SUP, V3, Command, Model, _draw_departure, aa_design,
-                 draw_rig, generate_campaign, grammar_terms, integrate, rig_yaml, run_pull, sensor_chain, simulate)
+from rig import (
+    ANALOG,
+    DAQ,
+    FT_M,
+    IA,
+    N_STATES,
+    Q_CU,
+    Q_SUP,
+    V3,
+    Command,
+    Model,
+    _draw_departure,
+    aa_design,
+    draw_rig,
+    generate_campaign,
+    grammar_terms,
+    integrate,
+    rig_yaml,
+    run_pull,
+    sensor_chain,
+    simulate,
+)
 from scipy import signal
 from scipy.optimize import curve_fit
 
@@ -371,4 +391,4 @@ def test_command_profile():
     assert np.max(np.abs(np.gradient(v, t) - a)) < 1e-2
     for tt in (0.05, 0.12, 0.2):
         assert cmd.scalar(tt) == pytest.approx(tuple(float(x) for x in cmd(tt)))
-    assert int(V3) == 1 and int(I) == 10
+    assert int(V3) == 1 and int(IA) == 10
