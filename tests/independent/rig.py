@@ -1416,8 +1416,10 @@ def generate_campaign(seed: int, kind: str = 'pull', *, n_pulls: int | None = No
                       departures: str | Sequence[Mapping] = 'draw', noise: bool = True,
                       keep_signals: bool = False) -> tuple[list[tuple[dict, dict]], dict]:
     """(campaign, truth). campaign = [(meta, channels), ...] in set, then pull, order."""
+    if kind == 'impact':
+        return _impact_campaign(seed, n_pulls, sets, rig, departures, noise, keep_signals)
     if kind != 'pull':
-        raise NotImplementedError("kind='impact' is not implemented by this generator yet")
+        raise ValueError(f'unknown kind {kind!r}')
     r = draw_rig(seed, rig)
     deps = draw_departures(seed, r, departures)
     layout = _layout(seed, n_pulls, sets)
@@ -1503,3 +1505,335 @@ def rig_yaml(truth: Mapping) -> str:
         for ts in ds['test_sets']:
             lines.append('  - ' + '\n    '.join(f'{k}: {v!r}' for k, v in ts.items()))
         return '\n'.join(lines) + '\n'
+
+
+# ----------------------------------------------------------------------------------------------- impact kind
+# set -> (F_r rating lbf, impact speed fps)
+IMPACT_SETS = {1: (500, 6.0), 2: (1000, 9.0), 3: (2000, 12.0), 4: (4000, 15.0)}
+IMPACT_CHANNELS = ('force_moving_n', 'accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2')
+IMPACT_DEPARTURES = ('effective_mass', 'accel_delay', 'moving_cell_gain', 'ac_coupling', 'mains_hum',
+                     'coulomb_friction', 'nonlinearity_even', 'nonlinearity_odd', 'gain_drift', 'zero_drift',
+                     'line_pickup', 'sensor_resonance', 'cross_axis', 'aero_drag', 'cable_force', 'viscous_guide',
+                     'clipping')
+
+
+def draw_impact_rig(seed: int, overrides: Mapping | None = None) -> dict:
+    """The drop tower (SPEC 3.3): drop mass M, moving cell K2, striker nose m2, crusher on a rigid anvil."""
+    overrides = dict(overrides or {})
+    r = _rng(seed, 10)
+    d: dict = {}
+    d['daq.sample_rate_hz'] = _u(r, 50e3, 100e3) if r.random() < 0.5 else float(r.choice([50e3, 100e3]))
+    d['daq.record_length_s'] = _u(r, 0.25, 1.0)
+    d['impact.drop_mass_kg'] = _lu(r, 5.0, 50.0)
+    d['force_chain.moving_side_mass_kg'] = _lu(r, 0.1, 1.0)
+    d['force_chain.load_cell_stiffness_n_per_m'] = 1e9 * _lu(r, 0.5, 2.0)
+    d['force_chain.load_cell_damping_ratio'] = _lu(r, 0.005, 0.05)
+    d['cells.unit_scatter_2'] = _u(r, -0.1, 0.1)
+    d['transverse.enabled'] = True
+    for ax in ('y', 'z'):
+        d[f'transverse.f_{ax}_hz'] = _lu(r, 300.0, 3000.0)
+        d[f'transverse.zeta_{ax}'] = _u(r, 0.01, 0.05)
+        d[f'transverse.phi_{ax}_rad'] = math.radians(_pm(r, 0.2, 2.0))
+    d['daq.filter_type'] = 'butterworth' if r.random() < 0.5 else 'bessel'
+    d['daq.filter_order'] = 8
+    d['daq.fc_ratio'] = _u(r, 0.3, 0.45)
+    d['daq.adc_bits'] = 16
+    d['daq.clock_ppm_rig'] = _u(r, -50.0, 50.0)
+    d['daq.t_slot_s'] = _u(r, 0.0, 2e-6)
+    d['daq.noise.force_moving_n'] = _lu(r, 0.05, 1.0)
+    for ch in ('accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2'):
+        d[f'daq.noise.{ch}'] = _lu(r, 0.1, 2.0)
+    d['daq.absent'] = ['accel_lateral_m_s2', 'accel_vertical_m_s2'] if r.random() < 0.3 else []
+    d['crusher.zeta_t'] = _u(r, 0.3, 0.7)         # lumped crusher + anvil loss: few, weak rebounds
+    for s in IMPACT_SETS:
+        d[f'crusher.{s}.y'] = _u(r, 0.5, 0.9)
+        d[f'crusher.{s}.p_f_m'] = _u(r, 1e-3, 5e-3)
+        d[f'crusher.{s}.p_h_ratio'] = _u(r, 0.2, 1.0)
+        d[f'crusher.{s}.k_t_n_per_m'] = _lu(r, 2e7, 2e8)
+        d[f'crusher.{s}.eta_fraction'] = _u(r, 0.01, 0.05)
+    d['sensors.load_cell_sensitivity_mv_per_lbf'] = 0.225 * LBF_N
+    d['sensors.load_cell_range_lbf'] = 20000.0 / LBF_N
+    d['sensors.accelerometer_sensitivity_mv_per_g'] = 1.023
+    d['sensors.accelerometer_band_hz'] = 10000.0
+    d.update(overrides)
+    kcat = d['force_chain.load_cell_stiffness_n_per_m']
+    d.setdefault('cells.K2_n_per_m', kcat * (1 + d['cells.unit_scatter_2']))
+    d.setdefault('cells.zeta_2', d['force_chain.load_cell_damping_ratio'])
+    d['daq.fc_hz'] = d['daq.fc_ratio'] * d['daq.sample_rate_hz']
+    sens = {'force_moving_n': d['sensors.load_cell_sensitivity_mv_per_lbf'] * 1e-3 / LBF_N,
+            'accel_axial_m_s2': d['sensors.accelerometer_sensitivity_mv_per_g'] * 1e-3 / G}
+    sens['accel_lateral_m_s2'] = sens['accel_vertical_m_s2'] = sens['accel_axial_m_s2']
+    fs_force = 20000.0 / 0.8          # the rated 20 kN at 80 % of full scale
+    fs_acc = 500 * G / 0.8
+    for ch in IMPACT_CHANNELS:
+        peak = fs_force if ch == 'force_moving_n' else fs_acc
+        s_ = overrides.get(f'daq.sens.{ch}', sens[ch])
+        rng_v = next((v for v in (1.0, 2.0, 5.0, 10.0) if peak * s_ <= v), 10.0)
+        d[f'daq.sens.{ch}'] = s_
+        d[f'daq.range_v.{ch}'] = rng_v
+        d[f'daq.lsb_si.{ch}'] = 2 * rng_v / 2 ** d['daq.adc_bits'] / s_
+    # the drive's keys that the pull kind's DAQ code reads (no motor here)
+    d['drive.current_limit_a'] = 1.0
+    return d
+
+
+class ImpactModel:
+    """States: x_M, v_M, d (nose relative to the drop mass, + up = cell compression), w = d', G (nose height above the
+    crusher's top at rest: its own state, so the contact compression is never a difference of metre-scale
+    positions), p (crush). Gravity on every body; the cell reads compression as negative."""
+
+    def __init__(self, rig: Mapping, drop: Mapping, body: Sequence[Mapping] = ()):
+        self.M = rig['impact.drop_mass_kg']
+        self.m2 = rig['force_chain.moving_side_mass_kg']
+        self.body = [dict(b) for b in body]
+        for b in self.body:
+            if b['name'] == 'effective_mass':
+                self.m2 = b['params']['mass_kg']
+        self.K2 = rig['cells.K2_n_per_m']
+        self.c2 = 2 * rig['cells.zeta_2'] * math.sqrt(self.K2 * self.m2)
+        c = drop['crusher']
+        self.kt, self.Fr, self.Fy, self.pf, self.ph, self.eta = c['k_t'], c['F_r'], c['y'] * c['F_r'], c['p_f'], \
+            c['p_h'], c['eta']
+        self.Imax = 1.0
+        # contact damping (choice: SPEC 3.3 gives none; without it the mass rings undamped on the crusher's elastic
+        # contact for the rest of the record): zeta_t of the drop mass on k_t, tension-only like the lanyard's
+        self.ct = 2 * rig.get('crusher.zeta_t', 0.05) * math.sqrt(self.kt * self.M)
+
+    def F_flow(self, p):
+        pp = np.minimum(np.maximum(p, 0.0), self.pf)
+        return self.Fy + (self.Fr - self.Fy) * (1 - np.exp(-pp / self.ph)) / (1 - math.exp(-self.pf / self.ph))
+
+    def alg(self, t, y):
+        xM, vM, d, w, Gp, p = (y[k] for k in range(6))
+        F2 = -(self.K2 * d + self.c2 * w)
+        e = -Gp - p
+        etot_dot = -(vM + w)
+        Ff = self.F_flow(p)
+        P0 = self.kt * e + self.ct * etot_dot
+        pdot = np.where((e > 0) & (P0 > Ff), (P0 - Ff) / (self.eta + self.ct), 0.0)
+        Pel = self.kt * e + self.ct * (etot_dot - pdot)
+        P = np.where((e > 0) & (Pel > 0), Pel, 0.0)
+        Fdep = 0.0 * vM
+        for bd in self.body:
+            n, q = bd['name'], bd['params']
+            if n == 'coulomb_friction':
+                Fdep = Fdep - q['force_n'] * np.tanh(vM / VS_FRICTION)
+            elif n == 'aero_drag':
+                Fdep = Fdep - q['C_d'] * vM * np.abs(vM)
+            elif n == 'viscous_guide':
+                Fdep = Fdep - q['c_g'] * vM
+            elif n == 'cable_force':      # a cable anchored above, taut once the mass has dropped x_a
+                Fdep = Fdep + q['F_0'] + q['k_b'] * np.maximum(-xM - q['x_a'], 0.0)
+        aM = (-F2 + Fdep) / self.M - G
+        a2 = (F2 + P) / self.m2 - G
+        return {'F2': F2, 'P': P, 'T': -P, 'pdot': pdot, 'aM': aM, 'a2': a2 + G, 'acc2': a2, 'e': e}
+
+    def rhs(self, t, y):
+        y = np.asarray(y, dtype=float)
+        o = self.alg(t, y)
+        dy = [y[1], o['aM'], y[3], o['acc2'] - o['aM'], y[1] + y[3], o['pdot']]
+        out = np.empty((6,) + np.shape(y[0]))
+        for k, v in enumerate(dy):
+            out[k] = v
+        return out
+
+    def atol(self):
+        return np.array([1e-8, 1e-7, 1e-3 / self.K2, 1e-3 / self.K2 * math.sqrt(self.K2 / self.m2),
+                         1e-3 / self.kt, 1e-3 / self.kt])
+
+    def jac(self, t, y):
+        y = np.asarray(y, dtype=float).ravel()
+        f0 = self.rhs(t, y)
+        hk = 1e-7 * np.maximum(np.abs(y), self.atol() * 1e4)
+        return (self.rhs(t, y[:, None] + np.diag(hk)) - f0[:, None]) / hk[None, :]
+
+
+def draw_drop(seed: int, rig: Mapping, set_no: int, k: int) -> dict:
+    F_r_lbf, fps = IMPACT_SETS[set_no]
+    for sub in range(100):
+        r = _rng(seed, 11, set_no, k, sub)
+        F_r = F_r_lbf * LBF_N * (1 + _nclip(r, 0.03))
+        v0 = fps * FT_M * (1 + _nclip(r, 0.01))
+        c = f'crusher.{set_no}.'
+        p_f = rig[c + 'p_f_m'] * (1 + _nclip(r, 0.10))
+        y = rig[c + 'y']
+        crusher = {'F_r': F_r, 'y': y, 'p_f': p_f, 'p_h': p_f * rig[c + 'p_h_ratio'], 'k_t': rig[c + 'k_t_n_per_m'],
+                   'eta': rig[c + 'eta_fraction'] * F_r / v0}
+        m = ImpactModel(rig, {'crusher': crusher})
+        pp = np.linspace(0, p_f, 201)
+        work = float(np.trapezoid(m.F_flow(pp), pp))
+        if 0.5 * rig['impact.drop_mass_kg'] * v0 ** 2 < 1.2 * work:
+            continue
+        t_c = _u(r, 0.02, 0.1)
+        return {'set': set_no, 'pull': k, 'attempt': sub, 'v0': v0, 't_contact_planned': t_c, 'crusher': crusher}
+    raise RuntimeError(f'no admissible drop for set {set_no}')
+
+
+def simulate_impact(rig: Mapping, drop: Mapping, body: Sequence[Mapping] = (), *, seed: int = 0,
+                    t_end: float | None = None, rtol: float = 1e-7) -> dict:
+    model = ImpactModel(rig, drop, body)
+    fs = rig['daq.sample_rate_hz']
+    L = t_end or rig['daq.record_length_s']
+    t_sim = L * (1 + 2e-4) + 2e-4
+    v0, t_c = drop['v0'], drop['t_contact_planned']
+    y = np.array([0.0, -(v0 - G * t_c), 0.0, 0.0, v0 * t_c - 0.5 * G * t_c ** 2, 0.0])
+    sol = Solution()
+
+    def contact(tt, yy):
+        return -yy[4] - yy[5]
+    contact.terminal, contact.direction = True, 1
+    t, quiet_until, n_steps = 0.0, -1.0, 0
+    while t < t_sim - 1e-12:
+        t1 = min(t_sim, quiet_until) if t < quiet_until else t_sim
+        evs = None if t < quiet_until else [contact]
+        r = solve_ivp(model.rhs, (t, t1), y, method='Radau', rtol=rtol, atol=model.atol(), dense_output=True,
+                      jac=model.jac, events=evs, vectorized=True)
+        if r.status < 0:
+            raise RuntimeError(r.message)
+        n_steps += len(r.t) - 1
+        sol.segs.append(r.sol)
+        sol.t_ends.append(r.t[-1])
+        y = r.y[:, -1].copy()
+        t = r.t[-1]
+        if r.status == 1:
+            quiet_until = t + 1e-4
+            y[4] = min(y[4], -y[5] - 1e-12)    # start on the contact side: the damper's push jumps at e = 0
+    h = 1.0 / (fine_factor(fs) * fs)
+    n_f = int(math.floor(t_sim / h))
+    t_f = np.arange(n_f) * h
+    clean = {k: np.empty(n_f) for k in ('F2', 'T', 'a2', 'v', 'x', 'p')}
+    for c0 in range(0, n_f, 200_000):
+        tt = t_f[c0:c0 + 200_000]
+        Y = np.empty((6, tt.size))
+        idx = np.minimum(np.searchsorted(np.asarray(sol.t_ends), tt), len(sol.segs) - 1)
+        for k in np.unique(idx):
+            Y[:, idx == k] = sol.segs[k](tt[idx == k])
+        o = model.alg(tt, Y)
+        for k in ('F2', 'T', 'a2'):
+            clean[k][c0:c0 + tt.size] = o[k]
+        clean['v'][c0:c0 + tt.size] = Y[1]
+        clean['x'][c0:c0 + tt.size] = Y[0]
+        clean['p'][c0:c0 + tt.size] = Y[5]
+    clean['i'] = np.zeros(n_f)
+    m2 = model.m2
+    if rig.get('transverse.enabled', True):
+        for ax in ('y', 'z'):
+            wn = 2 * math.pi * rig[f'transverse.f_{ax}_hz']
+            zt = rig[f'transverse.zeta_{ax}']
+            u = -clean['T'] * math.sin(rig[f'transverse.phi_{ax}_rad']) / m2       # P sin(phi), misaligned contact
+            sos = foh_sos([m2 * 2 * zt * wn, m2 * wn ** 2], [1.0, 2 * zt * wn, wn ** 2], h)
+            clean[f'Fperp_{ax}'] = run_sos(sos, u, steady=False)
+            clean[f'a{ax}'] = u - clean[f'Fperp_{ax}'] / m2
+    else:
+        for ax in ('y', 'z'):
+            clean[f'Fperp_{ax}'] = clean[f'a{ax}'] = np.zeros(n_f)
+    return {'model': model, 'sol': sol, 'events': {'n_steps': n_steps}, 't_f': t_f, 'h': h, 'fs': fs, 'L': L,
+            'clean': clean}
+
+
+def _impact_campaign(seed, n_pulls, sets, rig_over, departures, noise, keep_signals):
+    r = draw_impact_rig(seed, rig_over)
+    if isinstance(departures, str) and departures not in ('none',):
+        rr = _rng(seed, 12)
+        n = int(rr.integers(0, 4)) if departures == 'draw' else int(rr.integers(1, 4))
+        pool = [x for x in IMPACT_DEPARTURES if (departures == 'draw' or
+                                                 (x in CATALOG) == (departures == 'catalog'))]
+        names = list(rr.choice(pool, size=min(n, len(pool)), replace=False)) if n else []
+        departures = [{'name': str(x)} for x in names]
+    deps = []
+    for k, d in enumerate([] if departures in ('none', None) else departures):
+        g = dict(d)
+        nm = g['name']
+        if nm in ('ac_coupling', 'zero_drift', 'line_pickup', 'nonlinearity_even', 'nonlinearity_odd', 'clipping') \
+                and 'channel' not in g:
+            g['channel'] = str(_rng(seed, 13, k).choice(['force_moving_n', 'accel_axial_m_s2']))
+        if nm in ('gain_drift',):
+            g.setdefault('channel', 'force_moving_n')
+            g.setdefault('form', 'linear')
+        if nm == 'line_pickup':
+            g.setdefault('form', 'line')
+        if nm in ('cable_force', 'viscous_guide'):
+            g['body'] = 'carriage'
+        inst = _draw_departure(nm, _rng(seed, 2, k + 1), {**r, 'derived.k_F_n_per_a': 1.0}, g)
+        if inst.get('body') == 'carriage':
+            inst['acts_on'] = 'body:drop_mass'
+            inst['terms'] = 'none'
+        if isinstance(inst['terms'], list):
+            inst['terms'] = [t for t in inst['terms'] if t['channel'] != 'motor_current'] or 'none'
+        deps.append(inst)
+    layout = _layout(seed, n_pulls, sets or (1, 2, 3, 4))
+    body = [d for d in deps if d['name'] in BODY_DEPARTURES]
+    fs = r['daq.sample_rate_hz']
+    n = int(round(r['daq.record_length_s'] * fs))
+    daq = DAQ(r)
+    campaign, pulls = [], []
+    for s, k in layout:
+        drop = draw_drop(seed, r, s, k)
+        sim = simulate_impact(r, drop, body, seed=seed)
+        delta = r['daq.clock_ppm_rig'] * 1e-6 + _nclip(_rng(seed, 8, s, k), 2e-6)
+        ctx = {'phase': {id(d): _u(_rng(seed, 3, s, k, j), 0, 2 * math.pi) for j, d in enumerate(deps)},
+               't_d': {id(d): 0.0 for d in deps}, 't_on': {id(d): 0.0 for d in deps}, 'k_in_set': k}
+        chans = {'time_s': np.arange(n) / fs}
+        clipped = {}
+        for ch in IMPACT_CHANNELS:
+            if ch in r['daq.absent']:
+                continue
+            x = sensor_chain(ch, sim, deps, ctx)
+            v = daq.analog(x, n, delta, daq.skew(ch), r[f'daq.noise.{ch}'] if noise else 0.0,
+                           _rng(seed, 4, s, k, ANALOG.index(ch)))
+            lsb = r[f'daq.lsb_si.{ch}']
+            for d in deps:
+                if d['name'] == 'clipping' and d['channel'] == ch:
+                    peak = float(np.max(np.abs(x)))
+                    lsb = d['params']['fraction'] * peak / 2 ** (r['daq.adc_bits'] - 1)
+            chans[ch], clipped[ch] = DAQ.adc(v, lsb, r['daq.adc_bits'])
+        c, t_f = sim['clean'], sim['t_f']
+        on = np.nonzero(c['T'] < 0)[0]
+        if on.size:                                   # the first contact's end (a rest on the crusher never ends)
+            gaps = np.nonzero(np.diff(on) > 1)[0]
+            on = on[:gaps[0] + 1] if gaps.size else on
+        F_r_lbf, fps = IMPACT_SETS[s]
+        meta = {'file': f'set{s}_pull{k:02d}.csv', 'set': s, 'pull': k, 'coupon_lbf': F_r_lbf, 'velocity_fps': fps,
+                'decel_g': 0.0, 'kind': 'impact', 'seed': int(seed)}
+        entry = {'file': meta['file'], 'set': s, 'pull': k, 'seed': int(seed),
+                 'peak_tension_n': float(np.min(c['T'])), 'peak_abs_n': float(-np.min(c['T'])),
+                 'peak_moving_clean_n': float(np.min(c['F2'])),
+                 't_contact_start_s': float(t_f[on[0]]) if on.size else None,
+                 't_contact_end_s': float(t_f[on[-1]]) if on.size else None,
+                 'v_at_contact_m_s': drop['v0'], 'F_r_n': drop['crusher']['F_r'], 'y': drop['crusher']['y'],
+                 'p_f_m': drop['crusher']['p_f'], 'k_t_n_per_m': drop['crusher']['k_t'],
+                 'eta_n_s_per_m': drop['crusher']['eta'], 'crush_final_m': float(c['p'][-1]),
+                 'clock_delta': delta, 'phases_rad': [ctx['phase'][id(d)] for d in deps], 'clipped': clipped,
+                 'n_steps': sim['events']['n_steps']}
+        if keep_signals:
+            entry['signals'] = {kk: interp4(c[src], sim['h'], chans['time_s']).tolist() for kk, src in (
+                ('F_move', 'F2'), ('T', 'T'), ('a2', 'a2'), ('v', 'v'), ('x', 'x'))}
+        campaign.append((meta, chans))
+        pulls.append(entry)
+    counts = {}
+    for s, _ in layout:
+        counts[s] = counts.get(s, 0) + 1
+    ds = {'daq': {'sample_rate_hz': r['daq.sample_rate_hz'], 'record_length_s': r['daq.record_length_s']},
+          'force_chain': {'moving_side_mass_kg': r['force_chain.moving_side_mass_kg'],
+                          'load_cell_stiffness_n_per_m': r['force_chain.load_cell_stiffness_n_per_m'],
+                          'load_cell_damping_ratio': r['force_chain.load_cell_damping_ratio']},
+          'sensors': {k: r[f'sensors.{k}'] for k in ('load_cell_sensitivity_mv_per_lbf', 'load_cell_range_lbf',
+                                                      'accelerometer_sensitivity_mv_per_g', 'accelerometer_band_hz')},
+          'test_sets': [{'set': s, 'coupon_lbf': IMPACT_SETS[s][0], 'velocity_fps': IMPACT_SETS[s][1], 'decel_g': 0.0,
+                         'pulls': int(nn)} for s, nn in sorted(counts.items())],
+          'impact': {'drop_mass_kg': r['impact.drop_mass_kg']}}
+    truth = {'generator': 'independent', 'spec_version': SPEC_VERSION, 'seed': int(seed), 'kind': 'impact',
+             'datasheet': ds, 'rig': {k: v for k, v in r.items() if not isinstance(v, (list, dict))},
+             'daq': {'filter': {'type': r['daq.filter_type'], 'order': 8, 'fc_hz': daq.fc,
+                                'group_delay_s': aa_group_delay(r['daq.filter_type'], 8, daq.fc)},
+                     'adc_bits': int(r['daq.adc_bits']), 'fine_factor': daq.F,
+                     'channels': {ch: {'range_v': r[f'daq.range_v.{ch}'], 'sensitivity_v_per_si': r[f'daq.sens.{ch}'],
+                                       'lsb_si': r[f'daq.lsb_si.{ch}'], 'skew_s': daq.skew(ch),
+                                       'noise_rms': r[f'daq.noise.{ch}'] if noise else 0.0}
+                                  for ch in IMPACT_CHANNELS},
+                     'clock_offset_rig': r['daq.clock_ppm_rig'] * 1e-6,
+                     'clock_offset_pull': {p['file']: p['clock_delta'] for p in pulls},
+                     'absent': list(r['daq.absent']) + ['force_stationary_n', 'encoder_position_m', 'motor_current_a',
+                                                        'motor_voltage_v', 'motor_velocity_cmd_m_s']},
+             'departures': deps, 'pulls': pulls}
+    return campaign, _jsonable(truth)

@@ -392,3 +392,20 @@ def test_command_profile():
     for tt in (0.05, 0.12, 0.2):
         assert cmd.scalar(tt) == pytest.approx(tuple(float(x) for x in cmd(tt)))
     assert int(V3) == 1 and int(IA) == 10
+
+
+# ------------------------------------------------------------------------------------------ impact kind (SPEC 3.3)
+def test_impact_drop_reads_compression():
+    from rig import draw_drop, draw_impact_rig, simulate_impact
+    rig = draw_impact_rig(3, {'daq.record_length_s': 0.25, 'daq.sample_rate_hz': 50000.0})
+    sim = simulate_impact(rig, draw_drop(3, rig, 1, 1), seed=3)
+    c = sim['clean']
+    m2 = sim['model'].m2
+    P = -c['T']
+    assert np.max(P) > 0.5 * 500 * 4.4482216152605        # the crusher was loaded to about its rating
+    # the cell reads compression as negative, and F2 - m2 (accel reading) = -P exactly (the nose's equation)
+    assert np.min(c['F2']) < 0
+    assert np.max(np.abs(c['F2'] - m2 * c['a2'] + P)) <= 1e-9 * np.max(P)
+    # free fall before contact: the accelerometer reads 0 and the cell is unloaded
+    pre = sim['t_f'] < 0.5 * float(sim['t_f'][np.argmax(P > 0)])
+    assert np.max(np.abs(c['a2'][pre])) < 1e-6 and np.max(np.abs(c['F2'][pre])) < 1e-6
