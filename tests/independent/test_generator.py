@@ -423,3 +423,18 @@ def test_impact_drop_reads_compression():
     # free fall before contact: the accelerometer reads 0 and the cell is unloaded
     pre = sim['t_f'] < 0.5 * float(sim['t_f'][np.argmax(P > 0)])
     assert np.max(np.abs(c['a2'][pre])) < 1e-6 and np.max(np.abs(c['F2'][pre])) < 1e-6
+
+
+def test_impact_campaign_interface():
+    camp, truth = generate_campaign(5, 'impact', n_pulls=1, sets=[2], departures='none',
+                                    rig={'daq.record_length_s': 0.25, 'daq.sample_rate_hz': 50000.0})
+    (meta, ch), = camp
+    assert meta['file'] == 'set2_pull01.csv' and meta['coupon_lbf'] == 1000 and meta['velocity_fps'] == 9.0
+    assert meta['decel_g'] == 0.0 and truth['kind'] == 'impact'
+    assert {'time_s', 'force_moving_n', 'accel_axial_m_s2'} <= set(ch) <= {
+        'time_s', 'force_moving_n', 'accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2'}
+    assert all(v.shape == (round(0.25 * 50000),) for v in ch.values())
+    p = truth['pulls'][0]
+    assert p['peak_tension_n'] < 0 and p['peak_abs_n'] == -p['peak_tension_n']
+    assert p['t_contact_start_s'] < p['t_contact_end_s']
+    assert np.min(ch['force_moving_n']) < -0.5 * p['peak_abs_n']      # the cell reads compression as negative
