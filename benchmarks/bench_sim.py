@@ -11,6 +11,7 @@ the figures do not depend on the BLAS thread setting.
 """
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import time
@@ -38,6 +39,9 @@ def best_of(fn, n=3):
 
 
 def main() -> int:
+    argparse.ArgumentParser(prog='./ft bench sim', description=__doc__.split('\n\n')[0],
+                            formatter_class=argparse.RawDescriptionHelpFormatter,
+                            epilog=__doc__.split('\n\n', 1)[1]).parse_args()
     rig = load_rig()
     spec = nominal_pull_spec(rig, 3, seed=1)
     rec = rig.daq.record_length_s

@@ -96,7 +96,7 @@ def pytest_collection_modifyitems(config, items):
         elif not item.get_closest_marker('xdist_group') and _shares_a_module_fixture(item):
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split('::')[0]))
     items.sort(key=lambda i: (not i.get_closest_marker('xdist_group'), not i.get_closest_marker('slow')))
-    if config.getvalue('loadgroup'):
+    if getattr(config.option, 'loadgroup', False):   # set on xdist's workers under --dist loadgroup
         for item in items:
             _name_the_group(item)
 
@@ -211,3 +211,36 @@ def ros_domain(monkeypatch):
 def module_ros_domain():
     with pytest.MonkeyPatch.context() as mp:
         yield isolated_ros_env(mp)
+
+
+SHARED_REPORTS = 'shared_discovery_reports'   # the xdist group of the tests that share a `discovered` report
+
+
+@pytest.fixture(scope='session')
+def discovered(tmp_path_factory):
+    """discovered(departures, seed, nuisance_seed=None, **make_campaign's keywords) -> (report, output folder):
+    the streamed discovery (inline) of the discovery generator's campaign, made once per session and content for
+    every test that asserts on it (those carry `@pytest.mark.xdist_group(SHARED_REPORTS)`, so that one worker makes
+    it); each caller gets its own copy of the report and of the folder."""
+    import copy
+    import shutil
+
+    from generator import draw_nuisance, make_campaign  # tests/force_discovery, on the path of its tests
+
+    from force_discovery.core.pipeline import discover
+    from force_tester_sim.core.params import load_rig
+    made = {}
+
+    def get(departures, seed, nuisance_seed=None, **kw):
+        key = json.dumps([departures, seed, nuisance_seed, kw], sort_keys=True, default=str)
+        if key not in made:
+            out = tmp_path_factory.mktemp('discovered')
+            nuisance = draw_nuisance(nuisance_seed) if nuisance_seed is not None else None
+            made[key] = (discover(make_campaign(departures, seed=seed, nuisance=nuisance, **kw), load_rig(), out,
+                                  scheduler='inline'), out)
+        report, out = made[key]
+        mine = tmp_path_factory.mktemp('report')
+        shutil.copytree(out, mine, dirs_exist_ok=True)
+        return copy.deepcopy(report), mine
+
+    return get

@@ -9,7 +9,8 @@ import re
 import numpy as np
 import pytest
 import yaml
-from generator import BEYOND, UNTUNED, beyond_campaign, check_beyond, draw_nuisance, make_campaign
+from conftest import SHARED_REPORTS
+from generator import BEYOND, UNTUNED, beyond_campaign, check_beyond
 
 from force_correction.core.extension import Extension
 from force_discovery.core.beyond import (
@@ -121,12 +122,14 @@ def test_a_line_across_the_gap_of_the_free_phases_has_its_frequency_on_the_sampl
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group(SHARED_REPORTS)
 @pytest.mark.parametrize('nuisance', [False, True])
-def test_a_clean_campaign_has_nothing_beyond_the_catalog(nuisance, tmp_path):
-    report = run(make_campaign(None, seed=31, nuisance=draw_nuisance(31) if nuisance else None), tmp_path)
+def test_a_clean_campaign_has_nothing_beyond_the_catalog(nuisance, discovered):
+    # the clean campaigns of test_discovery's test_no_effect_gives_none and test_model_form_nuisances_give_none
+    report, out = discovered(None, 41, nuisance_seed=41) if nuisance else discovered(None, 4)
     assert report['beyond_catalog'] == [], report['beyond_catalog']
     assert report['cause'] == 'none'
-    assert 'extra_terms' not in yaml.safe_load((tmp_path / 'extension.yaml').read_text())
+    assert 'extra_terms' not in yaml.safe_load((out / 'extension.yaml').read_text())
 
 
 def test_the_grammar_writes_and_reads_its_terms():

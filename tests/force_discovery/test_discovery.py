@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import SHARED_REPORTS
 from generator import OUT_OF_CATALOG, PLAUSIBLE, check_identified, draw, make_campaign, out_of_catalog, rig_with
 
 from force_discovery.core.pipeline import discover
@@ -41,8 +42,9 @@ def test_each_catalog_entry_is_identified(name, tmp_path):
 
 
 @pytest.mark.slow
-def test_no_effect_gives_none(tmp_path):
-    report = run(make_campaign(None, seed=4), tmp_path)
+@pytest.mark.xdist_group(SHARED_REPORTS)
+def test_no_effect_gives_none(discovered):
+    report, _ = discovered(None, 4)   # test_beyond asserts on it too
     assert report['cause'] == 'none', report['causes']
     assert report['causes'] == []
 
@@ -465,12 +467,12 @@ def test_too_few_usable_pulls_is_unexplained_with_the_reason(tmp_path, capsys):
 
 # ------------------------------------------------------------------ issue 12: model-form nuisances
 @pytest.mark.slow
+@pytest.mark.xdist_group(SHARED_REPORTS)
 @pytest.mark.parametrize('seed', [41, 42])
-def test_model_form_nuisances_give_none(seed, tmp_path):
+def test_model_form_nuisances_give_none(seed, discovered):
     """Cell and lanyard damping 2-4x, a common anti-alias filter, 1/f noise, 16-bit samples and departures well
     inside the tolerances: nothing to act on."""
-    from generator import draw_nuisance
-    report = run(make_campaign(None, seed=seed, nuisance=draw_nuisance(seed)), tmp_path)
+    report, _ = discovered(None, seed, nuisance_seed=seed)   # seed 41: test_beyond asserts on it too
     assert report['cause'] == 'none', [(c['name'], c.get('parameters')) for c in report['causes']]
     # the cells' damping (2-4x the rig's) was measured from the data and T computed with it
     cells = report['cell_damping']

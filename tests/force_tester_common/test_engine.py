@@ -115,6 +115,7 @@ def test_importing_the_engine_loads_no_dask():
 def test_workers_are_real_processes_of_this_venv(cluster):
     from distributed import Client
     with Client(cluster.scheduler_address, set_as_default=False) as c:
+        c.wait_for_workers(2, timeout=120)   # on a busy machine the second may register after the cluster returns
         exe = c.run(lambda: sys.executable)
         pids = c.run(lambda: __import__('os').getpid())
         mods = c.run(lambda: __import__('force_tester_common').__file__)

@@ -39,6 +39,8 @@ def help_text(*words: str) -> str:
     res = subprocess.run([str(ROOT / 'ft'), *words, '--help'], cwd=ROOT, capture_output=True, text=True,
                          timeout=120)
     assert res.returncode == 0, f'./ft {" ".join(words)} --help: rc {res.returncode}: {res.stderr[-500:]}'
+    # a help text, not the command's work (bench_sim ran its whole benchmark on --help: 20 s)
+    assert res.stdout.startswith('usage: '), f'./ft {" ".join(words)} --help: {res.stdout[:300]!r}'
     return res.stdout
 
 

@@ -72,6 +72,46 @@ def test_a_skip_fails_the_run_under_ci_unless_allowed(tmp_path):
     assert '3 passed' not in fast.stdout and '2 passed, 1 skipped, 2 deselected' in fast.stdout, fast.stdout
 
 
+GROUPED = '''
+import os
+import pytest
+
+@pytest.fixture(scope='module')
+def shared():
+    return object()
+
+def _note(name):
+    with open(os.path.join(os.environ['WORKERS_DIR'], name), 'a') as f:
+        f.write(os.environ['PYTEST_XDIST_WORKER'] + '\\n')
+
+@pytest.mark.parametrize('i', range(6))
+def test_shares_the_module_fixture(shared, i):
+    _note('grouped')
+
+@pytest.mark.parametrize('i', range(6))
+def test_on_its_own(i):
+    _note('alone')
+'''
+
+
+@pytest.mark.slow
+def test_a_module_fixture_keeps_its_tests_on_one_worker(tmp_path):
+    """Under ./ft test's --dist loadgroup the tests that share a module's fixture run on one worker (it is made
+    once), while the others spread over both."""
+    (tmp_path / 'test_grouped.py').write_text(GROUPED)
+    env = {**os.environ, 'PYTHONPATH': f"{ROOT / 'tests'}:{os.environ.get('PYTHONPATH', '')}",
+           'WORKERS_DIR': str(tmp_path)}
+    for k in ('PYTEST_XDIST_WORKER', 'PYTEST_XDIST_WORKER_COUNT'):
+        env.pop(k, None)
+    r = subprocess.run([sys.executable, '-m', 'pytest', '-p', 'conftest', '-p', 'no:cacheprovider', '-n', '2',
+                        '--dist', 'loadgroup', '--rootdir', str(tmp_path), str(tmp_path / 'test_grouped.py')],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-2000:]
+    grouped, alone = ((tmp_path / n).read_text().split() for n in ('grouped', 'alone'))
+    assert len(grouped) == 6 and len(set(grouped)) == 1, grouped
+    assert len(alone) == 6 and set(alone) == {'gw0', 'gw1'}, alone
+
+
 def test_the_allow_list_is_short_and_every_line_has_a_reason():
     allowed = conftest.allowed_skips()
     assert 0 < len(allowed) <= 6
