@@ -53,6 +53,25 @@ def by_kind(records: list) -> dict:
     return out
 
 
+def with_kinds_of(baseline: list, records: list) -> list:
+    """BASELINE's tests (a JUnit report has no kinds) with the kinds of the same tests in RECORDS, and their
+    campaign and discover seconds at the share of the test's time that RECORDS measured: an estimate."""
+    now = {r['nodeid']: r for r in records}
+    out = []
+    for b in baseline:
+        r = now.get(b['nodeid'])
+        if b['kind'] is None and r is not None:
+            share = {k: r.get(k, 0.0) / r['seconds'] for k in ('campaign', 'discover') if r['seconds'] > 0}
+            b = {**b, 'kind': r['kind'], **{k: v * b['seconds'] for k, v in share.items()}}
+        out.append(b)
+    return out
+
+
+def kind_table(kinds: dict, total: float) -> list:
+    return [f'| {LABELS.get(k, k)} | {kinds[k]:.0f} | {100 * kinds[k] / total:.0f} % |'
+            for k in (*KINDS, 'unknown') if kinds.get(k)]
+
+
 def print_tables(records: list, top: int, baseline: list | None = None) -> None:
     total = sum(r['seconds'] for r in records)
     base = {r['nodeid']: r['seconds'] for r in baseline or []}
@@ -64,14 +83,18 @@ def print_tables(records: list, top: int, baseline: list | None = None) -> None:
     for i, r in enumerate(sorted(records, key=lambda r: -r['seconds'])[:top], 1):
         was = f" {base[r['nodeid']]:.1f} |" if r['nodeid'] in base else (' - |' if baseline else '')
         print(f"| {i} | {r['seconds']:.1f} |{was} {r['kind'] or '-'} | `{r['nodeid']}` |")
-    kinds = by_kind(records)
     print('\nTest time by kind (campaigns and discover measured inside the tests; the rest of a test under its '
           'marker)\n')
     print('| kind | seconds | share |')
     print('|---|---|---|')
-    for k in (*KINDS, 'unknown'):
-        if kinds.get(k):
-            print(f'| {LABELS.get(k, k)} | {kinds[k]:.0f} | {100 * kinds[k] / total:.0f} % |')
+    print('\n'.join(kind_table(by_kind(records), total)))
+    if baseline:
+        was = with_kinds_of(baseline, records)
+        print('\nThe baseline by kind (its tests\' kinds from this run, their campaign and discover seconds at the '
+              'shares this run measured: an estimate where the baseline recorded none)\n')
+        print('| kind | seconds | share |')
+        print('|---|---|---|')
+        print('\n'.join(kind_table(by_kind(was), sum(r['seconds'] for r in was))))
     fast = [r for r in records if r['slow'] is False]
     if fast:
         over = [r for r in fast if r['seconds'] > FAST_S]

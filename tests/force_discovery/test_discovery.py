@@ -442,6 +442,7 @@ def test_a_real_effect_is_still_found_through_data_defects(tmp_path):
     assert check_identified(report, 'effective_mass', truth) == []
 
 
+@pytest.mark.slow
 def test_too_few_usable_pulls_is_unexplained_with_the_reason(tmp_path, capsys):
     """Every pull excluded: the whole report says unexplained and why; the CLI exits 2 with one line."""
     import argparse

@@ -97,6 +97,7 @@ def test_a_campaign_is_the_same_bytes_on_any_scheduler(cluster, tmp_path):
     assert np.isfinite(read_campaign(d / 'cor').pulls[0].channels['filtered_n']).any()
 
 
+@pytest.mark.slow
 def test_a_killed_worker_is_rerun_and_the_campaign_is_unchanged(cluster, tmp_path):
     rig = load_rig(TRUTH_YAML)
     marker = tmp_path / 'killed'

@@ -138,11 +138,14 @@ def test_ft_test_command_line():
         return args[args.index(name) + 1]
     cmd = pytest_command([])
     assert cmd[:4] == [sys.executable, '-m', 'pytest', str(ROOT / 'tests')]
-    assert option(cmd, '-n') in ('auto', os.environ.get('FT_TEST_WORKERS')) and option(cmd, '--dist') == 'loadgroup'
+    assert option(cmd, '-n') == os.environ.get('FT_TEST_WORKERS', str(len(os.sched_getaffinity(0)) + 1))
+    assert option(cmd, '--dist') == 'loadgroup'
     assert '--record-durations' in cmd and '-m' not in cmd[3:]
     fast = pytest_command(['-m', 'ros', '-n', '3'], fast=True)
     assert option(fast, '-m') == 'not slow and (ros)' and fast.count('-n') == 1 and option(fast, '-n') == '3'
-    assert option(pytest_command([], fast=True), '-m') == 'not slow'
+    fast_default = pytest_command([], fast=True)
+    assert option(fast_default, '-m') == 'not slow'
+    assert option(fast_default, '-n') == os.environ.get('FT_TEST_WORKERS', str(len(os.sched_getaffinity(0))))
     assert '-n' not in pytest_command(['-p', 'no:xdist'])
     assert pytest_command(['tests/workspace/test_suite.py'])[3] == 'tests/workspace/test_suite.py'
 
