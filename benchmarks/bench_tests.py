@@ -23,10 +23,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tests'))
-from kinds import KINDS, LABELS  # noqa: E402  (the tests' own definition of the kinds)
+from kinds import FAST_S, KINDS, LABELS  # noqa: E402  (the tests' own definition of the kinds)
 
 DURATIONS = ROOT / '.ft' / 'test-durations.json'
-FAST_S = 5.0
 
 
 def load(path: Path) -> list:

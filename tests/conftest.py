@@ -1,7 +1,7 @@
 """The suite's tiers, its workers' isolation, its bookkeeping, and the shared fixtures (docs/tests.md).
 
 Tiers. `./ft test` runs everything; `./ft test --fast` runs `-m "not slow"`. A test is `slow` when it is marked so
-by hand (it takes more than FAST_S seconds on its own) or when it has a kind marker: `ros` (it starts ROS 2 nodes;
+by hand (it takes more than about 3 s on its own) or when it has a kind marker: `ros` (it starts ROS 2 nodes;
 given automatically to every test that uses the ros_domain fixtures), `browser` or `netns`. A test of the fast
 tier that takes longer than FAST_S is named at the end of the run, to be marked.
 
@@ -24,11 +24,10 @@ import os
 from pathlib import Path
 
 import pytest
-from kinds import MARKED_KINDS, kind_of, take, timed
+from kinds import FAST_S, MARKED_KINDS, kind_of, take, timed
 
 HERE = Path(__file__).resolve().parent
 SKIPS_ALLOWED = HERE / 'skips_allowed.txt'
-FAST_S = 5.0          # the fast tier's limit per test, seconds (setup + call + teardown)
 SOLO = 'solo'         # the xdist group of the tests that cannot share the machine with each other
 ROS_DOMAINS = 100     # ROS_DOMAIN_ID 1..100 are shared out among the workers
 _ROS_FIXTURES = {'ros_domain', 'module_ros_domain'}
@@ -36,7 +35,7 @@ _domains = itertools.count()
 _RUN = {'tests': {}, 'skips': []}   # what the reports said, for the summary and --record-durations
 
 MARKERS = {
-    'slow': f'takes more than {FAST_S:g} s on its own: left out of ./ft test --fast',
+    'slow': 'takes more than about 3 s on its own: left out of ./ft test --fast',
     'ros': 'starts ROS 2 nodes (in this process or as processes over Fast DDS); slow',
     'browser': 'drives a real browser; slow',
     'netns': 'makes network namespaces (needs root); slow',
@@ -128,8 +127,8 @@ def pytest_runtest_makereport(item, call):
 def pytest_runtest_logreport(report):
     """Collected where the reports arrive (the controller under xdist): each test's phases, and every skip."""
     if report.skipped and not hasattr(report, 'wasxfail'):
-        _RUN['skips'].append((report.nodeid.split('@')[0], _skip_reason(report)))
-    nodeid = report.nodeid.split('@')[0]   # without its xdist group
+        _RUN['skips'].append((_own_id(report.nodeid), _skip_reason(report)))
+    nodeid = _own_id(report.nodeid)
     rec = _RUN['tests'].setdefault(nodeid, {'nodeid': nodeid, 'seconds': 0.0, 'outcome': 'passed'})
     rec['seconds'] = round(rec['seconds'] + report.duration, 4)
     rec['kind'] = kind_of(report.keywords)
@@ -139,6 +138,12 @@ def pytest_runtest_logreport(report):
     for key, value in report.user_properties:
         if key == 'spent':
             rec.update(json.loads(value))
+
+
+def _own_id(nodeid: str) -> str:
+    """A test's id without the '@GROUP' of its xdist group (_name_the_group)."""
+    head, at, group = nodeid.rpartition('@')
+    return head if at and not set(group) & set('[]:') else nodeid
 
 
 def _skip_reason(report) -> str:

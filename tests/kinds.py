@@ -20,6 +20,9 @@ LABELS = {'campaign': 'making campaigns', 'discover': '`discover`', 'ros': 'ROS 
 #: telling first: a browser test also starts ROS nodes
 MARKED_KINDS = ('netns', 'browser', 'ros')
 
+#: a fast-tier test over this many seconds (setup + call + teardown) is named at the end of a run, to be marked slow
+FAST_S = 5.0
+
 _spent: dict = defaultdict(float)
 _depth: dict = defaultdict(int)
 
