@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tests'))
 from kinds import FAST_S, KINDS, LABELS  # noqa: E402  (the tests' own definition of the kinds)
 
-DURATIONS = ROOT / '.ft' / 'test-durations.json'
+from ft_cli.commands.workspace import DURATIONS  # noqa: E402  (where ./ft test writes them; ./ft puts tools/ on the path)
 
 
 def load(path: Path) -> list:
