@@ -114,6 +114,27 @@ def _pm(r, a, b, log=False):
 
 
 # ----------------------------------------------------------------------------------------------- the rig
+def _draw_transverse(r, d: dict) -> None:
+    """The lateral (y) and vertical (z) modes of a rig: frequency, damping, misalignment angle (SPEC 2.5)."""
+    for ax in ('y', 'z'):
+        d[f'transverse.f_{ax}_hz'] = _lu(r, 300.0, 3000.0)
+        d[f'transverse.zeta_{ax}'] = _u(r, 0.01, 0.05)
+        d[f'transverse.phi_{ax}_rad'] = math.radians(_pm(r, 0.2, 2.0))
+
+
+def _draw_daq(r, d: dict) -> None:
+    """The DAQ chain every rig has (SPEC 4): anti-alias filter, ADC, clock, skew, the force and accelerometer noise."""
+    d['daq.filter_type'] = 'butterworth' if r.random() < 0.5 else 'bessel'
+    d['daq.filter_order'] = 8
+    d['daq.fc_ratio'] = _u(r, 0.3, 0.45)
+    d['daq.adc_bits'] = 16
+    d['daq.clock_ppm_rig'] = _u(r, -50.0, 50.0)
+    d['daq.t_slot_s'] = _u(r, 0.0, 2e-6)
+    d['daq.noise.force_moving_n'] = _lu(r, 0.05, 1.0)
+    for ch in ('accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2'):
+        d[f'daq.noise.{ch}'] = _lu(r, 0.1, 2.0)
+
+
 def draw_rig(seed: int, overrides: Mapping | None = None) -> dict:
     """Every simulated constant, SI, dotted keys. Overrides replace drawn values before derived ones."""
     overrides = dict(overrides or {})
@@ -150,26 +171,15 @@ def draw_rig(seed: int, overrides: Mapping | None = None) -> dict:
         d['drive.enabled'] = True
         d['lanyard.enabled'] = True
         d['transverse.enabled'] = True
-        for ax in ('y', 'z'):
-            d[f'transverse.f_{ax}_hz'] = _lu(r, 300.0, 3000.0)
-            d[f'transverse.zeta_{ax}'] = _u(r, 0.01, 0.05)
-            d[f'transverse.phi_{ax}_rad'] = math.radians(_pm(r, 0.2, 2.0))
+        _draw_transverse(r, d)
         d['transverse.q'] = _lu(r, 0.2, 3.0)
         d['sensors.encoder_resolution_m'] = _lu(r, 0.05e-6, 5e-6)
         d['sensors.load_cell_sensitivity_mv_per_lbf'] = _lu(r, 1.0, 10.0)
         d['sensors.load_cell_range_lbf'] = 1000.0
         d['sensors.accelerometer_sensitivity_mv_per_g'] = _lu(r, 1.0, 100.0)
         d['sensors.accelerometer_band_hz'] = 10000.0
-        d['daq.filter_type'] = 'butterworth' if r.random() < 0.5 else 'bessel'
-        d['daq.filter_order'] = 8
-        d['daq.fc_ratio'] = _u(r, 0.3, 0.45)
-        d['daq.adc_bits'] = 16
-        d['daq.clock_ppm_rig'] = _u(r, -50.0, 50.0)
-        d['daq.t_slot_s'] = _u(r, 0.0, 2e-6)
-        d['daq.noise.force_moving_n'] = _lu(r, 0.05, 1.0)
+        _draw_daq(r, d)
         d['daq.noise.force_stationary_n'] = d['daq.noise.force_moving_n']
-        for ch in ('accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2'):
-            d[f'daq.noise.{ch}'] = _lu(r, 0.1, 2.0)
         d['daq.noise.motor_current_a'] = _lu(r, 0.01, 0.3)
         d['daq.noise.motor_voltage_v'] = _lu(r, 0.05, 2.0)
         absent = []
@@ -1499,15 +1509,16 @@ def grammar_terms(truth: Mapping) -> list[dict]:
 
 
 def rig_yaml(truth: Mapping) -> str:
-    """The datasheet (what the lab believes) as a workspace rig YAML: daq, drive, force_chain, sensors, test_sets."""
+    """The datasheet (what the lab believes) as a workspace rig YAML: daq, drive (a pull rig) or impact (the drop
+    tower), force_chain, sensors, test_sets."""
     ds = truth['datasheet']
+    sections = [k for k in ('daq', 'drive', 'impact', 'force_chain', 'sensors') if k in ds]
     try:
         import yaml
-        return yaml.safe_dump({k: ds[k] for k in ('daq', 'drive', 'force_chain', 'sensors', 'test_sets')},
-                              sort_keys=False)
+        return yaml.safe_dump({k: ds[k] for k in (*sections, 'test_sets')}, sort_keys=False)
     except ImportError:                               # pragma: no cover - PyYAML is optional
         lines = []
-        for sec in ('daq', 'drive', 'force_chain', 'sensors'):
+        for sec in sections:
             lines.append(f'{sec}:')
             lines += [f'  {k}: {v!r}' for k, v in ds[sec].items()]
         lines.append('test_sets:')
@@ -1539,19 +1550,8 @@ def draw_impact_rig(seed: int, overrides: Mapping | None = None) -> dict:
     d['force_chain.load_cell_damping_ratio'] = _lu(r, 0.005, 0.05)
     d['cells.unit_scatter_2'] = _u(r, -0.1, 0.1)
     d['transverse.enabled'] = True
-    for ax in ('y', 'z'):
-        d[f'transverse.f_{ax}_hz'] = _lu(r, 300.0, 3000.0)
-        d[f'transverse.zeta_{ax}'] = _u(r, 0.01, 0.05)
-        d[f'transverse.phi_{ax}_rad'] = math.radians(_pm(r, 0.2, 2.0))
-    d['daq.filter_type'] = 'butterworth' if r.random() < 0.5 else 'bessel'
-    d['daq.filter_order'] = 8
-    d['daq.fc_ratio'] = _u(r, 0.3, 0.45)
-    d['daq.adc_bits'] = 16
-    d['daq.clock_ppm_rig'] = _u(r, -50.0, 50.0)
-    d['daq.t_slot_s'] = _u(r, 0.0, 2e-6)
-    d['daq.noise.force_moving_n'] = _lu(r, 0.05, 1.0)
-    for ch in ('accel_axial_m_s2', 'accel_lateral_m_s2', 'accel_vertical_m_s2'):
-        d[f'daq.noise.{ch}'] = _lu(r, 0.1, 2.0)
+    _draw_transverse(r, d)
+    _draw_daq(r, d)
     d['daq.absent'] = ['accel_lateral_m_s2', 'accel_vertical_m_s2'] if r.random() < 0.3 else []
     d['crusher.zeta_t'] = _u(r, 0.3, 0.7)         # lumped crusher + anvil loss: few, weak rebounds
     for s in IMPACT_SETS:

@@ -438,3 +438,5 @@ def test_impact_campaign_interface():
     assert p['peak_tension_n'] < 0 and p['peak_abs_n'] == -p['peak_tension_n']
     assert p['t_contact_start_s'] < p['t_contact_end_s']
     assert np.min(ch['force_moving_n']) < -0.5 * p['peak_abs_n']      # the cell reads compression as negative
+    text = rig_yaml(truth)                                             # the drop tower's datasheet: no drive
+    assert 'impact:' in text and 'force_chain:' in text and 'drive:' not in text
