@@ -125,17 +125,26 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
     assert compared > PULLS * BLOCKS_PER_PULL // 2
 
     # the derived topics agree with the validator's scores
-    peak_lbf = max(s['stationary_peak_n'] for s in scores) / LBF_N
-    assert max(m.stationary_max_lbf for m in got['force']) == pytest.approx(peak_lbf, rel=1e-12)
-    assert max(m.raw_max_lbf for m in got['force']) == pytest.approx(
-        max(s['raw_peak_n'] for s in scores) / LBF_N, rel=1e-12)
+    # (equal when the monitor lost no block; never above, since it makes up nothing)
+    for field, key in (('stationary_max_lbf', 'stationary_peak_n'), ('raw_max_lbf', 'raw_peak_n')):
+        seen, peak = max(getattr(m, field) for m in got['force']), max(s[key] for s in scores) / LBF_N
+        assert seen <= peak * (1 + 1e-12)
+        if health_gaps(got) == 0:
+            assert seen == pytest.approx(peak, rel=1e-12), field
     assert sorted(t.pull_id for t in got['trace']) == sorted(s['pull_id'] for s in scores), \
         ([(t.pull_id, len(t.time_s)) for t in got['trace']], got['health'][-1].topics)
     for trace in got['trace']:
         score = next(s for s in scores if s['pull_id'] == trace.pull_id)
         t = np.asarray(trace.time_s)
         assert t.size > 100 and np.allclose(np.diff(t), 1.0 / trace.sample_rate_hz)
-        assert max(trace.stationary_lbf) == pytest.approx(score['stationary_peak_n'] / LBF_N, rel=1e-12)
+        # a block the monitor lost (best effort, below) is a gap of NaN on the uniform time axis
+        stationary = np.asarray(trace.stationary_lbf)
+        lost = np.isnan(stationary)
+        assert lost.sum() % BLOCK_SAMPLES == 0 and lost.sum() <= health_gaps(got) * BLOCK_SAMPLES
+        peak = score['stationary_peak_n'] / LBF_N
+        assert np.nanmax(stationary) <= peak * (1 + 1e-12)
+        if not lost.any():
+            assert np.nanmax(stationary) == pytest.approx(peak, rel=1e-12)
     health = {h.topic: h for h in got['health'][-1].topics}
     # every block is counted, received or lost: the monitor subscribes best effort, so on a starved machine it may
     # lose a few of its own (the stalled client costs the graph none: the scores above have 0 dropped blocks)
@@ -146,3 +155,9 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
     assert any(math.isfinite(th.latency_p50_ms) and th.latency_p50_ms > 0 and th.rate_hz > 0
                for hm in got['health'] for th in hm.topics if th.topic == '/force_corrected')
     assert max(hm.clients for hm in got['health']) == 2
+
+
+def health_gaps(got) -> int:
+    """The blocks the monitor counted lost on the topics a trace is joined from."""
+    topics = {h.topic: h for h in got['health'][-1].topics}
+    return sum(topics[t].seq_gaps for t in ('/force', '/force_corrected'))

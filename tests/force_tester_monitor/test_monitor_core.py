@@ -97,6 +97,22 @@ def test_pull_trace_is_the_loaded_window_with_margin_at_full_rate():
     assert max(t.signals['stationary']) == pytest.approx(s.max() / LBF_N)
 
 
+def test_a_lost_block_is_a_gap_of_nan_on_a_uniform_time_axis():
+    # the monitor subscribes best effort: a block it lost must not close up the trace's time axis
+    rate = 1000.0
+    traces = PullTraces(margin_s=0.0, max_s=10.0, timeout_s=1.0)
+    traces.start(1, 1, 0)
+    traces.end(1, 40 * MS, now_ns=0)
+    out = []
+    for k in (0, 1, 3):  # block 2 lost
+        out += traces.add(block(k * 10 * MS, np.full(10, 5.0 + k), rate=rate), now_ns=0)
+    (t,) = out
+    assert t.time_s.size == 40 and np.allclose(np.diff(t.time_s), 1 / rate)
+    st = t.signals['stationary']
+    assert np.isnan(st[20:30]).all() and np.isfinite(np.delete(st, np.s_[20:30])).all()
+    assert st[30] == pytest.approx(8.0 / LBF_N)
+
+
 def test_pull_trace_goes_out_after_the_timeout_when_data_stops_short():
     traces = PullTraces(margin_s=0.0, max_s=10.0, timeout_s=1.0)
     traces.start(1, 1, 0)

@@ -197,8 +197,7 @@ class PullTraces:
         if not p.blocks:
             return None
         rate = p.blocks[0].rate_hz
-        stamps = np.concatenate([record_stamps_ns(b.stamp_ns, b.stationary.size, b.rate_hz) for b in p.blocks])
-        arrays = {s: np.concatenate([getattr(b, s) for b in p.blocks]) for s in SIGNALS}
+        stamps, arrays = _on_one_grid(p.blocks, rate)
         window = loaded_window(arrays['stationary'], self.loaded_fraction)
         if window is None:
             window = slice(0, stamps.size)
@@ -206,6 +205,21 @@ class PullTraces:
         sel = slice(max(window.start - margin, 0), min(window.stop + margin, stamps.size))
         return Trace(p.pull_id, p.test_set, p.start_ns, rate, (stamps[sel] - p.start_ns) / NS_PER_S,
                      {s: n_to_lbf(a[sel]) for s, a in arrays.items()})
+
+
+def _on_one_grid(blocks: List[JoinedBlock], rate_hz: float):
+    """The blocks' samples on one uniform grid from the first block's stamp to the last block's end: a block the
+    monitor lost (it subscribes best effort) is a run of NaN where it belongs, so a plot shows a gap rather than
+    drawing across it, and the time axis stays uniform."""
+    first = blocks[0].stamp_ns
+    offsets = [int(round((b.stamp_ns - first) * rate_hz / NS_PER_S)) for b in blocks]
+    n = max(o + b.stationary.size for o, b in zip(offsets, blocks))
+    stamps = record_stamps_ns(first, n, rate_hz)
+    arrays = {s: np.full(n, np.nan) for s in SIGNALS}
+    for o, b in zip(offsets, blocks):
+        for s in SIGNALS:
+            arrays[s][o:o + b.stationary.size] = getattr(b, s)
+    return stamps, arrays
 
 
 def score_lbf(score) -> dict:
