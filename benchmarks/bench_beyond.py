@@ -114,8 +114,8 @@ def departures(gen: str, a, rig, tmp, clock) -> dict:
             tot[key] += row[key]
         tot['n'] += n
         if n:
-            print(f'{gen:<12} {kind:<20} ' + ' '.join(f'{row[key]:>{w}}/{n:<2}' for key, w in zip(KEYS, (7, 6, 7, 7, 6)))
-                  + f'  {"/".join(gains):<20}  {"; ".join(misses)}', flush=True)
+            counts = ' '.join(f'{row[key]:>{w}}/{n:<2}' for key, w in zip(KEYS, (7, 6, 7, 7, 6)))
+            print(f'{gen:<12} {kind:<20} {counts}  {"/".join(gains):<20}  {"; ".join(misses)}', flush=True)
     return tot
 
 

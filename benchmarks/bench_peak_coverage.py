@@ -166,7 +166,7 @@ def independent(seeds: int) -> list:
     for seed in range(seeds):
         c = IG.case(7000 + seed, [], pulls=len(SETS), sets=SETS)
         inputs = peak_inputs(c.rig)
-        for (meta, ch), peak in zip(c.campaign, IG.pull_tensions(c.truth)):
+        for (_meta, ch), peak in zip(c.campaign, IG.pull_tensions(c.truth)):
             rows.append(score(c.rig, Extension(), inputs, ch, np.array([peak]), c.rig.force_chain.moving_side_mass_kg))
     return rows
 

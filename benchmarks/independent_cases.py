@@ -13,7 +13,6 @@ record the benchmark alone reads) and the truths each benchmark scores against.
 """
 from __future__ import annotations
 
-import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -114,6 +113,3 @@ def pull_tensions(truth: dict) -> list:
     """The lanyard tension's peak of each pull, in campaign order (the truth the corrected peak estimates)."""
     return [p['peak_tension_n'] for p in truth['pulls']]
 
-
-def fmt(value) -> str:
-    return '-' if value is None or (isinstance(value, float) and math.isnan(value)) else str(value)
