@@ -2,7 +2,8 @@
 option it uses is one that command's --help lists (so an example cannot rot when an option is renamed). The map
 (docs/README.md) lists every page and every link between the pages resolves, anchors included; pages have
 headings and stay under about 15 KB; the README comes in its order and shows the demo's table as the demo prints
-it; the CLI reference is what tools/cli_reference.py writes; docs/tests.md names every test file."""
+it; the CLI reference is what tools/cli_reference.py writes; docs/tests.md names every test file; the references of
+the rig YAML and the channel map, and the catalog page, name every key, cause and band the code defines."""
 from __future__ import annotations
 
 import os
@@ -201,3 +202,57 @@ def test_the_cli_reference_is_current():
     assert len(pages['reference-cli.md'].split('```')) > 2 * len(NAMES)
     stale = cli_reference.stale(pages)
     assert not stale, f'not current: {stale}; run python3 tools/cli_reference.py'
+
+
+# ----------------------------------------------------------------------------- references that name every key
+def keys_of(data) -> set:
+    """Every mapping key in a parsed YAML, at any depth (list items included)."""
+    if isinstance(data, dict):
+        return {k for k in data} | {k for v in data.values() for k in keys_of(v)}
+    if isinstance(data, list):
+        return {k for v in data for k in keys_of(v)}
+    return set()
+
+
+def named_in(page: str) -> set:
+    """What a page names in code spans."""
+    text = (ROOT / 'docs' / page).read_text()
+    blocks = re.findall(r'```.*?```', text, flags=re.S)
+    spans = re.findall(r'`([^`]+)`', re.sub(r'```.*?```', '', text, flags=re.S))
+    return {w for span in [*blocks, *spans] for w in re.split(r'[\s,:{}\[\]`]+', span) if w}
+
+
+def test_the_rig_yaml_reference_names_every_key():
+    import yaml
+
+    from force_tester_sim.core import extra_terms
+    from force_tester_sim.core.departures import CATALOG, OPTIONAL_PARAMS
+    from force_tester_sim.core.params import NOMINAL_YAML, TRUTH_YAML
+    keys = keys_of(yaml.safe_load(NOMINAL_YAML.read_text())) | keys_of(yaml.safe_load(TRUTH_YAML.read_text()))
+    keys |= set(CATALOG) | {p for spec in CATALOG.values() for p in spec[1]}
+    keys |= {p for spec in OPTIONAL_PARAMS.values() for p in spec}
+    keys |= set(extra_terms.KEYS) | set(extra_terms.CHANNELS) | set(extra_terms.SIGNALS)
+    missing = sorted(keys - named_in('reference-rig-yaml.md') - {'name'})   # `name:` is the list form's key
+    assert not missing, f'docs/reference-rig-yaml.md does not name {missing}'
+
+
+def test_the_catalog_page_names_every_cause_and_band():
+    import dataclasses
+
+    from force_tester_sim.core.departures import CATALOG
+    from force_tester_sim.core.params import load_rig
+    want = set(CATALOG) | {p for spec in CATALOG.values() for p in spec[1]}
+    want |= {f.name for f in dataclasses.fields(load_rig().tolerances)}
+    missing = sorted(want - named_in('discovery-catalog.md'))
+    assert not missing, f'docs/discovery-catalog.md does not name {missing}'
+
+
+def test_the_channel_map_reference_names_every_key_and_channel():
+    import yaml
+
+    from bag_tools.core.daqfiles import MAP_KEYS
+    from force_tester_common.core.channels import CHANNELS
+    example = yaml.safe_load((ROOT / 'config' / 'channel_maps' / 'drop_impactor.yaml').read_text())
+    want = set(MAP_KEYS) | set(CHANNELS) | set(example) | keys_of(example['channels'])
+    missing = sorted(want - named_in('reference-channel-map.md'))
+    assert not missing, f'docs/reference-channel-map.md does not name {missing}'
