@@ -1,7 +1,7 @@
 """Benchmark of the search beyond the catalog (issue 27, docs/discovery.md): how often `discover` finds a departure
 outside the catalog as the right term, and its cost.
 
-    ./ft bench beyond [--trials N] [--clean M] [--seed S] [--kinds K1,K2,...]
+    ./ft bench beyond [--trials N] [--clean M] [--seed S] [--kinds K1,K2,...] [--generator own|independent|both]
 
 For every departure of the generator outside the catalog (generator.BEYOND, or those --kinds names: the eight the
 search was built on, quadratic cell, air drag, zero drift of the moving cell, the stationary cell and the
@@ -18,6 +18,10 @@ not run). A miss's line gives what was named, what was significant but within th
 Then M campaigns with nothing to act on (clean and nuisance in turn): a false alarm is any entry in
 beyond_catalog. The cost: the wall time of the search's passes (Clock)
 against the whole discovery's, side by side in one run. The code under test sees only the data and the nominal rig.
+With --generator independent (or both, side by side): tests/independent's departures outside the catalog
+(benchmarks/independent_cases.py), each hidden alone on a rig drawn per seed, `discover` given its datasheet; the
+right term is the first grammar term the truth states; a departure whose physics has no term in the grammar is
+counted on its own line (what was named for it); the false alarms on its campaigns with no departure.
 """
 from __future__ import annotations
 
@@ -31,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / 'tests' / 'force_discovery'), str(ROOT / 'tests')]   # the test generator, its timing
 
 import generator as G  # the generator
+import independent_cases as IG  # beside this script: --generator
 
 from force_discovery.core.pipeline import discover
 from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS
@@ -63,83 +68,126 @@ def run(camp, rig, out):
     return report, total, clock.seconds()
 
 
+KEYS = ('right_term', 'coefficient_30pct', 'no_catalog', 'covered', 'near_tied')
+
+
+def one(gen: str, kind: str, seed: int, k: int, rig, out):
+    """(report, truth term or None, discovery s, search s) of one campaign with ``kind`` hidden."""
+    if gen == 'own':
+        camp, truth = G.beyond_campaign(kind, seed, nuisance=k % 2 == 1)
+    else:
+        c = IG.case(seed, [{'name': kind}])
+        camp, rig, truth = c.campaign, c.rig, IG.beyond_term(c.truth)
+    return (*run(camp, rig, out), truth)
+
+
+def departures(gen: str, a, rig, tmp, clock) -> dict:
+    tot = {**{key: 0 for key in KEYS}, 'n': 0, 'outside': 0, 'outside_named': 0}
+    for kind in (a.kinds if gen == 'own' else a.independent_kinds):
+        row = {key: 0 for key in KEYS}
+        misses, gains, n = [], [], 0
+        for k in range(a.trials):
+            seed = a.seed + k
+            report, t, ts, truth = one(gen, kind, seed, k, rig, tmp / f'{gen}_{kind}_{k}')
+            clock[0], clock[1] = clock[0] + t, clock[1] + ts
+            if truth is None:   # its physics has no term in the grammar: what was named for it
+                named = [(b['channel'], b['term']) for b in report['beyond_catalog']] + \
+                    [c['name'] for c in report['causes'] if c['name'] != 'unexplained']
+                tot['outside'] += 1
+                tot['outside_named'] += bool(named)
+                print(f'{gen:<12} {kind:<20} seed {seed}: no grammar term for this physics; named {named}', flush=True)
+                continue
+            n += 1
+            got = G.check_beyond(report, truth)
+            sim = (report.get('simulation') or {}).get(CHANNEL_COLUMNS[truth['channel']])
+            gains.append('-' if sim is None or sim['gain'] is None else f'{sim["gain"]:.3g}')
+            for key, hit in (('right_term', got['right_term']), ('coefficient_30pct', got['coefficient_30pct']),
+                             ('no_catalog', not got['catalog_named']), ('covered', got['ci95_holds']),
+                             ('near_tied', got['near_tied'])):
+                row[key] += bool(hit)
+            if not (got['right_term'] and got['coefficient_30pct'] and not got['catalog_named']):
+                band = report.get('beyond_search', {}).get('within_tolerance', [])
+                within = [(b['channel'], b['term']) for b in band]
+                misses.append(f'seed {seed}: truth {truth["channel"]} {truth["term"]}={truth["coefficient"]:.4g}, '
+                              f'found {got["found"]}, within the band {within}, catalog {got["catalog_named"]}')
+        for key in row:
+            tot[key] += row[key]
+        tot['n'] += n
+        if n:
+            print(f'{gen:<12} {kind:<20} ' + ' '.join(f'{row[key]:>{w}}/{n:<2}' for key, w in zip(KEYS, (7, 6, 7, 7, 6)))
+                  + f'  {"/".join(gains):<20}  {"; ".join(misses)}', flush=True)
+    return tot
+
+
+def clean(gen: str, a, rig, tmp, clock) -> int:
+    false = 0
+    for k in range(a.clean):
+        seed = a.seed + 500 + k
+        if gen == 'own':
+            nuis = G.draw_nuisance(seed) if k % 2 else None
+            camp, what = G.make_campaign(None, seed, nuisance=nuis), 'nuisance' if nuis else 'clean'
+        else:
+            c = IG.case(seed, [])
+            camp, rig, what = c.campaign, c.rig, 'clean'
+        report, t, ts = run(camp, rig, tmp / f'{gen}_clean_{k}')
+        clock[0], clock[1] = clock[0] + t, clock[1] + ts
+        if report['beyond_catalog']:
+            false += 1
+            print(f'{gen:<12} false alarm (seed {seed}, {what}): '
+                  f'{[(b["channel"], b["term"]) for b in report["beyond_catalog"]]}', flush=True)
+    return false
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--trials', type=int, default=4, help='campaigns per departure (default 4)')
     ap.add_argument('--clean', type=int, default=6, help='campaigns with nothing to act on (default 6)')
     ap.add_argument('--seed', type=int, default=2700, help='first seed (default 2700)')
-    ap.add_argument('--kinds', default=','.join(sorted(G.BEYOND)),
-                    help='the departures to hide, comma-separated (default every one of generator.BEYOND)')
+    ap.add_argument('--kinds', default=None,
+                    help='the departures to hide, comma-separated (default every one of the generator\'s: '
+                         f'own {",".join(sorted(G.BEYOND))}; independent {",".join(IG.BEYOND)})')
+    IG.add_option(ap)
     a = ap.parse_args()
     if a.trials < 0 or a.clean < 0:
         print(f'bench_beyond: error: --trials {a.trials} / --clean {a.clean}; expected >= 0', file=sys.stderr)
         return 2
-    kinds = [k for k in a.kinds.split(',') if k]
-    unknown = [k for k in kinds if k not in G.BEYOND]
+    kinds = [k for k in (a.kinds or '').split(',') if k]
+    unknown = [k for k in kinds if k not in G.BEYOND and k not in IG.BEYOND]
     if unknown:
-        print(f'bench_beyond: error: --kinds {",".join(unknown)}; expected some of {",".join(sorted(G.BEYOND))}',
-              file=sys.stderr)
+        print(f'bench_beyond: error: --kinds {",".join(unknown)}; expected some of {",".join(sorted(G.BEYOND))} '
+              f'(own) or {",".join(IG.BEYOND)} (independent)', file=sys.stderr)
         return 2
+    a.kinds = [k for k in kinds if k in G.BEYOND] if kinds else sorted(G.BEYOND)
+    a.independent_kinds = [k for k in kinds if k in IG.BEYOND] if kinds else list(IG.BEYOND)
     rig = load_rig()
     tmp = Path(tempfile.mkdtemp(prefix='bench_beyond_'))
-    tot = {'right_term': 0, 'coefficient_30pct': 0, 'no_catalog': 0, 'covered': 0, 'near_tied': 0, 'n': 0}
-    t_all = t_search = 0.0
-    print(f'{"departure":<20} {"right term":>10} {"coef 30%":>9} {"no catalog":>10} {"ci95 holds":>10} '
-          f'{"near-tied":>9}  {"sim gain":<20}  misses', flush=True)
-    for kind in kinds:
-        row = {'right_term': 0, 'coefficient_30pct': 0, 'no_catalog': 0, 'covered': 0, 'near_tied': 0}
-        misses, gains = [], []
-        for k in range(a.trials):
-            seed = a.seed + k
-            camp, truth = G.beyond_campaign(kind, seed, nuisance=k % 2 == 1)
-            report, t, ts = run(camp, rig, tmp / f'{kind}_{k}')
-            t_all, t_search = t_all + t, t_search + ts
-            got = G.check_beyond(report, truth)
-            sim = (report.get('simulation') or {}).get(CHANNEL_COLUMNS[truth['channel']])
-            gains.append('-' if sim is None or sim['gain'] is None else f'{sim["gain"]:.3g}')
-            row['right_term'] += got['right_term']
-            row['coefficient_30pct'] += got['coefficient_30pct']
-            row['no_catalog'] += not got['catalog_named']
-            row['covered'] += got['ci95_holds']
-            row['near_tied'] += got['near_tied']
-            if not (got['right_term'] and got['coefficient_30pct'] and not got['catalog_named']):
-                band = report.get('beyond_search', {}).get('within_tolerance', [])
-                within = [(t['channel'], t['term']) for t in band]
-                misses.append(f'seed {seed}: truth {truth["term"]}={truth["coefficient"]:.4g}, found {got["found"]}, '
-                              f'within the band {within}, catalog {got["catalog_named"]}')
-        for key in row:
-            tot[key] += row[key]
-        tot['n'] += a.trials
-        print(f'{kind:<20} {row["right_term"]:>7}/{a.trials:<2} {row["coefficient_30pct"]:>6}/{a.trials:<2} '
-              f'{row["no_catalog"]:>7}/{a.trials:<2} {row["covered"]:>7}/{a.trials:<2} '
-              f'{row["near_tied"]:>6}/{a.trials:<2}  {"/".join(gains):<20}  {"; ".join(misses)}',
-              flush=True)
-    false = 0
-    for k in range(a.clean):
-        seed = a.seed + 500 + k
-        nuis = G.draw_nuisance(seed) if k % 2 else None
-        report, t, ts = run(G.make_campaign(None, seed, nuisance=nuis), rig, tmp / f'clean_{k}')
-        t_all, t_search = t_all + t, t_search + ts
-        if report['beyond_catalog']:
-            false += 1
-            print(f'false alarm (seed {seed}, {"nuisance" if nuis else "clean"}): '
-                  f'{[(b["channel"], b["term"]) for b in report["beyond_catalog"]]}', flush=True)
-    n = tot['n']
-    runs = n + a.clean
+    print(f'{"generator":<12} {"departure":<20} {"right term":>10} {"coef 30%":>9} {"no catalog":>10} '
+          f'{"ci95 holds":>10} {"near-tied":>9}  {"sim gain":<20}  misses', flush=True)
+    results = {}
+    for gen in IG.chosen(a.generator):
+        clock = [0.0, 0.0]   # the discoveries' and the searches' wall time
+        tot = departures(gen, a, rig, tmp, clock)
+        false = clean(gen, a, rig, tmp, clock)
+        results[gen] = (tot, false, clock)
     print()
-    if n:
-        print(f'right term on the right channel: {tot["right_term"]}/{n} ({100 * tot["right_term"] / n:.0f} %)')
-        print(f'coefficient within 30 %:        {tot["coefficient_30pct"]}/{n} '
-              f'({100 * tot["coefficient_30pct"] / n:.0f} %)')
-        print(f'no catalog name (truth outside): {tot["no_catalog"]}/{n} ({100 * tot["no_catalog"] / n:.0f} %)')
-        print(f'ci95 holds the true coefficient: {tot["covered"]}/{n} ({100 * tot["covered"] / n:.0f} %; the right '
-              'term found, else counted as not holding)')
-        print(f'right term near-tied (not first): {tot["near_tied"]}/{n}')
-    if a.clean:
-        print(f'false alarms:                   {false}/{a.clean} ({100 * false / a.clean:.0f} %)')
-    if runs:
-        print(f'cost: the search {t_search / runs:.2f} s of {t_all / runs:.1f} s a 12-pull discovery '
-              f'({100 * t_search / max(t_all, 1e-9):.0f} %), {runs} campaigns, inline')
+    for gen, (tot, false, (t_all, t_search)) in results.items():
+        n = tot['n']
+        runs = n + tot['outside'] + a.clean
+        print(f'{gen} generator:')
+        if n:
+            for key, what in (('right_term', 'right term on the right channel'),
+                              ('coefficient_30pct', 'coefficient within 30 %'),
+                              ('no_catalog', 'no catalog name (truth outside)'),
+                              ('covered', 'ci95 holds the true coefficient (the right term found, else not held)'),
+                              ('near_tied', 'right term near-tied (not first)')):
+                print(f'  {what + ":":<40} {tot[key]}/{n} ({100 * tot[key] / n:.0f} %)')
+        if tot['outside']:
+            print(f'  {"physics with no grammar term, named:":<40} {tot["outside_named"]}/{tot["outside"]}')
+        if a.clean:
+            print(f'  {"false alarms:":<40} {false}/{a.clean} ({100 * false / a.clean:.0f} %)')
+        if runs:
+            print(f'  cost: the search {t_search / runs:.2f} s of {t_all / runs:.1f} s a discovery '
+                  f'({100 * t_search / max(t_all, 1e-9):.0f} %), {runs} campaigns, inline')
     return 0
 
 

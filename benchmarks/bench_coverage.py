@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / 'tests' / 'force_discovery'), str(ROOT / 'tests')]   # the test generator, its timing
 
 import generator as G  # the generator
+import independent_cases as IG  # beside this script: --generator
 
 from force_discovery.core.pipeline import discover
 from force_tester_common.core.correction import MASS_KG
@@ -136,31 +137,32 @@ def tolerance(cause: str, par: str, rig, truth: float) -> float:
     return max(rel * abs(truth), ab)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--trials', type=int, default=1, help='campaigns per catalog entry and rig (default 1)')
-    ap.add_argument('--variants', default=','.join(VARIANTS), help=f'rigs, comma-separated (default all: '
-                    f'{",".join(VARIANTS)})')
-    ap.add_argument('--causes', default=','.join(sorted(G.PLAUSIBLE)), help=f'hidden catalog effects, '
-                    f'comma-separated (default all: {",".join(sorted(G.PLAUSIBLE))}); a subset keeps the seeds and '
-                    f'nuisances the full run gives those campaigns')
-    ap.add_argument('--seed', type=int, default=5000, help='first campaign seed (default 5000)')
-    a = ap.parse_args()
-    causes = [c for c in a.causes.split(',') if c]
-    bad = [c for c in causes if c not in G.PLAUSIBLE]
-    if bad:
-        raise SystemExit(f'bench_coverage: error: unknown cause(s) {bad}; expected some of {sorted(G.PLAUSIBLE)}')
-    variants = [v for v in a.variants.split(',') if v]
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad:
-        raise SystemExit(f'bench_coverage: error: unknown rig variant(s) {bad}; expected some of {list(VARIANTS)}')
-    tmp = Path(tempfile.mkdtemp(prefix='bench_coverage_'))
+def score(label: str, rep: dict, truths: dict, rig) -> list:
+    """One campaign's rows (cause, parameter, inside, half-width, half-width / tolerance), printed as they come."""
+    cands, rows = rep['candidates'], []
+    for (cause, par), truth in truths.items():
+        c = cands.get(cause)
+        if c is None or par not in c['parameters_ci95']:
+            print(f'{label:<32} {cause:<18} {par:<14} {truth:12.6g}  not reported', flush=True)
+            rows.append((cause, par, False, math.inf, math.inf))
+            continue
+        lo, hi = c['parameters_ci95'][par]
+        lo, hi = (-math.inf if lo is None else lo), (math.inf if hi is None else hi)   # None: infinite
+        est = math.inf if c['parameters'][par] is None else c['parameters'][par]   # None: infinite
+        half = 0.5 * (hi - lo)
+        tol = tolerance(cause, par, rig, truth)
+        inside = lo <= truth <= hi
+        rows.append((cause, par, inside, half, half / tol))
+        print(f'{label:<32} {cause:<18} {par:<14} {truth:12.6g} {est:12.6g} {half:11.3g} '
+              f'{half / tol:6.2f}  {"yes" if inside else "NO"}', flush=True)
+    return rows
+
+
+def own_rows(a, causes, variants, tmp) -> list:
+    """The own generator's campaigns: every rig variant x every hidden catalog effect."""
     rows = []
     n_camp = len(variants) * len(causes) * a.trials
     k = done = 0
-    t0 = time.perf_counter()
-    print(f'{"campaign":<32} {"cause":<18} {"parameter":<14} {"truth":>12} {"estimate":>12} {"half-width":>11} '
-          f'{"/tol":>6}  in', flush=True)
     for var in variants:
         data = variant_data(var)
         rig = rig_from_dict(data)
@@ -181,44 +183,92 @@ def main() -> int:
                 gen_rig, _ = true_rig(data, rig, seed, deps, nuisance)
                 camp = make_campaign(gen_rig, seed, nuisance)
                 rep = discover(camp, rig, tmp / f'{var}_{name}_{trial}', scheduler='inline')
-                cands = rep['candidates']
                 label = f'{var}/{name}{"+nuis" if nuisance else ""} ({done}/{n_camp})'
-                for (cause, par), truth in truths(name, effect, deps, gen_rig).items():
-                    c = cands.get(cause)
-                    if c is None or par not in c['parameters_ci95']:
-                        print(f'{label:<32} {cause:<18} {par:<14} {truth:12.6g}  not reported', flush=True)
-                        rows.append((var, cause, par, False, math.inf, math.inf))
-                        continue
-                    lo, hi = c['parameters_ci95'][par]
-                    lo, hi = (-math.inf if lo is None else lo), (math.inf if hi is None else hi)   # None: infinite
-                    est = math.inf if c['parameters'][par] is None else c['parameters'][par]   # None: infinite
-                    half = 0.5 * (hi - lo)
-                    tol = tolerance(cause, par, rig, truth)
-                    inside = lo <= truth <= hi
-                    rows.append((var, cause, par, inside, half, half / tol))
-                    print(f'{label:<32} {cause:<18} {par:<14} {truth:12.6g} {est:12.6g} {half:11.3g} '
-                          f'{half / tol:6.2f}  {"yes" if inside else "NO"}', flush=True)
+                rows += score(label, rep, truths(name, effect, deps, gen_rig), rig)
+    return rows
+
+
+def independent_rows(a, causes, tmp) -> list:
+    """The independent generator's campaigns: every hidden catalog effect it has, on a rig it draws per seed (the
+    datasheet, not the truth, is what `discover` is given)."""
+    rows = []
+    names = [c for c in sorted(IG.CATALOG) if c in causes]
+    n_camp = len(names) * a.trials
+    done = 0
+    for name in names:
+        for trial in range(a.trials):
+            seed = a.seed + 100 * trial + sorted(IG.CATALOG).index(name)
+            done += 1
+            c = IG.case(seed, [{'name': name}])
+            rep = discover(c.campaign, c.rig, tmp / f'independent_{name}_{trial}', scheduler='inline')
+            rows += score(f'independent/{name} ({done}/{n_camp})', rep, IG.catalog_truths(c.truth), c.rig)
+    return rows
+
+
+def summary(rows: list) -> dict:
+    """{(cause, parameter): (n, covered, median half-width / tolerance)} and the totals under None."""
+    out = {}
+    for key in sorted({(r[0], r[1]) for r in rows}):
+        sel = [r for r in rows if (r[0], r[1]) == key]
+        out[key] = (len(sel), sum(r[2] for r in sel), float(np.median([r[4] for r in sel])))
+    if rows:
+        out[None] = (len(rows), sum(r[2] for r in rows), float(np.median([r[4] for r in rows])))
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--trials', type=int, default=1, help='campaigns per catalog entry and rig (default 1)')
+    ap.add_argument('--variants', default=','.join(VARIANTS), help=f'rigs, comma-separated (default all: '
+                    f'{",".join(VARIANTS)}); the own generator\'s (the independent one draws a rig per seed)')
+    ap.add_argument('--causes', default=','.join(sorted(G.PLAUSIBLE)), help=f'hidden catalog effects, '
+                    f'comma-separated (default all: {",".join(sorted(G.PLAUSIBLE))}); a subset keeps the seeds and '
+                    f'nuisances the full run gives those campaigns')
+    ap.add_argument('--seed', type=int, default=5000, help='first campaign seed (default 5000)')
+    IG.add_option(ap)
+    a = ap.parse_args()
+    causes = [c for c in a.causes.split(',') if c]
+    bad = [c for c in causes if c not in G.PLAUSIBLE]
+    if bad:
+        raise SystemExit(f'bench_coverage: error: unknown cause(s) {bad}; expected some of {sorted(G.PLAUSIBLE)}')
+    variants = [v for v in a.variants.split(',') if v]
+    bad = [v for v in variants if v not in VARIANTS]
+    if bad:
+        raise SystemExit(f'bench_coverage: error: unknown rig variant(s) {bad}; expected some of {list(VARIANTS)}')
+    tmp = Path(tempfile.mkdtemp(prefix='bench_coverage_'))
+    t0 = time.perf_counter()
+    print(f'{"campaign":<32} {"cause":<18} {"parameter":<14} {"truth":>12} {"estimate":>12} {"half-width":>11} '
+          f'{"/tol":>6}  in', flush=True)
+    rows = {}
+    for gen in IG.chosen(a.generator):
+        rows[gen] = own_rows(a, causes, variants, tmp) if gen == 'own' else independent_rows(a, causes, tmp)
     wall = time.perf_counter() - t0
+    sums = {gen: summary(r) for gen, r in rows.items()}
     print()
-    print(f'{"parameter":<34} {"n":>4} {"covered":>8} {"median half-width / tolerance":>30}')
-    keys = sorted({(r[1], r[2]) for r in rows})
-    for cause, par in keys:
-        sel = [r for r in rows if (r[1], r[2]) == (cause, par)]
-        cov = sum(r[3] for r in sel)
-        print(f'{cause + "." + par:<34} {len(sel):>4} {cov:>4}/{len(sel):<3} {np.median([r[5] for r in sel]):30.3g}')
-    n = len(rows)
-    cov = sum(r[3] for r in rows)
-    med = float(np.median([r[5] for r in rows]))
-    useful = sum(r[5] < 1.0 for r in rows)
-    print(f'coverage {cov}/{n} = {100 * cov / n:.0f} % of 95 % intervals hold the truth (target >= 90 % over >= 50); '
-          f'median half-width / tolerance {med:.2f} (target < 1; {useful}/{n} below 1); {n_camp} campaigns, '
-          f'{wall:.0f} s')
-    # an absent delay is fitted at the delay grid's lower bound 0 with an interval [0, 0]: a hit by construction
-    real = [r for r in rows if not (r[1] == 'accel_delay' and r[4] == 0.0)]
-    cov_r = sum(r[3] for r in real)
-    print(f'without the {n - len(real)} absent delays found at the grid bound 0 with [0, 0]: coverage {cov_r}/'
-          f'{len(real)} = {100 * cov_r / len(real):.0f} %, median half-width / tolerance '
-          f'{float(np.median([r[5] for r in real])):.2f}')
+    head = ''.join(f'  {gen + ": n covered  median half-width/tol":>40}' for gen in sums)
+    print(f'{"parameter":<34}{head}')
+    for key in sorted({k for s in sums.values() for k in s if k is not None}):
+        cells = ''
+        for s in sums.values():
+            n, cov, med = s.get(key, (0, 0, math.nan))
+            cells += f'  {n:>9} {cov:>4}/{n:<3} {med:>22.3g}' if n else f'  {"-":>40}'
+        print(f'{key[0] + "." + key[1]:<34}{cells}')
+    for gen, r in rows.items():
+        if not r:
+            continue
+        n, cov, med = sums[gen][None]
+        useful = sum(x[4] < 1.0 for x in r)
+        print(f'{gen} generator: coverage {cov}/{n} = {100 * cov / n:.0f} % of 95 % intervals hold the truth '
+              f'(target >= 90 % over >= 50); median half-width / tolerance {med:.2f} (target < 1; {useful}/{n} '
+              f'below 1)')
+        # an absent delay is fitted at the delay grid's lower bound 0 with an interval [0, 0]: a hit by construction
+        real = [x for x in r if not (x[0] == 'accel_delay' and x[3] == 0.0)]
+        if len(real) < n:
+            cov_r = sum(x[2] for x in real)
+            print(f'  without the {n - len(real)} absent delays found at the grid bound 0 with [0, 0]: coverage '
+                  f'{cov_r}/{len(real)} = {100 * cov_r / len(real):.0f} %, median half-width / tolerance '
+                  f'{float(np.median([x[4] for x in real])):.2f}')
+    print(f'{wall:.0f} s')
     return 0
 
 

@@ -1,6 +1,7 @@
 """Benchmark: does each pull's corrected peak +/- U (k = 2) hold the truth? (./ft bench peak_coverage)
 
     ./ft bench peak_coverage [--pulls N] [--nuisance-seeds M] [--drawn-seeds D] [--no-reference] [--json FILE]
+                             [--generator own|independent|both] [--independent-seeds I]
 
 Campaigns (the code under test, the correction and force_correction.core.peak_uncertainty, sees only the data,
 the rig YAML as a user states it and, for the reference campaign, the extension.yaml `./ft discover` found on
@@ -13,6 +14,10 @@ it; never the truth):
   - drawn: nominal rigs whose true gain, m2 and accelerometer lag are drawn from the uncertainties the rig YAML
     states (the inputs of U): a U that covers these ~95 % of the time is as small as the inputs allow;
   - heavy_25khz: another rig, m2 = 2.0 kg (1.7x) sampled at 25 kHz; corrected with that rig's YAML.
+  (these four are the own generator's: force_tester_sim, the physics the correction was shaped on)
+  - independent (--generator independent|both): tests/independent's campaigns (benchmarks/independent_cases.py),
+    physics written apart from ours, on a rig drawn per seed (m2 0.8-1.6 kg, cells x0.5-2, 10-100 kHz, a real
+    DAQ chain), one pull of each set, no departure; corrected with that rig's datasheet as the rig YAML.
 For each pull: P the corrected peak, U its expanded uncertainty, and three references:
   - T: the lanyard tension's peak (the sim's truth, read by this script only): what eq 24 estimates;
   - S: the stationary cell's peak, as measured. The stationary cell reads T - m1 a1, not T: m1 rings on its
@@ -39,6 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / 'tests' / 'force_discovery'), str(ROOT / 'tests')]   # the test generator, its timing
 
 import generator as G  # the generator
+import independent_cases as IG  # beside this script: --generator
 
 from force_correction.core.extension import Extension, ForcePrefilter
 from force_correction.core.params import CorrectionParams
@@ -155,6 +161,16 @@ def heavy_25khz(pulls: int) -> list:
     return rows
 
 
+def independent(seeds: int) -> list:
+    rows = []
+    for seed in range(seeds):
+        c = IG.case(7000 + seed, [], pulls=len(SETS), sets=SETS)
+        inputs = peak_inputs(c.rig)
+        for (meta, ch), peak in zip(c.campaign, IG.pull_tensions(c.truth)):
+            rows.append(score(c.rig, Extension(), inputs, ch, np.array([peak]), c.rig.force_chain.moving_side_mass_kg))
+    return rows
+
+
 def summary(rows: list) -> dict:
     n = len(rows)
     if not n:
@@ -183,25 +199,33 @@ def main(argv=None) -> int:
                     help='rigs with constants drawn from their stated uncertainties (one pull of each set; '
                          'default 20)')
     ap.add_argument('--no-reference', action='store_true', help='skip the reference campaign (and its discovery)')
+    ap.add_argument('--independent-seeds', type=int, default=4,
+                    help='independent campaigns (a rig each, one pull of each set; default 4)')
     ap.add_argument('--json', type=Path, help='write the figures to this file')
+    IG.add_option(ap)
     args = ap.parse_args(argv)
-    if args.pulls < 1 or args.nuisance_seeds < 0 or args.drawn_seeds < 0:
+    if args.pulls < 1 or min(args.nuisance_seeds, args.drawn_seeds, args.independent_seeds) < 0:
         ap.error(f'--pulls {args.pulls} / --nuisance-seeds {args.nuisance_seeds}: expected >= 1 / >= 0')
 
     def say(line):
         print(line, file=sys.stderr, flush=True)
     groups = {}
-    if not args.no_reference:
-        say('reference campaign (truth rig, discovered extension) ...')
-        groups['reference'] = reference(args.pulls, say)
-    say('nuisance campaigns ...')
-    groups['nuisance'] = nuisance(args.nuisance_seeds, args.pulls)
-    if args.drawn_seeds:
-        say('rigs with constants drawn from their stated uncertainties ...')
-        groups['drawn'] = drawn(args.drawn_seeds)
-    say('heavy m2, 25 kHz rig ...')
-    groups['heavy_25khz'] = heavy_25khz(args.pulls)
-    groups['all'] = [r for g in list(groups.values()) for r in g]
+    gens = IG.chosen(args.generator)
+    if 'own' in gens:
+        if not args.no_reference:
+            say('reference campaign (truth rig, discovered extension) ...')
+            groups['reference'] = reference(args.pulls, say)
+        say('nuisance campaigns ...')
+        groups['nuisance'] = nuisance(args.nuisance_seeds, args.pulls)
+        if args.drawn_seeds:
+            say('rigs with constants drawn from their stated uncertainties ...')
+            groups['drawn'] = drawn(args.drawn_seeds)
+        say('heavy m2, 25 kHz rig ...')
+        groups['heavy_25khz'] = heavy_25khz(args.pulls)
+        groups['own: all'] = [r for g in list(groups.values()) for r in g]
+    if 'independent' in gens and args.independent_seeds:
+        say('independent generator campaigns ...')
+        groups['independent'] = independent(args.independent_seeds)
     figs = {k: summary(v) for k, v in groups.items()}
     print(f"{'campaign':<12} {'pulls':>5} {'|P-T|<=U':>9} {'|P-S|<=U':>9} {'S+m1a1':>7} {'MA |F-T|':>9} "
           f"{'median U':>9} {'median U':>9} {'max U':>6} {'med |P-T|/U':>11} {'S-T':>6}")

@@ -1,0 +1,119 @@
+"""The generators a discovery benchmark runs on: `--generator own|independent|both`.
+
+- own: tests/force_discovery/generator.py on force_tester_sim, the physics the search, the budgets and the catalog
+  were shaped on;
+- independent: tests/independent/rig.py, written by a helper from tests/independent/SPEC.md alone (its own state
+  formulation, an implicit integrator on the coupled system, a real DAQ chain, a rig drawn per seed: m2 0.8-1.6 kg,
+  cells x0.5-2, 10-100 kHz). See tests/independent/PROVENANCE.md.
+
+A figure from the independent column is a figure on physics the search was not shaped on. Each benchmark keeps its
+own generator's campaigns as they were; this module gives the independent generator's campaigns the same shape
+(`Case`: the campaign, the rig YAML a lab would state, which is the datasheet and never the truth, and the truth
+record the benchmark alone reads) and the truths each benchmark scores against.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / 'tests' / 'independent')]
+
+import rig as R  # the independent generator
+
+from force_tester_sim.core.params import rig_from_dict
+
+GENERATORS = ('own', 'independent')
+# an independent campaign's layout: the own generator's (3 sets x 4 pulls), on the same sets
+SETS = (2, 3, 4)
+PULLS = 12
+# every channel present: a missing channel is another question (issue 40's), not the one these figures answer
+ALL_CHANNELS = {'daq.absent': []}
+CATALOG = R.CATALOG          # the catalog entries the independent generator can hide
+BEYOND = R.BEYOND            # its departures outside the catalog
+ALWAYS = (('moving_cell_gain', 'gain'), ('effective_mass', 'mass_kg'), ('accel_delay', 'delay_s'))
+
+
+def add_option(ap) -> None:
+    ap.add_argument('--generator', choices=(*GENERATORS, 'both'), default='own',
+                    help='own: the physics the search was shaped on (force_tester_sim); independent: '
+                         'tests/independent, written apart from it; both: the two side by side (default own)')
+
+
+def chosen(value: str) -> tuple:
+    return GENERATORS if value == 'both' else (value,)
+
+
+@dataclass(frozen=True)
+class Case:
+    campaign: list
+    rig: object          # force_tester_sim RigParams from the datasheet: what `discover` is given
+    truth: dict          # the generator's truth record: read by the benchmark only
+
+
+def case(seed: int, departures, *, pulls: int = PULLS, sets=SETS, all_channels: bool = True) -> Case:
+    """An independent campaign with these departures (a list of {'name': ...}, [] for none, or 'catalog' /
+    'beyond' / 'draw' for the generator's own draw)."""
+    camp, truth = R.generate_campaign(seed, n_pulls=pulls, sets=list(sets), departures=departures,
+                                      rig=ALL_CHANNELS if all_channels else None)
+    return Case(camp, rig_from_dict(yaml.safe_load(R.rig_yaml(truth))), truth)
+
+
+def _accel_lead_s(truth: dict) -> float:
+    """How far the accelerometer's samples lead the moving cell's: its DAQ slot is later, so it samples later."""
+    ch = truth['daq']['channels']
+    return ch['accel_axial_m_s2']['skew_s'] - ch['force_moving_n']['skew_s']
+
+
+def observed_mount(dep: dict) -> float:
+    """The mount's mode as the accelerometer sees it after the break: the lanyard-free mode of the coupled chain
+    nearest the bracket's own frequency."""
+    params = dep['params']
+    modes = params.get('modal_frequencies_hz', {}).get('lanyard_free') or [params['frequency_hz']]
+    return min(modes, key=lambda f: abs(f - params['frequency_hz']))
+
+
+def catalog_truths(truth: dict) -> dict:
+    """{(cause, parameter): true value} for every catalog departure of the truth, and the three parameters the
+    force model always fits (the moving cell's gain, the effective mass, the accelerometer's delay against the
+    moving cell: its conditioning delay less its DAQ slot's lead)."""
+    deps = {d['catalog']['name']: d for d in truth['departures'] if d.get('catalog')}
+    out = {('moving_cell_gain', 'gain'): 1.0,
+           ('effective_mass', 'mass_kg'): truth['rig']['force_chain.moving_side_mass_kg'],
+           ('accel_delay', 'delay_s'): -_accel_lead_s(truth)}
+    for name, d in deps.items():
+        params = d['catalog']['params']
+        if name == 'mount_resonance':
+            out[(name, 'frequency_hz')] = observed_mount(d)
+            out[(name, 'damping_ratio')] = params['damping_ratio']
+        elif name == 'accel_delay':
+            out[(name, 'delay_s')] = params['delay_s'] - _accel_lead_s(truth)
+        else:
+            for k, v in params.items():
+                out[(name, k)] = v
+    return out
+
+
+def hidden(truth: dict) -> list:
+    """The names of the truth's catalog departures."""
+    return [d['catalog']['name'] for d in truth['departures'] if d.get('catalog')]
+
+
+def beyond_term(truth: dict):
+    """The first grammar term the truth's departures state ({channel, term, coefficient}), or None when the
+    departure has none (its physics is outside the grammar)."""
+    terms = R.grammar_terms(truth)
+    return terms[0] if terms else None
+
+
+def pull_tensions(truth: dict) -> list:
+    """The lanyard tension's peak of each pull, in campaign order (the truth the corrected peak estimates)."""
+    return [p['peak_tension_n'] for p in truth['pulls']]
+
+
+def fmt(value) -> str:
+    return '-' if value is None or (isinstance(value, float) and math.isnan(value)) else str(value)
