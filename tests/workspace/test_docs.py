@@ -256,3 +256,23 @@ def test_the_channel_map_reference_names_every_key_and_channel():
     want = set(MAP_KEYS) | set(CHANNELS) | set(example) | keys_of(example['channels'])
     missing = sorted(want - named_in('reference-channel-map.md'))
     assert not missing, f'docs/reference-channel-map.md does not name {missing}'
+
+
+def test_the_rig_yaml_reference_states_the_nominal_values():
+    """Each `| `key` | value |` row of a section's table in docs/reference-rig-yaml.md holds nominal.yaml's value."""
+    import yaml
+
+    from force_tester_sim.core.params import NOMINAL_YAML
+    nominal = yaml.safe_load(NOMINAL_YAML.read_text())
+    text = (ROOT / 'docs' / 'reference-rig-yaml.md').read_text()
+    checked, wrong = 0, []
+    for section in ('daq', 'drive', 'force_chain', 'sensors', 'tolerances'):
+        part = text[text.index(f'## `{section}:`'):]
+        part = part[:part.index('\n## ', 1)]
+        for keys, values in re.findall(r'^\| ((?:`\w+`(?:, )?)+) \| ([^|]+) \|', part, re.M):
+            for key, value in zip(re.findall(r'`(\w+)`', keys), re.split(r',\s*(?![^\[]*\])', values.strip())):
+                checked += 1
+                if yaml.safe_load(value) != nominal[section][key]:
+                    wrong.append(f'{section}.{key}: {value} (nominal.yaml: {nominal[section][key]})')
+    assert not wrong, wrong
+    assert checked == sum(len(nominal[s]) for s in ('daq', 'drive', 'force_chain', 'sensors', 'tolerances'))
