@@ -47,19 +47,34 @@ def chosen(value: str) -> tuple:
     return GENERATORS if value == 'both' else (value,)
 
 
+REDRAWS = 5              # rigs drawn in turn when one cannot make a pull of a set (the generator raises)
+REDRAW_STEP = 100_003    # the seed's step from one draw to the next
+
+
 @dataclass(frozen=True)
 class Case:
     campaign: list
     rig: object          # force_tester_sim RigParams from the datasheet: what `discover` is given
     truth: dict          # the generator's truth record: read by the benchmark only
+    seed: int            # the seed that made it (the one asked for, or a redraw's)
 
 
 def case(seed: int, departures, *, pulls: int = PULLS, sets=SETS, all_channels: bool = True) -> Case:
     """An independent campaign with these departures (a list of {'name': ...}, [] for none, or 'catalog' /
-    'beyond' / 'draw' for the generator's own draw)."""
-    camp, truth = R.generate_campaign(seed, n_pulls=pulls, sets=list(sets), departures=departures,
-                                      rig=ALL_CHANNELS if all_channels else None)
-    return Case(camp, rig_from_dict(yaml.safe_load(R.rig_yaml(truth))), truth)
+    'beyond' / 'draw' for the generator's own draw). A drawn rig that cannot make an admissible pull of one of the
+    sets (the generator's rejection rules give up on it) is drawn again with the next seed, said on stderr."""
+    for k in range(REDRAWS):
+        s = seed + k * REDRAW_STEP
+        try:
+            camp, truth = R.generate_campaign(s, n_pulls=pulls, sets=list(sets), departures=departures,
+                                              rig=ALL_CHANNELS if all_channels else None)
+        except RuntimeError as exc:
+            if 'no admissible' not in str(exc):
+                raise
+            print(f'independent generator, seed {s}: {exc}; drawing the rig again', file=sys.stderr, flush=True)
+            continue
+        return Case(camp, rig_from_dict(yaml.safe_load(R.rig_yaml(truth))), truth, s)
+    raise RuntimeError(f'independent generator: no admissible campaign in {REDRAWS} rigs from seed {seed}')
 
 
 def _accel_lead_s(truth: dict) -> float:
