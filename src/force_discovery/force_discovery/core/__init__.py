@@ -18,8 +18,10 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - candidate.py    Candidate and Evidence: what a stage says about one cause (frozen)
 - stages.py       the stages: each turns its channel's per-pull results into Candidates; Analysis; the method
 - decision.py     the decision: named, within tolerance, inconclusive, withheld
-- beyond.py       beyond the catalog: a grammar of candidate terms searched on what the named causes leave
-                  (forward selection, held-out test, jackknife intervals, the catalog's priority, interpretation)
+- beyond/         beyond the catalog: a grammar of candidate terms searched on what the named causes leave, one
+                  module a job (its docstring lists them): the grammar, the per-pull series, the spectrum pass,
+                  the normal equations, the forward selection, the catalog's priority, the search, the
+                  interpretation, the plots' traces
 - leftover.py     the leftover structure no catalog entry explains
 - force_errors.py the held-out force-channel error, model of record vs extended
 - resim.py        closing the loop: the held-out pulls re-simulated with and without the extension

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from . import quality as Q
 from . import stages
-from .beyond import NEAR_TIE
+from .beyond.selection import NEAR_TIE
 from .budget import COMBINED, KIND
 
 

@@ -183,10 +183,12 @@ def add_simulation(report: dict, check) -> None:
 
 
 def add_beyond(report: dict, found) -> None:
-    """report.json beyond_catalog (beyond.py's named terms, best first) and beyond_search (how the search ran, the
-    terms inside their band, the catalog causes a term fits better); with no catalog cause named, a term found makes
-    the cause 'beyond_catalog' instead of 'unexplained' or 'none'."""
-    from .beyond import CHANNEL_UNITS, SEARCHED, library
+    """report.json beyond_catalog (the beyond package's named terms, best first) and beyond_search (how the search
+    ran, the terms inside their band, the catalog causes a term fits better); with no catalog cause named, a term
+    found makes the cause 'beyond_catalog' instead of 'unexplained' or 'none'."""
+    from force_tester_sim.core.extra_terms import CHANNEL_UNITS
+
+    from .beyond.grammar import SEARCHED, library
     report['beyond_catalog'] = clean([t.as_dict() for t in found.terms])
     report['beyond_search'] = clean({
         'channels': list(SEARCHED), 'library_terms': len(library()), 'frequencies_hz': found.frequencies,

@@ -186,7 +186,7 @@ class HeldJob:
 
 @dataclass(frozen=True)
 class BeyondJob:
-    """The search beyond the catalog (beyond.py), one pull: the residuals after the named causes."""
+    """The search beyond the catalog (core/beyond/), one pull: the residuals after the named causes."""
 
     f_hum: float
     hum_scale: Optional[float]          # the hum estimate's factor (None: the hum is not named)
@@ -314,7 +314,7 @@ def held_out(item) -> HeldOut:
 
 
 def beyond_pass(item, series: bool = False):
-    """Pass 5 (beyond.py): item = (Source, rig, c1, BeyondJob); the pull's residual spectra (job.survey None) or
+    """Pass 5 (core/beyond/): item = (Source, rig, c1, BeyondJob); the pull's residual spectra (job.survey None) or
     its library statistics (series=True: its beyond.channel_series)."""
     src, rig, c1, job = item
     p = load_pull(src, rig, c1)
@@ -515,7 +515,7 @@ class Stream:
         return err_hum, (frozenset(terms), *fit_terms(self.fm_h if err_hum else self.fm_0, terms, analysis.fit))
 
     def beyond(self, analysis: Analysis, decision: Decision) -> bey.BeyondResult:
-        """Pass 5: the search beyond the catalog (beyond.py) on the residuals the named causes leave: the residual
+        """Pass 5: the search beyond the catalog (core/beyond/) on the residuals the named causes leave: the residual
         spectra of a few fitted pulls, then every usable pull's library statistics."""
         import time
         t0 = time.perf_counter()
@@ -665,7 +665,7 @@ def systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, r
 
 
 def with_beyond(decision: Decision, found: bey.BeyondResult) -> Decision:
-    """The decision with the catalog causes a library term fits better (beyond.search_channel) withheld."""
+    """The decision with the catalog causes a library term fits better (beyond.selection.search_channel) withheld."""
     new = {n: why for n, why in found.demoted.items() if n not in decision.rejected}
     if not new:
         return decision

@@ -35,14 +35,21 @@ def t_quantile(n: int) -> float:
     return float(t.ppf(q, n - 1)) if n >= 2 else float(norm.ppf(q))
 
 
+def jackknife_se(leave_one_out: np.ndarray) -> np.ndarray:
+    """The jackknife standard error of an estimate (or, column by column, of several) from its delete-one-pull
+    refits (one row per pull left out): sqrt((n - 1)/n sum (theta_(-k) - mean)^2)."""
+    loo = np.asarray(leave_one_out, float)
+    n = len(loo)
+    return np.sqrt((n - 1) / n * np.sum((loo - loo.mean(0)) ** 2, axis=0))
+
+
 def jackknife_ci(estimate: float, leave_one_out: Sequence[float]) -> Tuple[float, float]:
     """CONFIDENCE interval of a pooled estimate from its delete-one-pull refits."""
     loo = np.asarray(leave_one_out, float)
     n = len(loo)
     if n < 2 or not np.all(np.isfinite(loo)):
         return -math.inf, math.inf
-    se = math.sqrt((n - 1) / n * float(np.sum((loo - loo.mean()) ** 2)))
-    h = t_quantile(n) * se
+    h = t_quantile(n) * float(jackknife_se(loo))
     return float(estimate - h), float(estimate + h)
 
 
