@@ -37,8 +37,10 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
                   number of pulls supports
 - reference_fit.py ... with the stationary cell (no encoder, or 1-3 pulls): g and m2 apart, leave-one-out
 - free_report.py  ... its report.json, report.md and extension.yaml
-- stream.py       the driver: the per-pull passes on the campaign engine, memory flat in the number of pulls
-- pipeline.py     discover(): the entry point
+- passes.py       the per-pull passes (read, cells, hum, statistics, held-out, beyond), each a function the campaign
+                  engine maps over the pulls, with its settings and its small result
+- stream.py       the driver: the passes in order on the campaign engine, memory flat in the number of pulls
+- pipeline.py     discover(): the entry point; the path a campaign takes, the stages in order
 - report.py       report.json (the one place Candidates become dicts); markdown.py report.md; extension.py
                   extension.yaml; plots.py the figures; outputs.py writes the folder whole
 - errors.py       DiscoveryError

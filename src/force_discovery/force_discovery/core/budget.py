@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 from typing import Dict, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
@@ -38,7 +39,8 @@ from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 
 from .candidate import Candidate
 from .force_model import TERMS, force_params
-from .friction import friction_row
+from .force_stats import ForceStats
+from .friction import friction_row, friction_stat
 from .prep import Pull, tension_from_stationary
 from .uncertainty import CONFIDENCE, t_quantile
 
@@ -351,7 +353,34 @@ def clock_relative(rig) -> float:
     return rig.uncertainty.relative('daq.sample_rate_hz', rig.daq.sample_rate_hz)
 
 
-__all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative',
-           'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all',
-           'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
-           'term_budget', 'variant_pulls']
+def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float,
+                         joint: bool = False, hum_freqs: Sequence[float] = ()) -> dict:
+    """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (module doc) from pass 3's variant
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount), the few
+    pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the viscous damping fitted)."""
+    out: dict = {}
+    vidx = [j for j in fit if stats[j].variants is not None]
+    if vidx:
+        def sub(get):
+            return ForceStats([get(stats[j]) for j in vidx], [stats[j].dt for j in vidx], m2,
+                              None if scales is None else [scales[j] for j in vidx])
+        names = list(stats[vidx[0]].variants)
+        fs = force_systematics(sub(lambda st: st.blocks), {n: sub(lambda st, n=n: st.variants[n]) for n in names},
+                               range(len(vidx)), m2)
+        u_stat = {t: {p: (rate_stat_u(t, cand[t]) if t == 'ac_coupling' else statistical_u(t, cand[t], p))
+                      for p in cand[t].parameters} for t in TERMS}
+        all_blocks = ForceStats([st.blocks for st in stats], [st.dt for st in stats], m2, scales)
+        ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat, delay)
+        for t, params in fs.items():
+            for p, comps in params.items():
+                out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+    out.update(pull_to_pull_parts(cand, modes, hum_freqs))
+    if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
+        out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint))}
+    return out
+
+
+__all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
+           'clock_relative', 'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants',
+           'honest', 'honest_all', 'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u',
+           'statistical_u', 'term_budget', 'variant_pulls']

@@ -44,7 +44,7 @@ The modules, in the order a search runs:
 
 - grammar.py          the library per channel, the channels searched, each channel's band
 - series.py           per pull: each channel's residual and signals (ChannelSeries), the sensors' terms taken out
-- spectrum.py         the spectrum pass on a few fitted pulls: the signals' scales, each channel's line (Survey)
+- spectrum.py         the spectrum pass on a few fitted pulls: the signals' scales, each channel's line (SearchSettings)
 - normal_equations.py per pull: the library's normal equations per channel (ChannelStats, BeyondPart)
 - selection.py        one channel's forward selection, its jackknife intervals (Model, Term, ChannelResult)
 - priority.py         the catalog's priority on the moving cell (cause_check)
@@ -59,11 +59,11 @@ from .priority import CAUSE_PARAMS
 from .search import BeyondResult, search
 from .selection import NEAR_TIE, Term, near_tied, search_channel
 from .series import ChannelSeries, channel_series, decimation, sensor_corrected
-from .spectrum import REFINE_PULLS, Survey, spectrum_part, survey_from
+from .spectrum import REFINE_PULLS, SearchSettings, settings_from, spectrum_part
 from .traces import TermTrace, term_traces
 
 __all__ = ['CAUSE_PARAMS', 'COULOMB', 'NEAR_TIE', 'REFINE_PULLS', 'SEARCHED', 'SENSORS', 'BeyondPart', 'BeyondResult',
-           'ChannelSeries', 'ChannelStats', 'Survey', 'Term', 'TermTrace', 'beyond_part',
+           'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'beyond_part',
            'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
-           'near_tied', 'search', 'search_channel', 'sensor_corrected', 'spectrum_part', 'survey_from',
+           'near_tied', 'search', 'search_channel', 'sensor_corrected', 'spectrum_part', 'settings_from',
            'term_traces']

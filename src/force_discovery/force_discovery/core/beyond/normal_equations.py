@@ -13,7 +13,7 @@ from force_tester_sim.core.extra_terms import SIGNALS, SIN, parse_term, term_nam
 
 from .grammar import OWN_SIGNALS, SIN_FACTORS, channel_library
 from .series import ChannelSeries
-from .spectrum import Survey
+from .spectrum import SearchSettings
 
 
 class Column(NamedTuple):
@@ -70,12 +70,12 @@ def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], 
     return list(names), X, sins
 
 
-def beyond_part(series: Dict[str, ChannelSeries], survey: Survey) -> BeyondPart:
-    """The pull's normal equations (ChannelStats) on each of its channels, with the survey's scales and lines."""
+def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> BeyondPart:
+    """The pull's normal equations (ChannelStats) on each of its channels, with the settings' scales and lines."""
     out = {}
     for ch, cs in series.items():
         y = cs.residual
-        names, X, sins = columns(ch, cs.signals, survey.scales, survey.freq.get(ch))
+        names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
         full = np.column_stack([X] + [np.column_stack([c, s]) for _, c, s in sins]) if sins else X
         cat = cs.catalog
         catalog = None if cat is None else Column(float(cat @ cat), full.T @ cat, float(cat @ y))

@@ -8,7 +8,7 @@ from force_tester_sim.core.extra_terms import SIN
 
 from .normal_equations import ChannelStats
 from .selection import PRIORITY_MARGIN, Model, Term, search_channel, sse
-from .spectrum import Survey
+from .spectrum import SearchSettings
 
 # parameters of each force-model cause the check weighs against library terms (the hum: amplitude and phase)
 CAUSE_PARAMS = {'moving_cell_gain': 1, 'effective_mass': 1, 'accel_delay': 1, 'ac_coupling': 1, 'mains_hum': 2}
@@ -28,14 +28,14 @@ def undone(st: ChannelStats, cause: str) -> ChannelStats:
     return st._replace(xy=st.xy + c.cx, yy=st.yy + 2 * c.cy + c.cc)
 
 
-def cause_check(fit: Sequence[ChannelStats], held: Sequence[ChannelStats], model: Model, survey: Survey, rig,
+def cause_check(fit: Sequence[ChannelStats], held: Sequence[ChannelStats], model: Model, settings: SearchSettings, rig,
                 cause: str) -> CauseCheck:
     """Whether the named force-model cause keeps priority: the library is searched again on the moving cell's
     residual with the cause undone, and if it does as well on the held-out pulls with no more parameters
     (CAUSE_PARAMS: the cause's), the cause is withheld."""
     n_prod = sum(1 for nm in fit[0].names if not nm.endswith(SIN))
     fit0, held0 = [undone(st, cause) for st in fit], [undone(st, cause) for st in held]
-    found0, _, model0 = search_channel('force_moving', fit0, held0, survey, rig, False)
+    found0, _, model0 = search_channel('force_moving', fit0, held0, settings, rig, False)
     n_cause = CAUSE_PARAMS.get(cause, 1)
     k_cat = len(model.prod) + (model.sin is not None) + n_cause
     k_lib = len(model0.prod) + (model0.sin is not None)

@@ -10,7 +10,7 @@ from .grammar import COULOMB, SEARCHED
 from .normal_equations import BeyondPart
 from .priority import cause_check
 from .selection import Term, search_channel
-from .spectrum import Survey
+from .spectrum import SearchSettings
 from .traces import TermTrace
 
 
@@ -24,7 +24,7 @@ class BeyondResult:
     seconds: float = 0.0
 
 
-def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int], survey: Survey, rig,
+def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int], settings: SearchSettings, rig,
            named: Sequence[str], channels: Sequence[str] = SEARCHED, sensors: bool = False) -> BeyondResult:
     """The search over the channels (the package docstring; default every searched one): parts in the usable pulls'
     order; sensors: terms were found on the sensors on their own (the force model's causes are checked then)."""
@@ -34,7 +34,7 @@ def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int],
         if not all(ch in parts[j].stats for j in (*fit, *held)):
             continue
         fit_st, held_st = [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held]
-        found, why, model = search_channel(ch, fit_st, held_st, survey, rig,
+        found, why, model = search_channel(ch, fit_st, held_st, settings, rig,
                                            COULOMB in named and ch == 'motor_current')
         if why is not None:
             demoted[COULOMB] = why
@@ -42,11 +42,11 @@ def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int],
             # a term on the moving cell, or a sensor the force model was fitted with read wrong: does each named
             # force-model cause still explain more than library terms would?
             for cause in fit_st[0].causes:
-                why = cause_check(fit_st, held_st, model, survey, rig, cause).demoted
+                why = cause_check(fit_st, held_st, model, settings, rig, cause).demoted
                 if why is not None:
                     demoted[cause] = why
         terms += [t for t in found if t.named]
         within += [t for t in found if not t.named]
     terms.sort(key=lambda t: -t.rel_sse_reduction)
     return BeyondResult(terms=tuple(terms), within_tolerance=tuple(within), demoted=demoted,
-                        frequencies=dict(survey.freq), seconds=time.perf_counter() - t0)
+                        frequencies=dict(settings.freq), seconds=time.perf_counter() - t0)

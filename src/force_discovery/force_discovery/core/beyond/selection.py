@@ -19,7 +19,7 @@ from ..uncertainty import jackknife_se, t_quantile
 from .grammar import RELATIVE, channel_band, si_factor
 from .interpretation import interpretation
 from .normal_equations import ChannelStats
-from .spectrum import Survey
+from .spectrum import SearchSettings
 
 MAX_TERMS = 3
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
@@ -166,12 +166,12 @@ def jackknife(stats: Sequence[ChannelStats], model: Model, n_prod: int) -> np.nd
     return np.column_stack([est - q * u, est + q * u])
 
 
-def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[ChannelStats], survey: Survey, rig,
-                   catalog_named: bool) -> ChannelResult:
+def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[ChannelStats],
+                   settings: SearchSettings, rig, catalog_named: bool) -> ChannelResult:
     """The forward selection on one channel (the module docstring): fit/held are the fitted and held-out pulls'
     statistics (BeyondPart.stats[channel])."""
     names = fit[0].names
-    f_hz = survey.freq.get(channel)
+    f_hz = settings.freq.get(channel)
     n_sin = sum(1 for n in names if n.endswith(SIN))
     n_prod = len(names) - n_sin
     use_cat = catalog_named and fit[0].catalog is not None and channel == 'motor_current'
@@ -234,7 +234,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             norm = sum(st.gram[col, col] for st in held)
         rms_unit = math.sqrt(norm / max(n_held, 1))
         lo, hi = sorted(cif)
-        si = si_factor(name, survey.scales)
+        si = si_factor(name, settings.scales)
         budget, (lo, hi) = term_budget(fit, model.prod, col, coef, (lo, hi), si, relative_part(channel, rig))
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit

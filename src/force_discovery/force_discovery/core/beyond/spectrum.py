@@ -28,8 +28,8 @@ class ChannelSpectrum(NamedTuple):
 
 
 @dataclass(frozen=True)
-class Survey:
-    """The search's settings from a few fitted pulls (survey_from): the signals' scales and each channel's
+class SearchSettings:
+    """The search's settings from a few fitted pulls (settings_from): the signals' scales and each channel's
     residual-spectrum line."""
 
     scales: Dict[str, float]
@@ -86,8 +86,8 @@ def refine_frequency(f0: float, step: float, records: Sequence[Tuple[np.ndarray,
     return float(grid[4])
 
 
-def survey_from(parts: Sequence[Dict[str, ChannelSpectrum]], dt_dec: float) -> Survey:
-    """The search's Survey from spectrum_part()s of a few fitted pulls."""
+def settings_from(parts: Sequence[Dict[str, ChannelSpectrum]], dt_dec: float) -> SearchSettings:
+    """The search's SearchSettings from spectrum_part()s of a few fitted pulls."""
     f = np.fft.rfftfreq(SPECTRUM_POINTS, dt_dec)
     ok = (f > MIN_HZ) & (f < LEFTOVER_BAND_HZ)
     freq, scales = {}, {}
@@ -101,4 +101,4 @@ def survey_from(parts: Sequence[Dict[str, ChannelSpectrum]], dt_dec: float) -> S
             if ch in part:
                 for s, r in part[ch].rms.items():
                     scales[s] = max(scales.get(s, 0.0), r)
-    return Survey({s: (v if v > 0 else 1.0) for s, v in scales.items()}, freq)
+    return SearchSettings({s: (v if v > 0 else 1.0) for s, v in scales.items()}, freq)
