@@ -86,7 +86,7 @@ def main(args) -> int:
 
 
 def print_reference_free(report: dict, out: Path) -> int:
-    """What the reference-free path says on the terminal (force_discovery/core/free.py)."""
+    """What the reference-free path says on the terminal (force_discovery/core/without_reference/)."""
     if not report['fitted_pulls']:
         return _error(f'no usable pulls without a reference ({len(report["excluded_pulls"])} excluded, '
                       f'{len(report["failed_pulls"])} unreadable); expected a record with an event and free phases '

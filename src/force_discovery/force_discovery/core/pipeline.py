@@ -15,13 +15,13 @@ from . import beyond as bey
 from .decision import Decision, decide
 from .errors import DiscoveryError
 from .extension import add_extra_terms, named_extension
-from .free import discover_free
 from .identifiability import check_core_channels, full_identifiability, needs_reference_free
 from .outputs import write_outputs
 from .report import add_beyond, add_simulation, build_report, unusable_report
 from .source import campaign_absent
 from .stages import MIN_PULLS, Analysis
 from .stream import Stream, pull_refs
+from .without_reference.driver import discover_without_reference
 
 
 def spills_locally(scheduler: Optional[str]) -> bool:
@@ -43,9 +43,9 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
     absent = campaign_absent(refs)
     check_core_channels(absent)
     if needs_reference_free(absent):   # no stationary cell or no encoder: what the remaining channels support
-        return discover_free(refs, absent, rig, out_dir, mapper, progress)
+        return discover_without_reference(refs, absent, rig, out_dir, mapper, progress)
     if len(refs) < MIN_PULLS:          # too few to fit half and hold half out: the free phases, leave-one-out
-        return discover_free(refs, absent, rig, out_dir, mapper, progress, few=MIN_PULLS)
+        return discover_without_reference(refs, absent, rig, out_dir, mapper, progress, few=MIN_PULLS)
     spill = tempfile.mkdtemp(prefix='ft_discover_spill_') if spills_locally(mapper.scheduler) else None
     try:
         st = Stream(refs, rig, mapper, spill, progress)

@@ -8,12 +8,12 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from .free_phases import FreePull
-from .free_stats import FreeStats, gain_at, pooled, sse_at
-from .reference_fit import fit, gram_at, models, reference_fits
-from .ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
-from .significance import MIN_REL_REDUCTION, MIN_T, significance
-from .uncertainty import jackknife_ci, mean_ci
+from ..ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
+from ..significance import MIN_REL_REDUCTION, MIN_T, significance
+from ..uncertainty import jackknife_ci, mean_ci
+from .phase_stats import FreeStats, gain_at, pooled, sse_at
+from .phases import FreePull
+from .stationary_cell import fit, gram_at, models, reference_fits
 
 MIN_NAMED_PULLS = 4            # held-out pulls needed before a cause can meet t >= MIN_T
 
@@ -99,7 +99,7 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
           {'band_n': [0.0, tol.mains_hum_amplitude_n]})
     ref = [s.ref for s in stats]
     reference = None
-    if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (reference_fit.py)
+    if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (stationary_cell.py)
         reference = reference_fits(ref, d, [x[1] for x in loo] if n >= 2 else [d], g0)
         held = reference['held']
         where = 'whole-record (F_move = g T + M a2(t + d) - k C)'

@@ -1,5 +1,5 @@
-"""The reference-free path's report: report.json, report.md (its Method section is free.py's docstring), extension.yaml,
-written whole. ROS-free."""
+"""The reference-free path's report: report.json, report.md (its Method section is driver.py's docstring),
+extension.yaml, written whole. ROS-free."""
 from __future__ import annotations
 
 import json
@@ -9,24 +9,24 @@ from typing import Dict, Optional, Sequence
 
 from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 
-from . import quality as Q
-from .extension import correction_uncertainty, extension_yaml
-from .free_phases import FreePull
-from .identifiability import COMPUTED, FREE_CHANNELS, identifiability
+from .. import quality as Q
+from ..extension import correction_uncertainty, extension_yaml
+from ..identifiability import COMPUTED, FREE_CHANNELS, identifiability
 from .leave_one_out import validation_text
+from .phases import FreePull
 
 REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
 #: with no reference the correction's mass is g m2 (extension.CORRECTED's form): its u is stated as m2's
-FREE_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
+PRODUCT_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
                   ('accel_delay', 'delay_s', 'accel_delay_s', ('accel_delay', 'delay_s')))
 REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C over the whole record, T from '
                   'force_stationary_n (no encoder needed)')
 
 
-def free_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
+def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
                 excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
     """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
-    from .report import clean
+    from ..report import clean
     with_ref = bool(analysis and analysis.get('reference'))
     yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
     for q in yes:
@@ -78,7 +78,7 @@ def _fmt_ci(ci, scale=1.0, fmt='.4g') -> str:
     return f'[{ci[0] * scale:{fmt}}, {ci[1] * scale:{fmt}}]'
 
 
-def free_markdown(rep: dict, screens: Sequence, method: str) -> str:
+def report_markdown(rep: dict, screens: Sequence, method: str) -> str:
     """report.md of the reference-free path."""
     lines = ['# Discovery without a reference', '',
              f'Channels: {", ".join(rep["channels"])}; absent: {", ".join(rep["absent"]) or "-"}. '
@@ -132,7 +132,7 @@ def free_markdown(rep: dict, screens: Sequence, method: str) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def free_extension(rep: dict, rig) -> dict:
+def report_extension(rep: dict, rig) -> dict:
     """extension.yaml: what the correction can undo from these channels. The correction subtracts mass_kg a2 from
     F_move / moving_cell_gain; with g unknown, mass_kg is g m2 and the gain 1, so the corrected force is g times
     the force at the contact (stated under assumptions)."""
@@ -150,7 +150,7 @@ def free_extension(rep: dict, rig) -> dict:
         corr['mass_kg'] = c['effective_mass']['parameters']['mass_kg']
         return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr)),
                 'assumptions': {}}
-    return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr, FREE_CORRECTED)),
+    return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr, PRODUCT_CORRECTED)),
             'assumptions': {'moving_cell_gain': 'not identifiable without a reference or a calibration mass: '
                             'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force; '
                             'the corrected peak\'s uncertainty keeps the rig\'s u of the gain for it'}}
@@ -160,14 +160,14 @@ def _stated(unc: dict) -> dict:
     return {'uncertainty': unc} if unc else {}
 
 
-def write_free_outputs(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
+def write_report(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
     """DIR/report.json, report.md and extension.yaml, written whole (into a fresh folder, moved in at the end)."""
     from force_tester_common.core.partial import staging
 
     with staging(out, '.discover-') as mark:   # a staging folder a killed run left here is removed first
         stage = mark.folder
-        (stage / 'extension.yaml').write_text(extension_yaml(free_extension(rep, rig)))
-        (stage / 'report.md').write_text(free_markdown(rep, screens, method))
+        (stage / 'extension.yaml').write_text(extension_yaml(report_extension(rep, rig)))
+        (stage / 'report.md').write_text(report_markdown(rep, screens, method))
         (stage / 'report.json').write_text(json.dumps(rep, indent=1))
         mark.unmark()
         for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):
