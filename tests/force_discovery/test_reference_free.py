@@ -82,7 +82,7 @@ def test_one_record_gives_per_pull_estimates_and_no_cause(tmp_path):
     assert p['delay_s'] == pytest.approx(imp.accel_delay_s, abs=3e-6)
     assert p['gain_mass_kg'] == pytest.approx(imp.m2_kg * imp.gain, rel=0.01)
     assert rep['candidates']['gain_mass_product']['parameters_ci95']['gain_mass_kg'] is None
-    assert all(c['verdict'] == 'per_pull_only' for c in rep['candidates'].values())
+    assert all(c['tolerance']['verdict'] == 'per_pull_only' for c in rep['candidates'].values())
 
 
 @pytest.mark.parametrize('rate', [5_000.0, 10_000.0, 25_000.0, 50_000.0, 100_000.0])
@@ -195,9 +195,9 @@ def test_nothing_hidden_names_nothing_in_the_force_channel(tmp_path):
     c = rep['candidates']
     named = {x['name'] for x in rep['causes']}
     assert not named & {'gain_mass_product', 'accel_delay', 'mains_hum'}, named
-    assert c['gain_mass_product']['verdict'] == 'within_tolerance'
-    assert c['accel_delay']['verdict'] in ('within_tolerance', 'not_significant')
-    assert c['mains_hum']['verdict'] in ('within_tolerance', 'not_significant')
+    assert c['gain_mass_product']['tolerance']['verdict'] == 'within_tolerance'
+    assert c['accel_delay']['tolerance']['verdict'] in ('within_tolerance', 'not_significant')
+    assert c['mains_hum']['tolerance']['verdict'] in ('within_tolerance', 'not_significant')
 
 
 @pytest.mark.slow
@@ -269,7 +269,8 @@ def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path, capsy
     m, (mlo, mhi) = c['effective_mass']['parameters']['mass_kg'], c['effective_mass']['parameters_ci95']['mass_kg']
     assert g == pytest.approx(1.015, abs=0.002) and glo <= 1.015 <= ghi
     assert m == pytest.approx(1.30, rel=0.01) and mlo <= 1.30 <= mhi
-    assert c['moving_cell_gain']['verdict'] == 'indicated' and rep['causes'] == []      # 2 pulls: nothing named
+    assert c['moving_cell_gain']['tolerance']['verdict'] == 'indicated'
+    assert rep['causes'] == []      # 2 pulls: nothing named
     assert {'moving_cell_gain', 'effective_mass'} <= {q['quantity'] for q in rep['identifiable']}
     missing = {q['quantity']: q['missing'] for q in rep['not_identifiable']}
     assert missing['simulation_check'] == ['encoder_position_m'] and 'encoder_position_m' in missing['coulomb_friction']

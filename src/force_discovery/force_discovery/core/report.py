@@ -19,6 +19,10 @@ from .stages import CATALOG_PARAMS, MIN_PULLS, Analysis
 from .uncertainty import INCONCLUSIVE, WITHIN
 
 FORCE_CHANNEL = ('mains_hum',) + TERMS
+#: report.json: a candidate's keys (candidates.<name>), on both paths; a listed cause (causes[], within_tolerance[],
+#: inconclusive[], indicated[]) has its name and LISTED_KEYS, a named one also its gain, channel and where
+CANDIDATE_KEYS = ('parameters', 'parameters_ci95', 'uncertainty_budget', 'tolerance', 'evidence', 'channel')
+LISTED_KEYS = ('parameters', 'parameters_ci95', 'uncertainty_budget', 'tolerance', 'evidence')
 
 
 def clean(x):
@@ -143,10 +147,7 @@ def build_report(analysis: Analysis, decision: Decision, errors: ForceErrors, le
                               f'force-channel causes are withheld when a T^2 term removes > '
                               f'{100 * NONLIN_SHARE:g} % of the held-out force residual left by them'),
         'uncertainty_budget': {n: c['uncertainty_budget'] for n, c in cand.items()},
-        'candidates': {n: {'parameters': c['parameters'], 'parameters_ci95': c['parameters_ci95'],
-                           'uncertainty_budget': c['uncertainty_budget'], 'tolerance': c['tolerance'],
-                           'evidence': c['evidence'], 'channel': c['channel']}
-                       for n, c in cand.items()},
+        'candidates': {n: {k: c[k] for k in CANDIDATE_KEYS} for n, c in cand.items()},
         'leftover': left,
         'cell_damping': analysis.cells,
         'data_quality': quality_section(analysis),

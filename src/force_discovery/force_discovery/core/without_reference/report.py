@@ -12,6 +12,8 @@ from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 from .. import quality as Q
 from ..extension import correction_uncertainty, extension_yaml
 from ..identifiability import COMPUTED, FREE_CHANNELS, identifiability
+from ..report import CANDIDATE_KEYS, LISTED_KEYS, clean
+from ..uncertainty import INCONCLUSIVE, INDICATED, WITHIN
 from .leave_one_out import validation_text
 from .phases import FreePull
 
@@ -19,6 +21,14 @@ REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
 #: with no reference the correction's mass is g m2 (extension.CORRECTED's form): its u is stated as m2's
 PRODUCT_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
                   ('accel_delay', 'delay_s', 'accel_delay_s', ('accel_delay', 'delay_s')))
+#: a cause's plain-words place in the data (report.json causes[].where, as with a reference)
+WHERE = {'gain_mass_product': 'the moving cell against the accelerometer in the free phases (before contact, after '
+                              'a break or a rebound): g m2 off the rig\'s m2',
+         'accel_delay': 'the moving cell leads the accelerometer in the free phases: a2 lags the force',
+         'mains_hum': 'a spectral line on the moving cell in the free phases',
+         'mount_resonance': 'accelerometer ringing in the free decay after the last event, below the cell mode',
+         'moving_cell_gain': 'the moving cell against the stationary cell over the whole record',
+         'effective_mass': 'the moving cell against the stationary cell and the accelerometer over the whole record'}
 REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C over the whole record, T from '
                   'force_stationary_n (no encoder needed)')
 
@@ -26,7 +36,6 @@ REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C
 def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
                 excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
     """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
-    from ..report import clean
     with_ref = bool(analysis and analysis.get('reference'))
     yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
     for q in yes:
@@ -47,22 +56,28 @@ def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent:
         rep.update(cause='unexplained', causes=[], candidates={}, gain=None, baseline_error=None,
                    extended_error=None, modes=[], per_pull=[])
         return clean(rep)
-    c = analysis['causes']
+    c = {k: {**cand.as_dict(), 'tolerance': analysis['tolerance'][k]} for k, cand in analysis['causes'].items()}
+    c = {k: {f: v[f] for f in CANDIDATE_KEYS} for k, v in c.items()}
     named = analysis['named']
     if n == 1:
         cause = 'none'
         rep['notes'].append('one pull: per-pull estimates only, no cause')
     else:
         cause = named[0] if named else 'none'
-        ind = [k for k, v in c.items() if v['verdict'] == 'indicated']
+        ind = [k for k, v in c.items() if v['tolerance']['verdict'] == INDICATED]
         if ind:
             rep['notes'].append(f'indicated (departs on every held-out pull, too few pulls to name): '
                                 f'{", ".join(ind)}')
     samples = max(analysis['samples'], 1)
-    rep.update(cause=cause, causes=[c[k] for k in named], candidates=c,
-               indicated=[c[k] for k in c if c[k]['verdict'] == 'indicated'],
-               within_tolerance=[c[k] for k in c if c[k]['verdict'] == 'within_tolerance'],
-               inconclusive=[c[k] for k in c if c[k]['verdict'] == 'inconclusive'],
+
+    def listed(verdict, **more):
+        return [{'name': k, **{f: c[k][f] for f in LISTED_KEYS}, **more} for k in c
+                if c[k]['tolerance']['verdict'] == verdict]
+    rep.update(cause=cause, candidates=c,
+               causes=[{'name': k, **{f: c[k][f] for f in LISTED_KEYS}, 'gain': c[k]['evidence']['rms_gain'],
+                        'channel': c[k]['channel'], 'where': WHERE[k]} for k in named],
+               indicated=listed(INDICATED), within_tolerance=listed(WITHIN),
+               inconclusive=listed(INCONCLUSIVE, pulls_to_settle=None),
                metric='RMS moving-cell residual in the free phases, held out (leave-one-out); baseline: '
                       'g m2 = the rig\'s m2, no delay, no hum',
                baseline_error=math.sqrt(analysis['baseline_sse'] / samples),
@@ -104,7 +119,8 @@ def report_markdown(rep: dict, screens: Sequence, method: str) -> str:
             ci = '; '.join(f'{k} {_fmt_ci(val, fmt=".6g")}' for k, val in c['parameters_ci95'].items() if val)
             ev = c['evidence']
             t = 'inf' if ev['t'] is None else f'{ev["t"]:.3g}'
-            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | {t} | {c["verdict"]} |')
+            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | {t} | '
+                         f'{c["tolerance"]["verdict"]} |')
         lines.append('')
     if rep.get('modes'):
         lines += ['## Ringing modes (a2, free decay after the last event)', '',
