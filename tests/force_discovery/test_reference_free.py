@@ -304,3 +304,31 @@ def test_three_pulls_with_every_channel_use_the_reference_leave_one_out(tmp_path
     assert {'moving_cell_gain', 'effective_mass'} <= ind, ind
     lo, hi = c['gain_mass_product']['parameters_ci95']['gain_mass_kg']
     assert lo <= 1.03 * 1.25 <= hi
+
+
+@pytest.mark.slow
+def test_report_json_has_the_same_keys_with_and_without_a_reference(tmp_path):
+    """One report schema: report.json from a campaign with a reference (our rig, 12 pulls) and from one without (the
+    drop impactor) have the same top-level keys, and each candidate the same keys; a key a path cannot fill says
+    why ({'not_available': why}) instead of being left out."""
+    from generator import make_campaign
+
+    from force_discovery.core.report import CANDIDATE_KEYS, LISTED_KEYS, NOT_AVAILABLE
+    with_ref = run(make_campaign({'accel_delay': {'delay_s': 50e-6}}, seed=5, sets=(3,), pulls=12), load_rig(),
+                   tmp_path / 'with')
+    imp = Impactor(mount_hz=1800.0, accel_delay_s=30e-6, m2_kg=0.33, gain=1.02, record_s=0.06)
+    without = run(memory_campaign(imp, 4), lab_rig(tmp_path, imp), tmp_path / 'without')
+    on_disk = [json.loads((tmp_path / d / 'report.json').read_text()) for d in ('with', 'without')]
+    assert list(on_disk[0]) == list(on_disk[1]) == list(with_ref) == list(without)
+    assert with_ref['validation']['method'] == 'held-out' and without['validation']['method'] == 'leave-one-out'
+    for rep in (with_ref, without):
+        assert all(list(c) == list(CANDIDATE_KEYS) for c in rep['candidates'].values()), rep['candidates']
+        assert {c['tolerance']['verdict'] for c in rep['candidates'].values()} <= {
+            'named', 'within_tolerance', 'inconclusive', 'not_significant', 'indicated', 'not_indicated',
+            'per_pull_only'}
+        said = [v[NOT_AVAILABLE] for v in rep.values() if isinstance(v, dict) and NOT_AVAILABLE in v]
+        assert said and all(isinstance(w, str) and len(w) > 20 for w in said), said
+    assert without['beyond_catalog'][NOT_AVAILABLE].startswith('the search beyond the catalog')
+    assert isinstance(with_ref['beyond_catalog'], list) and NOT_AVAILABLE in with_ref['per_pull']
+    shape = {'name', *LISTED_KEYS, 'gain', 'channel', 'where'}      # a named cause has one shape on both paths
+    assert without['causes'] and all(set(c) == shape for c in with_ref['causes'] + without['causes'])

@@ -10,7 +10,7 @@ from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
 from force_tester_sim.core.uncertainty import DEPARTURES
 
 from .decision import Decision
-from .report import candidates, clean, entry
+from .report import available, candidates, clean, entry
 from .ringing import mount_from_observed
 from .stages import CATALOG_PARAMS, Analysis
 
@@ -71,7 +71,7 @@ def extension(report, rig) -> dict:
     unc = correction_uncertainty(report.get('candidates') or {}, corr)
     if unc:
         out['uncertainty'] = unc
-    add_extra_terms(out, report.get('beyond_catalog', ()))
+    add_extra_terms(out, available(report, 'beyond_catalog') or ())
     if assumptions:
         out['assumptions'] = assumptions
     return out

@@ -17,7 +17,15 @@ from .errors import DiscoveryError
 from .extension import add_extra_terms, named_extension
 from .identifiability import check_core_channels, full_identifiability, needs_reference_free
 from .outputs import write_outputs
-from .report import add_beyond, add_simulation, build_report, unusable_report
+from .report import (
+    WITHOUT_REFERENCE_ONLY,
+    add_beyond,
+    add_simulation,
+    build_report,
+    campaign_section,
+    complete,
+    unusable_report,
+)
 from .source import campaign_absent
 from .stages import MIN_PULLS, Analysis
 from .stream import Stream, pull_refs
@@ -53,7 +61,8 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
         decision = decide(analysis, rig)
         out = Path(out_dir)
         if not analysis.pulls:
-            report = unusable_report(analysis, rig)
+            report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, absent), 'plots': []},
+                              {}, 'the data-quality screen left too few pulls to analyse (data_quality)')
             write_outputs(report, analysis, None, (), rig, out)
             return report
         found = st.beyond(analysis, decision)
@@ -74,6 +83,7 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
             check = None
         add_simulation(report, check)
         add_beyond(report, found)
+        report = complete({**report, **campaign_section(analysis, absent), 'plots': []}, WITHOUT_REFERENCE_ONLY)
         write_outputs(report, analysis, errors, decision.named, rig, out, check, ext, found.traces)
         return report
     finally:

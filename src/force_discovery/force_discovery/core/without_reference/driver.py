@@ -106,11 +106,12 @@ def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_d
     def run(stage, fn, items, names):
         prog = (lambda done, total: progress(stage, done, total)) if progress else None
         return mapper(fn, items, names=list(names), keep=True, on_result=None, progress=prog)
-    res = run('survey', read_pass, list(refs), [r.name for r in refs])
+    res = run('read', read_pass, list(refs), [r.name for r in refs])
     failed = list(res.failed)
-    surveys = [s for s in res.results if s is not None]
-    screens = tuple(s.screen for s in surveys if s.screen is not None)
-    excluded = {s.name: s.excluded for s in surveys if s.excluded}
+    run_info = {'retried': list(res.retried), 'scheduler': res.scheduler}
+    reads = [s for s in res.results if s is not None]
+    screens = tuple(s.screen for s in reads if s.screen is not None)
+    excluded = {s.name: s.excluded for s in reads if s.excluded}
     usable = [(r, s) for r, s in zip(refs, res.results) if s is not None and s.pull is not None]
     notes = [f'no {", ".join(absent)}: the reference-free analysis (free phases of the moving cell and the '
              'accelerometer)'] if absent else [
@@ -124,7 +125,7 @@ def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_d
         raise DiscoveryError(failed[0][1].split(': ', 1)[-1])       # no moving cell in any pull: one line
     if not usable:
         notes.append(f'0 of {len(refs)} pulls are usable (excluded_pulls, failed_pulls say why)')
-        rep = campaign_report(None, [], absent, screens, excluded, failed, rig, notes, few)
+        rep = campaign_report(None, [], absent, screens, excluded, failed, rig, notes, few, **run_info)
         write_report(rep, screens, rig, Path(out_dir), METHOD)
         return rep
     pulls = [s.pull for _r, s in usable]
@@ -138,7 +139,8 @@ def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_d
         raise DiscoveryError(f'pull {name!r} failed in the statistics stage ({why}); expected every usable pull '
                              'to finish it')
     analysis = campaign_analysis(pulls, res2.results, f_hum, rig)
-    rep = campaign_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few)
+    run_info['retried'] += [n for n in res2.retried if n not in run_info['retried']]
+    rep = campaign_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few, **run_info)
     write_report(rep, screens, rig, Path(out_dir), METHOD)
     return rep
 

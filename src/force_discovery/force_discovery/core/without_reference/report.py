@@ -2,6 +2,7 @@
 extension.yaml, written whole. ROS-free."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -12,15 +13,22 @@ from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 from .. import quality as Q
 from ..extension import correction_uncertainty, extension_yaml
 from ..identifiability import COMPUTED, FREE_CHANNELS, identifiability
-from ..report import CANDIDATE_KEYS, LISTED_KEYS, clean
+from ..report import CANDIDATE_KEYS, LISTED_KEYS, WITH_REFERENCE_ONLY, clean, complete
+from ..significance import MIN_REL_REDUCTION, MIN_T
 from ..uncertainty import INCONCLUSIVE, INDICATED, WITHIN
-from .leave_one_out import validation_text
+from .leave_one_out import MIN_NAMED_PULLS, validation_text
 from .phases import FreePull
 
 REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
 #: with no reference the correction's mass is g m2 (extension.CORRECTED's form): its u is stated as m2's
 PRODUCT_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
                   ('accel_delay', 'delay_s', 'accel_delay_s', ('accel_delay', 'delay_s')))
+SIGNIFICANCE_RULE = (f'every pull is held out once (leave-one-out); a cause is named when, over at least '
+                     f'{MIN_NAMED_PULLS} held-out pulls, removing it raises the summed squared residual by >= '
+                     f'{100 * MIN_REL_REDUCTION:g} % with t >= {MIN_T:g}, AND its 95 % interval (jackknife) lies '
+                     'wholly outside its tolerance band; inside the band it is within_tolerance, across an edge '
+                     'inconclusive; with 2-3 pulls what departs on every held-out pull is indicated; one pull: '
+                     'per_pull_only (uncertainty.verdict_rule)')
 #: a cause's plain-words place in the data (report.json causes[].where, as with a reference)
 WHERE = {'gain_mass_product': 'the moving cell against the accelerometer in the free phases (before contact, after '
                               'a break or a rebound): g m2 off the rig\'s m2',
@@ -34,8 +42,10 @@ REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C
 
 
 def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
-                excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
-    """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
+                    excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0,
+                    retried: Sequence[str] = (), scheduler: Optional[str] = None) -> dict:
+    """report.json of the reference-free path (few: run because the campaign has fewer pulls than this): the keys
+    of the path with a reference (report.REPORT_KEYS), those it cannot fill saying why."""
     with_ref = bool(analysis and analysis.get('reference'))
     yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
     for q in yes:
@@ -48,14 +58,16 @@ def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent:
            'pulls': [p.name for p in pulls], 'fitted_pulls': [p.name for p in pulls],
            'held_out_pulls': [p.name for p in pulls] if n >= 2 else [],
            'data_quality': Q.defect_dicts(screens), 'excluded_pulls': dict(excluded),
-           'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes)}
+           'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes),
+           'retried_pulls': list(retried), 'scheduler': scheduler or None, 'plots': [],
+           'tolerances': dataclasses.asdict(rig.tolerances), 'significance_rule': SIGNIFICANCE_RULE}
     rep['notes'].append(f'the stationary cell separates g and m2 ({REFERENCE_WHAT})' if with_ref else
                         'g and m2 separate only with a reference (the stationary cell) or a known calibration '
                         'mass: the free phases give their product g m2')
     if analysis is None:
         rep.update(cause='unexplained', causes=[], candidates={}, gain=None, baseline_error=None,
                    extended_error=None, modes=[], per_pull=[])
-        return clean(rep)
+        return complete(clean(rep), WITH_REFERENCE_ONLY, 'no usable pulls (excluded_pulls, failed_pulls say why)')
     c = {k: {**cand.as_dict(), 'tolerance': analysis['tolerance'][k]} for k, cand in analysis['causes'].items()}
     c = {k: {f: v[f] for f in CANDIDATE_KEYS} for k, v in c.items()}
     named = analysis['named']
@@ -84,7 +96,8 @@ def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent:
                extended_error=math.sqrt(analysis['extended_sse'] / samples),
                modes=analysis['modes'], per_pull=analysis['per_pull'], cell_mode_hz=analysis['cell_mode_hz'])
     rep['gain'] = rep['baseline_error'] / rep['extended_error'] if rep['extended_error'] else None
-    return clean(rep)
+    rep['uncertainty_budget'] = {k: v['uncertainty_budget'] for k, v in c.items()}
+    return complete(clean(rep), WITH_REFERENCE_ONLY)
 
 
 def _fmt_ci(ci, scale=1.0, fmt='.4g') -> str:
