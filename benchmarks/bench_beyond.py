@@ -1,4 +1,4 @@
-"""Benchmark of the search beyond the catalog (issue 27, docs/discovery.md): how often `discover` finds a departure
+"""Benchmark of the search beyond the catalog (docs/discovery.md): how often `discover` finds a departure
 outside the catalog as the right term, and its cost.
 
     ./ft bench beyond [--trials N] [--clean M] [--seed S] [--kinds K1,K2,...]

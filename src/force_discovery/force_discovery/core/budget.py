@@ -1,4 +1,4 @@
-"""Uncertainty budgets (issue 25): every reported parameter's combined standard uncertainty, the statistical part
+"""Uncertainty budgets: every reported parameter's combined standard uncertainty, the statistical part
 (the pull-to-pull spread, uncertainty.py) and the systematic parts, each estimated and listed. ROS-free.
 
 Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KIND):
