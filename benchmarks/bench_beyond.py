@@ -1,4 +1,4 @@
-"""Benchmark of the search beyond the catalog (issue 27, docs/discovery.md): how often `discover` finds a departure
+"""Benchmark of the search beyond the catalog (docs/discovery.md): how often `discover` finds a departure
 outside the catalog as the right term, and its cost.
 
     ./ft bench beyond [--trials N] [--clean M] [--seed S] [--kinds K1,K2,...] [--generator own|independent|both]
@@ -10,7 +10,7 @@ generator.UNTUNED: cubic cell, rail friction along the track, quadratic zero dri
 mains, rate-dependent cell, the accelerometer misreading the speed), N campaigns (3 sets x 4 pulls) with it hidden
 at a random strength, every other one through the model-form nuisances. Counted: the right term first on the right
 channel of beyond_catalog; its coefficient within 30 % of the truth; no catalog cause named (the truth is outside
-the catalog); whether its ci95 (statistical and systematic parts, beyond.py) holds the true coefficient; and, when
+the catalog); whether its ci95 (statistical and systematic parts, core/beyond/) holds the true coefficient; and, when
 another term is first, whether the right one is listed beside it as near-tied (beyond.near_tied: the data cannot
 tell them apart). Beside them, each campaign's gain through the simulator on the truth's channel (report.json
 simulation: the held-out pulls re-simulated with the model of record and with the extension; '-' when the check did

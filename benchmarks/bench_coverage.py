@@ -1,4 +1,4 @@
-"""Coverage of `discover`'s 95 % intervals (issue 25): how often `parameters_ci95` holds the true value, and how
+"""Coverage of `discover`'s 95 % intervals: how often `parameters_ci95` holds the true value, and how
 wide the intervals are against each parameter's tolerance.
 
     ./ft bench coverage [--trials N] [--variants NAME,...] [--causes NAME,...] [--seed S]

@@ -1,7 +1,7 @@
 """Benchmark: reading and writing one campaign pull CSV, before and now (./ft bench daqcsv [--reps N]).
 
 One pull of the truth rig (set 3, 2 s at 50 kHz: 100,000 samples, 10 columns, 20 MB of CSV), written and read
-back alternately by the code before issue 26 (Python repr for every value, joined in Python; numpy.loadtxt)
+back alternately by the earlier code (Python repr for every value, joined in Python; numpy.loadtxt)
 and the code now (bag_tools.core.daq.write_csv / read_csv: pyarrow formats and parses in C++). Checks that
 both write the same bytes and read the same doubles, and prints the median per pull (wall and CPU time of
 this process, one thread) and the ratio. Target: >= 3x on both. Asserts nothing about speed.

@@ -117,7 +117,7 @@ def role_main(role: str, block: int, started: Path) -> None:
     ex.add_node(node)
     try:
         spin(ex)
-    except Exception:  # noqa: BLE001 - shutting down
+    except Exception:  # noqa: BLE001, S110 - shutting down
         pass
     if role == 'sim':  # blocks due by the 50 kHz clock but not sent: the sim fell behind real time
         counts['behind'] = int((time.monotonic_ns() - t0[0]) // period_ns + 1 - counts['sent']) if t0 else -1

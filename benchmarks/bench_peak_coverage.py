@@ -175,7 +175,7 @@ def summary(rows: list) -> dict:
     n = len(rows)
     if not n:
         return {'pulls': 0}
-    cover = lambda ok: 100.0 * sum(ok) / n   # noqa: E731
+    cover = lambda ok: 100.0 * sum(ok) / n
     return {'pulls': n,
             'coverage_tension_pct': cover([abs(r['P'] - r['T']) <= r['U'] for r in rows]),
             'coverage_stationary_pct': cover([abs(r['P'] - r['S']) <= r['U'] for r in rows]),

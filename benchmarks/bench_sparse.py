@@ -1,4 +1,4 @@
-"""Benchmark of the sparse regression beyond the catalog (issue 27, beyond.py): forward selection with a held-out
+"""Benchmark of the sparse regression beyond the catalog (core/beyond/): forward selection with a held-out
 stopping rule, as `discover` runs it, against PySINDy's default optimiser, STLSQ, on the same statistics.
 
     ./ft bench sparse [--trials N] [--clean M] [--seed S] [--kinds KIND ...]
@@ -11,7 +11,7 @@ Gram matrix of the scaled library columns, the columns' products with the residu
 (BeyondPart.stats), the same fitted and held-out pulls, and per channel the last statistics the pipeline searched
 (the moving cell and the current against the corrected sensors when a sensor term was found).
 
-  forward selection   beyond.search_channel: the pipeline's own result (its named terms and those significant but
+  forward selection   search_channel: the pipeline's own result (its named terms and those significant but
                       within tolerance), and its wall time re-run on the recorded statistics (the selection with
                       the jackknife and the budget of each term it keeps).
   STLSQ               the sequentially thresholded least squares of PySINDy's STLSQ optimiser, written here from
@@ -26,7 +26,7 @@ Gram matrix of the scaled library columns, the columns' products with the residu
                       THRESHOLDS x the rms of the channel's residual over the fitted pulls, and chosen as a user
                       without the truth would, on the held-out pulls: `min` the threshold of least held-out SSE,
                       `1%` the largest threshold within 1 % of that least SSE; and `band` the channel's band
-                      (beyond.channel_band: the smallest contribution the rig's tolerances care about), the
+                      (channel_band: the smallest contribution the rig's tolerances care about), the
                       threshold a user who knows the tolerances would set, with no held-out pulls at all.
 
 Adaptations both ways, so that STLSQ sees what forward selection sees: a sinusoid (sin, v*sin, F_move*sin at the
@@ -34,12 +34,12 @@ channel's spectral peak) has each pull's own phase, so STLSQ gives it a (cos, si
 thresholds the group by its norm (its rms contribution); on a held-out pull a kept sinusoid's pair is refitted on
 the pull (forward selection keeps the fitted pulls' amplitude and fits only the phase: a small advantage to STLSQ).
 The catalog's Coulomb column on the motor current, when the catalog names it, is in STLSQ's model and never
-thresholded. STLSQ has no cause check (beyond.cause_check) and no interval.
+thresholded. STLSQ has no cause check (beyond.priority) and no interval.
 
 Counted per method over the departures: the right term first on the right channel (forward selection: the
 pipeline's beyond_catalog, generator.check_beyond; STLSQ: the term of largest rms contribution on the channel);
 extra terms, every other term selected on any channel; those of them whose contribution lies above the channel's
-band (beyond.channel_band; forward selection: the named ones, whose interval lies above it; STLSQ: the point
+band (channel_band; forward selection: the named ones, whose interval lies above it; STLSQ: the point
 contribution); on the clean campaigns, the terms selected and the false alarms (a campaign with any term above the
 band). Time: the selection step's wall time per campaign, the four channels (STLSQ: the whole sweep with its
 held-out scores).
@@ -59,7 +59,7 @@ with nothing hidden: the library's columns are nearly collinear (F_move, T and F
 moving cell and the current; t, t^2, x in the free phases), they fit each other with large opposite coefficients,
 each far above a small threshold, and each extra term still lowers the held-out SSE a little, so the held-out choice
 is a small threshold. Normalising the columns makes the threshold a contribution size, so the channel's band is a
-meaningful threshold (the units objection in beyond.py's docstring does not hold once the columns are normalised):
+meaningful threshold (the units objection in beyond's docstring does not hold once the columns are normalised):
 at the band STLSQ raises no false alarm, but its first ridge fit spreads a true term over its collinear neighbours,
 each then below the band. The accelerometer's drift (1.60 m/s^2 rms against a 0.87 band) went as 0.63 on t, 0.32 on
 t^2, 0.23 on x, ... and was lost; the quadratic cell came out first as F_move*F_stat, the air drag as v^3. Forward
@@ -133,10 +133,10 @@ class Design:
     threshold acts on (a product term: one; a sinusoid: its pairs in every fitted pull)."""
 
     def __init__(self, fit, cat: bool):
-        names = fit[0][0]
+        names = fit[0].names
         self.n_sin = sum(1 for n in names if n.endswith(SIN))
         self.n_prod = len(names) - self.n_sin
-        self.cat = cat and fit[0][5] is not None
+        self.cat = cat and fit[0].catalog is not None
         P, S, q = self.n_prod, self.n_sin, self.n_prod + self.cat
         m = q + 2 * S * len(fit)
         self.G, self.b = np.zeros((m, m)), np.zeros(m)
@@ -145,8 +145,8 @@ class Design:
             Gl, bl = self.local(st)
             self.G[np.ix_(g, g)] += Gl
             self.b[g] += bl
-        self.n = sum(st[4] for st in fit)
-        self.rms_y = float(np.sqrt(sum(st[3] for st in fit) / self.n))
+        self.n = sum(st.n for st in fit)
+        self.rms_y = float(np.sqrt(sum(st.yy for st in fit) / self.n))
         self.names = list(names)
         self.groups = [[k] for k in range(P)] + [[q + 2 * S * j + 2 * k + i for j in range(len(fit)) for i in (0, 1)]
                                                  for k in range(S)]
@@ -154,11 +154,11 @@ class Design:
 
     def local(self, st):
         """One pull's (G, b) over its products, its sinusoid pairs, then the catalog column (when in)."""
-        G, b = st[1], st[2]
+        G, b = st.gram, st.xy
         if not self.cat:
             return G, b
-        gcc, gcx, bc = st[5]
-        return np.block([[G, gcx[:, None]], [gcx[None, :], np.array([[gcc]])]]), np.append(b, bc)
+        c = st.catalog
+        return np.block([[G, c.cx[:, None]], [c.cx[None, :], np.array([[c.cc]])]]), np.append(b, c.cy)
 
     def stlsq(self, thr: float):
         """(kept groups, coefficients on the scaled columns, {group: its rms contribution}) of STLSQ at threshold
@@ -195,7 +195,7 @@ class Design:
         total = 0.0
         for st in held:
             Gl, bl = self.local(st)
-            e = st[3] - 2 * cv @ bl[idx] + cv @ Gl[np.ix_(idx, idx)] @ cv if idx else st[3]
+            e = st.yy - 2 * cv @ bl[idx] + cv @ Gl[np.ix_(idx, idx)] @ cv if idx else st.yy
             if pairs:
                 br = bl[pairs] - (Gl[np.ix_(pairs, idx)] @ cv if idx else 0.0)
                 e -= br @ np.linalg.lstsq(Gl[np.ix_(pairs, pairs)], br, rcond=1e-12)[0]

@@ -50,9 +50,17 @@ from force_discovery.core.leftover import leftover_from, leftover_part
 from force_discovery.core.outputs import write_outputs
 from force_discovery.core.prep import Pull, check_quality, prepare
 from force_discovery.core.quality import screen_pull
-from force_discovery.core.report import add_simulation, build_report, unusable_report
+from force_discovery.core.report import (
+    WITHOUT_REFERENCE_ONLY,
+    add_simulation,
+    build_report,
+    campaign_section,
+    complete,
+    unusable_report,
+)
 from force_discovery.core.resim import simulation_check
 from force_discovery.core.ringing import cell_modes, free_decay_mode, observed_mode, ring_part
+from force_discovery.core.source import campaign_absent, memory_refs
 from force_tester_sim.core.departures import departures_from_data
 
 
@@ -220,7 +228,8 @@ def discover_in_memory(campaign_pulls, rig, out_dir) -> dict:
     analysis = one.analysis
     decision = decide(analysis, rig)
     if not analysis.pulls:   # the data-quality stage left too few pulls: say so, name nothing
-        report = unusable_report(analysis, rig)
+        report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, ()), 'plots': []}, {},
+                          'the data-quality screen left too few pulls to analyse (data_quality)')
         write_outputs(report, analysis, None, (), rig, Path(out_dir))
         return report
     # structure no catalog entry explains: what is left after every force-channel entry, named or not
@@ -235,5 +244,9 @@ def discover_in_memory(campaign_pulls, rig, out_dir) -> dict:
     except DiscoveryError as exc:
         report['notes'].append(f'no simulation check: {exc}')
     add_simulation(report, check)
+    no_search = 'the one-pass oracle has no search beyond the catalog (the stream\'s only: test_stream.BEYOND)'
+    absent = campaign_absent(memory_refs(campaign_pulls))
+    report = complete({**report, **campaign_section(analysis, absent), 'plots': []},
+                      {**WITHOUT_REFERENCE_ONLY, 'beyond_catalog': no_search, 'beyond_search': no_search})
     write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir), check, ext)
     return report

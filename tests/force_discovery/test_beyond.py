@@ -14,14 +14,15 @@ from generator import BEYOND, UNTUNED, beyond_campaign, check_beyond
 
 from force_correction.core.extension import Extension
 from force_discovery.core.beyond import (
-    Survey,
+    ChannelSeries,
+    SearchSettings,
     beyond_part,
     interpretation,
     library,
     near_tied,
     search,
+    settings_from,
     spectrum_part,
-    survey_from,
 )
 from force_discovery.core.pipeline import discover
 from force_tester_sim.core.errors import SimError
@@ -116,8 +117,8 @@ def test_a_line_across_the_gap_of_the_free_phases_has_its_frequency_on_the_sampl
         rng = np.random.default_rng(k)
         y = 4.0 * np.sin(2 * np.pi * f0 * t + rng.uniform(0, 2 * np.pi)) + rng.normal(0, 0.3, len(t))
         sig = {'t': t, 'v': np.ones_like(t)}
-        parts.append(spectrum_part({'force_stationary': (y, sig, None, {}, {})}, 1 / fs))
-    f = survey_from(parts, 1 / fs).freq['force_stationary']
+        parts.append(spectrum_part({'force_stationary': ChannelSeries(y, sig, None, {}, {})}, 1 / fs))
+    f = settings_from(parts, 1 / fs).freq['force_stationary']
     assert abs(f - f0) < 0.05, f
 
 
@@ -175,16 +176,17 @@ def _cause_campaign(real_mass: bool, pulls: int = 8, n: int = 4000):
         else:            # the "mass" fitted part of the v^2 structure: undone, the library explains it all
             col = 0.05 * a2
             y = 4.0 * v ** 2 - col + noise
-        parts.append({'force_moving': (y, sig, None, {'effective_mass': col}, {})})
-    scales = {s: float(np.sqrt(np.mean(parts[0]['force_moving'][1][s] ** 2))) for s in parts[0]['force_moving'][1]}
-    survey = Survey(scales, {})
-    return [beyond_part(p, survey) for p in parts], survey
+        parts.append({'force_moving': ChannelSeries(y, sig, None, {'effective_mass': col}, {})})
+    sig0 = parts[0]['force_moving'].signals
+    scales = {s: float(np.sqrt(np.mean(sig0[s] ** 2))) for s in sig0}
+    settings = SearchSettings(scales, {})
+    return [beyond_part(p, settings) for p in parts], settings
 
 
 @pytest.mark.parametrize('real_mass', [False, True])
 def test_a_catalog_cause_a_library_term_explains_better_is_withheld(real_mass):
-    parts, survey = _cause_campaign(real_mass)
-    res = search(parts, [0, 2, 4, 6], [1, 3, 5, 7], survey, load_rig(), ('effective_mass',),
+    parts, settings = _cause_campaign(real_mass)
+    res = search(parts, [0, 2, 4, 6], [1, 3, 5, 7], settings, load_rig(), ('effective_mass',),
                  channels=('force_moving',))
     assert [t.term for t in res.terms][:1] == ['v^2'], [(t.term, t.coefficient) for t in res.terms]
     if real_mass:

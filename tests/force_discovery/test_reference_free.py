@@ -82,7 +82,7 @@ def test_one_record_gives_per_pull_estimates_and_no_cause(tmp_path):
     assert p['delay_s'] == pytest.approx(imp.accel_delay_s, abs=3e-6)
     assert p['gain_mass_kg'] == pytest.approx(imp.m2_kg * imp.gain, rel=0.01)
     assert rep['candidates']['gain_mass_product']['parameters_ci95']['gain_mass_kg'] is None
-    assert all(c['verdict'] == 'per_pull_only' for c in rep['candidates'].values())
+    assert all(c['tolerance']['verdict'] == 'per_pull_only' for c in rep['candidates'].values())
 
 
 @pytest.mark.parametrize('rate', [5_000.0, 10_000.0, 25_000.0, 50_000.0, 100_000.0])
@@ -195,9 +195,9 @@ def test_nothing_hidden_names_nothing_in_the_force_channel(tmp_path):
     c = rep['candidates']
     named = {x['name'] for x in rep['causes']}
     assert not named & {'gain_mass_product', 'accel_delay', 'mains_hum'}, named
-    assert c['gain_mass_product']['verdict'] == 'within_tolerance'
-    assert c['accel_delay']['verdict'] in ('within_tolerance', 'not_significant')
-    assert c['mains_hum']['verdict'] in ('within_tolerance', 'not_significant')
+    assert c['gain_mass_product']['tolerance']['verdict'] == 'within_tolerance'
+    assert c['accel_delay']['tolerance']['verdict'] in ('within_tolerance', 'not_significant')
+    assert c['mains_hum']['tolerance']['verdict'] in ('within_tolerance', 'not_significant')
 
 
 @pytest.mark.slow
@@ -269,7 +269,8 @@ def test_stationary_cell_without_encoder_separates_gain_and_mass(tmp_path, capsy
     m, (mlo, mhi) = c['effective_mass']['parameters']['mass_kg'], c['effective_mass']['parameters_ci95']['mass_kg']
     assert g == pytest.approx(1.015, abs=0.002) and glo <= 1.015 <= ghi
     assert m == pytest.approx(1.30, rel=0.01) and mlo <= 1.30 <= mhi
-    assert c['moving_cell_gain']['verdict'] == 'indicated' and rep['causes'] == []      # 2 pulls: nothing named
+    assert c['moving_cell_gain']['tolerance']['verdict'] == 'indicated'
+    assert rep['causes'] == []      # 2 pulls: nothing named
     assert {'moving_cell_gain', 'effective_mass'} <= {q['quantity'] for q in rep['identifiable']}
     missing = {q['quantity']: q['missing'] for q in rep['not_identifiable']}
     assert missing['simulation_check'] == ['encoder_position_m'] and 'encoder_position_m' in missing['coulomb_friction']
@@ -303,3 +304,31 @@ def test_three_pulls_with_every_channel_use_the_reference_leave_one_out(tmp_path
     assert {'moving_cell_gain', 'effective_mass'} <= ind, ind
     lo, hi = c['gain_mass_product']['parameters_ci95']['gain_mass_kg']
     assert lo <= 1.03 * 1.25 <= hi
+
+
+@pytest.mark.slow
+def test_report_json_has_the_same_keys_with_and_without_a_reference(tmp_path):
+    """One report schema: report.json from a campaign with a reference (our rig, 12 pulls) and from one without (the
+    drop impactor) have the same top-level keys, and each candidate the same keys; a key a path cannot fill says
+    why ({'not_available': why}) instead of being left out."""
+    from generator import make_campaign
+
+    from force_discovery.core.report import CANDIDATE_KEYS, LISTED_KEYS, NOT_AVAILABLE
+    with_ref = run(make_campaign({'accel_delay': {'delay_s': 50e-6}}, seed=5, sets=(3,), pulls=12), load_rig(),
+                   tmp_path / 'with')
+    imp = Impactor(mount_hz=1800.0, accel_delay_s=30e-6, m2_kg=0.33, gain=1.02, record_s=0.06)
+    without = run(memory_campaign(imp, 4), lab_rig(tmp_path, imp), tmp_path / 'without')
+    on_disk = [json.loads((tmp_path / d / 'report.json').read_text()) for d in ('with', 'without')]
+    assert list(on_disk[0]) == list(on_disk[1]) == list(with_ref) == list(without)
+    assert with_ref['validation']['method'] == 'held-out' and without['validation']['method'] == 'leave-one-out'
+    for rep in (with_ref, without):
+        assert all(list(c) == list(CANDIDATE_KEYS) for c in rep['candidates'].values()), rep['candidates']
+        assert {c['tolerance']['verdict'] for c in rep['candidates'].values()} <= {
+            'named', 'within_tolerance', 'inconclusive', 'not_significant', 'indicated', 'not_indicated',
+            'per_pull_only'}
+        said = [v[NOT_AVAILABLE] for v in rep.values() if isinstance(v, dict) and NOT_AVAILABLE in v]
+        assert said and all(isinstance(w, str) and len(w) > 20 for w in said), said
+    assert without['beyond_catalog'][NOT_AVAILABLE].startswith('the search beyond the catalog')
+    assert isinstance(with_ref['beyond_catalog'], list) and NOT_AVAILABLE in with_ref['per_pull']
+    shape = {'name', *LISTED_KEYS, 'gain', 'channel', 'where'}      # a named cause has one shape on both paths
+    assert without['causes'] and all(set(c) == shape for c in with_ref['causes'] + without['causes'])

@@ -160,7 +160,7 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         assert collector.wait_for_graph({'/force': 3, '/force_corrected': 2, '/pull_event': 2}, timeout=60)
         graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,
                                                      'wait_for_subscribers': 2})
-        spin = lambda: collector.executor.spin_once(timeout_sec=0.05)   # noqa: E731
+        spin = lambda: collector.executor.spin_once(timeout_sec=0.05)
         # the live plot's legend shows numbers, and they move while the sim pulls
         seen = []
 

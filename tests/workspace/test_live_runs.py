@@ -191,7 +191,7 @@ def test_faults_mid_pull_are_scored_with_their_status(tmp_path, ros_domain):
         assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 2}, timeout=60)
         graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 6, 'rate': 0.5,
                                                       'wait_for_subscribers': 2})
-        alive = lambda: not graph.dead()  # noqa: E731
+        alive = lambda: not graph.dead()
         assert events.wait_start(1, alive=alive), graph.tail('sim_node')
         assert collector.wait(1, 120, alive=alive), graph.tail('validator_node')   # pull 0 is all corrected
         client = AsyncParameterClient(collector.node, 'correction')
@@ -240,7 +240,7 @@ def test_a_restarted_validator_keeps_its_scores(tmp_path, ros_domain):
         graph.start('force_correction', 'validator_node', {'state_file': str(state)})
         assert collector.wait_for_graph({'/force_corrected': 1, '/force': 2, '/pull_event': 1}, timeout=60)
         graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 3, 'rate': 1.0})
-        alive = lambda: not graph.dead()  # noqa: E731
+        alive = lambda: not graph.dead()
         assert collector.wait(2, 120, alive=alive), graph.tail('validator_node')
         kill(graph, 'validator_node')
         before = collector.scores[:]

@@ -89,14 +89,14 @@ def test_the_reference_free_extension_round_trips_into_the_peak_inputs(tmp_path)
     """With no reference cell the correction's mass is g m2 and its gain 1: extension.yaml states g m2's u as m2's
     (relative to g m2) and the delay's; the gain's u stays the rig's, since g is not identified."""
     from force_discovery.core.extension import extension_yaml
-    from force_discovery.core.free_report import free_extension
+    from force_discovery.core.without_reference.report import report_extension
     rig = load_rig(NOMINAL_YAML)
     cands = {'gain_mass_product': {'parameters': {'gain_mass_kg': 0.34}, 'parameters_ci95': {'gain_mass_kg':
                                                                                             [0.338, 0.342]}},
              'accel_delay': {'parameters': {'delay_s': 3e-5}, 'parameters_ci95': {'delay_s': [2.8e-5, 3.2e-5]}}}
     rep = {'candidates': cands, 'causes': [{'name': 'gain_mass_product'}, {'name': 'accel_delay'}]}
     path = tmp_path / 'extension.yaml'
-    path.write_text(extension_yaml(free_extension(rep, rig)))
+    path.write_text(extension_yaml(report_extension(rep, rig)))
     doc = yaml.safe_load(path.read_text())
     assert doc['correction']['mass_kg'] == 0.34 and doc['correction']['moving_cell_gain'] == 1.0
     assert doc['uncertainty']['departures'] == {'effective_mass': {'mass_kg': pytest.approx(0.001)},
@@ -107,4 +107,4 @@ def test_the_reference_free_extension_round_trips_into_the_peak_inputs(tmp_path)
     # one pull: per-pull estimates, no interval: nothing stated, the rig's u stays
     cands['gain_mass_product']['parameters_ci95']['gain_mass_kg'] = None
     cands['accel_delay']['parameters_ci95']['delay_s'] = None
-    assert 'uncertainty' not in free_extension(rep, rig)
+    assert 'uncertainty' not in report_extension(rep, rig)

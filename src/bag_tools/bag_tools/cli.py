@@ -70,7 +70,7 @@ class Command:
 class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error in one line."""
 
-    def error(self, message):  # noqa: D102
+    def error(self, message):
         self.exit(2, f'{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n')
 
 

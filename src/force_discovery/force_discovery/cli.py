@@ -38,6 +38,7 @@ def main(args) -> int:
         from force_tester_sim.core.params import load_rig
 
         from .core.pipeline import discover
+        from .core.report import HELD_OUT
         rig = load_rig(args.rig)
         data = Path(args.data)
         if not data.exists():
@@ -63,7 +64,7 @@ def main(args) -> int:
         print(f'pull {f["pull"]} left out: {f["error"]}', file=sys.stderr)
     if report.get('retried_pulls'):
         print(f'rerun after a worker died: {", ".join(report["retried_pulls"])}', file=sys.stderr)
-    if report.get('reference') is False:
+    if report['validation']['method'] != HELD_OUT:   # leave-one-out or per-pull: the free phases' estimates
         return print_reference_free(report, Path(args.out))
     if not report['fitted_pulls']:   # the data-quality screen left too few pulls: the report says which and why
         unread = f' ({len(report["failed_pulls"])} could not be read)' if report.get('failed_pulls') else ''
@@ -86,7 +87,7 @@ def main(args) -> int:
 
 
 def print_reference_free(report: dict, out: Path) -> int:
-    """What the reference-free path says on the terminal (force_discovery/core/free.py)."""
+    """What the reference-free path says on the terminal (force_discovery/core/without_reference/)."""
     if not report['fitted_pulls']:
         return _error(f'no usable pulls without a reference ({len(report["excluded_pulls"])} excluded, '
                       f'{len(report["failed_pulls"])} unreadable); expected a record with an event and free phases '

@@ -83,7 +83,7 @@ class NodeParams:
                 values[p.name] = p.value
         try:
             config = self._validate(values)
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - a bad value is rejected, the node keeps running
             self._node.get_logger().warning(f'parameter change rejected: {exc}')
             return SetParametersResult(successful=False, reason=str(exc))
         changed = config != self.config

@@ -199,11 +199,11 @@ def release(executor, nodes) -> None:
     for node in nodes:
         try:
             executor.remove_node(node)
-        except Exception:  # noqa: BLE001 - the context may already be shut down
+        except Exception:  # noqa: BLE001, S110 - the context may already be shut down
             pass
     try:
         executor.shutdown(timeout_sec=SHUTDOWN_TIMEOUT_S)
-    except Exception:  # noqa: BLE001 - idem
+    except Exception:  # noqa: BLE001, S110 - idem
         pass
     for node in nodes:
         node.destroy_node()

@@ -98,7 +98,7 @@ class SimNode(Node):
     def _run(self):
         try:
             self._publish_all()
-        except Exception as exc:  # keep the node alive and say what went wrong
+        except Exception as exc:  # noqa: BLE001 - keep the node alive and say what went wrong
             if self._stop.is_set():   # the node is shutting down (Ctrl-C): its pool and context go away
                 return
             self.diag.report(ERROR, f'simulation stopped: {exc}', latch=True)

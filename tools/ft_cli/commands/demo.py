@@ -223,7 +223,7 @@ def run_with_scoreboard(args, out: Path, extension: Path | None) -> list:
 def run(args) -> int:
     out = Path(args.out)
     t0 = time.monotonic()
-    say = lambda m: print(m, file=sys.stderr)  # noqa: E731
+    say = lambda m: print(m, file=sys.stderr)
     if args.monitor and not monitor_node_available():
         say('demo: the monitor node (force_tester_monitor) is not built: the scoreboard only, no Foxglove')
     try:

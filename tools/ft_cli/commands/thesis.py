@@ -149,7 +149,7 @@ def run(args) -> int:
 def _run(args) -> int:
     from force_tester_sim.core.params import load_rig
     from force_tester_sim.core.thesis import format_report, mass_sweep, top_speed_study
-    say = lambda m: print(m, file=sys.stderr)  # noqa: E731
+    say = lambda m: print(m, file=sys.stderr)
     rig = load_rig()
     study = top_speed_study(rig)
     sweep = mass_sweep(rig)

@@ -212,8 +212,8 @@ def format_column(a: np.ndarray):
     pyarrow string array, formatted in C++: pyarrow casts to the same shortest digits but lays some out
     differently, and those are mended here: integers gain '.0', exponents two digits (1e-5 -> 1e-05), and
     what is left (fixed notation below 1e-4, exponents from 1e-4 to 1e16: a few in a pull) is repr'd."""
-    import pyarrow as pa  # noqa: PLC0415 - only where CSV is written
-    import pyarrow.compute as pc  # noqa: PLC0415
+    import pyarrow as pa  # only where CSV is written
+    import pyarrow.compute as pc
     v = np.ascontiguousarray(a, dtype=np.float64)
     sample = v.view(np.int64)[::max(1, v.size // 2048)]
     if v.size > 64 and np.unique(sample).size <= sample.size // 2:
@@ -245,7 +245,7 @@ def write_csv(path: Path, channels: Mapping[str, np.ndarray]) -> None:
     pyarrow (format_column) when it is installed: the same bytes as the plain Python below."""
     names = list(channels)
     try:
-        import pyarrow.compute as pc  # noqa: PLC0415
+        import pyarrow.compute as pc
     except ImportError:
         pc = None
     cols = {c: np.asarray(channels[c], dtype=np.float64) for c in names}
@@ -277,7 +277,7 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
     'Channel' or 'Group/Channel'); unmapped columns are looked up by their own name. time_s
     absent: built from sample_rate_hz or the channels' wf_increment property."""
     try:
-        import nptdms  # noqa: PLC0415 - optional dependency
+        import nptdms  # optional dependency
     except ImportError:
         raise BagError('reading TDMS needs npTDMS: pip install npTDMS (see requirements.txt)') \
             from None

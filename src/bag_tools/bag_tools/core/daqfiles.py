@@ -104,7 +104,7 @@ def read_lvm(path: Path) -> list:
     """LabVIEW Measurement File (text): one Record per segment. X_Value columns give time; Delta_X the
     rate; Y_Unit_Label the units; a Comment column is dropped."""
     try:
-        import lvm_read  # noqa: PLC0415 - imported only for its format
+        import lvm_read  # imported only for its format
     except ImportError:
         raise _missing('lvm-read') from None
     try:
@@ -143,7 +143,7 @@ def read_lvm(path: Path) -> list:
 def read_mdf(path: Path) -> list:
     """ASAM MDF4: one Record; every non-master channel, its unit; the rate from its timestamps."""
     try:
-        import asammdf  # noqa: PLC0415 - imported only for its format
+        import asammdf  # imported only for its format
     except ImportError:
         raise _missing('asammdf') from None
     try:
@@ -172,7 +172,7 @@ def read_mdf(path: Path) -> list:
 def read_uff(path: Path) -> list:
     """UFF 58 (universal file, function at nodes): one Record of every type-58 set, named by id1."""
     try:
-        import pyuff  # noqa: PLC0415 - imported only for its format
+        import pyuff  # imported only for its format
     except ImportError:
         raise _missing('pyuff') from None
     try:
@@ -198,7 +198,7 @@ def read_uff(path: Path) -> list:
 def read_tdms_raw(path: Path) -> list:
     """NI TDMS: one Record; channels as 'Group/Channel' (and 'Channel'), unit_string, wf_increment."""
     try:
-        import nptdms  # noqa: PLC0415 - imported only for its format
+        import nptdms  # imported only for its format
     except ImportError:
         raise _missing('npTDMS') from None
     try:
@@ -267,8 +267,8 @@ _NAN_FIELDS = ['', 'nan', 'NaN', 'NAN', '-nan', '+nan']
 def _read_csv_arrow(path: Path, names: list, body_at: int) -> dict | None:
     """The columns by pyarrow.csv, or None when pyarrow is missing or refuses the file."""
     try:
-        import pyarrow as pa  # noqa: PLC0415 - ~0.1 s to import: only where CSV is read
-        import pyarrow.csv as pcsv  # noqa: PLC0415
+        import pyarrow as pa  # ~0.1 s to import: only where CSV is read
+        import pyarrow.csv as pcsv
     except ImportError:
         return None
     try:

@@ -132,7 +132,7 @@ class Recording:
     def _file_writer(self):
         """The BagWriter of the file being written (None between split files)."""
         w = self.writer
-        return w._split if isinstance(w, SplitBagWriter) else w  # noqa: SLF001
+        return w._split if isinstance(w, SplitBagWriter) else w
 
     def _storage(self):
         """rosbags' MCAP storage writer of the file being written, or None."""
@@ -176,7 +176,7 @@ class Recording:
                 pass
         fw = self._file_writer()
         if fw is not None:
-            fw._writer, fw._closed = None, True  # noqa: SLF001
+            fw._writer, fw._closed = None, True
         w = self.writer
         if isinstance(w, SplitBagWriter):
-            w._split, w._closed = None, True  # noqa: SLF001
+            w._split, w._closed = None, True

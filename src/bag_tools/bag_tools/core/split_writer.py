@@ -177,7 +177,7 @@ class SplitBagWriter:
                 self._split.abort()
                 self._split = None
             write_metadata(self.path, self._metadata())
-        except BaseException as exc:
+        except BaseException as exc:  # noqa: BLE001 - any failure (Ctrl-C too) removes the half-written bag
             if self._split is not None:
                 self._split.abort()
                 self._split = None

@@ -5,7 +5,7 @@ force departs from the force the m*a correction assumes, and this module undoes 
 
 - ``mass_kg``: the mass that belongs in m*a (replaces m2);
 - ``moving_cell_gain``: measured = gain x true, so the force is divided by it;
-- ``moving_cell_quadratic_per_n``, ``moving_cell_cubic_per_n2`` (issue 27: the terms F_move^2 and F_move^3 on
+- ``moving_cell_quadratic_per_n``, ``moving_cell_cubic_per_n2`` (the terms F_move^2 and F_move^3 on
   force_moving that discover found beyond the catalog): measured = F + c2 F^2 + c3 F^3, so each sample is
   linearised (Newton's method, pointwise: no state) after the hum and before the gain;
 - ``accel_delay_s``: the accelerometer lags the force channel, so the force is delayed by the same

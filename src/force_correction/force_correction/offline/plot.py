@@ -20,9 +20,9 @@ from ..core.streaming import correct_signal
 
 def _pyplot():
     try:
-        import matplotlib  # noqa: PLC0415 - optional dependency
+        import matplotlib  # optional dependency
         matplotlib.use('Agg')
-        import matplotlib.pyplot as plt  # noqa: PLC0415
+        import matplotlib.pyplot as plt
     except ImportError:
         raise CorrectionError('plotting needs matplotlib: pip install matplotlib (see '
                        'requirements.txt)') from None

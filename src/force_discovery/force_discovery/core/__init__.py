@@ -18,25 +18,27 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 - candidate.py    Candidate and Evidence: what a stage says about one cause (frozen)
 - stages.py       the stages: each turns its channel's per-pull results into Candidates; Analysis; the method
 - decision.py     the decision: named, within tolerance, inconclusive, withheld
-- beyond.py       beyond the catalog: a grammar of candidate terms searched on what the named causes leave
-                  (forward selection, held-out test, jackknife intervals, the catalog's priority, interpretation)
+- beyond/         beyond the catalog: a grammar of candidate terms searched on what the named causes leave, one
+                  module a job (its docstring lists them): the grammar, the per-pull series, the spectrum pass,
+                  the normal equations, the forward selection, the catalog's priority, the search, the
+                  interpretation, the plots' traces
 - leftover.py     the leftover structure no catalog entry explains
 - force_errors.py the held-out force-channel error, model of record vs extended
 - resim.py        closing the loop: the held-out pulls re-simulated with and without the extension
 - identifiability.py what a campaign's channels can identify: which path a campaign lacking channels takes,
                   identifiable / not_identifiable (both paths)
-- free.py         discovery without a reference (no stationary cell or encoder, or 1-3 pulls), the driver; its
-                  docstring is the method: the free phases of the moving cell and the accelerometer give g m2, the
-                  accelerometer delay, the ringing modes, the hum
-- delay_fit.py    ... F = G a(t + d) + offset on a grid of delays (a band-limited shift, the refined minimum)
-- free_phases.py  ... pass 1 of a pull: its events (either sign), free phases, own g m2 and delay, free-decay modes
-- free_stats.py   ... pass 2 of a pull: the normal equations per delay; pooled fits and held-out residuals from them
-- leave_one_out.py ... the campaign: pooled estimates, every pull held out once, intervals, verdicts, what the
-                  number of pulls supports
-- reference_fit.py ... with the stationary cell (no encoder, or 1-3 pulls): g and m2 apart, leave-one-out
-- free_report.py  ... its report.json, report.md and extension.yaml
-- stream.py       the driver: the per-pull passes on the campaign engine, memory flat in the number of pulls
-- pipeline.py     discover(): the entry point
+- without_reference/ discovery without a reference (no stationary cell or encoder, or 1-3 pulls), one module an
+                  idea: driver.py (its docstring is the method: the free phases of the moving cell and the
+                  accelerometer give g m2, the accelerometer delay, the ringing modes, the hum), delay_fit.py
+                  (F = G a(t + d) + offset on a grid of delays), phases.py (pass 1 of a pull: its events, free phases,
+                  own g m2 and delay, free-decay modes), phase_stats.py (pass 2: the normal equations per delay),
+                  leave_one_out.py (the campaign: pooled estimates, every pull held out once, its Candidates),
+                  stationary_cell.py (with the stationary cell: g and m2 apart), report.py (its report.json,
+                  report.md and extension.yaml)
+- passes.py       the per-pull passes (read, cells, hum, statistics, held-out, beyond), each a function the campaign
+                  engine maps over the pulls, with its settings and its small result
+- stream.py       the driver: the passes in order on the campaign engine, memory flat in the number of pulls
+- pipeline.py     discover(): the entry point; the path a campaign takes, the stages in order
 - report.py       report.json (the one place Candidates become dicts); markdown.py report.md; extension.py
                   extension.yaml; plots.py the figures; outputs.py writes the folder whole
 - errors.py       DiscoveryError

@@ -1,4 +1,4 @@
-"""Uncertainty budgets (issue 25): every reported parameter's combined standard uncertainty, the statistical part
+"""Uncertainty budgets: every reported parameter's combined standard uncertainty, the statistical part
 (the pull-to-pull spread, uncertainty.py) and the systematic parts, each estimated and listed. ROS-free.
 
 Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KIND):
@@ -20,26 +20,30 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
   (load_dependence). A mode's frequency and damping, and the hum's frequency, move from pull to pull: their
   pull-to-pull standard deviation (pull_to_pull).
 
-The expanded uncertainty is U = sqrt((q u_stat)^2 + (COVERAGE_K u_sys)^2): q is the statistical interval's own
+The expanded uncertainty is U = sqrt((q u_stat)^2 + (k u_sys)^2) (expanded): q is the statistical interval's own
 factor (Student's t over the fitted pulls, or 1.96 for a bootstrap), so with no systematic part the interval is the
-old one, and COVERAGE_K = 2 (a calibration certificate's k = 2, about 95 %) on the systematic parts, whose
-distributions are not known. `parameters_ci95` becomes estimate +/- U.
+old one, and k = COVERAGE_FACTOR = 2 (a calibration certificate's k = 2, about 95 %; its one home is
+force_correction.core.peak_uncertainty) on the systematic parts, whose distributions are not known.
+`parameters_ci95` becomes estimate +/- U. The terms beyond the catalog get their budgets the same way (term_budget).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Dict, Mapping, Optional, Sequence
+from functools import partial
+from typing import Dict, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
+
 from .candidate import Candidate
 from .force_model import TERMS, force_params
-from .friction import friction_row
+from .force_stats import ForceStats
+from .friction import friction_row, friction_stat
 from .prep import Pull, tension_from_stationary
 from .uncertainty import CONFIDENCE, t_quantile
 
-COVERAGE_K = 2.0
 VARIANT_PULLS = 3        # fitted pulls (spread over the campaign) the model-form and constant refits use
 GROUPS = 3               # load groups of the fitted pulls for the definition component
 ANTI_ALIAS_FRACTION = 0.4   # the variant's anti-alias corner, as a fraction of the sample rate
@@ -268,6 +272,12 @@ def rate_scale(tau: float) -> float:
     return 1.0 / (tau * tau) if (tau > 0 and math.isfinite(tau)) else 1.0
 
 
+def expanded(q: float, u_stat: float, u_sys: float) -> float:
+    """The expanded uncertainty U of a statistical part u_stat (its own interval factor q) and a combined
+    systematic part u_sys (module doc): sqrt((q u_stat)^2 + (COVERAGE_FACTOR u_sys)^2)."""
+    return math.sqrt((q * u_stat) ** 2 + (COVERAGE_FACTOR * u_sys) ** 2)
+
+
 def honest(name: str, c: Candidate, systematic: Mapping[str, Mapping[str, float]], clock_rel: float) -> Candidate:
     """The candidate with every parameter's budget and the expanded interval (module doc). systematic:
     {parameter: {component: u}} in the parameter's unit; clock_rel: the sample clock's relative u. The AC coupling's
@@ -281,7 +291,7 @@ def honest(name: str, c: Candidate, systematic: Mapping[str, Mapping[str, float]
         s = rate_scale(est) if rate else 1.0
         u_stat = rate_stat_u(name, c) / s if rate else statistical_u(name, c, par)
         u_sys = math.sqrt(sum(v * v for v in sys_.values()))
-        U = math.sqrt((stat_factor(name, c) * u_stat) ** 2 + (COVERAGE_K * u_sys) ** 2) * s
+        U = expanded(stat_factor(name, c), u_stat, u_sys) * s
         lo, hi = c.parameters_ci95[par]
         if math.isfinite(U):
             if rate:
@@ -302,12 +312,75 @@ def honest_all(cand: Mapping[str, Candidate], systematic: Mapping[str, Mapping],
     return {n: honest(n, c, systematic.get(n, {}), clock_rel) for n, c in cand.items()}
 
 
+class TermBudget(NamedTuple):
+    """A coefficient's budget beyond the catalog (term_budget)."""
+
+    budget: Dict[str, float]        # {component: standard uncertainty}, SI, with COMBINED
+    ci95: Tuple[float, float]       # estimate +/- U on the scaled coefficient
+
+
+def term_budget(fit: Sequence, prod: Sequence[int], col: Optional[int], coef: float, ci: Tuple[float, float],
+                si: float, relative: Optional[Tuple[str, float]]) -> TermBudget:
+    """One coefficient of a term beyond the catalog, its budget made as honest() makes the catalog's: the
+    statistical part from the jackknife interval ci (its own Student factor); each systematic part the
+    coefficient's shift when a rig constant is one standard uncertainty off (the residual's change, its normal
+    equations ChannelStats.systematic per fitted pull, regressed on the model's product columns prod: the moving
+    mass m2 on the moving cell, each drive constant on the motor current); relative: (component, relative u) of the
+    channel's sensor calibration. fit: the fitted pulls' ChannelStats; col: the term's column (None: a sinusoid);
+    si: the factor from the scaled coefficient to SI."""
+    q = t_quantile(len(fit))
+    u_stat = 0.5 * abs(ci[1] - ci[0]) / q
+    sys_: Dict[str, float] = {}
+    if col is not None and fit[0].systematic:
+        idx = list(prod)
+        pos = idx.index(col)
+        Gs = sum(st.gram[np.ix_(idx, idx)] for st in fit)
+        for comp in fit[0].systematic:
+            bz = sum(st.systematic[comp][idx] for st in fit)
+            sys_[comp] = abs(float(np.linalg.lstsq(Gs, bz, rcond=1e-12)[0][pos]))
+    if relative is not None:
+        comp, rel = relative
+        sys_[comp] = rel * abs(coef)
+    u_sys = math.sqrt(sum(v * v for v in sys_.values()))
+    U = expanded(q, u_stat, u_sys)
+    budget = {STATISTICAL: u_stat, **sys_}
+    budget[COMBINED] = math.sqrt(sum(v * v for v in budget.values()))
+    return TermBudget({k: v * abs(si) for k, v in budget.items()}, (coef - U, coef + U))
+
+
 def clock_relative(rig) -> float:
     """The sample clock's relative standard uncertainty."""
     return rig.uncertainty.relative('daq.sample_rate_hz', rig.daq.sample_rate_hz)
 
 
-__all__ = ['COMBINED', 'COVERAGE_K', 'KIND', 'STATISTICAL', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative',
-           'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all',
-           'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
-           'variant_pulls']
+def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float,
+                         joint: bool = False, hum_freqs: Sequence[float] = ()) -> dict:
+    """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (module doc) from pass 3's variant
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount), the few
+    pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the viscous damping fitted)."""
+    out: dict = {}
+    vidx = [j for j in fit if stats[j].variants is not None]
+    if vidx:
+        def sub(get):
+            return ForceStats([get(stats[j]) for j in vidx], [stats[j].dt for j in vidx], m2,
+                              None if scales is None else [scales[j] for j in vidx])
+        names = list(stats[vidx[0]].variants)
+        fs = force_systematics(sub(lambda st: st.blocks), {n: sub(lambda st, n=n: st.variants[n]) for n in names},
+                               range(len(vidx)), m2)
+        u_stat = {t: {p: (rate_stat_u(t, cand[t]) if t == 'ac_coupling' else statistical_u(t, cand[t], p))
+                      for p in cand[t].parameters} for t in TERMS}
+        all_blocks = ForceStats([st.blocks for st in stats], [st.dt for st in stats], m2, scales)
+        ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat, delay)
+        for t, params in fs.items():
+            for p, comps in params.items():
+                out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+    out.update(pull_to_pull_parts(cand, modes, hum_freqs))
+    if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
+        out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint))}
+    return out
+
+
+__all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
+           'clock_relative', 'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants',
+           'honest', 'honest_all', 'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u',
+           'statistical_u', 'term_budget', 'variant_pulls']

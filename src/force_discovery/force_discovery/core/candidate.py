@@ -3,7 +3,8 @@ its Evidence (the held-out significance test and what the cause's channel adds t
 stage that finds them (stages.py); decision.py reads them; report.py turns them into report.json's dicts (as_dict)
 and adds the decision's verdicts there. ROS-free.
 
-A new kind of cause (a term beyond the catalog, a reference-free check) is a new stage that returns a Candidate;
+A new kind of cause (a term beyond the catalog, a reference-free check: without_reference.leave_one_out) is a new
+stage that returns a Candidate;
 a new piece of evidence is a field of Evidence, with its place in EVIDENCE_ORDER (report.json's key order)."""
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from typing import Dict, List, Optional
 TEST_ORDER = ('statistic', 'rel_sse_reduction', 't', 'threshold', 'significant', 'rms_gain')
 UNTESTED_ORDER = ('significant', 'rel_sse_reduction', 't', 'rms_gain')
 EVIDENCE_ORDER = ('rms_gain_alone', 't_squared_rel_reduction', 'observed_frequency_hz', 'observed_damping_ratio',
-                  'cell_mode_hz', 'frequency_rule', 'ring_to_noise', 'ring_to_noise_ci95', 'viscous_damping_n_s_per_m')
+                  'cell_mode_hz', 'frequency_rule', 'ring_to_noise', 'ring_to_noise_ci95', 'viscous_damping_n_s_per_m',
+                  'ac_coupling_per_s', 'per_pull_rel_reduction')
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,8 @@ class Evidence:
     ring_to_noise: Optional[float] = None             # mount_resonance: the mode's ring over the noise (its band)
     ring_to_noise_ci95: Optional[tuple] = None
     viscous_damping_n_s_per_m: Optional[float] = None   # coulomb_friction: the drive's b fitted with it (joint)
+    ac_coupling_per_s: Optional[float] = None         # effective_mass without a reference: k fitted with g and m2
+    per_pull_rel_reduction: Optional[tuple] = None    # leave-one-out: each held-out pull's own relative reduction
 
     def value(self, name: str):
         """The evidence called name (a tolerance band may apply to one, tolerances.BAND_PARAMETER)."""
@@ -76,7 +80,7 @@ class Candidate:
     def as_dict(self) -> dict:
         """The candidate as report.json lists it before the decision's verdicts are added (a fresh dict)."""
         return {'parameters': dict(self.parameters),
-                'parameters_ci95': {k: list(v) for k, v in self.parameters_ci95.items()},
+                'parameters_ci95': {k: None if v is None else list(v) for k, v in self.parameters_ci95.items()},
                 'ci_pulls': self.ci_pulls, 'evidence': self.evidence.as_dict(), 'channel': self.channel,
                 'uncertainty_budget': {k: dict(v) for k, v in self.uncertainty_budget.items()}}
 

@@ -46,12 +46,7 @@ def cell_frequency_from(modes: Iterable[Optional[Tuple[float, float]]]) -> Optio
     """(median natural frequency, its standard deviation, count, median damping ratio, its standard deviation) over
     the first CAL_PULLS measured cell_mode()s (None: not measured on that pull), in pull order; None if fewer than 2
     were measured."""
-    found = []
-    for m in modes:
-        if len(found) >= CAL_PULLS:
-            break
-        if m is not None:
-            found.append(m)
+    found = first_measured(modes)
     if len(found) < 2:
         return None
     f, z = np.array(found).T
@@ -66,13 +61,19 @@ def rig_cell_frequency(rig) -> float:
 def cell_damping_from(zetas: Iterable[Optional[float]]) -> Optional[Tuple[float, int]]:
     """(median, count) of the first CAL_PULLS measured ratios among the per-pull cell_zeta() values (None: not
     measured on that pull), in pull order; None if none was measured."""
+    found = first_measured(zetas)
+    return (float(np.median(found)), len(found)) if found else None
+
+
+def first_measured(values: Iterable) -> list:
+    """The first CAL_PULLS values that were measured (not None), in pull order."""
     found = []
-    for z in zetas:
+    for v in values:
         if len(found) >= CAL_PULLS:
             break
-        if z is not None:
-            found.append(z)
-    return (float(np.median(found)), len(found)) if found else None
+        if v is not None:
+            found.append(v)
+    return found
 
 
 def cell_damping_ratio(pulls: Sequence[Pull], idx: Sequence[int], rig) -> Optional[Tuple[float, int]]:

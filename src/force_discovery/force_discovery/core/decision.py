@@ -6,9 +6,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Tuple
 
+from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 from force_tester_sim.core.tolerances import BAND_PARAMETER, band
 
-from .budget import COMBINED, COVERAGE_K, STATISTICAL
+from .budget import COMBINED, STATISTICAL
 from .candidate import Candidate
 from .force_model import TERMS
 from .stages import Analysis
@@ -55,12 +56,12 @@ def tolerance_input(name: str, c: Candidate) -> Tuple[float, Tuple[float, float]
 
 
 def fixed_half(name: str, c: Candidate) -> float:
-    """The half-width that more pulls would not shrink: COVERAGE_K x the systematic part of the band parameter's
-    budget (0 without one)."""
+    """The half-width that more pulls would not shrink: COVERAGE_FACTOR x the systematic part of the band
+    parameter's budget (0 without one)."""
     b = c.uncertainty_budget.get(BAND_PARAMETER[name][0])
     if not b or name == 'ac_coupling':   # the AC coupling's interval is made in its rate 1/tau: taken as shrinking
         return 0.0
-    return COVERAGE_K * math.sqrt(sum(v * v for k, v in b.items() if k not in (STATISTICAL, COMBINED)))
+    return COVERAGE_FACTOR * math.sqrt(sum(v * v for k, v in b.items() if k not in (STATISTICAL, COMBINED)))
 
 
 def decide(analysis: Analysis, rig) -> Decision:

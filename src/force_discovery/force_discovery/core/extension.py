@@ -5,12 +5,12 @@ from __future__ import annotations
 import math
 
 from force_correction.core.extension import CORRECTION_TERMS
+from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 from force_tester_sim.core.departures import MOUNT_BASE_MASS_FRACTION
 from force_tester_sim.core.uncertainty import DEPARTURES
 
-from .budget import COVERAGE_K
 from .decision import Decision
-from .report import candidates, clean, entry
+from .report import available, candidates, clean, entry
 from .ringing import mount_from_observed
 from .stages import CATALOG_PARAMS, Analysis
 
@@ -71,7 +71,7 @@ def extension(report, rig) -> dict:
     unc = correction_uncertainty(report.get('candidates') or {}, corr)
     if unc:
         out['uncertainty'] = unc
-    add_extra_terms(out, report.get('beyond_catalog', ()))
+    add_extra_terms(out, available(report, 'beyond_catalog') or ())
     if assumptions:
         out['assumptions'] = assumptions
     return out
@@ -81,7 +81,7 @@ def correction_uncertainty(cands: dict, corr: dict, corrected=CORRECTED) -> dict
     """The extension's ``uncertainty:`` section (the rig YAML's form, force_tester_sim.core.uncertainty:
     ``departures: {cause: {parameter: u}}``): the standard uncertainty (k = 1) of each value the correction uses
     that the campaign estimated (m2, the gain, the delay: ``corrected``), from the candidate's expanded interval
-    (half-width / COVERAGE_K) and, where the correction keeps the model of record's value because the cause is
+    (half-width / COVERAGE_FACTOR) and, where the correction keeps the model of record's value because the cause is
     not named, the difference between the estimate and that value: u = sqrt((U / k)^2 + (estimate - used)^2).
     A candidate with no interval (one pull: per-pull estimates only) states nothing."""
     out: dict = {}
@@ -92,7 +92,7 @@ def correction_uncertainty(cands: dict, corr: dict, corrected=CORRECTED) -> dict
         if not ci or est is None or not all(v is not None and math.isfinite(v) for v in ci):
             continue
         lo, hi = ci
-        u = math.hypot(0.5 * (hi - lo) / COVERAGE_K, est - corr[key])
+        u = math.hypot(0.5 * (hi - lo) / COVERAGE_FACTOR, est - corr[key])
         out.setdefault(as_cause, {})[as_par] = float(u)
     return {DEPARTURES: out} if out else {}
 

@@ -1,4 +1,4 @@
-"""The force model's sufficient statistics, one pull at a time (issue 16: discovery in bounded memory). ROS-free.
+"""The force model's sufficient statistics, one pull at a time (discovery in bounded memory). ROS-free.
 
 force_model.ForceModel fits F_move - hum = g T + M a2(t + d) - k C over every fitted pull's analysis window W at
 once, with the accelerometer delay d applied to the force side by linear interpolation. Everything it computes --

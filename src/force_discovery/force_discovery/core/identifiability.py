@@ -1,4 +1,4 @@
-"""What a campaign's channels can identify (issue 26): which quantities need which channel, which path a campaign
+"""What a campaign's channels can identify: which quantities need which channel, which path a campaign
 lacking channels takes, and the identifiable / not_identifiable lists of report.json and report.md. ROS-free."""
 from __future__ import annotations
 

@@ -6,8 +6,9 @@ from pathlib import Path
 
 from . import quality as Q
 from . import stages
-from .beyond import NEAR_TIE
+from .beyond.selection import NEAR_TIE
 from .budget import COMBINED, KIND
+from .report import available
 
 
 def _num(v) -> str:
@@ -90,7 +91,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
 
 def beyond_lines(r) -> list:
     """The search beyond the catalog (report.json beyond_catalog, beyond_search)."""
-    if 'beyond_search' not in r:
+    if available(r, 'beyond_search') is None:
         return []
     b = r['beyond_search']
     at = ', '.join(f'{c} {f:.1f} Hz' for c, f in b['frequencies_hz'].items()) or 'no line in the residuals'

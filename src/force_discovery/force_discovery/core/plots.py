@@ -16,7 +16,7 @@ from .stages import Analysis
 
 def beyond_plots(traces, out: Path) -> list:
     """beyond_<k>.png: each term beyond the catalog, its channel's residual on one held-out pull before and after
-    it (beyond.term_traces)."""
+    it (beyond.traces.TermTrace)."""
     if not traces:
         return []
     try:
@@ -27,13 +27,13 @@ def beyond_plots(traces, out: Path) -> list:
         return []
     from force_tester_sim.core.extra_terms import CHANNEL_UNITS
     paths = []
-    for k, (pull, ch, term, t, before, after) in enumerate(traces):
+    for k, tr in enumerate(traces):
         fig, ax = plt.subplots(figsize=(8, 2.6))
-        ax.plot(t, before, color='tab:blue', lw=0.6, label='before (the catalog and the other terms)')
-        ax.plot(t, after, color='tab:orange', lw=0.6, label=f'after {term}')
-        ax.set_title(f'{term} on {ch}: held-out pull {pull}')
+        ax.plot(tr.t, tr.before, color='tab:blue', lw=0.6, label='before (the catalog and the other terms)')
+        ax.plot(tr.t, tr.after, color='tab:orange', lw=0.6, label=f'after {tr.term}')
+        ax.set_title(f'{tr.term} on {tr.channel}: held-out pull {tr.pull}')
         ax.set_xlabel('s from the record start')
-        ax.set_ylabel(f'residual, {CHANNEL_UNITS[ch]}')
+        ax.set_ylabel(f'residual, {CHANNEL_UNITS[tr.channel]}')
         ax.legend(fontsize=7)
         fig.tight_layout()
         path = out / f'beyond_{k + 1}.png'

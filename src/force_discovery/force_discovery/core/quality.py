@@ -1,4 +1,4 @@
-"""Data quality before physics (issue 12): screen each pull's channels for data defects, say where they
+"""Data quality before physics: screen each pull's channels for data defects, say where they
 are, and give the masks that keep them out of every fit. ROS-free (numpy only).
 
 A data defect is something the DAQ or a sensor did to the record, not something the rig did: a spike,

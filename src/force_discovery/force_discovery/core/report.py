@@ -8,8 +8,11 @@ import math
 
 import numpy as np
 
+from force_tester_common.core.channels import CHANNELS
+
 from . import quality as Q
 from .decision import NONLIN_SHARE, Decision
+from .errors import DiscoveryError
 from .force_errors import ForceErrors
 from .force_model import TERMS
 from .leftover import UNEXPLAINED_SHARE
@@ -19,6 +22,71 @@ from .stages import CATALOG_PARAMS, MIN_PULLS, Analysis
 from .uncertainty import INCONCLUSIVE, WITHIN
 
 FORCE_CHANNEL = ('mains_hum',) + TERMS
+HELD_OUT = 'held-out'     # validation.method with a reference: half the pulls fitted, half held out
+#: report.json's top-level keys, on both paths (a test checks a campaign with a reference and one without). A key a
+#: path cannot fill is {NOT_AVAILABLE: why} (complete), never left out
+REPORT_KEYS = ('cause', 'causes', 'baseline_error', 'extended_error', 'gain', 'metric', 'reference', 'stationary_cell',
+               'absent', 'channels', 'validation', 'identifiable', 'not_identifiable', 'force_channel',
+               'within_tolerance', 'inconclusive', 'indicated', 'tolerances', 'pulls', 'fitted_pulls',
+               'held_out_pulls', 'excluded_pulls', 'significance_rule', 'uncertainty_budget', 'candidates', 'modes',
+               'per_pull', 'cell_mode_hz', 'leftover', 'cell_damping', 'simulation', 'simulation_check',
+               'beyond_catalog', 'beyond_search', 'data_quality', 'notes', 'plots', 'failed_pulls', 'retried_pulls',
+               'scheduler')
+NOT_AVAILABLE = 'not_available'
+#: why the path without a reference cannot fill a key (the keys only the analysis with a reference fills)
+WITH_REFERENCE_ONLY = {
+    'force_channel': 'the held-out force-channel error needs the tension T and the carriage motion (the stationary '
+                     'cell, the encoder, 4 pulls or more): the free phases give the metric instead',
+    'leftover': 'the structure check runs on the force model\'s residual, which needs T and the carriage motion',
+    'cell_damping': 'the cells\' calibration is the stationary cell\'s free decay with the encoder\'s motion',
+    'simulation': 'the re-simulation drives the sim with the encoder\'s carriage motion and checks T',
+    'simulation_check': 'the re-simulation drives the sim with the encoder\'s carriage motion and checks T',
+    'beyond_catalog': 'the search beyond the catalog runs on the residuals the model of record leaves, which need T '
+                      'and the carriage motion',
+    'beyond_search': 'the search beyond the catalog runs on the residuals the model of record leaves, which need T '
+                     'and the carriage motion'}
+#: why the path with a reference does not fill a key (the keys only the free-phase analysis fills)
+WITHOUT_REFERENCE_ONLY = {
+    'modes': 'with a reference the ringing is the mount_resonance candidate (its evidence: the observed mode)',
+    'per_pull': 'with a reference the estimates are pooled over the fitted pulls and tested on the held-out ones; '
+                'per-pull estimates are the free-phase analysis\'s',
+    'cell_mode_hz': 'with a reference the rig\'s cell mode is the mount_resonance candidate\'s evidence.cell_mode_hz'}
+
+
+def complete(report: dict, why: dict, default: str = '') -> dict:
+    """The report with every REPORT_KEYS key in that order: a key the path did not fill is {NOT_AVAILABLE: why}
+    (why[key], else default). A key outside REPORT_KEYS, or missing with no reason, is a DiscoveryError."""
+    extra = sorted(set(report) - set(REPORT_KEYS))
+    missing = [k for k in REPORT_KEYS if k not in report and not (why.get(k) or default)]
+    if extra or missing:
+        raise DiscoveryError(f'report.json keys {extra} are not in REPORT_KEYS and {missing} have no value and no '
+                             'reason; expected every REPORT_KEYS key, filled or said why not')
+    return {k: report[k] if k in report else {NOT_AVAILABLE: why.get(k) or default} for k in REPORT_KEYS}
+
+
+def available(report: dict, key: str):
+    """report[key], or None where the path said why it could not fill it (complete)."""
+    v = report.get(key)
+    return None if isinstance(v, dict) and set(v) == {NOT_AVAILABLE} else v
+
+
+def campaign_section(analysis: Analysis, absent) -> dict:
+    """report.json: the campaign as the path with a reference saw it (the keys the reference-free path fills too)."""
+    n_fit, n_held = len(analysis.fit), len(analysis.held)
+    return {'reference': True, 'stationary_cell': True, 'absent': list(absent),
+            'channels': [c for c in CHANNELS if c not in absent], 'pulls': [p.name for p in analysis.pulls],
+            'excluded_pulls': dict(analysis.excluded), 'indicated': [],
+            'validation': {'method': HELD_OUT, 'pulls': n_held,
+                           'supports': f'each cause fitted on the {n_fit} fitted pulls and tested on the {n_held} '
+                                       f'held-out ones; named causes (t >= {MIN_T:g} over the held-out pulls, '
+                                       'interval outside the tolerance band)',
+                           'cannot_support': ('anything needing an absent channel' if absent else '')}}
+
+
+#: report.json: a candidate's keys (candidates.<name>), on both paths; a listed cause (causes[], within_tolerance[],
+#: inconclusive[], indicated[]) has its name and LISTED_KEYS, a named one also its gain, channel and where
+CANDIDATE_KEYS = ('parameters', 'parameters_ci95', 'uncertainty_budget', 'tolerance', 'evidence', 'channel')
+LISTED_KEYS = ('parameters', 'parameters_ci95', 'uncertainty_budget', 'tolerance', 'evidence')
 
 
 def clean(x):
@@ -143,10 +211,7 @@ def build_report(analysis: Analysis, decision: Decision, errors: ForceErrors, le
                               f'force-channel causes are withheld when a T^2 term removes > '
                               f'{100 * NONLIN_SHARE:g} % of the held-out force residual left by them'),
         'uncertainty_budget': {n: c['uncertainty_budget'] for n, c in cand.items()},
-        'candidates': {n: {'parameters': c['parameters'], 'parameters_ci95': c['parameters_ci95'],
-                           'uncertainty_budget': c['uncertainty_budget'], 'tolerance': c['tolerance'],
-                           'evidence': c['evidence'], 'channel': c['channel']}
-                       for n, c in cand.items()},
+        'candidates': {n: {k: c[k] for k in CANDIDATE_KEYS} for n, c in cand.items()},
         'leftover': left,
         'cell_damping': analysis.cells,
         'data_quality': quality_section(analysis),
@@ -183,10 +248,12 @@ def add_simulation(report: dict, check) -> None:
 
 
 def add_beyond(report: dict, found) -> None:
-    """report.json beyond_catalog (beyond.py's named terms, best first) and beyond_search (how the search ran, the
-    terms inside their band, the catalog causes a term fits better); with no catalog cause named, a term found makes
-    the cause 'beyond_catalog' instead of 'unexplained' or 'none'."""
-    from .beyond import CHANNEL_UNITS, SEARCHED, library
+    """report.json beyond_catalog (the beyond package's named terms, best first) and beyond_search (how the search
+    ran, the terms inside their band, the catalog causes a term fits better); with no catalog cause named, a term
+    found makes the cause 'beyond_catalog' instead of 'unexplained' or 'none'."""
+    from force_tester_sim.core.extra_terms import CHANNEL_UNITS
+
+    from .beyond.grammar import SEARCHED, library
     report['beyond_catalog'] = clean([t.as_dict() for t in found.terms])
     report['beyond_search'] = clean({
         'channels': list(SEARCHED), 'library_terms': len(library()), 'frequencies_hz': found.frequencies,

@@ -1,4 +1,4 @@
-"""Close the loop through the simulator (issue 12, section 4): re-simulate measured pulls with the model of record
+"""Close the loop through the simulator: re-simulate measured pulls with the model of record
 and with the model of record plus a discovered extension, and compare each simulated channel with the measured one.
 ROS-free.
 

@@ -1,5 +1,5 @@
-"""Where a campaign's pulls come from, one at a time (issue 16): a campaign folder in the DAQ export format, read
-pull by pull, or (meta, channels) pairs already in memory. ROS-free.
+"""Where a campaign's pulls come from, one at a time (memory flat in the number of pulls): a campaign folder in the
+DAQ export format, read pull by pull, or (meta, channels) pairs already in memory. ROS-free.
 
 A ``PullRef`` names one pull and says how to get its channels; it is small (except for in-memory pulls, which
 carry their arrays) and picklable, so a Dask worker can load the pull itself.

@@ -1,5 +1,5 @@
 """Discovery: find what the model of record gets wrong in a measured campaign, name the cause from the
-departure catalog, fit its parameters, and measure the gain on held-out pulls (issue 5). ROS-free.
+departure catalog, fit its parameters, and measure the gain on held-out pulls. ROS-free.
 
 Method (every step is a regression on measured channels; no simulation loop):
 

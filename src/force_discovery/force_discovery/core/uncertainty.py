@@ -26,6 +26,9 @@ BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 20130           # fixed: the same data give the same report
 
 NAMED, WITHIN, INCONCLUSIVE, NOT_SIGNIFICANT = 'named', 'within_tolerance', 'inconclusive', 'not_significant'
+# the verdicts a campaign of 1-3 pulls can give (the reference-free path's leave-one-out): one pull has no interval;
+# 2-3 held-out pulls cannot meet t >= MIN_T, so what departs on every one of them is indicated, not named
+PER_PULL_ONLY, INDICATED, NOT_INDICATED = 'per_pull_only', 'indicated', 'not_indicated'
 
 
 def t_quantile(n: int) -> float:
@@ -35,14 +38,21 @@ def t_quantile(n: int) -> float:
     return float(t.ppf(q, n - 1)) if n >= 2 else float(norm.ppf(q))
 
 
+def jackknife_se(leave_one_out: np.ndarray) -> np.ndarray:
+    """The jackknife standard error of an estimate (or, column by column, of several) from its delete-one-pull
+    refits (one row per pull left out): sqrt((n - 1)/n sum (theta_(-k) - mean)^2)."""
+    loo = np.asarray(leave_one_out, float)
+    n = len(loo)
+    return np.sqrt((n - 1) / n * np.sum((loo - loo.mean(0)) ** 2, axis=0))
+
+
 def jackknife_ci(estimate: float, leave_one_out: Sequence[float]) -> Tuple[float, float]:
     """CONFIDENCE interval of a pooled estimate from its delete-one-pull refits."""
     loo = np.asarray(leave_one_out, float)
     n = len(loo)
     if n < 2 or not np.all(np.isfinite(loo)):
         return -math.inf, math.inf
-    se = math.sqrt((n - 1) / n * float(np.sum((loo - loo.mean()) ** 2)))
-    h = t_quantile(n) * se
+    h = t_quantile(n) * float(jackknife_se(loo))
     return float(estimate - h), float(estimate + h)
 
 
@@ -76,20 +86,33 @@ def pulls_to_settle(estimate: float, ci: Tuple[float, float], band: Band, n: int
     return int(math.ceil(n * stat * stat / room))
 
 
+def verdict_rule(inside: bool, outside: bool, significant: bool, can_name: bool = True, departs: bool = False,
+                 one_pull: bool = False) -> str:
+    """The one verdict rule of both paths (the module doc): inside/outside, the 95 % interval lies wholly inside /
+    wholly outside the tolerance band; significant, the held-out test passed. can_name: enough held-out pulls for
+    the test to name a cause (the reference-free path's MIN_NAMED_PULLS; always with a reference); below it,
+    departs says whether the cause departs consistently (every held-out pull better with it). one_pull: a single
+    pull, per-pull estimates only."""
+    if one_pull:
+        return PER_PULL_ONLY
+    if inside:
+        return WITHIN            # significant or not: whatever it is, it does not matter
+    if not can_name:
+        return INDICATED if departs else NOT_INDICATED
+    if not significant:
+        return NOT_SIGNIFICANT
+    return NAMED if outside else INCONCLUSIVE
+
+
 def verdict(estimate: float, ci: Tuple[float, float], band: Band, significant: bool, n: int,
             fixed_half: float = 0.0) -> dict:
-    """The practical-significance verdict of one candidate (see the module doc); fixed_half: the part of the
-    interval's half-width that more pulls do not shrink (pulls_to_settle)."""
+    """The practical-significance verdict of one candidate (verdict_rule) with its band, estimate, interval and
+    pulls (report.json's `tolerance`); fixed_half: the part of the interval's half-width that more pulls do not
+    shrink (pulls_to_settle)."""
     lo, hi = ci
     out = {'band': band.as_dict(), 'estimate': float(estimate), 'ci95': [float(lo), float(hi)], 'pulls': int(n)}
-    if band.contains(lo, hi):
-        out['verdict'] = WITHIN            # significant or not: whatever it is, it does not matter
-    elif not significant:
-        out['verdict'] = NOT_SIGNIFICANT
-    elif band.excludes(lo, hi):
-        out['verdict'] = NAMED
-    else:
-        out['verdict'] = INCONCLUSIVE
+    out['verdict'] = verdict_rule(band.contains(lo, hi), band.excludes(lo, hi), significant)
+    if out['verdict'] == INCONCLUSIVE:
         out['pulls_to_settle'] = pulls_to_settle(estimate, ci, band, n, fixed_half)
     return out
 

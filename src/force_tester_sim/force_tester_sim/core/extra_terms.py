@@ -1,4 +1,4 @@
-"""Terms beyond the departures catalog (issue 27): the grammar `./ft discover` searches, and the rig YAML's
+"""Terms beyond the departures catalog: the grammar `./ft discover` searches, and the rig YAML's
 ``extra_terms:`` section that adds such terms to the sim's channels. The one home of the grammar.
 
 A term is added to one channel (CHANNELS) and is either a product of SIGNALS with integer powers up to MAX_POWER,

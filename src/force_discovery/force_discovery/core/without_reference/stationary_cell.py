@@ -20,10 +20,10 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import quality as Q
+from .. import quality as Q
+from ..prep import MASK_GROW_S, tension_from_stationary
 from .delay_fit import Shifter
-from .free_phases import prepared
-from .prep import MASK_GROW_S, tension_from_stationary
+from .phases import prepared
 
 REFERENCE = 'force_stationary_n'
 

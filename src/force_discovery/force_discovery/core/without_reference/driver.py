@@ -1,4 +1,4 @@
-"""Discovery without a reference (issue 26): what a campaign with only the moving cell and the accelerometer says.
+"""Discovery without a reference: what a campaign with only the moving cell and the accelerometer says.
 ROS-free.
 
 Another lab's rig may have no stationary reference cell, no encoder and no motor channels (campaign.yaml or its
@@ -28,7 +28,7 @@ known calibration mass. The method, per pull:
 5. With the stationary cell (a campaign without the encoder, or with every channel but 1-3 pulls): T from the
    stationary cell (prep.tension_from_stationary) over the whole record, and per delay the Gram matrix of
    F_move, T, a2(t + d) and C (the running integral of F_move) with the offset and hum projected out
-   (reference_fit.py): F_move = g T + g m2 a2(t + d) - k C separates the cell's gain g and the mass m2.
+   (stationary_cell.py): F_move = g T + g m2 a2(t + d) - k C separates the cell's gain g and the mass m2.
 
 The campaign: G and d fitted on all pulls pooled; with n >= 2 pulls every pull is held out once (leave-one-out:
 the fit on the others scores it), which gives each cause its held-out evidence (significance.significance) and
@@ -46,23 +46,23 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from . import quality as Q
+from .. import quality as Q
+from ..errors import DiscoveryError
+from ..hum import HUM_BAND_HZ, hum_frequency_free
+from ..identifiability import FREE_CHANNELS, check_core_channels
 from .delay_fit import delay_grid
-from .errors import DiscoveryError
-from .free_phases import FreePull, free_pull
-from .free_report import free_report, write_free_outputs
-from .free_stats import FreeStats, free_stats
-from .hum import HUM_BAND_HZ, hum_frequency_free
-from .identifiability import FREE_CHANNELS, check_core_channels
 from .leave_one_out import campaign_analysis
-from .reference_fit import reference_stats
+from .phase_stats import FreeStats, free_stats
+from .phases import FreePull, free_pull
+from .report import campaign_report, write_report
+from .stationary_cell import reference_stats
 
 METHOD = __doc__.split('\n\n', 1)[1]
 
 
 # ------------------------------------------------------------------------------------------ the driver
 @dataclass(frozen=True)
-class FreeSurvey:
+class PhasesRead:
     """Pass 1 of one pull: its screen, and its FreePull, or why it is left out."""
 
     name: str
@@ -71,9 +71,9 @@ class FreeSurvey:
     excluded: Optional[str] = None
 
 
-def free_survey(ref) -> FreeSurvey:
+def read_pass(ref) -> PhasesRead:
     """Pass 1 (mapped over the pulls): read, screen, and analyse one pull's free phases."""
-    from .source import load_channels, rated_ranges
+    from ..source import load_channels, rated_ranges
     _meta, ch = load_channels(ref)
     for c in FREE_CHANNELS:
         if c not in ch:
@@ -81,35 +81,37 @@ def free_survey(ref) -> FreeSurvey:
     sc = Q.screen_pull(ref.name, ch, rated_ranges(ref))
     why = sc.exclusion(0, sc.samples, FREE_CHANNELS)
     if why:
-        return FreeSurvey(ref.name, sc, excluded=why)
+        return PhasesRead(ref.name, sc, excluded=why)
     try:
-        return FreeSurvey(ref.name, sc, free_pull(ref.name, ch, sc))
+        return PhasesRead(ref.name, sc, free_pull(ref.name, ch, sc))
     except DiscoveryError as exc:
-        return FreeSurvey(ref.name, sc, excluded=str(exc))
+        return PhasesRead(ref.name, sc, excluded=str(exc))
 
 
-def free_pass2(item) -> FreeStats:
-    """Pass 2 (mapped over the usable pulls): item = (PullRef, FreeSurvey, hum frequency, the delay grid,
+def stats_pass(item) -> FreeStats:
+    """Pass 2 (mapped over the usable pulls): item = (PullRef, PhasesRead, hum frequency, the delay grid,
     the rig's force chain)."""
-    from .source import load_channels
+    from ..source import load_channels
     ref, sv, f_hum, delays, fc = item
     _meta, ch = load_channels(ref)
     st = free_stats(ref.name, ch, sv.screen, f_hum, sv.pull, delays)
     return replace(st, ref=reference_stats(ref.name, ch, sv.screen, f_hum, delays, fc))
 
 
-def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None, few: int = 0) -> dict:
+def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None,
+                               few: int = 0) -> dict:
     """The reference-free discovery of a campaign lacking ``absent`` (module docstring), or of one with every
     channel but fewer pulls than ``few`` (the analysis with a reference needs that many); writes DIR/report.json,
     report.md and extension.yaml and returns the report."""
     def run(stage, fn, items, names):
         prog = (lambda done, total: progress(stage, done, total)) if progress else None
         return mapper(fn, items, names=list(names), keep=True, on_result=None, progress=prog)
-    res = run('survey', free_survey, list(refs), [r.name for r in refs])
+    res = run('read', read_pass, list(refs), [r.name for r in refs])
     failed = list(res.failed)
-    surveys = [s for s in res.results if s is not None]
-    screens = tuple(s.screen for s in surveys if s.screen is not None)
-    excluded = {s.name: s.excluded for s in surveys if s.excluded}
+    run_info = {'retried': list(res.retried), 'scheduler': res.scheduler}
+    reads = [s for s in res.results if s is not None]
+    screens = tuple(s.screen for s in reads if s.screen is not None)
+    excluded = {s.name: s.excluded for s in reads if s.excluded}
     usable = [(r, s) for r, s in zip(refs, res.results) if s is not None and s.pull is not None]
     notes = [f'no {", ".join(absent)}: the reference-free analysis (free phases of the moving cell and the '
              'accelerometer)'] if absent else [
@@ -123,23 +125,24 @@ def discover_free(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, p
         raise DiscoveryError(failed[0][1].split(': ', 1)[-1])       # no moving cell in any pull: one line
     if not usable:
         notes.append(f'0 of {len(refs)} pulls are usable (excluded_pulls, failed_pulls say why)')
-        rep = free_report(None, [], absent, screens, excluded, failed, rig, notes, few)
-        write_free_outputs(rep, screens, rig, Path(out_dir), METHOD)
+        rep = campaign_report(None, [], absent, screens, excluded, failed, rig, notes, few, **run_info)
+        write_report(rep, screens, rig, Path(out_dir), METHOD)
         return rep
     pulls = [s.pull for _r, s in usable]
     pres = [(p.hum_t, p.hum_r) for p in pulls if len(p.hum_t) > 100]
     f_hum = hum_frequency_free(pres) if pres else float(np.mean(HUM_BAND_HZ))
     grid = delay_grid(pulls[0].dt, [p.delay_s for p in pulls])
-    res2 = run('statistics', free_pass2, [(r, s, f_hum, grid, rig.force_chain) for r, s in usable],
+    res2 = run('statistics', stats_pass, [(r, s, f_hum, grid, rig.force_chain) for r, s in usable],
                [p.name for p in pulls])
     if res2.failed:
         name, why = res2.failed[0]
         raise DiscoveryError(f'pull {name!r} failed in the statistics stage ({why}); expected every usable pull '
                              'to finish it')
     analysis = campaign_analysis(pulls, res2.results, f_hum, rig)
-    rep = free_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few)
-    write_free_outputs(rep, screens, rig, Path(out_dir), METHOD)
+    run_info['retried'] += [n for n in res2.retried if n not in run_info['retried']]
+    rep = campaign_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few, **run_info)
+    write_report(rep, screens, rig, Path(out_dir), METHOD)
     return rep
 
 
-__all__ = ['FreeSurvey', 'discover_free', 'free_pass2', 'free_survey']
+__all__ = ['PhasesRead', 'discover_without_reference', 'stats_pass', 'read_pass']

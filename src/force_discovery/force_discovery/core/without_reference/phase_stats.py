@@ -9,9 +9,9 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import quality as Q
+from .. import quality as Q
 from .delay_fit import Shifter, best_on_grid, interp_stats
-from .free_phases import FreePull, prepared
+from .phases import FreePull, prepared
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ class FreeStats:
     nohum: np.ndarray                # ... without
     hum_amp: float                   # the pull's hum amplitude at G, d of its own
     samples: int
-    ref: Optional[object] = None     # reference_fit.RefStats: with the stationary cell, else None
+    ref: Optional[object] = None     # stationary_cell.RefStats: with the stationary cell, else None
 
 
 def free_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, fp: FreePull,

@@ -8,12 +8,15 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from .free_phases import FreePull
-from .free_stats import FreeStats, gain_at, pooled, sse_at
-from .reference_fit import fit, gram_at, models, reference_fits
-from .ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
-from .significance import MIN_REL_REDUCTION, MIN_T, significance
-from .uncertainty import jackknife_ci, mean_ci
+from force_tester_sim.core.tolerances import Band
+
+from ..candidate import Candidate, Evidence
+from ..ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
+from ..significance import MIN_REL_REDUCTION, MIN_T, significance
+from ..uncertainty import NAMED, jackknife_ci, mean_ci, verdict_rule
+from .phase_stats import FreeStats, gain_at, pooled, sse_at
+from .phases import FreePull
+from .stationary_cell import fit, gram_at, models, reference_fits
 
 MIN_NAMED_PULLS = 4            # held-out pulls needed before a cause can meet t >= MIN_T
 
@@ -22,29 +25,18 @@ def _jackknife(est: float, loo: Sequence[float]) -> Optional[List[float]]:
     return list(jackknife_ci(est, loo)) if len(loo) >= 2 else None
 
 
-def _verdict(n: int, ev, inside: Optional[bool], outside: Optional[bool], per_pull_better: bool) -> str:
-    if n < 2:
-        return 'per_pull_only'
-    if inside:
-        return 'within_tolerance'
-    if n < MIN_NAMED_PULLS:
-        return 'indicated' if (ev.rel_sse_reduction >= MIN_REL_REDUCTION and per_pull_better and outside) \
-            else 'not_indicated'
-    if not ev.significant:
-        return 'not_significant'
-    return 'named' if outside else 'inconclusive'
-
-
-def _evidence_dict(ev, base, ext, where: str = 'free-phase') -> dict:
-    return {'statistic': f'held-out (leave-one-out) {where} SSE reduction and t of the per-pull reductions',
-            'rel_sse_reduction': ev.rel_sse_reduction, 't': ev.t, 'rms_gain': ev.rms_gain,
-            'threshold': f'rel >= {MIN_REL_REDUCTION:g} and t >= {MIN_T:g} over >= {MIN_NAMED_PULLS} held-out pulls',
-            'significant': bool(ev.significant), 'per_pull_rel_reduction': [float(1 - e / b) if b > 0 else 0.0
-                                                                          for b, e in zip(base, ext)]}
+def _evidence(ev, base, ext, where: str = 'free-phase', **more) -> Evidence:
+    return Evidence(ev.rel_sse_reduction, ev.t, bool(ev.significant), ev.rms_gain,
+                    statistic=f'held-out (leave-one-out) {where} SSE reduction and t of the per-pull reductions',
+                    threshold=f'rel >= {MIN_REL_REDUCTION:g} and t >= {MIN_T:g} over >= {MIN_NAMED_PULLS} held-out '
+                              'pulls',
+                    per_pull_rel_reduction=tuple(float(1 - e / b) if b > 0 else 0.0 for b, e in zip(base, ext)),
+                    **more)
 
 
 def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_hum: float, rig) -> dict:
-    """The campaign's estimates, their intervals, the held-out evidence and the verdicts (report.json's core)."""
+    """The campaign's estimates, their intervals, the held-out evidence and the verdicts (report.json's core):
+    causes {name: Candidate}, tolerance {name: its verdict with the band (uncertainty.verdict's form)}."""
     n = len(pulls)
     fc = rig.force_chain
     tol = rig.tolerances
@@ -68,19 +60,25 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
         no_delay = np.array([sse_at(stats[0], gain_at(stats, [0], 0.0), 0.0, 'hum')])
     # the G cause: nominal g m2 vs fitted G (delay fitted in both); the delay: G alone vs G and d; hum: without/with
     g_nom_d = np.array([sse_at(stats[j], g0, loo[j][1] if n >= 2 else d, 'hum') for j in allj])
-    causes = {}
+    causes, tolerance = {}, {}
     band_g = (tol.moving_cell_gain_rel + tol.effective_mass_rel) * g0
     ci_g = _jackknife(G, [x[0] for x in loo])
     ci_d = _jackknife(d, [x[1] for x in loo])
     amp = float(np.mean(hum_amps))
     ci_h = mean_ci(hum_amps)
 
-    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, extra=None, where='free-phase'):
+    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, band, where='free-phase', **more):
+        """The cause as a Candidate (its interval the jackknife's: no systematic parts here) and its tolerance
+        verdict (uncertainty.verdict_rule, as with a reference); band: (parameter, lo, hi, estimate)."""
         ev = significance(ev_base, ev_ext)
-        better = bool(np.all(ev_ext < ev_base))
-        v = _verdict(n, ev, inside, outside, better)
-        causes[name] = {'name': name, 'parameters': params, 'parameters_ci95': ci, 'verdict': v,
-                        'evidence': _evidence_dict(ev, ev_base, ev_ext, where), 'channel': channel, **(extra or {})}
+        departs = ev.rel_sse_reduction >= MIN_REL_REDUCTION and bool(np.all(ev_ext < ev_base)) and bool(outside)
+        v = verdict_rule(bool(inside), bool(outside), ev.significant, can_name=n >= MIN_NAMED_PULLS,
+                         departs=departs, one_pull=n < 2)
+        causes[name] = Candidate(params, ci, n, _evidence(ev, ev_base, ev_ext, where, **more), channel)
+        par, lo_, hi_, est = band
+        pci = ci.get(par)
+        tolerance[name] = {'band': Band(name, par, lo_, hi_).as_dict(), 'estimate': est,
+                           'ci95': None if pci is None else list(pci), 'pulls': n, 'verdict': v}
 
     def band_test(ci, est, lo_, hi_):
         lo_ci, hi_ci = (ci if ci is not None else (est, est))
@@ -88,18 +86,17 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
 
     ins, outs = band_test(ci_g, G, g0 - band_g, g0 + band_g)
     entry('gain_mass_product', {'gain_mass_kg': G}, {'gain_mass_kg': ci_g}, g_nom_d, full, ins if n >= 2 else None,
-          outs, 'force_moving_n = g m2 a2(t + d), free phases',
-          {'model_of_record': {'gain_mass_kg': g0, 'band_kg': [g0 - band_g, g0 + band_g]}})
+          outs, 'force_moving_n = g m2 a2(t + d), free phases', ('gain_mass_kg', g0 - band_g, g0 + band_g, G))
     ins, outs = band_test(ci_d, d, -tol.accel_delay_s, tol.accel_delay_s)
     entry('accel_delay', {'delay_s': d}, {'delay_s': ci_d}, no_delay, full, ins if n >= 2 else None, outs,
-          'force_moving_n = g m2 a2(t + d), free phases', {'band_s': [-tol.accel_delay_s, tol.accel_delay_s]})
+          'force_moving_n = g m2 a2(t + d), free phases', ('delay_s', -tol.accel_delay_s, tol.accel_delay_s, d))
     ins, outs = band_test(ci_h, amp, 0.0, tol.mains_hum_amplitude_n)
     entry('mains_hum', {'frequency_hz': f_hum, 'amplitude_n': amp}, {'amplitude_n': ci_h}, full_nohum, full,
           ins if n >= 2 else None, outs, 'force_moving_n - g m2 a2(t + d), free phases',
-          {'band_n': [0.0, tol.mains_hum_amplitude_n]})
+          ('amplitude_n', 0.0, tol.mains_hum_amplitude_n, amp))
     ref = [s.ref for s in stats]
     reference = None
-    if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (reference_fit.py)
+    if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (stationary_cell.py)
         reference = reference_fits(ref, d, [x[1] for x in loo] if n >= 2 else [d], g0)
         held = reference['held']
         where = 'whole-record (F_move = g T + M a2(t + d) - k C)'
@@ -110,12 +107,12 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
         bg = tol.moving_cell_gain_rel
         ins, outs = band_test(ci_rg, rg, 1.0 - bg, 1.0 + bg)
         entry('moving_cell_gain', {'gain': rg}, {'gain': ci_rg}, held['unit_gain'], held['full'],
-              ins if n >= 2 else None, outs, chan, {'band': [1.0 - bg, 1.0 + bg]}, where)
+              ins if n >= 2 else None, outs, chan, ('gain', 1.0 - bg, 1.0 + bg, rg), where)
         bm = tol.effective_mass_rel * g0
         ins, outs = band_test(ci_rm, rm, g0 - bm, g0 + bm)
         entry('effective_mass', {'mass_kg': rm}, {'mass_kg': ci_rm}, held['record_mass'], held['full'],
-              ins if n >= 2 else None, outs, chan, {'model_of_record': {'mass_kg': g0, 'band_kg': [g0 - bm, g0 + bm]},
-                                                    'ac_coupling_per_s': reference['k']}, where)
+              ins if n >= 2 else None, outs, chan, ('mass_kg', g0 - bm, g0 + bm, rm), where,
+              ac_coupling_per_s=reference['k'])
     modes = cluster_modes(pulls)
     f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
     noise = float(np.median([p.accel_noise for p in pulls]))
@@ -142,13 +139,13 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
                   {'frequency_hz': mount['frequency_ci95'], 'damping_ratio': mount['damping_ci95']}, np.array(b),
                   np.array(e), rn < tol.mount_ring_to_noise if n >= 2 else None, rn >= tol.mount_ring_to_noise,
                   'accel_axial_m_s2, free decay after the last event',
-                  {'cell_mode_hz': f_cell, 'ring_to_noise': rn,
-                   'frequency_rule': f'observed < {MOUNT_MAX_FRACTION} x the rig\'s cell mode '
-                                     f'({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)'})
+                  ('ring_to_noise', 0.0, tol.mount_ring_to_noise, rn), cell_mode_hz=f_cell, ring_to_noise=rn,
+                  frequency_rule=f'observed < {MOUNT_MAX_FRACTION} x the rig\'s cell mode '
+                                 f'({MOUNT_MAX_FRACTION * f_cell:.0f} Hz)')
     order = ('mount_resonance', 'accel_delay', 'moving_cell_gain', 'effective_mass', 'gain_mass_product',
              'mains_hum')
-    named = sorted((k for k in order if k in causes and causes[k]['verdict'] == 'named'),
-                   key=lambda k: -causes[k]['evidence']['rel_sse_reduction'])
+    named = sorted((k for k in order if k in causes and tolerance[k]['verdict'] == NAMED),
+                   key=lambda k: -causes[k].evidence.rel_sse_reduction)
     per_pull = [{'pull': p.name, 'gain_mass_kg': p.gain_mass, 'delay_s': p.delay_s, 'hum_amplitude_n': s.hum_amp,
                  'free_share': p.free_share, 'events': list(p.events),
                  'modes': [{'frequency_hz': f, 'damping_ratio': z, 'energy_share': e} for f, z, e in p.modes]}
@@ -157,7 +154,8 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
         for row, p, r in zip(per_pull, pulls, ref):
             b = fit(gram_at(r, p.delay_s), models(g0)['full'])
             row.update(moving_cell_gain=float(b[0]), effective_mass_kg=float(b[1] / b[0]))
-    return {'G': G, 'd': d, 'causes': causes, 'named': named, 'modes': modes, 'per_pull': per_pull,
+    return {'G': G, 'd': d, 'causes': causes, 'tolerance': tolerance, 'named': named, 'modes': modes,
+            'per_pull': per_pull,
             'baseline_sse': float(base.sum()), 'extended_sse': float(full.sum()),
             'samples': int(sum(s.samples for s in stats)), 'accel_noise': noise, 'cell_mode_hz': f_cell,
             'reference': reference is not None}

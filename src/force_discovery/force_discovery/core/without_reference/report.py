@@ -1,7 +1,8 @@
-"""The reference-free path's report: report.json, report.md (its Method section is free.py's docstring), extension.yaml,
-written whole. ROS-free."""
+"""The reference-free path's report: report.json, report.md (its Method section is driver.py's docstring),
+extension.yaml, written whole. ROS-free."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -9,24 +10,42 @@ from typing import Dict, Optional, Sequence
 
 from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 
-from . import quality as Q
-from .extension import correction_uncertainty, extension_yaml
-from .free_phases import FreePull
-from .identifiability import COMPUTED, FREE_CHANNELS, identifiability
-from .leave_one_out import validation_text
+from .. import quality as Q
+from ..extension import correction_uncertainty, extension_yaml
+from ..identifiability import COMPUTED, FREE_CHANNELS, identifiability
+from ..report import CANDIDATE_KEYS, LISTED_KEYS, WITH_REFERENCE_ONLY, clean, complete
+from ..significance import MIN_REL_REDUCTION, MIN_T
+from ..uncertainty import INCONCLUSIVE, INDICATED, WITHIN
+from .leave_one_out import MIN_NAMED_PULLS, validation_text
+from .phases import FreePull
 
 REFERENCE_COMPUTED = ('moving_cell_gain', 'effective_mass')
 #: with no reference the correction's mass is g m2 (extension.CORRECTED's form): its u is stated as m2's
-FREE_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
+PRODUCT_CORRECTED = (('gain_mass_product', 'gain_mass_kg', 'mass_kg', ('effective_mass', 'mass_kg')),
                   ('accel_delay', 'delay_s', 'accel_delay_s', ('accel_delay', 'delay_s')))
+SIGNIFICANCE_RULE = (f'every pull is held out once (leave-one-out); a cause is named when, over at least '
+                     f'{MIN_NAMED_PULLS} held-out pulls, removing it raises the summed squared residual by >= '
+                     f'{100 * MIN_REL_REDUCTION:g} % with t >= {MIN_T:g}, AND its 95 % interval (jackknife) lies '
+                     'wholly outside its tolerance band; inside the band it is within_tolerance, across an edge '
+                     'inconclusive; with 2-3 pulls what departs on every held-out pull is indicated; one pull: '
+                     'per_pull_only (uncertainty.verdict_rule)')
+#: a cause's plain-words place in the data (report.json causes[].where, as with a reference)
+WHERE = {'gain_mass_product': 'the moving cell against the accelerometer in the free phases (before contact, after '
+                              'a break or a rebound): g m2 off the rig\'s m2',
+         'accel_delay': 'the moving cell leads the accelerometer in the free phases: a2 lags the force',
+         'mains_hum': 'a spectral line on the moving cell in the free phases',
+         'mount_resonance': 'accelerometer ringing in the free decay after the last event, below the cell mode',
+         'moving_cell_gain': 'the moving cell against the stationary cell over the whole record',
+         'effective_mass': 'the moving cell against the stationary cell and the accelerometer over the whole record'}
 REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C over the whole record, T from '
                   'force_stationary_n (no encoder needed)')
 
 
-def free_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
-                excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0) -> dict:
-    """report.json of the reference-free path (few: run because the campaign has fewer pulls than this)."""
-    from .report import clean
+def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
+                    excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0,
+                    retried: Sequence[str] = (), scheduler: Optional[str] = None) -> dict:
+    """report.json of the reference-free path (few: run because the campaign has fewer pulls than this): the keys
+    of the path with a reference (report.REPORT_KEYS), those it cannot fill saying why."""
     with_ref = bool(analysis and analysis.get('reference'))
     yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
     for q in yes:
@@ -39,37 +58,46 @@ def free_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Seq
            'pulls': [p.name for p in pulls], 'fitted_pulls': [p.name for p in pulls],
            'held_out_pulls': [p.name for p in pulls] if n >= 2 else [],
            'data_quality': Q.defect_dicts(screens), 'excluded_pulls': dict(excluded),
-           'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes)}
+           'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes),
+           'retried_pulls': list(retried), 'scheduler': scheduler or None, 'plots': [],
+           'tolerances': dataclasses.asdict(rig.tolerances), 'significance_rule': SIGNIFICANCE_RULE}
     rep['notes'].append(f'the stationary cell separates g and m2 ({REFERENCE_WHAT})' if with_ref else
                         'g and m2 separate only with a reference (the stationary cell) or a known calibration '
                         'mass: the free phases give their product g m2')
     if analysis is None:
         rep.update(cause='unexplained', causes=[], candidates={}, gain=None, baseline_error=None,
                    extended_error=None, modes=[], per_pull=[])
-        return clean(rep)
-    c = analysis['causes']
+        return complete(clean(rep), WITH_REFERENCE_ONLY, 'no usable pulls (excluded_pulls, failed_pulls say why)')
+    c = {k: {**cand.as_dict(), 'tolerance': analysis['tolerance'][k]} for k, cand in analysis['causes'].items()}
+    c = {k: {f: v[f] for f in CANDIDATE_KEYS} for k, v in c.items()}
     named = analysis['named']
     if n == 1:
         cause = 'none'
         rep['notes'].append('one pull: per-pull estimates only, no cause')
     else:
         cause = named[0] if named else 'none'
-        ind = [k for k, v in c.items() if v['verdict'] == 'indicated']
+        ind = [k for k, v in c.items() if v['tolerance']['verdict'] == INDICATED]
         if ind:
             rep['notes'].append(f'indicated (departs on every held-out pull, too few pulls to name): '
                                 f'{", ".join(ind)}')
     samples = max(analysis['samples'], 1)
-    rep.update(cause=cause, causes=[c[k] for k in named], candidates=c,
-               indicated=[c[k] for k in c if c[k]['verdict'] == 'indicated'],
-               within_tolerance=[c[k] for k in c if c[k]['verdict'] == 'within_tolerance'],
-               inconclusive=[c[k] for k in c if c[k]['verdict'] == 'inconclusive'],
+
+    def listed(verdict, **more):
+        return [{'name': k, **{f: c[k][f] for f in LISTED_KEYS}, **more} for k in c
+                if c[k]['tolerance']['verdict'] == verdict]
+    rep.update(cause=cause, candidates=c,
+               causes=[{'name': k, **{f: c[k][f] for f in LISTED_KEYS}, 'gain': c[k]['evidence']['rms_gain'],
+                        'channel': c[k]['channel'], 'where': WHERE[k]} for k in named],
+               indicated=listed(INDICATED), within_tolerance=listed(WITHIN),
+               inconclusive=listed(INCONCLUSIVE, pulls_to_settle=None),
                metric='RMS moving-cell residual in the free phases, held out (leave-one-out); baseline: '
                       'g m2 = the rig\'s m2, no delay, no hum',
                baseline_error=math.sqrt(analysis['baseline_sse'] / samples),
                extended_error=math.sqrt(analysis['extended_sse'] / samples),
                modes=analysis['modes'], per_pull=analysis['per_pull'], cell_mode_hz=analysis['cell_mode_hz'])
     rep['gain'] = rep['baseline_error'] / rep['extended_error'] if rep['extended_error'] else None
-    return clean(rep)
+    rep['uncertainty_budget'] = {k: v['uncertainty_budget'] for k, v in c.items()}
+    return complete(clean(rep), WITH_REFERENCE_ONLY)
 
 
 def _fmt_ci(ci, scale=1.0, fmt='.4g') -> str:
@@ -78,7 +106,7 @@ def _fmt_ci(ci, scale=1.0, fmt='.4g') -> str:
     return f'[{ci[0] * scale:{fmt}}, {ci[1] * scale:{fmt}}]'
 
 
-def free_markdown(rep: dict, screens: Sequence, method: str) -> str:
+def report_markdown(rep: dict, screens: Sequence, method: str) -> str:
     """report.md of the reference-free path."""
     lines = ['# Discovery without a reference', '',
              f'Channels: {", ".join(rep["channels"])}; absent: {", ".join(rep["absent"]) or "-"}. '
@@ -104,7 +132,8 @@ def free_markdown(rep: dict, screens: Sequence, method: str) -> str:
             ci = '; '.join(f'{k} {_fmt_ci(val, fmt=".6g")}' for k, val in c['parameters_ci95'].items() if val)
             ev = c['evidence']
             t = 'inf' if ev['t'] is None else f'{ev["t"]:.3g}'
-            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | {t} | {c["verdict"]} |')
+            lines.append(f'| {name} | {p} | {ci or "-"} | {ev["rel_sse_reduction"]:.3g} | {t} | '
+                         f'{c["tolerance"]["verdict"]} |')
         lines.append('')
     if rep.get('modes'):
         lines += ['## Ringing modes (a2, free decay after the last event)', '',
@@ -132,7 +161,7 @@ def free_markdown(rep: dict, screens: Sequence, method: str) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def free_extension(rep: dict, rig) -> dict:
+def report_extension(rep: dict, rig) -> dict:
     """extension.yaml: what the correction can undo from these channels. The correction subtracts mass_kg a2 from
     F_move / moving_cell_gain; with g unknown, mass_kg is g m2 and the gain 1, so the corrected force is g times
     the force at the contact (stated under assumptions)."""
@@ -150,7 +179,7 @@ def free_extension(rep: dict, rig) -> dict:
         corr['mass_kg'] = c['effective_mass']['parameters']['mass_kg']
         return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr)),
                 'assumptions': {}}
-    return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr, FREE_CORRECTED)),
+    return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr, PRODUCT_CORRECTED)),
             'assumptions': {'moving_cell_gain': 'not identifiable without a reference or a calibration mass: '
                             'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force; '
                             'the corrected peak\'s uncertainty keeps the rig\'s u of the gain for it'}}
@@ -160,14 +189,14 @@ def _stated(unc: dict) -> dict:
     return {'uncertainty': unc} if unc else {}
 
 
-def write_free_outputs(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
+def write_report(rep: dict, screens: Sequence, rig, out: Path, method: str) -> None:
     """DIR/report.json, report.md and extension.yaml, written whole (into a fresh folder, moved in at the end)."""
     from force_tester_common.core.partial import staging
 
     with staging(out, '.discover-') as mark:   # a staging folder a killed run left here is removed first
         stage = mark.folder
-        (stage / 'extension.yaml').write_text(extension_yaml(free_extension(rep, rig)))
-        (stage / 'report.md').write_text(free_markdown(rep, screens, method))
+        (stage / 'extension.yaml').write_text(extension_yaml(report_extension(rep, rig)))
+        (stage / 'report.md').write_text(report_markdown(rep, screens, method))
         (stage / 'report.json').write_text(json.dumps(rep, indent=1))
         mark.unmark()
         for f in sorted(stage.iterdir(), key=lambda q: q.name == 'report.json'):

@@ -1,6 +1,6 @@
 """Pass 1 of the reference-free path on one pull: its events (either sign, any shape), its free phases, a first
 g m2 and delay of its own, the ringing modes of its free decay and its free-phase residual (the hum's data).
-The method is free.py's docstring, steps 1, 2 and 4. ROS-free."""
+The method is driver.py's docstring, steps 1, 2 and 4. ROS-free."""
 from __future__ import annotations
 
 import math
@@ -11,12 +11,12 @@ import numpy as np
 
 from force_tester_common.core.events import event_spans
 
-from . import quality as Q
+from .. import quality as Q
+from ..errors import DiscoveryError
+from ..identifiability import ACCEL, FORCE, FREE_CHANNELS
+from ..prep import MASK_GROW_S, lowpassed
+from ..ringing import matrix_pencil
 from .delay_fit import Shifter, delay_grid, own_fit
-from .errors import DiscoveryError
-from .identifiability import ACCEL, FORCE, FREE_CHANNELS
-from .prep import MASK_GROW_S, lowpassed
-from .ringing import matrix_pencil
 
 FREE_MIN_SAMPLES = 200         # a record shorter than this is not a full record (40 ms at 5 kHz)
 EDGE_S = 1e-3                  # the record's first and last ms are not fitted (the FFT filters' edges)

@@ -1,0 +1,85 @@
+"""The search's per-pull sufficient statistics: one pull's library columns as normal equations per channel
+(ChannelStats), so the search holds a Gram matrix per pull and never the samples (memory flat in the pulls).
+ROS-free."""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Dict, NamedTuple, Optional, Tuple
+
+import numpy as np
+
+from force_tester_sim.core.extra_terms import SIGNALS, SIN, parse_term, term_name
+
+from .grammar import OWN_SIGNALS, SIN_FACTORS, channel_library
+from .series import ChannelSeries
+from .spectrum import SearchSettings
+
+
+class Column(NamedTuple):
+    """An extra column c beside the library's columns X, against the residual y: c.c, X'c and c.y."""
+
+    cc: float
+    cx: np.ndarray
+    cy: float
+
+
+class ChannelStats(NamedTuple):
+    """One channel of one pull: the normal equations of its library columns X (the product columns, then each
+    sinusoid's cos and sin pair) against its residual y."""
+
+    names: Tuple[str, ...]              # the product terms, then the sinusoids
+    gram: np.ndarray                    # X'X
+    xy: np.ndarray                      # X'y
+    yy: float                           # y.y: the squared residual with no term
+    n: int                              # samples
+    catalog: Optional[Column]           # the catalog column (the Coulomb step on the current), or None
+    causes: Dict[str, Column]           # each named force-model cause's contribution (priority.cause_check)
+    systematic: Dict[str, np.ndarray]   # X'z of the residual's change z with each rig constant one u off
+
+
+@dataclass(frozen=True)
+class BeyondPart:
+    """One pull's ChannelStats per channel."""
+
+    stats: Dict[str, ChannelStats]
+
+
+def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], f_hz: Optional[float]):
+    """(names, scaled product columns, sinusoid factor columns: [(name, cos, sin)]) of one channel's library."""
+    names = channel_library(channel)
+    scaled = {s: np.asarray(sig[s], float) / scales[s] for s in SIGNALS}
+    powers = {(s, 1): v for s, v in scaled.items()}
+    X = np.empty((len(scaled['t']), len(names)))
+    for k, term in enumerate(names):   # each column one product of cached powers (the library has degree <= 3)
+        factors = []
+        for s, e in parse_term(term).items():
+            if (s, e) not in powers:
+                powers[(s, e)] = scaled[s] ** e
+            factors.append(powers[(s, e)])
+        X[:, k] = functools.reduce(np.multiply, factors)
+    own = set(OWN_SIGNALS.get(channel, ()))
+    sins = []
+    if f_hz is not None:
+        ph = 2 * np.pi * f_hz * sig['t']
+        for fac in SIN_FACTORS:
+            if fac in own:
+                continue
+            m = scaled[fac] if fac else np.ones_like(ph)
+            sins.append((term_name({fac: 1, SIN: 1}) if fac else SIN, m * np.cos(ph), m * np.sin(ph)))
+    return list(names), X, sins
+
+
+def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> BeyondPart:
+    """The pull's normal equations (ChannelStats) on each of its channels, with the settings' scales and lines."""
+    out = {}
+    for ch, cs in series.items():
+        y = cs.residual
+        names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
+        full = np.column_stack([X] + [np.column_stack([c, s]) for _, c, s in sins]) if sins else X
+        cat = cs.catalog
+        catalog = None if cat is None else Column(float(cat @ cat), full.T @ cat, float(cat @ y))
+        causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in cs.causes.items()}
+        out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
+                               len(y), catalog, causes, {c: full.T @ z for c, z in cs.systematic.items()})
+    return BeyondPart(out)

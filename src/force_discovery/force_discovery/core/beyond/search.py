@@ -1,0 +1,52 @@
+"""The search beyond the catalog over the channels (search): each channel's forward selection (selection.py), the
+catalog's priority (priority.py), and what it found (BeyondResult). ROS-free."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Dict, Sequence, Tuple
+
+from .grammar import COULOMB, SEARCHED
+from .normal_equations import BeyondPart
+from .priority import cause_check
+from .selection import Term, search_channel
+from .spectrum import SearchSettings
+from .traces import TermTrace
+
+
+@dataclass(frozen=True)
+class BeyondResult:
+    terms: Tuple[Term, ...] = ()                    # named, best first
+    traces: Tuple[TermTrace, ...] = ()              # traces.term_traces of one held-out pull (the plots)
+    within_tolerance: Tuple[Term, ...] = ()         # significant, inside the band
+    demoted: Dict[str, str] = field(default_factory=dict)   # catalog cause -> why it does not fit
+    frequencies: Dict[str, float] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int], settings: SearchSettings, rig,
+           named: Sequence[str], channels: Sequence[str] = SEARCHED, sensors: bool = False) -> BeyondResult:
+    """The search over the channels (the package docstring; default every searched one): parts in the usable pulls'
+    order; sensors: terms were found on the sensors on their own (the force model's causes are checked then)."""
+    t0 = time.perf_counter()
+    terms, within, demoted = [], [], {}
+    for ch in channels:
+        if not all(ch in parts[j].stats for j in (*fit, *held)):
+            continue
+        fit_st, held_st = [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held]
+        found, why, model = search_channel(ch, fit_st, held_st, settings, rig,
+                                           COULOMB in named and ch == 'motor_current')
+        if why is not None:
+            demoted[COULOMB] = why
+        if ch == 'force_moving' and (any(t.named for t in found) or sensors):
+            # a term on the moving cell, or a sensor the force model was fitted with read wrong: does each named
+            # force-model cause still explain more than library terms would?
+            for cause in fit_st[0].causes:
+                why = cause_check(fit_st, held_st, model, settings, rig, cause).demoted
+                if why is not None:
+                    demoted[cause] = why
+        terms += [t for t in found if t.named]
+        within += [t for t in found if not t.named]
+    terms.sort(key=lambda t: -t.rel_sse_reduction)
+    return BeyondResult(terms=tuple(terms), within_tolerance=tuple(within), demoted=demoted,
+                        frequencies=dict(settings.freq), seconds=time.perf_counter() - t0)

@@ -1,0 +1,262 @@
+"""Forward selection on one channel: at each step the term that lowers the fitted pulls' summed squared residual
+most joins, all the chosen product terms are refitted together (least squares on the summed normal equations), and
+the new term is kept only if it passes the held-out test (significance.significance); at most MAX_TERMS. On the
+motor current the catalog's Coulomb step keeps priority unless one library term beats it by PRIORITY_MARGIN. Each
+term found gets a jackknife interval over the fitted pulls and its budget (budget.term_budget). ROS-free."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
+
+import numpy as np
+
+from force_tester_sim.core.extra_terms import CHANNEL_UNITS, SIN, term_unit
+
+from ..budget import term_budget
+from ..significance import significance
+from ..uncertainty import jackknife_se, t_quantile
+from .grammar import RELATIVE, channel_band, si_factor
+from .interpretation import interpretation
+from .normal_equations import ChannelStats
+from .spectrum import SearchSettings
+
+MAX_TERMS = 3
+PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
+TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (search_channel)
+NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
+                              # are listed beside it: the data cannot tell them apart
+
+
+@dataclass(frozen=True)
+class Model:
+    """Chosen product columns (indices) with pooled coefficients, and at most one sinusoid (index, amplitude)."""
+
+    prod: Tuple[int, ...] = ()
+    coef: Tuple[float, ...] = ()
+    sin: Optional[int] = None
+    amp: float = 0.0
+    cat: bool = False           # the catalog column is in (its coefficient: the last of coef)
+
+
+def sin_pair(n_prod: int, k: int) -> List[int]:
+    """The columns of the k-th sinusoid's (cos, sin) pair, after the n_prod product columns."""
+    return [n_prod + 2 * k, n_prod + 2 * k + 1]
+
+
+def augmented(st: ChannelStats, use_cat: bool) -> ChannelStats:
+    """The statistics with the catalog column appended last to the columns (when use_cat)."""
+    cat = st.catalog
+    if not use_cat or cat is None:
+        return st
+    G2 = np.block([[st.gram, cat.cx[:, None]], [cat.cx[None, :], np.array([[cat.cc]])]])
+    return st._replace(gram=G2, xy=np.append(st.xy, cat.cy))
+
+
+def _cols(model_prod, cat: bool, n_all: int) -> List[int]:
+    return list(model_prod) + ([n_all] if cat else [])
+
+
+def sse(st: ChannelStats, model: Model, n_prod: int) -> float:
+    """One pull's squared residual under model (the sinusoid's phase fitted on the pull)."""
+    a = augmented(st, model.cat)
+    G, b, s = a.gram, a.xy, a.yy
+    idx = _cols(model.prod, model.cat, len(st.xy))
+    c = np.array(model.coef)
+    e = s - 2 * c @ b[idx] + c @ G[np.ix_(idx, idx)] @ c if idx else s
+    if model.sin is not None:
+        pr = sin_pair(n_prod, model.sin)
+        br = b[pr] - (G[np.ix_(pr, idx)] @ c if idx else 0.0)
+        e = e - _sin_gain(G[np.ix_(pr, pr)], br, model.amp)
+    return float(e)
+
+
+_PHASES = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+_U = np.stack([np.cos(_PHASES), np.sin(_PHASES)])
+
+
+def _sin_gain(Gp: np.ndarray, br: np.ndarray, amp: float) -> float:
+    """How much a sinusoid of amplitude amp, its phase the pull's best, lowers the pull's squared residual
+    (exact for the pair's Gram matrix Gp, on a 0.5 degree grid of phases; never negative)."""
+    g = 2 * amp * (br @ _U) - amp ** 2 * np.einsum('ik,ij,jk->k', _U, Gp, _U)
+    return float(max(0.0, g.max()))
+
+
+def _sin_amp(Gp: np.ndarray, br: np.ndarray) -> float:
+    """The pull's own amplitude of the sinusoid (the pair's least squares)."""
+    return float(np.hypot(*np.linalg.lstsq(Gp, br, rcond=1e-10)[0]))
+
+
+def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optional[int], cat: bool,
+              n_prod: int) -> Model:
+    """Pooled least squares of the product columns (and catalog) over stats, then the sinusoid's amplitude."""
+    idx = _cols(prod, cat, len(stats[0].xy))
+    coef: Tuple[float, ...] = ()
+    if idx:
+        Gs = sum(augmented(st, cat).gram[np.ix_(idx, idx)] for st in stats)
+        bs = sum(augmented(st, cat).xy[idx] for st in stats)
+        d = np.sqrt(np.maximum(np.diag(Gs), 1e-300))
+        c = np.linalg.lstsq(Gs / np.outer(d, d), bs / d, rcond=1e-10)[0] / d
+        coef = tuple(float(v) for v in c)
+    amp = 0.0
+    if sin is not None:   # one amplitude for the campaign: the mean of the pulls' own
+        amps = []
+        for st in stats:
+            a = augmented(st, cat)
+            G, b = a.gram, a.xy
+            pr = sin_pair(n_prod, sin)
+            br = b[pr] - (G[np.ix_(pr, idx)] @ np.array(coef) if idx else 0.0)
+            amps.append(_sin_amp(G[np.ix_(pr, pr)], br))
+        amp = float(np.mean(amps))
+    return Model(tuple(prod), coef, sin, amp, cat)
+
+
+@dataclass(frozen=True)
+class Term:
+    """A term found (report.json beyond_catalog's entry, before the units are attached)."""
+
+    channel: str
+    term: str
+    coefficient: float
+    ci95: Tuple[float, float]
+    frequency_hz: Optional[float]
+    gain: float                 # held-out rms gain on the channel when the term joins
+    rel_sse_reduction: float
+    t: float
+    rms: float                  # its contribution's rms on the held-out pulls, in the channel's unit
+    rms_ci95: Tuple[float, float]
+    band: float
+    named: bool
+    budget: Dict[str, float] = field(default_factory=dict)   # standard uncertainties: statistical, systematic parts
+    alternatives: Tuple[str, ...] = ()   # terms the held-out pulls cannot tell from it (near_tied), best first
+
+    def as_dict(self) -> dict:
+        unit = CHANNEL_UNITS[self.channel]
+        tu = term_unit(self.term)
+        return {'channel': self.channel, 'term': self.term, 'coefficient': self.coefficient,
+                'ci95': list(self.ci95), 'unit': f'{unit} per {tu}' if tu != '1' else unit,
+                'frequency_hz': self.frequency_hz, 'gain': self.gain,
+                'interpretation': interpretation(self.channel, self.term, self.frequency_hz),
+                'evidence': {'rel_sse_reduction': self.rel_sse_reduction, 't': self.t,
+                             'contribution_rms': self.rms, 'contribution_rms_ci95': list(self.rms_ci95),
+                             'band': self.band},
+                'uncertainty_budget': dict(self.budget), 'near_tied': list(self.alternatives)}
+
+
+class ChannelResult(NamedTuple):
+    """What the search found on one channel."""
+
+    terms: List[Term]           # named and within tolerance, in the order they joined
+    demoted: Optional[str]      # why the catalog's Coulomb step does not fit, or None
+    model: Model                # the final model
+
+
+def jackknife(stats: Sequence[ChannelStats], model: Model, n_prod: int) -> np.ndarray:
+    """(len(coef) + 1, 2) 95 % intervals of the coefficients and the amplitude: jackknife over the fitted pulls
+    (uncertainty.jackknife_se; fewer than 3 pulls: the estimate alone)."""
+    n = len(stats)
+    est = np.array([*model.coef, model.amp])
+    if n < 3:
+        return np.column_stack([est, est])
+    loo = np.array([[*m.coef, m.amp] for m in
+                    (fit_model([st for i, st in enumerate(stats) if i != k], model.prod, model.sin, model.cat, n_prod)
+                     for k in range(n))])
+    u = jackknife_se(loo)
+    q = t_quantile(n)
+    return np.column_stack([est - q * u, est + q * u])
+
+
+def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[ChannelStats],
+                   settings: SearchSettings, rig, catalog_named: bool) -> ChannelResult:
+    """The forward selection on one channel (the module docstring): fit/held are the fitted and held-out pulls'
+    statistics (BeyondPart.stats[channel])."""
+    names = fit[0].names
+    f_hz = settings.freq.get(channel)
+    n_sin = sum(1 for n in names if n.endswith(SIN))
+    n_prod = len(names) - n_sin
+    use_cat = catalog_named and fit[0].catalog is not None and channel == 'motor_current'
+    demoted = None
+    if use_cat:   # the catalog keeps priority unless one library term (one parameter, as it) beats it
+        m_cat = fit_model(fit, (), None, True, n_prod)
+        base = np.array([st.yy for st in held])
+        r_cat = 1 - sum(sse(st, m_cat, n_prod) for st in held) / base.sum()
+        best = min(range(n_prod), key=lambda k: sum(sse(st, fit_model(fit, (k,), None, False, n_prod), n_prod)
+                                                    for st in fit))
+        m_lib = fit_model(fit, (best,), None, False, n_prod)
+        r_lib = 1 - sum(sse(st, m_lib, n_prod) for st in held) / base.sum()
+        if r_lib > r_cat + PRIORITY_MARGIN:
+            use_cat = False
+            demoted = (f'{names[best]} on {channel} lowers the held-out residual by {100 * r_lib:.1f} %, the catalog '
+                       f'cause by {100 * r_cat:.1f} % (one parameter each): the nearest catalog cause does not fit')
+    model = fit_model(fit, (), None, use_cat, n_prod) if use_cat else Model()
+    found = []
+    band = channel_band(channel, rig)
+    for _step in range(MAX_TERMS):
+        trials = [(k, None) for k in range(n_prod) if k not in model.prod]
+        if model.sin is None:
+            trials += [(None, k) for k in range(n_sin)]
+        if not trials:
+            break
+        now = sum(sse(st, model, n_prod) for st in fit)
+        tried = []
+        for k, s in trials:
+            prod = model.prod if k is None else tuple([*model.prod, k])
+            m = fit_model(fit, prod, model.sin if s is None else s, use_cat, n_prod)
+            tried.append((m, sum(sse(st, m, n_prod) for st in fit)))
+        least = min(e for _, e in tried)
+        # parsimony: the first term in the library's order (lower degree, F_move before T and F_stat) that does
+        # within TIE_SHARE of the best -- collinear signals (F_move, T, F_stat) would otherwise win by their noise
+        best = next(m for m, e in tried if e <= least + TIE_SHARE * max(now - least, 0.0))
+        base = np.array([sse(st, model, n_prod) for st in held])
+        ext = np.array([sse(st, best, n_prod) for st in held])
+        ev = significance(base, ext)
+        if not ev.significant:
+            break
+        alternatives = near_tied([(names[k] if s is None else names[n_prod + s], base.sum()
+                                   - sum(sse(st, m, n_prod) for st in held)) for (k, s), (m, _) in zip(trials, tried)
+                                  if m is not best], base.sum() - ext.sum())
+        new_prod = [k for k in best.prod if k not in model.prod]
+        is_sin = best.sin is not None and model.sin is None
+        model = best
+        ci = jackknife(fit, model, n_prod)
+        if is_sin:
+            name, coef, cif, col = names[n_prod + model.sin], model.amp, ci[-1], None
+        else:
+            k = new_prod[0]
+            pos = list(model.prod).index(k)
+            name, coef, cif, col = names[k], model.coef[pos], ci[pos], k
+        # the contribution's rms on the held-out pulls (scaled columns), then the SI coefficient
+        n_held = sum(st.n for st in held)
+        if col is None:
+            pr = sin_pair(n_prod, model.sin)
+            norm = sum(0.5 * (st.gram[pr[0], pr[0]] + st.gram[pr[1], pr[1]]) for st in held)
+        else:
+            norm = sum(st.gram[col, col] for st in held)
+        rms_unit = math.sqrt(norm / max(n_held, 1))
+        lo, hi = sorted(cif)
+        si = si_factor(name, settings.scales)
+        budget, (lo, hi) = term_budget(fit, model.prod, col, coef, (lo, hi), si, relative_part(channel, rig))
+        rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
+        rms_hi = max(abs(lo), abs(hi)) * rms_unit
+        found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
+                          f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives))
+    return ChannelResult(found, demoted, model)
+
+
+def relative_part(channel: str, rig) -> Optional[Tuple[str, float]]:
+    """(component, relative standard uncertainty) of the channel's sensor calibration (grammar.RELATIVE), or None."""
+    if channel not in RELATIVE:
+        return None
+    comp, key, attr = RELATIVE[channel]
+    return comp, rig.uncertainty.relative(key, getattr(rig.sensors, attr))
+
+
+def near_tied(others: Sequence[Tuple[str, float]], chosen: float) -> Tuple[str, ...]:
+    """The terms (others: (name, held-out SSE reduction in its place)) that come within NEAR_TIE of the chosen
+    term's held-out reduction, best first: on this campaign's motion the data cannot tell them from it (t and t^2
+    over a short window, F_move and T), so the report lists them beside the term instead of hiding them."""
+    if chosen <= 0:
+        return ()
+    close = sorted(((r, n) for n, r in others if r >= (1.0 - NEAR_TIE) * chosen), key=lambda x: -x[0])
+    return tuple(n for _, n in close)

@@ -1,0 +1,136 @@
+"""The search's per-pull series: each searched channel's residual after the named causes, the signals its terms are
+made of, and what the budget and the catalog's priority need beside them (ChannelSeries); the pull with the
+sensors' terms taken out (sensor_corrected). Decimated to about SEARCH_RATE_HZ, usable samples only. ROS-free."""
+from __future__ import annotations
+
+import dataclasses
+from typing import Dict, NamedTuple, Optional, Sequence
+
+import numpy as np
+
+from force_tester_sim.core.extra_terms import SIN, parse_term, signals, term_values
+
+from ..budget import DRIVE_VARIANTS
+from ..friction import MOVING_M_S, STILL_M_S
+from ..prep import Pull, tension_from_stationary
+from .grammar import RELATIVE, SENSORS
+
+FREE_SPAN_S = 0.5              # the sensors' free phases: at most this long before the pull and after its ringing
+EDGE_S = 0.02                  # the free phases leave the record's first and last 20 ms out (the filters' edges)
+SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
+
+
+class ChannelSeries(NamedTuple):
+    """One channel of one pull, decimated, usable samples only."""
+
+    residual: np.ndarray                # what the model of record (and the named causes) leave, channel unit
+    signals: Dict[str, np.ndarray]      # the grammar's signals on the same samples (extra_terms.SIGNALS, 't')
+    catalog: Optional[np.ndarray]       # the catalog column that competes with the library (the Coulomb step)
+    causes: Dict[str, np.ndarray]       # each named force-model cause's contribution (priority.cause_check)
+    systematic: Dict[str, np.ndarray]   # the residual's change with each rig constant one standard u off
+
+
+def decimation(dt: float) -> int:
+    return max(1, int(round(1.0 / (SEARCH_RATE_HZ * dt))))
+
+
+def free_samples(p: Pull) -> np.ndarray:
+    """The sensors' free phases of a pull, decimated: lanyard slack before the pull and after the break's ringing,
+    FREE_SPAN_S each, the record's edges (EDGE_S) left out, usable samples only."""
+    free = np.zeros(len(p.t), bool)
+    e, span = int(round(EDGE_S / p.dt)), int(round(FREE_SPAN_S / p.dt))
+    free[max(e, p.pre1 - span):p.pre1] = True
+    free[p.w1:min(len(p.t) - e, p.w1 + span)] = True
+    return np.flatnonzero(free & p.usable())[::decimation(p.dt)]
+
+
+def smoothed_a2(p: Pull) -> np.ndarray:
+    """a2 smoothed as the encoder's a3 is (the accelerometer's free-phase model is a3)."""
+    from scipy.signal import savgol_filter
+    return savgol_filter(p.a2, max(5, int(round(2e-3 / p.dt)) | 1), 3)
+
+
+def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
+                   coulomb_n: Optional[float], causes: Optional[Dict[str, np.ndarray]] = None
+                   ) -> Dict[str, ChannelSeries]:
+    """{channel: ChannelSeries} of one pull.
+
+    force_moving: the force model's residual on W after the named causes (force_resid, from ForceModel.resid);
+    F_move is the model's prediction (measured minus hum minus residual). motor_current (A): the drive's force
+    balance with the predicted F_move, over the samples at rest and moving, minus the pull's median at rest;
+    its catalog column is the Coulomb step (1 while moving) in A per N of friction: coulomb_n is whether it
+    is named (the column is offered only then). causes: each named force-model cause's contribution to the moving
+    cell's residual on W (what the residual would gain were the cause undone, at its fitted parameters; cause_check)."""
+    q = decimation(p.dt)
+    out = {}
+    w = slice(p.w0, p.w1)
+    fm_pred = p.fm - (0.0 if hum is None else hum)
+    fm_pred = fm_pred.copy()
+    fm_pred[w] = fm_pred[w] - force_resid
+    full = signals(p.t, fm_pred, p.fs, p.T, p.a2, p.v3, p.x3)
+    ok = p.usable(p.w0, p.w1)[::q]
+    u_m2 = rig.uncertainty.u('force_chain.moving_side_mass_kg')
+    # the cell's gain one standard uncertainty off (its calibration): a gain inside its tolerance is not fitted by
+    # the catalog, and its linear error leaks into any term that grows with the load (F_move^3, F_move*v)
+    _, key, attr = RELATIVE['force_moving']
+    u_g = rig.uncertainty.relative(key, getattr(rig.sensors, attr))
+    out['force_moving'] = ChannelSeries(np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()},
+                                        None, {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()},
+                                        {'m2': (u_m2 * p.a2)[w][::q][ok], 'gain': (u_g * fm_pred)[w][::q][ok]})
+    # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
+    # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
+    # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
+    sel = free_samples(p)
+    if len(sel):
+        sig = {k: v[sel] for k, v in full.items()}
+        out['force_stationary'] = ChannelSeries(p.fs[sel], sig, None, {}, {})
+        out['accel_axial'] = ChannelSeries((smoothed_a2(p) - p.a3)[sel], sig, None, {}, {})
+    if p.current is not None:
+        d = rig.drive
+        kf = d.force_per_amp_n_per_a
+        moving = p.v3 > MOVING_M_S
+        still = np.abs(p.v3) < STILL_M_S
+        use = (moving | still) & p.usable()
+
+        def balance(d):   # the current's force balance in A with the drive constants d
+            rho = p.current * d.force_per_amp_n_per_a - (d.reflected_mass_kg * p.a3
+                                                         + d.viscous_damping_n_s_per_m * p.v3 + fm_pred)
+            return (rho - np.median(rho[still & p.usable()])) / d.force_per_amp_n_per_a
+        if still.any() and moving.any():
+            y = balance(d)
+            col = None if coulomb_n is None else (moving.astype(float) / kf)
+            sel = np.flatnonzero(use)[::q]
+            sys_ = {}
+            for name, key in DRIVE_VARIANTS.items():   # each drive constant one standard uncertainty off
+                u = rig.uncertainty.u(f'drive.{key}')
+                if u > 0:
+                    sys_[name] = (balance(dataclasses.replace(d, **{key: getattr(d, key) + u})) - y)[sel]
+            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in full.items()},
+                                                 None if col is None else col[sel], {}, sys_)
+    return out
+
+
+def sensor_corrected(p: Pull, terms: Sequence, rig, cal: Optional[tuple]) -> Pull:
+    """The pull with the sensors' terms found on their own (SENSORS: force_stationary, accel_axial; terms with
+    .channel, .term, .coefficient, .frequency_hz) taken out of F_stat and a2, and T recomputed from the corrected
+    stationary cell (cal: cells.with_tension's (K_LC1, c1); None: the rig's): the moving cell and the motor current
+    are then searched against what the sensors would have read without them. A sinusoid's phase is each pull's own:
+    it is fitted (with the pull's amplitude) on the sensor's free phases, after its product terms, and taken out of
+    the whole record."""
+    full = signals(p.t, p.fm, p.fs, p.T, p.a2, p.v3, p.x3)
+    d = {ch: sum((t.coefficient * term_values(t.term, full) for t in terms
+                  if t.channel == ch and SIN not in parse_term(t.term)), np.zeros(len(p.t))) for ch in SENSORS}
+    sines = [t for t in terms if t.channel in SENSORS and SIN in parse_term(t.term)]
+    if sines:
+        sel = free_samples(p)
+        own = {'force_stationary': p.fs, 'accel_axial': smoothed_a2(p) - p.a3}   # the free phases' residuals
+        for t in sines:
+            fac = term_values(t.term, full)
+            ph = 2 * np.pi * t.frequency_hz * full['t']
+            X = np.column_stack([fac * np.cos(ph), fac * np.sin(ph)])
+            c = np.linalg.lstsq(X[sel], (own[t.channel] - d[t.channel])[sel], rcond=None)[0]
+            d[t.channel] = d[t.channel] + X @ c
+    fc = rig.force_chain
+    k1, c1 = (fc.load_cell_stiffness_n_per_m, fc.c1) if cal is None else cal
+    dT = tension_from_stationary(d['force_stationary'], p.dt, fc.m1, k1, c1)
+    return dataclasses.replace(p, fs=p.fs - d['force_stationary'], T=p.T - dT, a2=p.a2 - d['accel_axial'])
