@@ -258,6 +258,13 @@ def test_the_channel_map_reference_names_every_key_and_channel():
     assert not missing, f'docs/reference-channel-map.md does not name {missing}'
 
 
+def test_the_report_json_reference_names_every_key():
+    from force_discovery.core.report import CANDIDATE_KEYS, NOT_AVAILABLE, REPORT_KEYS
+    want = set(REPORT_KEYS) | set(CANDIDATE_KEYS) | {NOT_AVAILABLE}
+    missing = sorted(want - named_in('reference-report-json.md'))
+    assert not missing, f'docs/reference-report-json.md does not name {missing}'
+
+
 def test_the_rig_yaml_reference_states_the_nominal_values():
     """Each `| `key` | value |` row of a section's table in docs/reference-rig-yaml.md holds nominal.yaml's value."""
     import yaml
