@@ -85,3 +85,19 @@ def test_the_extension_pair_is_remapped_as_the_demo_remaps_it(tmp_path):
         # from the rig YAML (ft_cli.peak_inputs); a launched validator takes them from its parameter file
         given = {p.get('name') for p in node.iter('param') if p.get('name')}
         assert given == {k for k in kw.get('params', {}) if not k.startswith('peak_u_')}
+
+
+def test_the_extension_validator_follows_the_extension_correction(tmp_path):
+    """Its correction_node names the extension pair's correction (in the launch file and in ./ft demo alike): a
+    change to /correction must not mark the extension's pulls RECONFIGURED (issue 41, item 1)."""
+    root = ET.parse(SHARE / 'launch' / 'graph.launch.xml').getroot()
+    nodes = {n.get('name'): n for n in root.iter('node')}
+    extension = tmp_path / 'extension.yaml'
+    extension.write_text('correction:\n  moving_cell_gain: 1.01\n')
+    demo = extension_args(extension)
+    followed = demo['validator']['params']['correction_node']
+    assert followed == demo['correction']['key'] != 'correction'
+    launched = {p.get('name'): p.get('value') for p in nodes[demo['validator']['key']].iter('param')}
+    assert launched.get('correction_node') == followed, launched
+    assert nodes[followed].get('exec') == 'correction_node'
+    assert nodes[followed].get('if') == nodes[demo['validator']['key']].get('if') == '$(var extension)'
