@@ -10,6 +10,11 @@
 - The graph's node parameters for Foxglove's Parameters panel (read from /parameter_events and the
   nodes' parameter services; a set from the panel goes to the node's parameter service).
 
+Namespaces: on ROS the node subscribes and publishes relative names, so under ``-r __ns:=/rig3`` it watches
+``/rig3/force``, ... and publishes ``/rig3/monitor/*`` (remaps apply); /diagnostics stays the machine's. Its
+Foxglove channels keep the graph's names (``/force``, ``/monitor/force``): one monitor (one port) serves one
+rig, and the one layout works for any rig.
+
 The server is ``foxglove_bridge``, the parameters ``parameter_proxy``; this node wires them to the
 graph's topics and publishes the derived topics.
 
@@ -46,7 +51,16 @@ from force_tester_common.conversions import message_class, ns_to_stamp, to_field
 from force_tester_common.core import channels as CH
 from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import EVENT_QOS, OK, SCORE_QOS, SUMMARY_QOS, WARN, Diagnostics, main_for
+from force_tester_common.ros import (
+    EVENT_QOS,
+    OK,
+    SCORE_QOS,
+    SUMMARY_QOS,
+    WARN,
+    Diagnostics,
+    in_namespace,
+    main_for,
+)
 
 from .core import params as P
 from .core.batch import decode_batch
@@ -108,6 +122,11 @@ FORCE_TOPIC = CH.BLOCK_TYPES[CH.FORCE_TYPE][0]
 CORRECTED = CH.CORRECTED_TYPE[1][0]
 
 
+def ros_name(topic: str) -> str:
+    """The name the node gives rclpy for a graph topic: relative (in its namespace), but /diagnostics."""
+    return topic if topic == CH.DIAGNOSTICS_TOPIC else in_namespace(topic)
+
+
 def _qos(topic: str, depth: int) -> QoSProfile:
     """Scores and the set summary: reliable and transient local, as published (keep last: the
     publisher never waits for us), so a monitor started late gets them. Everything else: best
@@ -147,7 +166,8 @@ class MonitorNode(Node):
         self.history = ScoreHistory(cfg.history_rows)
         self.recorder = {}
         self.recorder_seen_ns = None
-        self.pubs = {topic: self.create_publisher(cls, topic, EVENT_QOS) for topic, (_n, cls) in DERIVED.items()}
+        self.pubs = {topic: self.create_publisher(cls, ros_name(topic), EVENT_QOS)
+                     for topic, (_n, cls) in DERIVED.items()}
         self.force_seq = 0
         self.on_demand = P.ON_DEMAND_TOPICS if cfg.on_demand else ()
         self.subs = {}           # topic -> its rclpy subscription, while watched
@@ -160,7 +180,8 @@ class MonitorNode(Node):
     # ------------------------------------------------------------------ receiving
     def _watch(self, topic: str) -> None:
         self.stats[topic] = TopicStats(topic, self.cfg.health_window_s)  # a new run: no gap across the pause
-        self.subs[topic] = self.create_subscription(message_class(FORWARDED[topic][0]), topic, self._receiver(topic),
+        self.subs[topic] = self.create_subscription(message_class(FORWARDED[topic][0]), ros_name(topic),
+                                                    self._receiver(topic),
                                                     _qos(topic, self.cfg.depth), raw=True)
 
     def _update_watched(self) -> None:
