@@ -204,3 +204,33 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
                                  'raw_pct': '30.00 ± 1.23', 'corrected_pct': '2.00', 'filtered_pct': '-'}
     with pytest.raises(MonitorError, match="history rows 0 is invalid"):
         ScoreHistory(rows=0)
+
+
+def test_the_nodes_panel_rows_are_one_short_line_stale_when_silent_and_hold_the_worst():
+    """/monitor/nodes (issue 41): a long message is cut to one line (the whole text in values 'detail'); a node
+    silent for STALE_S is STALE with how long it has been silent; a newer OK does not hide an ERROR of the
+    last HOLD_S seconds, which goes once HOLD_S has passed."""
+    from force_tester_monitor.core.nodes import DETAIL_KEY, SHORT_MESSAGE_CHARS, node_rows, short_message
+
+    from force_tester_common.core.health import HOLD_S, LEVEL_ERROR, LEVEL_OK, LEVEL_STALE, STALE_S, NodeStates
+    long = ('(re)started: m = 1.152 kg, N = 140 (the moving average lags the peak by 70 samples, 1.4 ms at 50 kHz;'
+            ' see docs/thesis.md), extension: none')
+    short, detail = short_message(long)
+    assert len(short) <= SHORT_MESSAGE_CHARS and short.endswith('\u2026') and '\n' not in short and detail == long
+    assert short_message('running') == ('running', '')
+    states = NodeStates(hold_s=HOLD_S)
+    states.add('correction: m*a correction', '', LEVEL_OK, long, [('blocks', '10')], 0)
+    states.add('validator: pull scoring', '', LEVEL_ERROR, 'pull 3 not scored', [], 0)
+    states.add('validator: pull scoring', '', LEVEL_OK, 'scoring', [('scores', '4')], NS_PER_S)
+    rows = {r.name.split(':')[0]: r for r in node_rows(states.states(2 * NS_PER_S))}
+    assert (rows['correction'].level, rows['correction'].message) == (LEVEL_OK, short)
+    assert rows['correction'].values == ((DETAIL_KEY, long), ('blocks', '10'))
+    assert (rows['validator'].level, rows['validator'].message) == (LEVEL_ERROR, 'pull 3 not scored')
+    assert rows['validator'].values == (('scores', '4'),)
+    later = int((HOLD_S + 0.5) * NS_PER_S)
+    states.add('validator: pull scoring', '', LEVEL_OK, 'scoring', [('scores', '5')], later)
+    rows = {r.name.split(':')[0]: r for r in node_rows(states.states(later))}
+    assert (rows['validator'].level, rows['validator'].message) == (LEVEL_OK, 'scoring')
+    assert rows['correction'].level == LEVEL_STALE and later / NS_PER_S > STALE_S
+    assert rows['correction'].message == f'STALE: no report for {later / NS_PER_S:.0f} s'
+    assert dict(rows['correction'].values)[DETAIL_KEY] == long

@@ -206,6 +206,26 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         # nothing was asked of the internet
         assert page.external == [], page.external
         assert graph.dead() == [], [graph.tail(n) for n in graph.dead()]
+
+        # liveness (issue 41): a SIGKILLed node's row is STALE within 5 s (it stayed orange for 13.6 s); a lost
+        # monitor is said plainly (its row stayed green through an 18.6 s outage), and goes once it is back
+        def killed(name):
+            proc = graph.procs.pop(name)
+            proc.kill()
+            proc.wait()
+            return time.monotonic()
+        t0 = killed('correction_node')
+        stale = page.state_until(lambda s: node_rows(s).get('correction', ('',))[0].startswith('STALE'), 15, spin)
+        assert stale is not None and time.monotonic() - t0 <= 5.0, (time.monotonic() - t0, stale and node_rows(stale))
+        assert all(node_rows(stale)[n][1] for n in ('sim', 'validator', 'monitor')), node_rows(stale)
+        t0 = killed('monitor_node')
+        lost = page.state_until(lambda s: s['connectionLost'], 15, spin)
+        assert lost is not None and time.monotonic() - t0 <= 5.0, time.monotonic() - t0
+        assert 'No connection to the monitor' in lost['connectionLost'], lost['connectionLost']
+        graph.start('force_tester_monitor', 'monitor_node', {'port': port})
+        back = page.state_until(lambda s: not s['connectionLost'] and node_rows(s).get('monitor', ('', False))[1],
+                                60, spin)
+        assert back is not None, graph.tail('monitor_node')
     finally:
         if page is not None:
             page.close()

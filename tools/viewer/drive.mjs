@@ -7,7 +7,7 @@
 //   {"kind": "launch-failed", "error": "..."}             Chromium did not start (exit code 3)
 //   {"kind": "state", "panels": [...], "diagnostics": [...], "okColor": "..."}  every --every-ms: per
 //        panel its id in the layout, its text, for plots the legend's entries, for tables the rows'
-//        cells; the diagnostics panel's rows
+//        cells; the diagnostics panel's rows; connectionLost: the viewer's "no connection" bar's text ("" if hidden)
 //   {"kind": "problem", "text": "..."}                     the app reported a data source problem
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
@@ -56,7 +56,9 @@ function readPage() {
   });
   const filter = document.querySelector("#status-filter-menu .MuiListItemText-primary");
   const okColor = filter && filter.innerText.trim() === "OK" ? getComputedStyle(filter).color : "";
-  return { panels, diagnostics, okColor };
+  const banner = document.getElementById("connection-lost");
+  const connectionLost = banner && banner.style.display !== "none" ? banner.innerText.trim() : "";
+  return { panels, diagnostics, okColor, connectionLost };
 }
 
 let browser;

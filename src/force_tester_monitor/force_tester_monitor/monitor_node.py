@@ -4,8 +4,8 @@
   graph's topics unchanged: CDR messages on channels with the full ``pkg/msg/Type`` name and the
   embedded ros2msg definition, as in our bags, so one Foxglove layout serves a live graph, a bag
   played back and an opened bag file.
-- The derived topics /monitor/force, /monitor/pull_trace, /monitor/pull_score, /monitor/score_history and
-  /monitor/health, published on ROS
+- The derived topics /monitor/force, /monitor/pull_trace, /monitor/pull_score, /monitor/score_history,
+  /monitor/nodes (the viewer's Nodes tab: core/nodes.py) and /monitor/health, published on ROS
   (for PlotJuggler and rqt) and forwarded the same way.
 - The graph's node parameters for Foxglove's Parameters panel (read from /parameter_events and the
   nodes' parameter services; a set from the panel goes to the node's parameter service).
@@ -29,7 +29,7 @@ import logging
 import time
 from collections import defaultdict
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from force_tester_msgs.msg import (
     MonitorForce,
     MonitorHealth,
@@ -50,6 +50,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from force_tester_common.conversions import message_class, ns_to_stamp, to_field
 from force_tester_common.core import channels as CH
 from force_tester_common.core.clock import NS_PER_S
+from force_tester_common.core.health import HOLD_S, NodeStates, level_of
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import (
     EVENT_QOS,
@@ -67,6 +68,7 @@ from .core.batch import decode_batch
 from .core.health import TopicStats, recorder_counts
 from .core.history import ScoreHistory
 from .core.live import SIGNALS, ForceJoin, LiveTrace, PullTraces, score_lbf
+from .core.nodes import NODES_PERIOD_S, node_rows
 from .foxglove_bridge import FoxgloveBridge, sdk_version
 from .parameter_proxy import ParameterProxy
 
@@ -117,7 +119,8 @@ DERIVED = {CH.MONITOR_FORCE_TOPIC: (CH.MONITOR_FORCE_TYPE, MonitorForce),
            CH.PULL_TRACE_TOPIC: (CH.PULL_TRACE_TYPE, PullTrace),
            CH.MONITOR_SCORE_TOPIC: (CH.MONITOR_SCORE_TYPE, MonitorScore),
            CH.SCORE_HISTORY_TOPIC: (CH.SCORE_HISTORY_TYPE, ScoreHistoryMsg),
-           CH.MONITOR_HEALTH_TOPIC: (CH.MONITOR_HEALTH_TYPE, MonitorHealth)}
+           CH.MONITOR_HEALTH_TOPIC: (CH.MONITOR_HEALTH_TYPE, MonitorHealth),
+           CH.MONITOR_NODES_TOPIC: (DIAGNOSTICS_TYPE, DiagnosticArray)}
 FORCE_TOPIC = CH.BLOCK_TYPES[CH.FORCE_TYPE][0]
 CORRECTED = CH.CORRECTED_TYPE[1][0]
 
@@ -166,6 +169,7 @@ class MonitorNode(Node):
         self.history = ScoreHistory(cfg.history_rows)
         self.recorder = {}
         self.recorder_seen_ns = None
+        self.node_states = NodeStates(hold_s=HOLD_S)   # the Nodes panel's rows (/monitor/nodes)
         self.pubs = {topic: self.create_publisher(cls, ros_name(topic), EVENT_QOS)
                      for topic, (_n, cls) in DERIVED.items()}
         self.force_seq = 0
@@ -176,6 +180,7 @@ class MonitorNode(Node):
                 self._watch(topic)
         self.create_timer(cfg.period_s, self._tick)
         self.create_timer(cfg.health_period_s, self._health)
+        self.create_timer(NODES_PERIOD_S, self._publish_nodes)
 
     # ------------------------------------------------------------------ receiving
     def _watch(self, topic: str) -> None:
@@ -320,6 +325,8 @@ class MonitorNode(Node):
             except Exception:  # noqa: BLE001 - input from outside; forwarded as it came
                 continue
             for status in msg.status:
+                self.node_states.add(status.name, status.hardware_id, level_of(status), status.message,
+                                     [(kv.key, kv.value) for kv in status.values], arrival)
                 counts = recorder_counts(status.name, {kv.key: kv.value for kv in status.values})
                 if counts is not None:
                     self.recorder, self.recorder_seen_ns = counts, arrival
@@ -370,6 +377,18 @@ class MonitorNode(Node):
                          corrected_blocks=blocks, pull_traces=self.counts['pull_traces'],
                          bad_messages=self.counts['bad_messages'],
                          invalid_client_messages=self.counts['invalid_client_messages'])
+
+    def _publish_nodes(self) -> None:
+        """/monitor/nodes: every node's row, one short line, STALE when silent (core/nodes.py)."""
+        self._diagnostics()   # what arrived since the last tick, so a report is never judged late
+        now_ns = time.time_ns()
+        msg = DiagnosticArray()
+        msg.header.stamp = ns_to_stamp(now_ns)
+        for row in node_rows(self.node_states.states(now_ns)):
+            msg.status.append(DiagnosticStatus(level=bytes([row.level]), name=row.name, message=row.message,
+                                               hardware_id=row.hardware_id,
+                                               values=[KeyValue(key=k, value=str(v)) for k, v in row.values]))
+        self._send(CH.MONITOR_NODES_TOPIC, msg)
 
     # ------------------------------------------------------------------ the server's requests
     def _client_message(self, text: str) -> None:
