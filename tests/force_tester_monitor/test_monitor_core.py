@@ -234,3 +234,40 @@ def test_the_nodes_panel_rows_are_one_short_line_stale_when_silent_and_hold_the_
     assert rows['correction'].level == LEVEL_STALE and later / NS_PER_S > STALE_S
     assert rows['correction'].message == f'STALE: no report for {later / NS_PER_S:.0f} s'
     assert dict(rows['correction'].values)[DETAIL_KEY] == long
+
+
+def test_a_monitor_that_missed_the_summaries_computes_each_sets_statistics_as_the_validator_does():
+    """Issue 41: a monitor started (or restarted) mid-test hears only the validator's newest /set_summary (latched,
+    depth 1) but every score (/pull_score keeps 1000): the sets it has no summary of get the validator's arithmetic
+    over their OK scores; a set whose pulls are none OK gets a row that says so."""
+    from types import SimpleNamespace
+
+    from force_tester_monitor.core.history import NO_OK_PULL, ScoreHistory, set_row
+
+    from force_correction.core.scoring import PullScoreResult, SetStatistics
+    from force_tester_common.core.scores import PULL_INCOMPLETE, PULL_OK, SET_SUMMARY_FIELDS
+    rng = np.random.default_rng(4)
+    history, stats = ScoreHistory(rows=50), SetStatistics()
+    for pull in range(9):
+        test_set, status = 1 + pull % 3, PULL_INCOMPLETE if pull % 3 == 2 else PULL_OK
+        values = dict(stationary_peak_n=float(rng.uniform(900, 1100)), raw_diff_pct=float(rng.normal(30, 3)),
+                      corrected_diff_pct=float(rng.normal(2, 1)), filtered_diff_pct=float(rng.normal(-1, 1)))
+        result = PullScoreResult(raw_peak_n=1.0, corrected_peak_n=1.0, filtered_peak_n=1.0, raw_rms_n=0.0,
+                                 corrected_rms_n=0.0, filtered_rms_n=0.0, n_samples=10, n_loaded=5,
+                                 loaded_fraction=0.5, **values)
+        history.add_score(SimpleNamespace(pull_id=pull, test_set=test_set, status=status, corrected_peak_n=1.0,
+                                          corrected_peak_u_n=1.0, filtered_peak_n=1.0, filtered_peak_u_n=1.0,
+                                          coverage_factor=2.0, **values), stamp_ns=pull)
+        if status == PULL_OK:
+            stats.add(test_set, result)
+
+    def validator_row(test_set):
+        s = stats.summary(test_set)
+        return set_row(SimpleNamespace(test_set=test_set, **{f: getattr(s, k) for f, k in SET_SUMMARY_FIELDS.items()}))
+    history.add_summary(SimpleNamespace(test_set=2, **{f: getattr(stats.summary(2), k)
+                                                       for f, k in SET_SUMMARY_FIELDS.items()}))
+    assert history.sets() == [validator_row(1), validator_row(2),
+                              {'test_set': 3, 'pulls': 0,
+                               'stationary_mean_lbf': pytest.approx(float('nan'), nan_ok=True),
+                               'raw_pct': NO_OK_PULL, 'corrected_pct': NO_OK_PULL, 'filtered_pct': NO_OK_PULL}]
+    assert history.sets()[0]['pulls'] == 3 and '±' in history.sets()[0]['raw_pct']

@@ -29,7 +29,8 @@ from ft_cli.graph import Graph, ScoreCollector
 
 pytestmark = pytest.mark.browser
 
-PULLS = 2
+SETS = (1, 3)                      # one pull of each: two sets, so that a restarted monitor must show both
+PULLS = len(SETS)
 DRIVER = view.VIEWER / 'drive.mjs'
 NUMBER = re.compile(r'^-?\d+(\.\d+)?(e[-+]?\d+)?$', re.I)
 # each node's name in its /diagnostics status ("<node>: <what>"), as the diagnostics panel lists it
@@ -158,7 +159,7 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         assert page.state_until(lambda s: any(p['id'] == LIVE for p in s['panels']), 120), \
             'the layout did not open'
         assert collector.wait_for_graph({'/force': 3, '/force_corrected': 2, '/pull_event': 2}, timeout=60)
-        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': str(list(SETS)), 'pulls_per_set': 1, 'seed': 5,
                                                      'wait_for_subscribers': 2})
         spin = lambda: collector.executor.spin_once(timeout_sec=0.05)   # noqa: E731
         # the live plot's legend shows numbers, and they move while the sim pulls
@@ -196,7 +197,7 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
             assert row['corrected_lbf'].startswith(f"{n_to_lbf(score['corrected_peak_n']):.1f}"), (row, score)
         # and the set's running statistics, as the validator summed them up
         sets = table_rows(state, 'Table!sets')
-        assert [(r['test_set'], r['pulls']) for r in sets] == [('3', str(PULLS))], sets
+        assert [(r['test_set'], r['pulls']) for r in sets] == [(str(s), '1') for s in SETS], sets
         # each diagnostics row reads "<node>: <what>" (no node name twice, as "/validator: validator: ...")
         assert all(row['name'].count(':') == 1 for row in state['diagnostics']), state['diagnostics']
         # every node is listed, OK
@@ -226,6 +227,30 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         back = page.state_until(lambda s: not s['connectionLost'] and node_rows(s).get('monitor', ('', False))[1],
                                 60, spin)
         assert back is not None, graph.tail('monitor_node')
+
+        # the restarted monitor heard the validator's newest set summary only (latched, depth 1), yet the page
+        # shows the whole test: every pull in the history, every set's statistics (issue 41, item 4)
+        def complete(state):
+            if not {HISTORY, 'Table!sets'} <= {p['id'] for p in state['panels']}:
+                return False   # a page still opening
+            return [r.get('pull') for r in table_rows(state, HISTORY)] == \
+                [str(s['pull_id']) for s in reversed(collector.scores)] and \
+                [(r['test_set'], r['pulls']) for r in table_rows(state, 'Table!sets')] == [(str(s), '1') for s in SETS]
+        assert page.state_until(complete, 60, spin) is not None, (table_rows(back, HISTORY),
+                                                                   table_rows(back, 'Table!sets'))
+        # and so does a page opened now, after the last score (before: its tables stayed empty until the next)
+        late = Page(url, chromium)
+        try:
+            assert late.state_until(complete, 120, spin) is not None
+        finally:
+            late.close()
+        # a late ROS reader (`ros2 topic echo /monitor/score_history --once`) gets the history at once: latched
+        from force_tester_msgs.msg import ScoreHistory
+
+        from force_tester_common.ros import LATCHED_QOS
+        latched = []
+        collector.node.create_subscription(ScoreHistory, '/monitor/score_history', latched.append, LATCHED_QOS)
+        assert collector.spin_until(lambda: latched, 30) and len(latched[0].pulls) == PULLS, latched
     finally:
         if page is not None:
             page.close()

@@ -54,6 +54,7 @@ from force_tester_common.core.health import HOLD_S, NodeStates, level_of
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import (
     EVENT_QOS,
+    LATCHED_QOS,
     OK,
     SCORE_QOS,
     SUMMARY_QOS,
@@ -155,7 +156,7 @@ class MonitorNode(Node):
         types = {**{t: n for t, (n, _f) in FORWARDED.items()}, **{t: n for t, (n, _c) in DERIVED.items()}}
         self.bridge = FoxgloveBridge(types, cfg.host, cfg.port, cfg.backlog, parameters=self.parameters,
                                      on_watch=self._update_watched, on_client_message=self._client_message,
-                                     on_sdk_log=self._sdk_log)
+                                     on_sdk_log=self._sdk_log, on_subscribe=self._client_subscribed)
         self.channels = self.bridge.channels
         self.port = self.bridge.port
         self.diag.report(OK, f'Foxglove WebSocket at ws://{cfg.host}:{self.port} (foxglove-sdk '
@@ -170,7 +171,10 @@ class MonitorNode(Node):
         self.recorder = {}
         self.recorder_seen_ns = None
         self.node_states = NodeStates(hold_s=HOLD_S)   # the Nodes panel's rows (/monitor/nodes)
-        self.pubs = {topic: self.create_publisher(cls, ros_name(topic), EVENT_QOS)
+        self.last_trace = None   # the last /monitor/pull_trace, sent again to a client that subscribes
+        # the score history latched (the newest only), so a late `ros2 topic echo --once` gets it
+        self.pubs = {topic: self.create_publisher(cls, ros_name(topic),
+                                                  LATCHED_QOS if topic == CH.SCORE_HISTORY_TOPIC else EVENT_QOS)
                      for topic, (_n, cls) in DERIVED.items()}
         self.force_seq = 0
         self.on_demand = P.ON_DEMAND_TOPICS if cfg.on_demand else ()
@@ -197,6 +201,17 @@ class MonitorNode(Node):
                 self._watch(topic)
             elif topic not in wanted and topic in self.subs:
                 self.destroy_subscription(self.subs.pop(topic))
+
+    def _client_subscribed(self, topic: str) -> None:
+        """A client subscribed (a page opened late, reloaded, or back after a monitor restart): the topics that
+        change only on a score or a pull go out again now, so it shows the whole test at once, not from the next
+        score on: the score history with every set's statistics, and the last pull's trace. Every subscriber of
+        the channel gets them again (the SDK logs to a channel, not to a client): a table or the trace plot shows
+        the newest message, so nothing changes for them."""
+        if topic == CH.SCORE_HISTORY_TOPIC:
+            self._publish_history()
+        elif topic == CH.PULL_TRACE_TOPIC and self.last_trace is not None:
+            self.channels[topic].log(serialize_message(self.last_trace), log_time=time.time_ns())
 
     def _receiver(self, topic: str):
         channel, pending = self.channels[topic], self.pending[topic]
@@ -354,6 +369,7 @@ class MonitorNode(Node):
         for s in SIGNALS:
             setattr(msg, f'{s}_lbf', to_field(trace.signals[s]))
         self._send(CH.PULL_TRACE_TOPIC, msg)
+        self.last_trace = msg
         self.counts['pull_traces'] += 1
 
     def _health(self) -> None:
