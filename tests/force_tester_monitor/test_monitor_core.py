@@ -271,3 +271,25 @@ def test_a_monitor_that_missed_the_summaries_computes_each_sets_statistics_as_th
                                'stationary_mean_lbf': pytest.approx(float('nan'), nan_ok=True),
                                'raw_pct': NO_OK_PULL, 'corrected_pct': NO_OK_PULL, 'filtered_pct': NO_OK_PULL}]
     assert history.sets()[0]['pulls'] == 3 and '±' in history.sets()[0]['raw_pct']
+
+
+def test_a_second_run_of_the_sim_keeps_the_first_runs_rows():
+    """Issue 41: pull ids restart at 0 when the sim runs again with the graph up; rows are keyed by the pull's
+    start stamp too, so the first run's rows stay (and its OK scores stay in the set's statistics)."""
+    from types import SimpleNamespace
+
+    from force_tester_monitor.core.history import ScoreHistory
+
+    def score(pull):
+        return SimpleNamespace(pull_id=pull, test_set=3, status=0, stationary_peak_n=1000.0 + pull,
+                               corrected_peak_n=1010.0, corrected_peak_u_n=1.0, filtered_peak_n=990.0,
+                               filtered_peak_u_n=1.0, raw_diff_pct=30.0, corrected_diff_pct=1.0,
+                               filtered_diff_pct=-0.5, coverage_factor=2.0)
+    history = ScoreHistory(rows=10)
+    for run in range(2):
+        for pull in range(2):
+            history.add_score(score(pull), stamp_ns=(100 * run + pull) * NS_PER_S)
+    assert [r['pull'] for r in history.pulls()] == [1, 0, 1, 0]
+    assert history.sets()[0]['pulls'] == 4
+    history.add_score(score(1), stamp_ns=101 * NS_PER_S)   # the second run's pull 1 scored again: replaced
+    assert [r['pull'] for r in history.pulls()] == [1, 0, 1, 0] and history.sets()[0]['pulls'] == 4

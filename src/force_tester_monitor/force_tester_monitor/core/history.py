@@ -57,22 +57,24 @@ class ScoreHistory:
         if not (isinstance(rows, int) and rows >= 1):
             raise MonitorError(f'history rows {rows!r} is invalid; expected an integer >= 1')
         self.rows = rows
-        self._pulls: OrderedDict = OrderedDict()   # (test_set, pull_id) -> (start stamp ns, ScoreRow fields)
+        self._pulls: OrderedDict = OrderedDict()   # (test_set, pull_id, start ns) -> (start ns, ScoreRow fields)
         self._sets: dict = {}                      # test_set -> SetRow fields (the validator's summary)
         self._ok: dict = {}                        # test_set -> {(pull_id, start stamp ns): OK score}
         self.coverage_factor = float('nan')
 
     def add_score(self, score, stamp_ns: int) -> None:
-        key = (int(score.test_set), int(score.pull_id))
+        # keyed by the pull's start stamp too: a second run of the sim numbers its pulls from 0 again, and its
+        # rows must not replace the first run's (a pull scored again has its stamp: its row is replaced)
+        key = (int(score.test_set), int(score.pull_id), int(stamp_ns))
         self._pulls.pop(key, None)
         self._pulls[key] = (int(stamp_ns), score_row(score))
         while len(self._pulls) > self.rows:
             self._pulls.popitem(last=False)
         self.coverage_factor = float(score.coverage_factor)
         kept = self._ok.setdefault(key[0], {})
-        kept.pop((key[1], int(stamp_ns)), None)
+        kept.pop(key[1:], None)
         if int(score.status) == PULL_OK:
-            kept[(key[1], int(stamp_ns))] = score
+            kept[key[1:]] = score
 
     def add_summary(self, summary) -> None:
         self._sets[int(summary.test_set)] = set_row(summary)
