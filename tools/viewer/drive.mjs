@@ -7,7 +7,7 @@
 //   {"kind": "launch-failed", "error": "..."}             Chromium did not start (exit code 3)
 //   {"kind": "state", "panels": [...], "diagnostics": [...], "okColor": "..."}  every --every-ms: per
 //        panel its id in the layout, its text, for plots the legend's entries, for tables the rows'
-//        cells; the diagnostics panel's rows; connectionLost: the viewer's "no connection" bar's text ("" if hidden)
+//        cells, outside: the rows (and the pager) that lie outside the panel; the diagnostics panel's rows; connectionLost: the viewer's "no connection" bar's text ("" if hidden)
 //   {"kind": "problem", "text": "..."}                     the app reported a data source problem
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
@@ -44,7 +44,17 @@ function readPage() {
     }));
     // a Table panel's rows (the first is the header), cell by cell
     const table = [...win.querySelectorAll("tr")].map((tr) => [...tr.children].map((cell) => cell.innerText.trim()));
-    panels.push({ id, text, legend, table });
+    // what of the panel lies outside it (cut off, or to be scrolled to): table rows, the pager, the Nodes tab's rows
+    const box = win.getBoundingClientRect();
+    // the pager: the innermost element that reads "Page 1 of 1"
+    const pager = [...win.querySelectorAll("*")].filter((el) => /^Page \d+ of \d+$/.test(el.innerText?.trim() ?? "") &&
+      ![...el.children].some((child) => /^Page \d+ of \d+$/.test(child.innerText?.trim() ?? "")));
+    const parts = [...win.querySelectorAll("tr, [data-testid-diagnostic-row]"), ...pager];
+    const outside = parts.filter((el) => {
+      const r = el.getBoundingClientRect();
+      return r.height > 0 && (r.bottom > box.bottom + 1 || r.top < box.top - 1);
+    }).map((el) => el.innerText.trim().slice(0, 60));
+    panels.push({ id, text, legend, table, outside });
   }
   const diagnostics = [...document.querySelectorAll("[data-testid-diagnostic-row]")].map((row) => {
     const secondary = row.querySelector(".MuiListItemText-secondary");
