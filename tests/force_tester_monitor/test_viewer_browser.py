@@ -60,6 +60,7 @@ class Page:
         self.errors = []
         self.problems = []
         self.external = []
+        self.http_errors = []
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self):
@@ -76,6 +77,8 @@ class Page:
             self.problems.append(report['text'])
         elif report['kind'] == 'external-request':
             self.external.append(report['url'])
+        elif report['kind'] == 'http-error':
+            self.http_errors.append((report['status'], report['url']))
         return report
 
     def state_until(self, condition, timeout: float, spin=lambda: None) -> dict | None:
@@ -223,6 +226,8 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         assert page.errors == [], page.errors
         # nothing was asked of the internet
         assert page.external == [], page.external
+        # and nothing it asked for was missing (a favicon 404 came with every load)
+        assert page.http_errors == [], page.http_errors
         assert graph.dead() == [], [graph.tail(n) for n in graph.dead()]
 
         # liveness (issue 41): a SIGKILLed node's row is STALE within 5 s (it stayed orange for 13.6 s); a lost

@@ -101,3 +101,24 @@ def test_the_extension_validator_follows_the_extension_correction(tmp_path):
     assert launched.get('correction_node') == followed, launched
     assert nodes[followed].get('exec') == 'correction_node'
     assert nodes[followed].get('if') == nodes[demo['validator']['key']].get('if') == '$(var extension)'
+
+
+def test_the_monitor_s_port_and_host_are_arguments_with_the_node_s_defaults():
+    """Issue 41 (low): graph.launch.xml monitor:=true port:=8766 host:=0.0.0.0; the defaults are the node's."""
+    from force_tester_monitor.core.params import HOST, PORT
+    root = ET.parse(SHARE / 'launch' / 'graph.launch.xml').getroot()
+    args = args_of(root)
+    assert (int(args['port']), args['host']) == (PORT, HOST)
+    (monitor,) = [n for n in root.iter('node') if n.get('exec') == 'monitor_node']
+    given = {p.get('name'): p.get('value') for p in monitor.iter('param') if p.get('name')}
+    assert given == {'port': '$(var port)', 'host': '$(var host)'}
+
+
+def test_the_docs_say_what_a_status_s_hardware_id_is():
+    """Issue 41 (low): docs/nodes.md described hardware_id as the node (`/rig1/correction`); it is the rig."""
+    from force_tester_common.core.health import hardware_id_of
+    from ft_cli.paths import ROOT
+    text = ' '.join((ROOT / 'docs' / 'nodes.md').read_text().split())
+    rig = hardware_id_of('/rig1')
+    assert f"`hardware_id` is the node's namespace without its slashes, the rig: `{rig}` for" in text
+    assert "`hardware_id` names the node" not in text

@@ -12,6 +12,7 @@
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
 //   {"kind": "external-request", "url": "..."}             the page asked for something off this machine
+//   {"kind": "http-error", "url": "...", "status": 404}     a request the server answered with an error
 // stdin, one command a line: `screenshot PATH`, `quit`.
 import { createInterface } from "node:readline";
 
@@ -90,6 +91,12 @@ page.on("request", (request) => {
   const { protocol, hostname } = new URL(request.url());
   if (!["data:", "blob:"].includes(protocol) && !["127.0.0.1", "localhost", "[::1]"].includes(hostname)) {
     say({ kind: "external-request", url: request.url() });
+  }
+});
+// a request the viewer's server answered with an error (a file the page wants and the site lacks)
+page.on("response", (response) => {
+  if (response.status() >= 400) {
+    say({ kind: "http-error", url: response.url(), status: response.status() });
   }
 });
 // the app logs each problem of its data source ("Player problem ws:connection-failed {...}")
