@@ -35,10 +35,24 @@ def test_layout_plots_only_what_the_monitor_serves():
     for path in paths:
         topic = max((t for t in types if path == t or path.startswith(t + '.')), key=len)
         msg_type = types[topic]
-        for field in (re.sub(r'\[.*\]$', '', f) for f in path[len(topic) + 1:].split('.') if f):
+        for field in (re.sub(r'(\[.*\])?(\{.*\})?$', '', f) for f in path[len(topic) + 1:].split('.') if f):
             # a field of a nested message (pulls[:].pull_id): walk into the element type
             defs = dict(store.fielddefs[msg_type][1])
             assert field in defs, (path, list(defs))
             kind, detail = defs[field]
             msg_type = detail[0][1] if kind == Nodetype.SEQUENCE and detail[0][0] == Nodetype.NAME else \
                 detail if kind == Nodetype.NAME else None
+
+
+def test_the_nodes_tab_and_the_difference_plot_read_what_a_late_page_gets_whole():
+    """Issue 41: the Nodes tab shows /monitor/nodes (one line a node, STALE when silent); the % plot reads the
+    score history (sent again to each client that subscribes), OK pulls only, so a page opened late or after a
+    monitor restart plots every OK pull and an INCOMPLETE 287 % does not set the scale."""
+    from force_tester_common.core.channels import MONITOR_NODES_TOPIC, SCORE_HISTORY_TOPIC
+    layout = json.loads(LAYOUT.read_text())['configById']
+    (diag,) = [cfg for k, cfg in layout.items() if k.startswith('DiagnosticSummary!')]
+    assert diag['topicToRender'] == MONITOR_NODES_TOPIC
+    diffs = layout['Plot!diffs']
+    ok_rows = SCORE_HISTORY_TOPIC + '.pulls[:]{status=="OK"}'
+    assert diffs['xAxisVal'] == 'currentCustom' and diffs['xAxisPath']['value'] == ok_rows + '.pull'
+    assert [p['value'] for p in diffs['paths']] == [f'{ok_rows}.{d}_pct' for d in ('raw', 'corrected', 'filtered')]

@@ -204,3 +204,92 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
                                  'raw_pct': '30.00 ± 1.23', 'corrected_pct': '2.00', 'filtered_pct': '-'}
     with pytest.raises(MonitorError, match="history rows 0 is invalid"):
         ScoreHistory(rows=0)
+
+
+def test_the_nodes_panel_rows_are_one_short_line_stale_when_silent_and_hold_the_worst():
+    """/monitor/nodes (issue 41): a long message is cut to one line (the whole text in values 'detail'); a node
+    silent for STALE_S is STALE with how long it has been silent; a newer OK does not hide an ERROR of the
+    last HOLD_S seconds, which goes once HOLD_S has passed."""
+    from force_tester_monitor.core.nodes import DETAIL_KEY, SHORT_MESSAGE_CHARS, node_rows, short_message
+
+    from force_tester_common.core.health import HOLD_S, LEVEL_ERROR, LEVEL_OK, LEVEL_STALE, STALE_S, NodeStates
+    long = ('(re)started: m = 1.152 kg, N = 140 (the moving average lags the peak by 70 samples, 1.4 ms at 50 kHz;'
+            ' see docs/thesis.md), extension: none')
+    short, detail = short_message(long)
+    assert len(short) <= SHORT_MESSAGE_CHARS and short.endswith('\u2026') and '\n' not in short and detail == long
+    assert short_message('running') == ('running', '')
+    states = NodeStates(hold_s=HOLD_S)
+    states.add('correction: m*a correction', '', LEVEL_OK, long, [('blocks', '10')], 0)
+    states.add('validator: pull scoring', '', LEVEL_ERROR, 'pull 3 not scored', [], 0)
+    states.add('validator: pull scoring', '', LEVEL_OK, 'scoring', [('scores', '4')], NS_PER_S)
+    rows = {r.name.split(':')[0]: r for r in node_rows(states.states(2 * NS_PER_S))}
+    assert (rows['correction'].level, rows['correction'].message) == (LEVEL_OK, short)
+    assert rows['correction'].values == ((DETAIL_KEY, long), ('blocks', '10'))
+    assert (rows['validator'].level, rows['validator'].message) == (LEVEL_ERROR, 'pull 3 not scored')
+    assert rows['validator'].values == (('scores', '4'),)
+    later = int((HOLD_S + 0.5) * NS_PER_S)
+    states.add('validator: pull scoring', '', LEVEL_OK, 'scoring', [('scores', '5')], later)
+    rows = {r.name.split(':')[0]: r for r in node_rows(states.states(later))}
+    assert (rows['validator'].level, rows['validator'].message) == (LEVEL_OK, 'scoring')
+    assert rows['correction'].level == LEVEL_STALE and later / NS_PER_S > STALE_S
+    assert rows['correction'].message == f'STALE: no report for {later / NS_PER_S:.0f} s'
+    assert dict(rows['correction'].values)[DETAIL_KEY] == long
+
+
+def test_a_monitor_that_missed_the_summaries_computes_each_sets_statistics_as_the_validator_does():
+    """Issue 41: a monitor started (or restarted) mid-test hears only the validator's newest /set_summary (latched,
+    depth 1) but every score (/pull_score keeps 1000): the sets it has no summary of get the validator's arithmetic
+    over their OK scores; a set whose pulls are none OK gets a row that says so."""
+    from types import SimpleNamespace
+
+    from force_tester_monitor.core.history import NO_OK_PULL, ScoreHistory, set_row
+
+    from force_correction.core.scoring import PullScoreResult, SetStatistics
+    from force_tester_common.core.scores import PULL_INCOMPLETE, PULL_OK, SET_SUMMARY_FIELDS
+    rng = np.random.default_rng(4)
+    history, stats = ScoreHistory(rows=50), SetStatistics()
+    for pull in range(9):
+        test_set, status = 1 + pull % 3, PULL_INCOMPLETE if pull % 3 == 2 else PULL_OK
+        values = dict(stationary_peak_n=float(rng.uniform(900, 1100)), raw_diff_pct=float(rng.normal(30, 3)),
+                      corrected_diff_pct=float(rng.normal(2, 1)), filtered_diff_pct=float(rng.normal(-1, 1)))
+        result = PullScoreResult(raw_peak_n=1.0, corrected_peak_n=1.0, filtered_peak_n=1.0, raw_rms_n=0.0,
+                                 corrected_rms_n=0.0, filtered_rms_n=0.0, n_samples=10, n_loaded=5,
+                                 loaded_fraction=0.5, **values)
+        history.add_score(SimpleNamespace(pull_id=pull, test_set=test_set, status=status, corrected_peak_n=1.0,
+                                          corrected_peak_u_n=1.0, filtered_peak_n=1.0, filtered_peak_u_n=1.0,
+                                          coverage_factor=2.0, **values), stamp_ns=pull)
+        if status == PULL_OK:
+            stats.add(test_set, result)
+
+    def validator_row(test_set):
+        s = stats.summary(test_set)
+        return set_row(SimpleNamespace(test_set=test_set, **{f: getattr(s, k) for f, k in SET_SUMMARY_FIELDS.items()}))
+    history.add_summary(SimpleNamespace(test_set=2, **{f: getattr(stats.summary(2), k)
+                                                       for f, k in SET_SUMMARY_FIELDS.items()}))
+    assert history.sets() == [validator_row(1), validator_row(2),
+                              {'test_set': 3, 'pulls': 0,
+                               'stationary_mean_lbf': pytest.approx(float('nan'), nan_ok=True),
+                               'raw_pct': NO_OK_PULL, 'corrected_pct': NO_OK_PULL, 'filtered_pct': NO_OK_PULL}]
+    assert history.sets()[0]['pulls'] == 3 and '±' in history.sets()[0]['raw_pct']
+
+
+def test_a_second_run_of_the_sim_keeps_the_first_runs_rows():
+    """Issue 41: pull ids restart at 0 when the sim runs again with the graph up; rows are keyed by the pull's
+    start stamp too, so the first run's rows stay (and its OK scores stay in the set's statistics)."""
+    from types import SimpleNamespace
+
+    from force_tester_monitor.core.history import ScoreHistory
+
+    def score(pull):
+        return SimpleNamespace(pull_id=pull, test_set=3, status=0, stationary_peak_n=1000.0 + pull,
+                               corrected_peak_n=1010.0, corrected_peak_u_n=1.0, filtered_peak_n=990.0,
+                               filtered_peak_u_n=1.0, raw_diff_pct=30.0, corrected_diff_pct=1.0,
+                               filtered_diff_pct=-0.5, coverage_factor=2.0)
+    history = ScoreHistory(rows=10)
+    for run in range(2):
+        for pull in range(2):
+            history.add_score(score(pull), stamp_ns=(100 * run + pull) * NS_PER_S)
+    assert [r['pull'] for r in history.pulls()] == [1, 0, 1, 0]
+    assert history.sets()[0]['pulls'] == 4
+    history.add_score(score(1), stamp_ns=101 * NS_PER_S)   # the second run's pull 1 scored again: replaced
+    assert [r['pull'] for r in history.pulls()] == [1, 0, 1, 0] and history.sets()[0]['pulls'] == 4

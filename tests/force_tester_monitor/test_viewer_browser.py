@@ -9,6 +9,12 @@ the score history with one row per scored pull, with the validator's numbers in 
 node of the graph in the diagnostics panel, OK, its row named "<node>: <what>". The
 screenshot is saved under the test's tmp dir (viewer.png) for a person to look at. No request of the
 page may leave the machine.
+
+Then (issue 41), with five pulls, one of each set: no table row, pager or node row lies outside its panel at
+1600x1000; the correction SIGKILLed is STALE within 5 s, and started again; the monitor SIGKILLed shows the
+"no connection" bar within 5 s, and restarted on its port removes it; the page then shows every pull and every
+set's statistics; a second page opened at 1366x768 after the last score shows all of it with nothing cut off
+(viewer_1366x768.png); a late latched ROS reader gets /monitor/score_history.
 """
 from __future__ import annotations
 
@@ -29,7 +35,9 @@ from ft_cli.graph import Graph, ScoreCollector
 
 pytestmark = pytest.mark.browser
 
-PULLS = 2
+SETS = (1, 2, 3, 4, 5)             # one pull of each (thesis Table 4): the tables' fit, a restart's completeness
+SIZES = ((1600, 1000), (1366, 768))   # the first page's, the late page's (both screenshots go to docs/images)
+PULLS = len(SETS)
 DRIVER = view.VIEWER / 'drive.mjs'
 NUMBER = re.compile(r'^-?\d+(\.\d+)?(e[-+]?\d+)?$', re.I)
 # each node's name in its /diagnostics status ("<node>: <what>"), as the diagnostics panel lists it
@@ -41,16 +49,18 @@ HISTORY = 'Table!history'
 class Page:
     """The driver (tools/viewer/drive.mjs) with the viewer open: its reports, read on a thread."""
 
-    def __init__(self, url: str, chromium: str):
+    def __init__(self, url: str, chromium: str, size=(1600, 1000)):
         node = shutil.which('node')
         assert node, 'node is not on PATH; the machine image provides Node.js 20'
-        self.proc = subprocess.Popen([node, str(DRIVER), url, '--chromium', chromium], cwd=view.VIEWER,
+        self.proc = subprocess.Popen([node, str(DRIVER), url, '--chromium', chromium,
+                                      '--width', str(size[0]), '--height', str(size[1])], cwd=view.VIEWER,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True)
         self.reports = queue.Queue()
         self.errors = []
         self.problems = []
         self.external = []
+        self.http_errors = []
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self):
@@ -67,6 +77,8 @@ class Page:
             self.problems.append(report['text'])
         elif report['kind'] == 'external-request':
             self.external.append(report['url'])
+        elif report['kind'] == 'http-error':
+            self.http_errors.append((report['status'], report['url']))
         return report
 
     def state_until(self, condition, timeout: float, spin=lambda: None) -> dict | None:
@@ -130,6 +142,14 @@ def node_rows(state: dict) -> dict:
     return rows
 
 
+FITTED = (HISTORY, 'Table!sets', 'DiagnosticSummary!diag')
+
+
+def cut_off(state: dict) -> dict:
+    """{panel: what of it lies outside it} for the tables and the Nodes tab: nothing may (issue 41)."""
+    return {p['id']: p['outside'] for p in state['panels'] if p['id'] in FITTED and p['outside']}
+
+
 def chromium_binary() -> str:
     found = shutil.which('chromium') or shutil.which('chromium-browser')
     if not found:
@@ -150,7 +170,7 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         port = monitor_port(graph.log_dir / 'monitor_node.log', monitor)
         server = view.serve('127.0.0.1', 0)
         url = view.url('127.0.0.1', server.server_address[1], f'ws://127.0.0.1:{port}')
-        page = Page(url, chromium)
+        page = Page(url, chromium, SIZES[0])
         first = page.next(timeout=120)
         if first['kind'] == 'launch-failed':
             pytest.skip(f'Chromium ({chromium}) did not start: {first["error"]}')
@@ -158,7 +178,7 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         assert page.state_until(lambda s: any(p['id'] == LIVE for p in s['panels']), 120), \
             'the layout did not open'
         assert collector.wait_for_graph({'/force': 3, '/force_corrected': 2, '/pull_event': 2}, timeout=60)
-        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': PULLS, 'seed': 5,
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': str(list(SETS)), 'pulls_per_set': 1, 'seed': 5,
                                                      'wait_for_subscribers': 2})
         spin = lambda: collector.executor.spin_once(timeout_sec=0.05)
         # the live plot's legend shows numbers, and they move while the sim pulls
@@ -179,9 +199,10 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
             shown = {r.get('pull') for r in table_rows(state, HISTORY)}
             rows = node_rows(state)
             return {str(s['pull_id']) for s in collector.scores} <= shown and \
-                all(rows.get(n, ('', False))[1] for n in NODES)
+                all(rows.get(n, ('', False))[1] for n in NODES) and len(table_rows(state, 'Table!sets')) == len(SETS)
         state = page.state_until(settled, 120, spin)
         page.command(f'screenshot {tmp_path / "viewer.png"}', 'screenshot')
+        assert state is None or cut_off(state) == {}, cut_off(state)
         print(f'screenshot: {tmp_path / "viewer.png"}')
         assert state is not None, ('the score history or the diagnostics never settled',
                                    table_rows(last_state[0], HISTORY), node_rows(last_state[0]))
@@ -196,7 +217,7 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
             assert row['corrected_lbf'].startswith(f"{n_to_lbf(score['corrected_peak_n']):.1f}"), (row, score)
         # and the set's running statistics, as the validator summed them up
         sets = table_rows(state, 'Table!sets')
-        assert [(r['test_set'], r['pulls']) for r in sets] == [('3', str(PULLS))], sets
+        assert [(r['test_set'], r['pulls']) for r in sets] == [(str(s), '1') for s in SETS], sets
         # each diagnostics row reads "<node>: <what>" (no node name twice, as "/validator: validator: ...")
         assert all(row['name'].count(':') == 1 for row in state['diagnostics']), state['diagnostics']
         # every node is listed, OK
@@ -205,7 +226,63 @@ def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_doma
         assert page.errors == [], page.errors
         # nothing was asked of the internet
         assert page.external == [], page.external
+        # and nothing it asked for was missing (a favicon 404 came with every load)
+        assert page.http_errors == [], page.http_errors
         assert graph.dead() == [], [graph.tail(n) for n in graph.dead()]
+
+        # liveness (issue 41): a SIGKILLed node's row is STALE within 5 s (it stayed orange for 13.6 s); a lost
+        # monitor is said plainly (its row stayed green through an 18.6 s outage), and goes once it is back
+        def killed(name):
+            proc = graph.procs.pop(name)
+            proc.kill()
+            proc.wait()
+            return time.monotonic()
+        t0 = killed('correction_node')
+        stale = page.state_until(lambda s: node_rows(s).get('correction', ('',))[0].startswith('STALE'), 15, spin)
+        assert stale is not None and time.monotonic() - t0 <= 5.0, (time.monotonic() - t0, stale and node_rows(stale))
+        assert all(node_rows(stale)[n][1] for n in ('sim', 'validator', 'monitor')), node_rows(stale)
+        graph.start('force_correction', 'correction_node')   # back: its row OK again (checked on the late page)
+        t0 = killed('monitor_node')
+        lost = page.state_until(lambda s: s['connectionLost'], 15, spin)
+        assert lost is not None and time.monotonic() - t0 <= 5.0, time.monotonic() - t0
+        assert 'No connection to the monitor' in lost['connectionLost'], lost['connectionLost']
+        graph.start('force_tester_monitor', 'monitor_node', {'port': port})
+        back = page.state_until(lambda s: not s['connectionLost'] and node_rows(s).get('monitor', ('', False))[1],
+                                60, spin)
+        assert back is not None, graph.tail('monitor_node')
+
+        # the restarted monitor heard the validator's newest set summary only (latched, depth 1), yet the page
+        # shows the whole test: every pull in the history, every set's statistics (issue 41, item 4)
+        def complete(state):
+            if not {HISTORY, 'Table!sets'} <= {p['id'] for p in state['panels']}:
+                return False   # a page still opening
+            return [r.get('pull') for r in table_rows(state, HISTORY)] == \
+                [str(s['pull_id']) for s in reversed(collector.scores)] and \
+                [(r['test_set'], r['pulls']) for r in table_rows(state, 'Table!sets')] == [(str(s), '1') for s in SETS]
+        assert page.state_until(complete, 60, spin) is not None, (table_rows(back, HISTORY),
+                                                                   table_rows(back, 'Table!sets'))
+        # and so does a page opened now, after the last score (before: its tables stayed empty until the next)
+        # at the smaller size, with the correction back: every table row, the pager and every node row in view
+        late = Page(url, chromium, SIZES[1])
+        last = []
+
+        def whole(state):
+            last[:] = [state]
+            return complete(state) and not cut_off(state) and all(node_rows(state).get(n, ('', False))[1]
+                                                                   for n in NODES)
+        try:
+            shown = late.state_until(whole, 120, spin)
+            late.command(f'screenshot {tmp_path / "viewer_1366x768.png"}', 'screenshot')
+            assert shown is not None, (last and (cut_off(last[0]), node_rows(last[0]), table_rows(last[0], HISTORY)))
+        finally:
+            late.close()
+        # a late ROS reader (`ros2 topic echo /monitor/score_history --once`) gets the history at once: latched
+        from force_tester_msgs.msg import ScoreHistory
+
+        from force_tester_common.ros import LATCHED_QOS
+        latched = []
+        collector.node.create_subscription(ScoreHistory, '/monitor/score_history', latched.append, LATCHED_QOS)
+        assert collector.spin_until(lambda: latched, 30) and len(latched[0].pulls) == PULLS, latched
     finally:
         if page is not None:
             page.close()

@@ -85,3 +85,40 @@ def test_the_extension_pair_is_remapped_as_the_demo_remaps_it(tmp_path):
         # from the rig YAML (ft_cli.peak_inputs); a launched validator takes them from its parameter file
         given = {p.get('name') for p in node.iter('param') if p.get('name')}
         assert given == {k for k in kw.get('params', {}) if not k.startswith('peak_u_')}
+
+
+def test_the_extension_validator_follows_the_extension_correction(tmp_path):
+    """Its correction_node names the extension pair's correction (in the launch file and in ./ft demo alike): a
+    change to /correction must not mark the extension's pulls RECONFIGURED (issue 41, item 1)."""
+    root = ET.parse(SHARE / 'launch' / 'graph.launch.xml').getroot()
+    nodes = {n.get('name'): n for n in root.iter('node')}
+    extension = tmp_path / 'extension.yaml'
+    extension.write_text('correction:\n  moving_cell_gain: 1.01\n')
+    demo = extension_args(extension)
+    followed = demo['validator']['params']['correction_node']
+    assert followed == demo['correction']['key'] != 'correction'
+    launched = {p.get('name'): p.get('value') for p in nodes[demo['validator']['key']].iter('param')}
+    assert launched.get('correction_node') == followed, launched
+    assert nodes[followed].get('exec') == 'correction_node'
+    assert nodes[followed].get('if') == nodes[demo['validator']['key']].get('if') == '$(var extension)'
+
+
+def test_the_monitor_s_port_and_host_are_arguments_with_the_node_s_defaults():
+    """Issue 41 (low): graph.launch.xml monitor:=true port:=8766 host:=0.0.0.0; the defaults are the node's."""
+    from force_tester_monitor.core.params import HOST, PORT
+    root = ET.parse(SHARE / 'launch' / 'graph.launch.xml').getroot()
+    args = args_of(root)
+    assert (int(args['port']), args['host']) == (PORT, HOST)
+    (monitor,) = [n for n in root.iter('node') if n.get('exec') == 'monitor_node']
+    given = {p.get('name'): p.get('value') for p in monitor.iter('param') if p.get('name')}
+    assert given == {'port': '$(var port)', 'host': '$(var host)'}
+
+
+def test_the_docs_say_what_a_status_s_hardware_id_is():
+    """Issue 41 (low): docs/nodes.md described hardware_id as the node (`/rig1/correction`); it is the rig."""
+    from force_tester_common.core.health import hardware_id_of
+    from ft_cli.paths import ROOT
+    text = ' '.join((ROOT / 'docs' / 'nodes.md').read_text().split())
+    rig = hardware_id_of('/rig1')
+    assert f"`hardware_id` is the node's namespace without its slashes, the rig: `{rig}` for" in text
+    assert "`hardware_id` names the node" not in text

@@ -260,3 +260,49 @@ def test_a_restarted_validator_keeps_its_scores(tmp_path, ros_domain):
     assert summaries[-1].pulls >= len(ok) > 0, (summaries[-1], ok)
     lines = state.read_text().splitlines()
     assert len(lines) >= 2 and len(lines) == len({s['pull_id'] for s in collector.scores})
+
+
+def test_each_validator_follows_its_own_correction(tmp_path, ros_domain):
+    """The demo's two pairs (the plain one and the extension's, as `./ft demo` starts them): the window of
+    /correction changed mid-pull 1 marks the plain pull 1 RECONFIGURED and not the extension's; the window of
+    /correction_extension changed mid-pull 3 marks the extension's pull 3 and not the plain one (issue 41)."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from force_tester_common.core.scores import PULL_RECONFIGURED
+    from ft_cli.commands.demo import EXT_CORRECTION, EXT_SCORE_TOPIC, extension_args
+    extension = tmp_path / 'extension.yaml'
+    extension.write_text('correction:\n  moving_cell_gain: 1.01\n')
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector(also=(EXT_SCORE_TOPIC,))
+    events = EventWatch(collector)
+    alive = lambda: not graph.dead()  # noqa: E731
+
+    def set_window(node, pull_id):
+        assert events.wait_start(pull_id, alive=alive), graph.tail('sim_node')
+        client = AsyncParameterClient(collector.node, node)
+        assert client.wait_for_services(timeout_sec=30)
+        future = client.set_parameters([Parameter('window', value=200)])
+        collector.executor.spin_until_future_complete(future, timeout_sec=30)
+        assert future.done() and all(r.successful for r in future.result().results)
+    try:
+        graph.start('force_correction', 'correction_node')
+        graph.start('force_correction', 'validator_node')
+        for exe, kw in extension_args(extension).items():
+            graph.start('force_correction', f'{exe}_node', **kw)
+        wanted = {'/force_corrected': 1, '/extension/force_corrected': 1, '/force': 4, '/pull_event': 3}
+        assert collector.wait_for_graph(wanted, timeout=60), {t: collector.node.count_subscribers(t) for t in wanted}
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 4, 'rate': 0.5,
+                                                      'wait_for_subscribers': 3})
+        assert collector.wait(1, 120, alive=alive), graph.tail('validator_node')
+        set_window('correction', 1)
+        assert collector.wait(3, 120, alive=alive), graph.tail(EXT_CORRECTION)
+        set_window(EXT_CORRECTION, 3)
+        assert collector.wait(4, 120, alive=alive), graph.tail('validator_extension')
+    finally:
+        graph.stop()
+        collector.close()
+    plain = {s['pull_id']: s['status'] for s in collector.scores}
+    ext = {s['pull_id']: s['status'] for s in collector.also_scores[EXT_SCORE_TOPIC]}
+    assert plain[1] == PULL_RECONFIGURED != plain[3], plain
+    assert ext[3] == PULL_RECONFIGURED != ext[1], ext

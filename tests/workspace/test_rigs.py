@@ -177,3 +177,56 @@ def test_the_rig_files_are_installed_where_ros_finds_them():
     for f in (ROOT / 'config' / 'rigs').glob('*.yaml'):
         assert (share / 'config' / 'rigs' / f.name).read_text() == f.read_text(), f.name
     assert sorted(f.name for f in (share / 'config' / 'rigs').glob('*.yaml')) == ['rig1.yaml', 'rig2.yaml']
+
+
+@pytest.mark.slow
+def test_the_recorder_and_the_monitor_follow_their_namespace_and_remaps(tmp_path, ros_domain):
+    """A rig under /rig2 (issue 41, item 2): a recorder started with -r __ns:=/rig2 and its default topics records
+    /rig2/force, /rig2/pull_event, ... (before: it looked for /force, ... and closed the bag with 0 messages);
+    a recorder in the root namespace told `-r force:=/rig2/force` records /rig2/force (before: the
+    un-remapped /force); a monitor under /rig2 watches the rig's topics and publishes /rig2/monitor/*, none in
+    the root namespace."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from force_tester_msgs.msg import MonitorHealth
+
+    from bag_tools.core.info import bag_info
+    from force_tester_common.ros import EVENT_QOS
+    from ft_cli.graph import Graph, ScoreCollector
+    ns = ['--ros-args', '-r', '__ns:=/rig2']
+    graph = Graph(tmp_path / 'logs')
+    collector = ScoreCollector()
+    recorded, health = {}, []
+    collector.node.create_subscription(
+        DiagnosticArray, '/diagnostics', lambda m: recorded.update(
+            {s.name.split(':')[0]: {kv.key: kv.value for kv in s.values} for s in m.status
+             if s.hardware_id == 'rig2' or s.name.startswith('recorder_remap:')}), EVENT_QOS)
+    collector.node.create_subscription(MonitorHealth, '/rig2/monitor/health', health.append, EVENT_QOS)
+
+    def received(topic):
+        return max((t.received for h in health[-1:] for t in h.topics if t.topic == topic), default=0)
+
+    def done():
+        return (int(recorded.get('recorder', {}).get('/rig2/pull_event', 0)) >= 2
+                and int(recorded.get('recorder_remap', {}).get('/rig2/force', 0)) > 0
+                and received('/pull_event') >= 2)
+    try:
+        graph.start('bag_tools', 'recorder_node', {'bag_path': str(tmp_path / 'ns_bag')}, extra=ns)
+        graph.start('bag_tools', 'recorder_node', {'bag_path': str(tmp_path / 'remap_bag'), 'topics': "['force']"},
+                    extra=['--ros-args', '-r', '__node:=recorder_remap', '-r', 'force:=/rig2/force'],
+                    key='recorder_remap')
+        graph.start('force_tester_monitor', 'monitor_node', {'port': 0}, extra=ns)
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[1]', 'pulls_per_set': 1,
+                                                      'wait_for_subscribers': 2}, extra=ns)
+        assert collector.spin_until(lambda: done() or graph.dead(), 120) and not graph.dead(), (
+            recorded, graph.tail('sim_node'), graph.tail('recorder_node'))
+        root_publishers = collector.node.count_publishers('/monitor/health')
+    finally:
+        codes = graph.stop()
+        collector.close()
+    assert codes['recorder_node'] == codes['recorder_remap'] == 0, codes
+    assert root_publishers == 0
+    topics = bag_info(tmp_path / 'ns_bag')['topics']
+    assert {'/rig2/force', '/rig2/motor', '/rig2/accel', '/rig2/encoder', '/rig2/pull_event'} <= set(topics), topics
+    assert all(topics[t]['count'] > 0 for t in ('/rig2/force', '/rig2/pull_event')), topics
+    remapped = bag_info(tmp_path / 'remap_bag')['topics']
+    assert list(remapped) == ['/rig2/force'] and remapped['/rig2/force']['count'] > 0, remapped

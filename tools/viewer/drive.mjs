@@ -7,11 +7,12 @@
 //   {"kind": "launch-failed", "error": "..."}             Chromium did not start (exit code 3)
 //   {"kind": "state", "panels": [...], "diagnostics": [...], "okColor": "..."}  every --every-ms: per
 //        panel its id in the layout, its text, for plots the legend's entries, for tables the rows'
-//        cells; the diagnostics panel's rows
+//        cells, outside: the rows (and the pager) that lie outside the panel; the diagnostics panel's rows; connectionLost: the viewer's "no connection" bar's text ("" if hidden)
 //   {"kind": "problem", "text": "..."}                     the app reported a data source problem
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
 //   {"kind": "external-request", "url": "..."}             the page asked for something off this machine
+//   {"kind": "http-error", "url": "...", "status": 404}     a request the server answered with an error
 // stdin, one command a line: `screenshot PATH`, `quit`.
 import { createInterface } from "node:readline";
 
@@ -44,7 +45,17 @@ function readPage() {
     }));
     // a Table panel's rows (the first is the header), cell by cell
     const table = [...win.querySelectorAll("tr")].map((tr) => [...tr.children].map((cell) => cell.innerText.trim()));
-    panels.push({ id, text, legend, table });
+    // what of the panel lies outside it (cut off, or to be scrolled to): table rows, the pager, the Nodes tab's rows
+    const box = win.getBoundingClientRect();
+    // the pager: the innermost element that reads "Page 1 of 1"
+    const pager = [...win.querySelectorAll("*")].filter((el) => /^Page \d+ of \d+$/.test(el.innerText?.trim() ?? "") &&
+      ![...el.children].some((child) => /^Page \d+ of \d+$/.test(child.innerText?.trim() ?? "")));
+    const parts = [...win.querySelectorAll("tr, [data-testid-diagnostic-row]"), ...pager];
+    const outside = parts.filter((el) => {
+      const r = el.getBoundingClientRect();
+      return r.height > 0 && (r.bottom > box.bottom + 1 || r.top < box.top - 1);
+    }).map((el) => el.innerText.trim().slice(0, 60));
+    panels.push({ id, text, legend, table, outside });
   }
   const diagnostics = [...document.querySelectorAll("[data-testid-diagnostic-row]")].map((row) => {
     const secondary = row.querySelector(".MuiListItemText-secondary");
@@ -56,7 +67,9 @@ function readPage() {
   });
   const filter = document.querySelector("#status-filter-menu .MuiListItemText-primary");
   const okColor = filter && filter.innerText.trim() === "OK" ? getComputedStyle(filter).color : "";
-  return { panels, diagnostics, okColor };
+  const banner = document.getElementById("connection-lost");
+  const connectionLost = banner && banner.style.display !== "none" ? banner.innerText.trim() : "";
+  return { panels, diagnostics, okColor, connectionLost };
 }
 
 let browser;
@@ -78,6 +91,12 @@ page.on("request", (request) => {
   const { protocol, hostname } = new URL(request.url());
   if (!["data:", "blob:"].includes(protocol) && !["127.0.0.1", "localhost", "[::1]"].includes(hostname)) {
     say({ kind: "external-request", url: request.url() });
+  }
+});
+// a request the viewer's server answered with an error (a file the page wants and the site lacks)
+page.on("response", (response) => {
+  if (response.status() >= 400) {
+    say({ kind: "http-error", url: response.url(), status: response.status() });
   }
 });
 // the app logs each problem of its data source ("Player problem ws:connection-failed {...}")

@@ -1,8 +1,11 @@
 """recorder node: writes chosen topics, as received (serialized CDR), to a rosbag2 MCAP bag.
 
-Topics are subscribed as soon as they appear on the graph (their type is taken from it); the
-bag is closed, metadata.yaml written, when the node shuts down (Ctrl-C included), so the bag is
-playable by `ros2 bag play` on a full ROS 2 install and by `./ft bag play` here.
+Topic names resolve as in any ROS node: a relative name (the defaults: ``force``, ``pull_event``, ...) in the
+node's namespace (``-r __ns:=/rig2`` records ``/rig2/force``), and through the node's remap rules
+(``-r force:=/rig2/force``); the bag holds the resolved names. Topics are subscribed as soon as they appear
+on the graph (their type is taken from it); the bag is closed, metadata.yaml written, when the node shuts
+down (Ctrl-C included), so the bag is playable by `ros2 bag play` on a full ROS 2 install and by `./ft bag
+play` here.
 
 The chunk in progress is written every FLUSH_S (and once it holds CHUNK_BYTES), so a killed
 recorder loses at most that much (`./ft bag reindex` recovers the rest). When the disk fills,
@@ -23,17 +26,18 @@ from force_tester_common.conversions import message_class
 from force_tester_common.core.channels import GRAPH_TOPICS
 from force_tester_common.core.clock import seconds_to_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, main_for
+from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, in_namespace, main_for
 
 from .core.errors import BagError
 from .core.recording import FLUSH_S, Recording
 from .core.typestore import default_typestore
 
-DEFAULT_TOPICS = list(GRAPH_TOPICS)
+DEFAULT_TOPICS = [in_namespace(t) for t in GRAPH_TOPICS]   # relative: in the node's namespace
 
 SPECS = [
     ParamSpec('bag_path', 'bag', 'directory of the bag to write (must not exist yet)', read_only=True),
-    ParamSpec('topics', DEFAULT_TOPICS, 'topics to record', read_only=True),
+    ParamSpec('topics', DEFAULT_TOPICS, 'topics to record (relative names: in the node\'s namespace; remaps '
+                                        'apply)', read_only=True),
     ParamSpec('max_bag_size_mb', 0.0, 'start a new .mcap file in the bag once the current one '
               'holds this many MB (1e6 bytes); 0 = no size split', range=(0.0, 1.0e6),
               read_only=True),
@@ -88,7 +92,7 @@ class RecorderNode(Node):
         self.lock = threading.Lock()
         self.writer = Recording(self.params.values['bag_path'], default_typestore(),
                                 **split_limits(self.params.values)).open()
-        self.wanted = list(self.params.values['topics'])
+        self.wanted = [self._resolve(t) for t in self.params.values['topics']]
         self.subscribed = {}
         self.counts = {}  # topic -> messages written
         self._discover()
@@ -97,6 +101,14 @@ class RecorderNode(Node):
         split = split_description(self.params.values['max_bag_size_mb'],
                                   self.params.values['max_bag_duration_s'])
         self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")
+
+    def _resolve(self, topic: str) -> str:
+        """The full name of ``topic`` as this node sees it: its namespace and remap rules applied."""
+        try:
+            return self.resolve_topic_name(topic)
+        except Exception as exc:  # noqa: BLE001 - rclpy raises its own types for a malformed name
+            raise BagError(f'topic {topic!r} is not a valid topic name ({exc}); expected a ROS name such as '
+                           "'force' or '/rig1/force'") from None
 
     @property
     def count(self) -> int:

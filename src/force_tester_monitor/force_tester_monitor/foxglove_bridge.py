@@ -48,6 +48,8 @@ class _Listener(foxglove.websocket.ServerListener):
         with self.bridge.sub_lock:
             self.bridge.subscribed.setdefault(client.id, set()).add(channel.topic)
         self.bridge.request(self.bridge.on_watch)
+        topic = channel.topic
+        self.bridge.request(lambda: self.bridge.on_subscribe(topic))
 
     def on_unsubscribe(self, client, channel):
         with self.bridge.sub_lock:
@@ -84,6 +86,7 @@ class FoxgloveBridge:
 
     What it asks of the node, each run on the node's thread by ``serve``:
     ``on_watch()``: a client subscribed to or unsubscribed from a channel (``watched()`` says which);
+    ``on_subscribe(topic)``: a client subscribed to ``topic`` (a page opened late, reloaded or reconnected);
     ``on_client_message(text)``: a malformed or unwanted client message, which the server ignored;
     ``on_sdk_log(level, text)``: any other log record of the SDK.
     ``parameters``: the Parameters panel's side (``parameter_proxy.ParameterProxy``): ``values(names)``
@@ -91,9 +94,11 @@ class FoxgloveBridge:
     """
 
     def __init__(self, types: dict, host: str, port: int, backlog: int, *, parameters, on_watch: Callable[[], None],
-                 on_client_message: Callable[[str], None], on_sdk_log: Callable[[int, str], None]):
+                 on_client_message: Callable[[str], None], on_sdk_log: Callable[[int, str], None],
+                 on_subscribe: Callable[[str], None] = lambda topic: None):
         self.parameters = parameters
         self.on_watch, self.on_client_message, self.on_sdk_log = on_watch, on_client_message, on_sdk_log
+        self.on_subscribe = on_subscribe
         self.requests: deque = deque()  # callables from the server's threads, run by serve()
         self.subscribed = {}            # Foxglove client id -> topics it subscribes to (under sub_lock)
         self.sub_lock = threading.Lock()

@@ -4,11 +4,16 @@
   graph's topics unchanged: CDR messages on channels with the full ``pkg/msg/Type`` name and the
   embedded ros2msg definition, as in our bags, so one Foxglove layout serves a live graph, a bag
   played back and an opened bag file.
-- The derived topics /monitor/force, /monitor/pull_trace, /monitor/pull_score, /monitor/score_history and
-  /monitor/health, published on ROS
+- The derived topics /monitor/force, /monitor/pull_trace, /monitor/pull_score, /monitor/score_history,
+  /monitor/nodes (the viewer's Nodes tab: core/nodes.py) and /monitor/health, published on ROS
   (for PlotJuggler and rqt) and forwarded the same way.
 - The graph's node parameters for Foxglove's Parameters panel (read from /parameter_events and the
   nodes' parameter services; a set from the panel goes to the node's parameter service).
+
+Namespaces: on ROS the node subscribes and publishes relative names, so under ``-r __ns:=/rig3`` it watches
+``/rig3/force``, ... and publishes ``/rig3/monitor/*`` (remaps apply); /diagnostics stays the machine's. Its
+Foxglove channels keep the graph's names (``/force``, ``/monitor/force``): one monitor (one port) serves one
+rig, and the one layout works for any rig.
 
 The server is ``foxglove_bridge``, the parameters ``parameter_proxy``; this node wires them to the
 graph's topics and publishes the derived topics.
@@ -24,7 +29,7 @@ import logging
 import time
 from collections import defaultdict
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from force_tester_msgs.msg import (
     MonitorForce,
     MonitorHealth,
@@ -45,14 +50,26 @@ from rclpy.serialization import deserialize_message, serialize_message
 from force_tester_common.conversions import message_class, ns_to_stamp, to_field
 from force_tester_common.core import channels as CH
 from force_tester_common.core.clock import NS_PER_S
+from force_tester_common.core.health import HOLD_S, NodeStates, level_of
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import EVENT_QOS, OK, SCORE_QOS, SUMMARY_QOS, WARN, Diagnostics, main_for
+from force_tester_common.ros import (
+    EVENT_QOS,
+    LATCHED_QOS,
+    OK,
+    SCORE_QOS,
+    SUMMARY_QOS,
+    WARN,
+    Diagnostics,
+    in_namespace,
+    main_for,
+)
 
 from .core import params as P
 from .core.batch import decode_batch
 from .core.health import TopicStats, recorder_counts
 from .core.history import ScoreHistory
 from .core.live import SIGNALS, ForceJoin, LiveTrace, PullTraces, score_lbf
+from .core.nodes import NODES_PERIOD_S, node_rows
 from .foxglove_bridge import FoxgloveBridge, sdk_version
 from .parameter_proxy import ParameterProxy
 
@@ -103,9 +120,15 @@ DERIVED = {CH.MONITOR_FORCE_TOPIC: (CH.MONITOR_FORCE_TYPE, MonitorForce),
            CH.PULL_TRACE_TOPIC: (CH.PULL_TRACE_TYPE, PullTrace),
            CH.MONITOR_SCORE_TOPIC: (CH.MONITOR_SCORE_TYPE, MonitorScore),
            CH.SCORE_HISTORY_TOPIC: (CH.SCORE_HISTORY_TYPE, ScoreHistoryMsg),
-           CH.MONITOR_HEALTH_TOPIC: (CH.MONITOR_HEALTH_TYPE, MonitorHealth)}
+           CH.MONITOR_HEALTH_TOPIC: (CH.MONITOR_HEALTH_TYPE, MonitorHealth),
+           CH.MONITOR_NODES_TOPIC: (DIAGNOSTICS_TYPE, DiagnosticArray)}
 FORCE_TOPIC = CH.BLOCK_TYPES[CH.FORCE_TYPE][0]
 CORRECTED = CH.CORRECTED_TYPE[1][0]
+
+
+def ros_name(topic: str) -> str:
+    """The name the node gives rclpy for a graph topic: relative (in its namespace), but /diagnostics."""
+    return topic if topic == CH.DIAGNOSTICS_TOPIC else in_namespace(topic)
 
 
 def _qos(topic: str, depth: int) -> QoSProfile:
@@ -133,7 +156,7 @@ class MonitorNode(Node):
         types = {**{t: n for t, (n, _f) in FORWARDED.items()}, **{t: n for t, (n, _c) in DERIVED.items()}}
         self.bridge = FoxgloveBridge(types, cfg.host, cfg.port, cfg.backlog, parameters=self.parameters,
                                      on_watch=self._update_watched, on_client_message=self._client_message,
-                                     on_sdk_log=self._sdk_log)
+                                     on_sdk_log=self._sdk_log, on_subscribe=self._client_subscribed)
         self.channels = self.bridge.channels
         self.port = self.bridge.port
         self.diag.report(OK, f'Foxglove WebSocket at ws://{cfg.host}:{self.port} (foxglove-sdk '
@@ -147,7 +170,12 @@ class MonitorNode(Node):
         self.history = ScoreHistory(cfg.history_rows)
         self.recorder = {}
         self.recorder_seen_ns = None
-        self.pubs = {topic: self.create_publisher(cls, topic, EVENT_QOS) for topic, (_n, cls) in DERIVED.items()}
+        self.node_states = NodeStates(hold_s=HOLD_S)   # the Nodes panel's rows (/monitor/nodes)
+        self.last_trace = None   # the last /monitor/pull_trace, sent again to a client that subscribes
+        # the score history latched (the newest only), so a late `ros2 topic echo --once` gets it
+        self.pubs = {topic: self.create_publisher(cls, ros_name(topic),
+                                                  LATCHED_QOS if topic == CH.SCORE_HISTORY_TOPIC else EVENT_QOS)
+                     for topic, (_n, cls) in DERIVED.items()}
         self.force_seq = 0
         self.on_demand = P.ON_DEMAND_TOPICS if cfg.on_demand else ()
         self.subs = {}           # topic -> its rclpy subscription, while watched
@@ -156,11 +184,13 @@ class MonitorNode(Node):
                 self._watch(topic)
         self.create_timer(cfg.period_s, self._tick)
         self.create_timer(cfg.health_period_s, self._health)
+        self.create_timer(NODES_PERIOD_S, self._publish_nodes)
 
     # ------------------------------------------------------------------ receiving
     def _watch(self, topic: str) -> None:
         self.stats[topic] = TopicStats(topic, self.cfg.health_window_s)  # a new run: no gap across the pause
-        self.subs[topic] = self.create_subscription(message_class(FORWARDED[topic][0]), topic, self._receiver(topic),
+        self.subs[topic] = self.create_subscription(message_class(FORWARDED[topic][0]), ros_name(topic),
+                                                    self._receiver(topic),
                                                     _qos(topic, self.cfg.depth), raw=True)
 
     def _update_watched(self) -> None:
@@ -171,6 +201,17 @@ class MonitorNode(Node):
                 self._watch(topic)
             elif topic not in wanted and topic in self.subs:
                 self.destroy_subscription(self.subs.pop(topic))
+
+    def _client_subscribed(self, topic: str) -> None:
+        """A client subscribed (a page opened late, reloaded, or back after a monitor restart): the topics that
+        change only on a score or a pull go out again now, so it shows the whole test at once, not from the next
+        score on: the score history with every set's statistics, and the last pull's trace. Every subscriber of
+        the channel gets them again (the SDK logs to a channel, not to a client): a table or the trace plot shows
+        the newest message, so nothing changes for them."""
+        if topic == CH.SCORE_HISTORY_TOPIC:
+            self._publish_history()
+        elif topic == CH.PULL_TRACE_TOPIC and self.last_trace is not None:
+            self.channels[topic].log(serialize_message(self.last_trace), log_time=time.time_ns())
 
     def _receiver(self, topic: str):
         channel, pending = self.channels[topic], self.pending[topic]
@@ -299,6 +340,8 @@ class MonitorNode(Node):
             except Exception:  # noqa: BLE001 - input from outside; forwarded as it came
                 continue
             for status in msg.status:
+                self.node_states.add(status.name, status.hardware_id, level_of(status), status.message,
+                                     [(kv.key, kv.value) for kv in status.values], arrival)
                 counts = recorder_counts(status.name, {kv.key: kv.value for kv in status.values})
                 if counts is not None:
                     self.recorder, self.recorder_seen_ns = counts, arrival
@@ -326,6 +369,7 @@ class MonitorNode(Node):
         for s in SIGNALS:
             setattr(msg, f'{s}_lbf', to_field(trace.signals[s]))
         self._send(CH.PULL_TRACE_TOPIC, msg)
+        self.last_trace = msg
         self.counts['pull_traces'] += 1
 
     def _health(self) -> None:
@@ -349,6 +393,18 @@ class MonitorNode(Node):
                          corrected_blocks=blocks, pull_traces=self.counts['pull_traces'],
                          bad_messages=self.counts['bad_messages'],
                          invalid_client_messages=self.counts['invalid_client_messages'])
+
+    def _publish_nodes(self) -> None:
+        """/monitor/nodes: every node's row, one short line, STALE when silent (core/nodes.py)."""
+        self._diagnostics()   # what arrived since the last tick, so a report is never judged late
+        now_ns = time.time_ns()
+        msg = DiagnosticArray()
+        msg.header.stamp = ns_to_stamp(now_ns)
+        for row in node_rows(self.node_states.states(now_ns)):
+            msg.status.append(DiagnosticStatus(level=bytes([row.level]), name=row.name, message=row.message,
+                                               hardware_id=row.hardware_id,
+                                               values=[KeyValue(key=k, value=str(v)) for k, v in row.values]))
+        self._send(CH.MONITOR_NODES_TOPIC, msg)
 
     # ------------------------------------------------------------------ the server's requests
     def _client_message(self, text: str) -> None:

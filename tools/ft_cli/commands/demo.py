@@ -36,6 +36,8 @@ from ..peak_inputs import validator_params
 CORRECTED_TOPIC = CORRECTED_TYPE[1][0]
 EXT_NS = '/extension'   # the extension pair's topics: /extension/force_corrected, /extension/pull_score, ...
 EXT_SCORE_TOPIC = EXT_NS + PULL_SCORE_TOPIC
+EXT_CORRECTION = 'correction_extension'   # the extension pair's node names (graph.launch.xml names them alike)
+EXT_VALIDATOR = 'validator_extension'
 
 
 def add_arguments(p):
@@ -96,13 +98,16 @@ def format_table(scores: list) -> str:
 
 def extension_args(extension: Path) -> dict:
     """Graph.start arguments of the extension pair: a second correction node with ``extension`` and a second
-    validator, their topics remapped under EXT_NS (node names too, so their parameters and logs stay apart)."""
+    validator, their topics remapped under EXT_NS (node names too, so their parameters and logs stay apart). The
+    validator follows the extension's correction (``correction_node``): its parameter changes mark the extension's
+    pulls RECONFIGURED, the plain correction's do not."""
     def remap(*topics):   # relative rules, so that the pair works under a rig's namespace too (graph.launch.xml)
         return [a for topic in topics for a in ('-r', f'{topic.lstrip("/")}:={EXT_NS.lstrip("/")}{topic}')]
-    return {'correction': dict(params={'extension_file': str(extension)}, key='correction_extension',
-                               extra=['--ros-args', '-r', '__node:=correction_extension', *remap(CORRECTED_TOPIC)]),
-            'validator': dict(key='validator_extension', params=validator_params(extension),
-                              extra=['--ros-args', '-r', '__node:=validator_extension',
+    return {'correction': dict(params={'extension_file': str(extension)}, key=EXT_CORRECTION,
+                               extra=['--ros-args', '-r', f'__node:={EXT_CORRECTION}', *remap(CORRECTED_TOPIC)]),
+            'validator': dict(key=EXT_VALIDATOR,
+                              params={**validator_params(extension), 'correction_node': EXT_CORRECTION},
+                              extra=['--ros-args', '-r', f'__node:={EXT_VALIDATOR}',
                                      *remap(CORRECTED_TOPIC, PULL_SCORE_TOPIC, PULL_SCORE_LATEST_TOPIC,
                                             SET_SUMMARY_TOPIC)])}
 

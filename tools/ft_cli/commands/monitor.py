@@ -39,7 +39,15 @@ from force_tester_common.core.channels import (
     PULL_SCORE_TOPIC,
 )
 from force_tester_common.core.clock import NS_PER_S, stamp_to_ns
-from force_tester_common.core.health import LEVEL_ERROR, LEVEL_NAMES, LEVEL_OK, LEVEL_STALE, LEVEL_WARN, NodeStates
+from force_tester_common.core.health import (
+    LEVEL_ERROR,
+    LEVEL_NAMES,
+    LEVEL_OK,
+    LEVEL_STALE,
+    LEVEL_WARN,
+    NodeStates,
+    level_of,
+)
 from force_tester_common.core.units import n_to_lbf
 
 REFRESH_S = 0.5
@@ -61,12 +69,6 @@ def add_arguments(p):
                         f'(default {DIFF_THRESHOLD_PCT:g})')
     p.add_argument('--exit-after', type=float, default=None, metavar='S',
                    help='quit after S seconds (for scripts; default: run until q or Ctrl-C)')
-
-
-def level_of(status) -> int:
-    """DiagnosticStatus.level is a byte in rclpy (b'\\x00'); an int elsewhere."""
-    lv = status.level
-    return lv[0] if isinstance(lv, (bytes, bytearray)) else int(lv)
 
 
 class MonitorModel:

@@ -69,9 +69,44 @@ function closeSidebarOnFirstVisit() {
   }
 }
 
+// Studio keeps showing the last data it received when the monitor goes away, which looks alive: while the
+// monitor's WebSocket (the URL's ds.url) cannot be reached, a red bar across the top says so, with the time it
+// was lost. A second connection of its own, which subscribes to nothing, watches it and retries every second.
+const CONNECTION_BANNER_ID = "connection-lost";
+function watchConnection() {
+  const params = new URLSearchParams(window.location.search);
+  const url = params.get("ds.url");
+  if (params.get("ds") !== "foxglove-websocket" || !url) {
+    return;
+  }
+  const banner = document.createElement("div");
+  banner.id = CONNECTION_BANNER_ID;
+  banner.setAttribute("role", "alert");
+  banner.style.cssText = "position: fixed; top: 0; left: 0; right: 0; z-index: 100000; padding: 4px 12px; " +
+    "background: #b71c1c; color: #fff; font: 600 14px sans-serif; text-align: center; display: none";
+  document.body.appendChild(banner);
+  let lostAt;
+  const connect = () => {
+    const socket = new WebSocket(url, ["foxglove.sdk.v1", "foxglove.websocket.v1"]);
+    socket.onopen = () => {
+      lostAt = undefined;
+      banner.style.display = "none";
+    };
+    socket.onclose = () => {
+      lostAt = lostAt ?? new Date();
+      banner.textContent = `No connection to the monitor (${url}) since ${lostAt.toLocaleTimeString()}: ` +
+        "every panel shows old data. Reconnecting...";
+      banner.style.display = "block";
+      setTimeout(connect, 1000);
+    };
+  };
+  connect();
+}
+
 async function start() {
   const root = document.getElementById("root");
   closeSidebarOnFirstVisit();
+  watchConnection();
   const response = await fetch("layout.json");
   if (!response.ok) {
     throw new Error(`layout.json: HTTP ${response.status}`);

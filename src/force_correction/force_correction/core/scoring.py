@@ -17,6 +17,7 @@ import numpy as np
 
 from force_tester_common.core.clock import record_stamps_ns
 from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE
+from force_tester_common.core.scores import mean_std
 
 from .errors import CorrectionError
 from .peak_uncertainty import PeakInputs, peak_uncertainty
@@ -248,14 +249,6 @@ class SetSummary:
     filtered_std_pct: float
 
 
-def _mean_std(vals: List[float]):
-    a = np.asarray(vals, dtype=np.float64)
-    a = a[~np.isnan(a)]
-    if a.size == 0:
-        return math.nan, math.nan
-    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
-
-
 class SetStatistics:
     """Running per-set list of pull scores."""
 
@@ -280,7 +273,7 @@ class SetStatistics:
                 f"set {set_id!r} has no scored pulls; expected one of {self.sets()}")
         out = {}
         for k in ('raw', 'corrected', 'filtered'):
-            out[f'{k}_mean_pct'], out[f'{k}_std_pct'] = _mean_std(
+            out[f'{k}_mean_pct'], out[f'{k}_std_pct'] = mean_std(
                 [getattr(r, f'{k}_diff_pct') for r in res])
         return SetSummary(set_id=set_id, pulls=len(res),
                           mean_stationary_peak_n=float(np.mean(

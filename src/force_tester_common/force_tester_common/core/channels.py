@@ -62,3 +62,5 @@ SCORE_HISTORY_TYPE = 'force_tester_msgs/msg/ScoreHistory'
 SCORE_HISTORY_TOPIC = '/monitor/score_history'
 MONITOR_HEALTH_TYPE = 'force_tester_msgs/msg/MonitorHealth'
 MONITOR_HEALTH_TOPIC = '/monitor/health'
+#: the Nodes panel's rows: a diagnostic_msgs/DiagnosticArray, one short line a node, STALE when silent
+MONITOR_NODES_TOPIC = '/monitor/nodes'

@@ -4,6 +4,9 @@ and the PullScore status codes (PullScore.msg defines them; a test checks these 
 PullScore carries the core's PullScoreResult fields under the same names; SetSummary renames the
 core's SetSummary fields (``SET_SUMMARY_FIELDS``: message field -> core attribute).
 """
+import math
+
+import numpy as np
 
 PULL_SCORE_FIELDS = ('stationary_peak_n', 'raw_peak_n', 'corrected_peak_n', 'filtered_peak_n',
                      'raw_diff_pct', 'corrected_diff_pct', 'filtered_diff_pct',
@@ -57,3 +60,14 @@ def peak_text(peak_lbf: float, u_lbf: float, k: float) -> str:
     if u_lbf != u_lbf:
         return f'{peak_lbf:.1f} lbf'
     return f'{peak_lbf:.1f} lbf +/- {u_lbf:.1f} lbf (k = {k:g})'
+
+
+def mean_std(values) -> tuple:
+    """(mean, sample standard deviation) of a set's per-pull values, NaN ones left out: (nan, nan) for none, std 0
+    for one. The one arithmetic of a set's statistics (the validator's /set_summary; the monitor's rows of the
+    sets it has no summary of)."""
+    a = np.asarray(values, dtype=np.float64)
+    a = a[~np.isnan(a)]
+    if a.size == 0:
+        return math.nan, math.nan
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
