@@ -147,11 +147,13 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
             assert np.nanmax(stationary) == pytest.approx(peak, rel=1e-12)
     health = {h.topic: h for h in got['health'][-1].topics}
     # every block is counted, received or lost: the monitor subscribes best effort, so on a starved machine it may
-    # lose a few of its own (the stalled client costs the graph none: the scores above have 0 dropped blocks)
+    # lose a few of its own (the stalled client costs the graph none: the scores above have 0 dropped blocks); at a
+    # load average of 8-11 on 2 cores it lost 31 of 400 once, so the bound is a tenth: a monitor that lost most
+    # blocks (a stalled client costing it its own subscriptions) still fails
     for topic in ('/force', '/force_corrected', '/accel'):
         h = health[topic]
         assert h.received + h.seq_gaps >= PULLS * BLOCKS_PER_PULL and h.nan_samples == 0, h
-        assert h.seq_gaps <= PULLS * BLOCKS_PER_PULL // 20, h
+        assert h.seq_gaps <= PULLS * BLOCKS_PER_PULL // 10, h
     assert any(math.isfinite(th.latency_p50_ms) and th.latency_p50_ms > 0 and th.rate_hz > 0
                for hm in got['health'] for th in hm.topics if th.topic == '/force_corrected')
     assert max(hm.clients for hm in got['health']) == 2
