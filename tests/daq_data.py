@@ -75,8 +75,9 @@ def no_partials(folder: Path):
     return [p.name for p in folder.iterdir() if p.name.startswith('.')]
 
 
-def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E') -> Path:
-    """A LabVIEW Measurement File as LabVIEW writes it: tab separated, one X column, Delta_X per channel."""
+def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E', units: dict | None = None) -> Path:
+    """A LabVIEW Measurement File as LabVIEW writes it: tab separated, one X column, Delta_X per channel;
+    units: {channel: its Y_Unit_Label} (default Volts)."""
     names = list(volts)
     k = len(names)
     tab = '\t'
@@ -85,7 +86,8 @@ def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E') -> Path:
             'Operator\tlab', 'Date\t2026/11/24', 'Time\t12:00:00.000', '***End_of_Header***\t', '\t',
             f'Channels\t{k}' + tab * k, 'Samples' + ''.join(f'\t{len(volts[c])}' for c in names) + tab,
             'Date' + '\t2026/11/24' * k + tab, 'Time' + '\t12:00:00.000' * k + tab,
-            'Y_Unit_Label' + '\tVolts' * k + tab, 'X_Dimension' + '\tTime' * k + tab,
+            'Y_Unit_Label' + ''.join(f'\t{(units or {}).get(c, "Volts")}' for c in names) + tab,
+            'X_Dimension' + '\tTime' * k + tab,
             'X0' + '\t0.0000000000000000E+0' * k + tab, 'Delta_X' + f'\t{1 / rate:.6E}' * k + tab,
             '***End_of_Header***' + tab * (k + 1), 'X_Value\t' + tab.join(names) + '\tComment']
     n = len(volts[names[0]])

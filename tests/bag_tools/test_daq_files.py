@@ -277,3 +277,57 @@ def test_lvm_of_several_segments_imports_a_pull_each(tmp_path):
     r = run_cli('import', f, '--channels', write_map(tmp_path / 'map.yaml'), '--dry-run')
     assert r.returncode == 0, r.stderr
     assert '3 pull(s) at 100000 Hz' in r.stdout and 'duration 0.15 s, 3 event(s)' in r.stdout
+
+
+# --------------------------------------------------------------------------- units as labs write them (issue 40)
+def test_units_as_labs_write_them_import(tmp_path):
+    """LADISK's LabVIEW files label force 'Newtons' and acceleration 'g'; others write 'G', 'Volts', 'm/s²'. A map
+    that only names the sources imports them, and a map's units, sensitivities and ranges take the same
+    spellings; an unknown label is still refused in one line that names the known units."""
+    si, volts = impact_record(25_000.0, 5000, 2)
+    accel_g = -si['accel_axial_m_s2'] / G_M_S2
+    f = write_lvm(tmp_path / 'hammer.lvm', {'Force': -si['force_moving_n'], 'Accel': accel_g}, 25_000.0,
+                  units={'Force': 'Newtons', 'Accel': 'G'})
+    doc = {'channels': {'force_moving_n': {'source': 'Force', 'sign': 'compression'},
+                        'accel_axial_m_s2': {'source': 'Accel', 'sign': 'compression', 'range': '500 G'}},
+           'absent': ['force_stationary_n', 'encoder_position_m']}
+    r = run_cli('import', f, '--channels', write_map(tmp_path / 'map.yaml', doc), '--dry-run')
+    assert r.returncode == 0, r.stderr
+    assert "force_moving_n [N] <- 'Force' in Newtons" in r.stdout and "<- 'Accel' in G" in r.stdout, r.stdout
+    assert f'rated +/-{500 * G_M_S2:.6g} m/s^2' in r.stdout
+    r = run_cli('import', f, tmp_path / 'bag', '--channels', tmp_path / 'map.yaml')
+    assert r.returncode == 0, r.stderr
+    back = read_campaign(bag_to_campaign(tmp_path / 'bag', tmp_path / 'back')).pulls[0].channels
+    np.testing.assert_allclose(back['force_moving_n'], si['force_moving_n'], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(back['accel_axial_m_s2'], si['accel_axial_m_s2'], rtol=1e-9, atol=1e-6)
+
+    spelled = write_map(tmp_path / 'volts.yaml', force_moving_n__unit='Volts',
+                        force_moving_n__sensitivity=f'{FORCE_MV_PER_N} millivolts/newton',
+                        accel_axial_m_s2__unit='volt', accel_axial_m_s2__sensitivity=f'{ACCEL_MV_PER_G} mv/G')
+    rec, = read_records(write_lvm(tmp_path / 'volts.lvm', volts, 25_000.0))
+    from bag_tools.core.daqfiles import apply_map
+    out, _absent, _used = apply_map(rec, load_channel_map(spelled), 'volts.lvm')
+    for ch, v in si.items():
+        np.testing.assert_allclose(out[ch], v, rtol=1e-9, atol=1e-9 * np.abs(v).max())
+
+    f = write_lvm(tmp_path / 'odd.lvm', {'Force': si['force_moving_n'], 'Accel': accel_g}, 25_000.0,
+                  units={'Force': 'Kilopond', 'Accel': 'G'})
+    r = run_cli('--verbose', 'import', f, '--channels', tmp_path / 'map.yaml', '--dry-run')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'Traceback' not in r.stderr, r.stderr
+    assert "has unit 'Kilopond', not one I can convert" in r.stderr and 'known units: N, kN' in r.stderr
+
+
+def test_bridge_output_in_mv_per_v_with_a_scale(tmp_path):
+    """A strain-gauge amplifier that records mV/V: scale: 2500 N/(mV/V) is 2 mV/V at 5 kN."""
+    si, _volts = impact_record(25_000.0, 3000, 5)
+    f = write_lvm(tmp_path / 'bridge.lvm', {'Bridge': si['force_moving_n'] / 2500.0, 'Accel': si['accel_axial_m_s2']},
+                  25_000.0, units={'Bridge': 'mV/V', 'Accel': 'm/s²'})
+    doc = {'channels': {'force_moving_n': {'source': 'Bridge', 'unit': 'mV/V', 'scale': '2500 N/(mV/V)'},
+                        'accel_axial_m_s2': {'source': 'Accel'}},
+           'absent': ['force_stationary_n', 'encoder_position_m']}
+    cmap = load_channel_map(doc)
+    assert cmap.specs['force_moving_n'].factor == pytest.approx(2500.0)
+    from bag_tools.core.daqfiles import apply_map
+    out, _absent, _used = apply_map(read_records(f)[0], cmap, 'bridge.lvm')
+    np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(out['accel_axial_m_s2'], si['accel_axial_m_s2'], rtol=1e-9, atol=1e-6)

@@ -30,7 +30,7 @@ from force_tester_common.core.channels import (
     OPTIONAL_CHANNELS,
     REQUIRED_CHANNELS,
 )
-from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT, UNITS, unit
+from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT, known_units, unit, unit_name
 
 from .errors import BagError, one_line
 
@@ -370,9 +370,9 @@ def _quantity(text, key: str, where: str) -> tuple:
     ratio = parts[1].replace(' ', '').replace('(', '').replace(')', '')
     for i, ch in enumerate(ratio):
         if ch == '/' and unit(ratio[:i]) and unit(ratio[i + 1:]):
-            return value, ratio[:i], ratio[i + 1:]
+            return value, unit_name(ratio[:i]), unit_name(ratio[i + 1:])
     raise BagError(f'{where}: {key} unit {parts[1]!r} is not UNIT/UNIT of known units; known units: '
-                   f'{", ".join(UNITS)}')
+                   f'{known_units()}')
 
 
 def _spec(channel: str, entry, where: str) -> ChannelSpec:
@@ -392,7 +392,8 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
     dim = CHANNEL_DIMENSION[channel]
     u = entry.get('unit')
     if u is not None and unit(u) is None:
-        raise BagError(f'{where}: {channel} unit {u!r} is not a unit I can convert; known: {", ".join(UNITS)}')
+        raise BagError(f'{where}: {channel} unit {u!r} is not a unit I can convert; known: {known_units()}')
+    u = None if u is None else unit_name(u)
     sign_text = entry.get('sign', 'tension')
     if sign_text not in SIGNS:
         raise BagError(f'{where}: {channel} sign {sign_text!r} is invalid; expected tension or '
@@ -414,12 +415,12 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
         if u is None:
             raise BagError(f'{where}: {channel} has a {key} but no unit; expected unit: the unit '
                            "of the file's values (e.g. V)")
-        ud, uf = UNITS[u.strip()]
+        ud, uf = unit(u)
         if num is None:      # bare number: a scale in SI per file unit, a sensitivity in file unit per SI
             si = value if key == 'scale' else 1.0 / value
         else:
-            nd, nf = UNITS[num]
-            dd, df = UNITS[den]
+            nd, nf = unit(num)
+            dd, df = unit(den)
             want = (ud, dim) if key == 'sensitivity' else (dim, ud)
             if (nd, dd) != want:
                 raise BagError(f'{where}: {channel} {key} {entry[key]!r} is in {num}/{den}; '
@@ -429,14 +430,14 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
             si = 1.0 / si if key == 'sensitivity' else si
         factor, how = uf * si, f'{key} {entry[key]}'
     if factor is None and u is not None:
-        ud, uf = UNITS[u.strip()]
+        ud, uf = unit(u)
         if ud != CHANNEL_DIMENSION[channel]:
             raise BagError(f'{where}: {channel} unit {u!r} ({ud}) cannot be converted to '
                            f'{SI_UNIT[dim]} without a sensitivity or scale; expected a {dim} unit or '
                            'sensitivity: e.g. 0.225 mV/N')
         factor = uf
     rated = _rated(entry['range'], channel, dim, u, factor, where) if 'range' in entry else None
-    return ChannelSpec(channel, str(src), None if u is None else u.strip(), factor, float(offset),
+    return ChannelSpec(channel, str(src), u, factor, float(offset),
                        SIGNS[sign_text], how, rated)
 
 
@@ -455,11 +456,11 @@ def _rated(text, channel: str, dim: str, file_unit: str | None, factor: float | 
         return value
     u = parts[1].strip()
     if unit(u) is None:
-        raise BagError(f'{where}: {channel} range unit {u!r} is not a unit I can convert; known: {", ".join(UNITS)}')
-    ud, uf = UNITS[u]
+        raise BagError(f'{where}: {channel} range unit {u!r} is not a unit I can convert; known: {known_units()}')
+    ud, uf = unit(u)
     if ud == dim:
         return value * uf
-    if file_unit is not None and u == file_unit.strip() and factor is not None:
+    if file_unit is not None and unit_name(u) == unit_name(file_unit) and factor is not None:
         return value * factor
     raise BagError(f'{where}: {channel} range {text!r} is in {u}; expected a unit of {dim} ({SI_UNIT[dim]}) or the '
                    f'file unit{" " + repr(file_unit) if file_unit else ""}')
@@ -526,7 +527,8 @@ def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
             u = record.units.get(spec.source)
             if u and unit(u) is None:
                 raise BagError(f'{where}: channel {spec.source!r} ({ch}) has unit {u!r}, not one I can '
-                               f'convert; give unit: and a sensitivity or scale in the channel map')
+                               f'convert; give unit: and a sensitivity or scale in the channel map; known units: '
+                               f'{known_units()}')
             factor = 1.0
             if u:
                 ud, factor = unit(u)
