@@ -331,3 +331,26 @@ def test_bridge_output_in_mv_per_v_with_a_scale(tmp_path):
     out, _absent, _used = apply_map(read_records(f)[0], cmap, 'bridge.lvm')
     np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-9, atol=1e-6)
     np.testing.assert_allclose(out['accel_axial_m_s2'], si['accel_axial_m_s2'], rtol=1e-9, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_campaign_yaml_with_only_file_keys_imports(tmp_path):
+    """Issue 40 item 3: another lab's campaign.yaml names its files and nothing of our rig (set, coupon, speed,
+    deceleration are 0: unknown); a key given is still checked."""
+    folder, truth = lvm_campaign(tmp_path, n=4000, records=2)
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump({'channels': 'channels.yaml',
+                                                          'pulls': [{'file': 'rec1.lvm'}, {'file': 'rec2.lvm'}]}))
+    r = run_cli('import', folder, tmp_path / 'bag')
+    assert r.returncode == 0, r.stderr
+    back = read_campaign(bag_to_campaign(tmp_path / 'bag', tmp_path / 'back'))
+    assert [p.meta['set'] for p in back.pulls] == [0, 0]
+    assert {p.meta['coupon_lbf'] for p in back.pulls} == {p.meta['velocity_fps'] for p in back.pulls} == {0.0}
+    np.testing.assert_allclose(back.pulls[1].channels['force_moving_n'], truth[1]['force_moving_n'], rtol=1e-9,
+                               atol=1e-6)
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump({'channels': 'channels.yaml',
+                                                          'pulls': [{'file': 'rec1.lvm', 'decel_g': 'fast'}]}))
+    r = run_cli('import', folder, tmp_path / 'bag2')
+    assert r.returncode == 2 and "decel_g 'fast' is invalid" in r.stderr and r.stderr.count('\n') == 1
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump({'pulls': [{'set': 1}]}))
+    r = run_cli('import', folder, tmp_path / 'bag3')
+    assert r.returncode == 2 and "lacks 'file'" in r.stderr and r.stderr.count('\n') == 1

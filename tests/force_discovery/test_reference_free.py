@@ -303,3 +303,39 @@ def test_three_pulls_with_every_channel_use_the_reference_leave_one_out(tmp_path
     assert {'moving_cell_gain', 'effective_mass'} <= ind, ind
     lo, hi = c['gain_mass_product']['parameters_ci95']['gain_mass_kg']
     assert lo <= 1.03 * 1.25 <= hi
+
+
+@pytest.mark.slow
+def test_cli_on_lab_files_with_only_file_keys_or_no_campaign_yaml(tmp_path):
+    """Issue 40 item 3: another lab's campaign.yaml needs only file: keys, and `./ft discover lab/*.lvm --channels
+    map.yaml` needs none; both through the real ./ft in a subprocess, on LabVIEW files in volts."""
+    import subprocess
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    imp = Impactor(record_s=0.05)
+    folder = lab_campaign(tmp_path / 'lab', imp, records=2, fmt='.lvm')
+    files = sorted(str(f) for f in folder.glob('*.lvm'))
+
+    def ft(*args):
+        return subprocess.run([str(root / 'ft'), 'discover', *map(str, args), '--rig', str(folder / 'rig.yaml'),
+                               '--scheduler', 'inline'], capture_output=True, text=True, timeout=600)
+
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump(
+        {'channels': 'channels.yaml', 'pulls': [{'file': Path(f).name} for f in files]}))
+    r = ft(folder, '--out', tmp_path / 'o1')
+    assert r.returncode == 0, r.stderr
+    assert 'no reference (encoder_position_m, force_stationary_n absent)' in r.stdout
+    (folder / 'campaign.yaml').unlink()
+    r = ft(*files, '--channels', folder / 'channels.yaml', '--out', tmp_path / 'o2')
+    assert r.returncode == 0, r.stderr
+    assert 'no reference (encoder_position_m, force_stationary_n absent)' in r.stdout
+    one, two = (json.loads((tmp_path / o / 'report.json').read_text()) for o in ('o1', 'o2'))
+    assert one['pulls'] == two['pulls'] == ['drop1.lvm', 'drop2.lvm']
+    assert one['candidates'] == two['candidates']    # the same pulls, read the same way: the same results
+    r = ft(files[0], folder, '--channels', folder / 'channels.yaml', '--out', tmp_path / 'o3')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'is a folder; expected DAQ files' in r.stderr
+    (tmp_path / 'other').mkdir()
+    twin = (tmp_path / 'other' / 'drop1.lvm')
+    twin.write_bytes(Path(files[0]).read_bytes())
+    r = ft(files[0], twin, '--channels', folder / 'channels.yaml', '--out', tmp_path / 'o4')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "two DAQ files are named 'drop1.lvm'" in r.stderr

@@ -291,6 +291,7 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     it (force_correction adds correct and plot), which bag_tools itself does not import."""
     from force_tester_common.engine import add_scheduler_argument
 
+    from .core.daq import META_DEFAULTS
     from .core.playback import PLAY_DESCRIPTION, add_play_arguments
     p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
                 'rosbag2 bags (MCAP or sqlite3) and DAQ campaign folders (see '
@@ -353,10 +354,10 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
                     help="TDMS only: DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
     tg.add_argument('--rate', type=positive_float('--rate'), default=None,
                     help='sample rate, Hz, when the file gives none')
-    tg.add_argument('--set', type=int, default=0, help='test set (default 0: unknown)')
-    tg.add_argument('--coupon-lbf', type=float, default=0.0)
-    tg.add_argument('--velocity-fps', type=float, default=0.0)
-    tg.add_argument('--decel-g', type=float, default=0.0)
+    tg.add_argument('--set', type=int, default=META_DEFAULTS['set'], help='test set (default 0: unknown)')
+    tg.add_argument('--coupon-lbf', type=float, default=META_DEFAULTS['coupon_lbf'], help='(default 0: unknown)')
+    tg.add_argument('--velocity-fps', type=float, default=META_DEFAULTS['velocity_fps'], help='(default 0: unknown)')
+    tg.add_argument('--decel-g', type=float, default=META_DEFAULTS['decel_g'], help='(default 0: unknown)')
     tg.add_argument('--start-ns', type=int, default=None, help='stamp of the first sample')
     tg.add_argument('--pull-id', type=int, default=None)
     im.set_defaults(func=cmd_import)

@@ -63,7 +63,12 @@ DEFAULT_EPOCH_NS = 946_684_800 * NS_PER_S
 #: Gap between pulls placed without start_ns (a time gap: the live filter restarts there).
 DEFAULT_GAP_NS = NS_PER_S
 
-META_REQUIRED = ('file', 'set', 'coupon_lbf', 'velocity_fps', 'decel_g')
+META_REQUIRED = ('file',)
+#: What a pull's metadata says when campaign.yaml (or ./ft bag import) does not: 0, unknown (another lab's rig
+#: has no test set, coupon rating, commanded speed or deceleration of ours).
+META_DEFAULTS = {'set': 0, 'coupon_lbf': 0.0, 'velocity_fps': 0.0, 'decel_g': 0.0}
+#: Every key a pull's metadata has once checked (check_meta), in the order campaign.yaml is written.
+META_KEYS = META_REQUIRED + tuple(META_DEFAULTS)
 META_OPTIONAL = ('start_ns', 'pull_id')
 
 
@@ -102,15 +107,16 @@ def _is_real(x) -> bool:
 
 
 def check_meta(meta: Mapping, where: str, index: int) -> dict:
-    """Validated copy of one pull's metadata (campaign.yaml entry)."""
+    """Validated copy of one pull's metadata (campaign.yaml entry): only ``file`` is required; set, coupon_lbf,
+    velocity_fps and decel_g default to META_DEFAULTS (unknown), start_ns and pull_id to None."""
     if not isinstance(meta, Mapping):
         raise BagError(f'{where}: pull #{index} is {meta!r}; expected a mapping with keys '
-                       f'{", ".join(META_REQUIRED)}')
+                       f'{", ".join(META_REQUIRED)} (optional {", ".join(META_KEYS[1:] + META_OPTIONAL)})')
     for key in META_REQUIRED:
         if key not in meta:
             raise BagError(f'{where}: pull #{index} lacks {key!r}; expected keys '
-                           f'{", ".join(META_REQUIRED)} (optional {", ".join(META_OPTIONAL)})')
-    out = dict(meta)
+                           f'{", ".join(META_REQUIRED)} (optional {", ".join(META_KEYS[1:] + META_OPTIONAL)})')
+    out = {**META_DEFAULTS, **meta}
     f = out['file']
     if not isinstance(f, str) or not f or '/' in f or '\\' in f or f.startswith('.'):
         raise BagError(f'{where}: pull #{index} file {f!r} is invalid; expected a plain file '
@@ -362,7 +368,8 @@ def campaign_index(path: str | Path) -> tuple:
         raise BagError(f'{str(cfile)!r} is not valid YAML: {one_line(exc)}') from None
     if not isinstance(doc, dict) or not isinstance(doc.get('pulls'), list) or not doc['pulls']:
         raise BagError(f'{str(cfile)!r} has no pulls list; expected a mapping with '
-                       "'pulls: [{file, set, coupon_lbf, velocity_fps, decel_g}, ...]'")
+                       "'pulls: [{file: rec1.lvm}, ...]' (optional per pull: set, coupon_lbf, velocity_fps, "
+                       'decel_g, start_ns, pull_id)')
     rate = doc.get('sample_rate_hz')
     if rate is not None and (not _is_real(rate) or rate <= 0):
         raise BagError(f'{str(cfile)!r}: sample_rate_hz {rate!r} is invalid; expected a '
@@ -405,6 +412,30 @@ def campaign_channels(path: str | Path) -> tuple:
         cmap = load_channel_map(path / name)
         absent += [c for c in cmap.absent if c not in absent]
     return cmap, tuple(c for c in CHANNELS if c in absent)
+
+
+def files_index(files: Iterable, channel_map=None) -> tuple:
+    """A campaign given as DAQ files and a channel map, with no campaign.yaml (``./ft discover lab/*.lvm
+    --channels map.yaml``): (channel map or None, its absent channels, [(folder, meta)]), a pull per file in the
+    order given, each with META_DEFAULTS. channel_map: a map YAML path, a ChannelMap or None. Each file must
+    exist and be of a known format (one record each, checked when it is read); two files of one name are
+    refused (a pull is named by its file)."""
+    files = [Path(f) for f in files]
+    if not files:
+        raise BagError(f'no DAQ files given; expected one or more files of a known format ({", ".join(FORMATS)})')
+    cmap = channel_map if channel_map is None or isinstance(channel_map, ChannelMap) \
+        else load_channel_map(channel_map)
+    out, seen = [], {}
+    for i, f in enumerate(files):
+        file_format(f)
+        if not f.is_file():
+            raise BagError(f'DAQ file {str(f)!r} does not exist' + (' (it is a folder)' if f.is_dir() else ''))
+        if f.name in seen:
+            raise BagError(f'two DAQ files are named {f.name!r} ({str(seen[f.name])!r} and {str(f)!r}); expected '
+                           'one name per pull')
+        seen[f.name] = f
+        out.append((str(f.resolve().parent), check_meta({'file': f.name}, str(f), i)))
+    return cmap, (cmap.absent if cmap is not None else ()), out
 
 
 def read_pull(job: tuple) -> tuple:
@@ -568,8 +599,8 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                    absent: Iterable = (), notes: list | None = None, warnings: list | None = None) -> Path:
     """Write a campaign folder atomically (temp folder beside it, renamed when complete).
 
-    pulls: (meta, channels) pairs (a list or any iterable, read once); meta needs META_REQUIRED except
-    'file' (default pull_NNNN.csv); channels need the required columns. time_s is rewritten as k / rate
+    pulls: (meta, channels) pairs (a list or any iterable, read once); meta: any of META_KEYS ('file' default
+    pull_NNNN.csv, the others META_DEFAULTS); channels need the required columns. time_s is rewritten as k / rate
     (rate = sample_rate_hz, else the first pull's). rig: a rig YAML file copied into the folder.
     extra: {file name: bytes|str} written too (e.g. scores.json).
     mapper: formats and writes the CSV files in parallel (force_tester_common.engine.map_pulls; the
@@ -614,7 +645,7 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                 if not meta['file'].lower().endswith('.csv'):   # a lab's rec1.lvm is written as rec1.csv
                     stem, dot, suffix = meta['file'].rpartition('.')
                     meta['file'] = (stem if dot and '.' + suffix.lower() in FORMATS else meta['file']) + '.csv'
-                entry = {k: meta[k] for k in META_REQUIRED}
+                entry = {k: meta[k] for k in META_KEYS}
                 for k in META_OPTIONAL:
                     if meta.get(k) is not None:
                         entry[k] = int(meta[k])
