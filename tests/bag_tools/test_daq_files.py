@@ -354,3 +354,53 @@ def test_campaign_yaml_with_only_file_keys_imports(tmp_path):
     (folder / 'campaign.yaml').write_text(yaml.safe_dump({'pulls': [{'set': 1}]}))
     r = run_cli('import', folder, tmp_path / 'bag3')
     assert r.returncode == 2 and "lacks 'file'" in r.stderr and r.stderr.count('\n') == 1
+
+
+# --------------------------------------------------------------------------- --init-map (issue 40)
+@pytest.mark.slow
+def test_init_map_writes_a_skeleton_that_imports_once_filled_in(tmp_path):
+    """./ft bag import FILE --init-map MAP.yaml on a LabVIEW file in volts: the map names the file's channels with
+    their units, the rate and the duration, guesses which is which, and leaves the sensitivities FILL_IN: refused
+    in one line until they are filled in; then the file imports to the right SI values."""
+    si, volts = impact_record(25_000.0, 5000, 4)
+    f = write_lvm(tmp_path / 'drop.lvm', {'Accel': volts['Accel'], 'Load cell': volts['Load cell'],
+                                          'Trigger': np.zeros(5000)}, 25_000.0)
+    m = tmp_path / 'map.yaml'
+    r = run_cli('import', f, '--init-map', m)
+    assert r.returncode == 0, r.stderr
+    assert 'fill in its 2 FILL_IN(s)' in r.stdout and not (tmp_path / 'bag').exists()
+    text = m.read_text()
+    assert '5000 samples at 25000 Hz, 0.2 s' in text
+    assert '"Load cell" [Volts]' in text and '"Accel" [Volts]' in text and '"Trigger" [Volts]' in text
+    doc = yaml.safe_load(text)
+    assert doc['channels']['force_moving_n']['source'] == 'Load cell'        # by its name
+    assert doc['channels']['accel_axial_m_s2']['source'] == 'Accel'
+    assert doc['absent'] == ['encoder_position_m', 'force_stationary_n']
+    r = run_cli('import', f, '--channels', m, '--dry-run')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "sensitivity 'FILL_IN mV/N'" in r.stderr, r.stderr
+    filled = (text.replace('FILL_IN mV/N', f'{FORCE_MV_PER_N} mV/N').replace('FILL_IN mV/g', f'{ACCEL_MV_PER_G} mV/g')
+              .replace('sign: tension', 'sign: compression'))
+    m.write_text(filled)
+    r = run_cli('import', f, tmp_path / 'bag', '--channels', m)
+    assert r.returncode == 0, r.stderr
+    back = read_campaign(bag_to_campaign(tmp_path / 'bag', tmp_path / 'back')).pulls[0].channels
+    for ch, v in si.items():
+        np.testing.assert_allclose(back[ch], v, rtol=1e-8, atol=1e-8 * np.abs(v).max())
+    r = run_cli('import', f, '--init-map', m)                        # never overwritten
+    assert r.returncode == 2 and 'exists already' in r.stderr and m.read_text() == filled
+    r = run_cli('import', f, tmp_path / 'bag2', '--init-map', tmp_path / 'm2.yaml')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'writes the channel map only' in r.stderr
+
+
+def test_init_map_of_a_csv_without_rate_or_units(tmp_path):
+    """A CSV with no time column and no units: the map asks for the rate and the units (FILL_IN); the channels
+    are guessed from their order."""
+    (tmp_path / 'a.csv').write_text('ch0,ch1\n' + '\n'.join(f'{0.001 * k},{-0.002 * k}' for k in range(50)) + '\n')
+    from bag_tools.core.daqfiles import skeleton_map
+    text = skeleton_map(tmp_path / 'a.csv')
+    doc = yaml.safe_load(text)
+    assert doc['sample_rate_hz'] == 'FILL_IN' and 'no sample rate in the file' in text
+    assert doc['channels']['force_moving_n']['source'] == 'ch0' and doc['channels']['accel_axial_m_s2']['source'] == 'ch1'
+    assert doc['channels']['force_moving_n']['unit'] == 'FILL_IN' and 'guessed from the order' in text
+    with pytest.raises(BagError, match="unit 'FILL_IN' is not a unit I can convert"):
+        load_channel_map(doc)

@@ -246,6 +246,8 @@ def cmd_import(args) -> int:
     warnings: list = []
     src = args.src
     used = None
+    if args.init_map:
+        return init_map(args)
     if not os.path.isdir(src):
         src, used = file_campaign(src, args)
     elif args.map:
@@ -271,6 +273,30 @@ def cmd_import(args) -> int:
         warn('import', warnings)
     print(f'imported {info["pulls"]} pull(s) at {info["sample_rate_hz"]:g} Hz into {out}')
     return report_engine('import', mapper, info['failed'])
+
+
+def init_map(args) -> int:
+    """import FILE --init-map MAP.yaml: write a skeleton channel map of FILE (nothing is imported)."""
+    from .core.daqfiles import FILL_IN, file_format, skeleton_map
+    if os.path.isdir(args.src):
+        raise BagError(f'--init-map applies to a DAQ file, not the folder {args.src!r}; expected e.g. '
+                       'import lab/rec1.lvm --init-map lab/map.yaml')
+    if args.bag is not None or args.channels or args.dry_run:
+        raise BagError('--init-map writes the channel map only; expected no BAG, --channels or --dry-run '
+                       '(import again with --channels MAP.yaml once it is filled in)')
+    file_format(args.src)
+    if not os.path.isfile(args.src):
+        raise BagError(f'DAQ file {args.src!r} does not exist')
+    out = Path(args.init_map)
+    if out.exists():
+        raise BagError(f'channel map {str(out)!r} exists already; expected a new file name (it is never overwritten)')
+    text = skeleton_map(args.src)
+    with open(out, 'x', encoding='utf-8') as fh:
+        fh.write(text)
+    todo = text.count(FILL_IN) - text.count(f'# range: {FILL_IN}') - text.count(f'Fill in every {FILL_IN}')
+    print(f'wrote the channel map skeleton {out}: ' + (f'fill in its {todo} {FILL_IN}(s), check its guesses, then '
+          if todo else 'check its guesses, then ') + f'./ft bag import {args.src} --channels {out} --dry-run')
+    return 0
 
 
 # --------------------------------------------------------------------------- parser
@@ -344,6 +370,9 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     im.add_argument('--channels', metavar='MAP.yaml', default=None,
                     help='channel map: file channel -> workspace channel, unit, sensitivity or scale, sign, '
                     'absent channels, sample rate (see src/bag_tools/README.md)')
+    im.add_argument('--init-map', metavar='MAP.yaml', default=None,
+                    help='write a skeleton channel map of the DAQ file (its channels, units, rate and duration, a '
+                    'guess of which is which, FILL_IN where only you know) and stop; import nothing')
     im.add_argument('--dry-run', action='store_true',
                     help='read and convert, write nothing: print the channels, units, rate, duration and '
                     'events understood')

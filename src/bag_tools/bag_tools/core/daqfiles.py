@@ -567,3 +567,109 @@ def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
         raise BagError(f'{where}: required channel {missing[0]!r} is not in the file (its channels: {names}); '
                        "expected it in the channel map, or named absent (absent: [" + missing[0] + '])')
     return out, tuple(c for c in absent if c not in out), used
+
+
+# --------------------------------------------------------------------------- a skeleton channel map (--init-map)
+#: What a skeleton channel map leaves for the user to write: load_channel_map refuses it in one line until it is.
+FILL_IN = 'FILL_IN'
+#: The workspace channels a skeleton map guesses, in order: (channel, name fragments that suggest it).
+GUESSED = (('force_moving_n', ('force', 'load', 'kraft', 'cell', 'hammer')), ('accel_axial_m_s2', ('acc',)),
+           ('force_stationary_n', ('stat', 'reference')), ('encoder_position_m', ('enc', 'pos', 'disp')))
+#: The physical unit a sensitivity placeholder is written in, per dimension.
+SENSITIVITY_PER = {'force': 'N', 'acceleration': 'g', 'length': 'mm'}
+
+
+def _scalar(text) -> str:
+    """A YAML scalar for any text (JSON's double-quoted string is YAML)."""
+    import json
+    return json.dumps(str(text), ensure_ascii=False)
+
+
+def skeleton_map(path: str | Path) -> str:
+    """A channel map YAML for a DAQ file (``./ft bag import FILE --init-map MAP.yaml``): the file's channels with
+    their units and ranges of values, its rate, duration and records, and a guess of which file channel is which
+    workspace channel (by its unit, else its name, else its order), with comments saying what to fill in. What
+    only the user knows (a sensitivity of a channel in volts, a unit the file does not state, a rate it lacks) is
+    written FILL_IN, which load_channel_map refuses, so an unfilled map never imports."""
+    path = Path(path)
+    records = read_records(path)
+    rec = records[0]
+    names = list(rec.channels)
+    if not names:
+        raise BagError(f'DAQ file {str(path)!r} has no channels; expected at least a force and an acceleration')
+    dims = {c: (unit(rec.units.get(c)) or (None,))[0] for c in names}
+    n = len(rec.channels[names[0]])
+    rate = rec.rate_hz
+    if rate is None and rec.time is not None and len(rec.time) > 1 and rec.time[-1] > rec.time[0]:
+        rate = snap_rate((len(rec.time) - 1) / (rec.time[-1] - rec.time[0]))
+    taken: dict = {}       # workspace channel -> (file channel, why)
+    for ch, _hints in GUESSED:                      # 1: a file channel whose unit is of the channel's kind
+        free = [c for c in names if c not in {s for s, _ in taken.values()} and dims[c] == CHANNEL_DIMENSION[ch]]
+        if free:
+            taken[ch] = (free[0], f'its unit {rec.units[free[0]]!r} measures {CHANNEL_DIMENSION[ch]}')
+    raw = [c for c in names if dims[c] not in set(CHANNEL_DIMENSION.values()) - {'voltage'}]
+    for ch, hints in GUESSED:                       # 2: a channel in volts (or no known unit) named like it
+        if ch in taken:
+            continue
+        free = [c for c in raw if c not in {s for s, _ in taken.values()} and any(h in c.lower() for h in hints)]
+        if free:
+            taken[ch] = (free[0], 'guessed from its name: check')
+    for ch in CORE_CHANNELS[1:][::-1]:              # 3: the core channels from what is left, in order
+        if ch in taken:
+            continue
+        free = [c for c in raw if c not in {s for s, _ in taken.values()}]
+        if free:
+            taken[ch] = (free[0], 'guessed from the order of the channels: check')
+    duration = n / rate if rate else None
+    lines = [f'# Channel map skeleton of {path.name} (./ft bag import {path.name} --init-map): which channel of the',
+             '# file is which workspace channel, and how its values become SI (src/bag_tools/README.md, "DAQ files as',
+             '# labs write them"). Fill in every FILL_IN (an unfilled map is refused), check every guess, then:',
+             f'#   ./ft bag import {path.name} --channels THIS.yaml --dry-run',
+             f'# file: {FORMATS[path.suffix.lower()]}, {len(records)} record(s) (a pull each); the first: {n} samples'
+             + (f' at {rate:g} Hz, {duration:.6g} s' if rate else ', no sample rate in the file'),
+             '# its channels (unit as the file states it; values min .. max):']
+    for c in names:
+        v = rec.channels[c]
+        fin = v[np.isfinite(v)]
+        span = f'{fin.min():.6g} .. {fin.max():.6g}' if fin.size else 'no finite value'
+        lines.append(f'#   {_scalar(c)} [{rec.units.get(c) or "no unit"}] {span}')
+    if rate and rec.rate_hz:
+        lines.append(f'# sample_rate_hz: not needed, the file gives {rate:g} Hz')
+    elif rate:
+        lines.append(f'# sample_rate_hz: not needed, the file\'s time column gives {rate:g} Hz')
+    else:
+        lines.append(f'sample_rate_hz: {FILL_IN}     # the file gives no rate: the DAQ\'s sample rate, Hz')
+    lines.append('channels:')
+    for ch, _hints in GUESSED:
+        if ch not in taken:
+            continue
+        src, why = taken[ch]
+        dim = CHANNEL_DIMENSION[ch]
+        fu = rec.units.get(src)
+        lines += [f'  {ch}:                  # {why}', f'    source: {_scalar(src)}']
+        if dims[src] == dim:
+            lines.append(f'    unit: {_scalar(fu)}            # as the file states it: no sensitivity needed')
+        else:
+            u = unit_name(fu) if fu and unit(fu) else None
+            lines.append(f'    unit: {_scalar(u or FILL_IN)}' + ('' if u else
+                         f'            # the file states {fu!r}: the unit of its values (V, mV, mV/V, ...)'
+                         if fu else '            # the file states none: the unit of its values (V, mV, ...)'))
+            per = SENSITIVITY_PER.get(dim, SI_UNIT[dim])
+            lines.append(f'    sensitivity: {FILL_IN} {"mV" if u in (None, "V") else u}/{per}   # the sensor\'s, from its '
+                         'calibration sheet '
+                         f'(or scale: {SI_UNIT[dim]} per {u or "file unit"})')
+        lines += ['    sign: tension            # the direction the file counts positive: tension or compression',
+                  f'    # range: {FILL_IN} {SENSITIVITY_PER.get(dim, SI_UNIT[dim])}'
+                  '   # optional: the sensor\'s rated range (+/-); beyond it is an overload']
+    absent = [c for c in ABSENTABLE_CHANNELS if c not in taken]
+    left = [c for c in names if c not in {s for s, _ in taken.values()}]
+    if left:
+        lines.append('  # other channels of the file: map one to ' + ', '.join(OPTIONAL_CHANNELS) + ' if it is one')
+        lines += [f'  #   {_scalar(c)} [{rec.units.get(c) or "no unit"}]' for c in left]
+    if absent:
+        lines.append(f'absent: [{", ".join(absent)}]   # the channels your rig does not have')
+    missing = [c for c in CORE_CHANNELS[1:] if c not in taken]
+    if missing:
+        lines.append(f'# NOT FOUND in the file: {", ".join(missing)}: the correction and discover need both; map them '
+                     'above')
+    return '\n'.join(lines) + '\n'
