@@ -400,7 +400,8 @@ def test_init_map_of_a_csv_without_rate_or_units(tmp_path):
     text = skeleton_map(tmp_path / 'a.csv')
     doc = yaml.safe_load(text)
     assert doc['sample_rate_hz'] == 'FILL_IN' and 'no sample rate in the file' in text
-    assert doc['channels']['force_moving_n']['source'] == 'ch0' and doc['channels']['accel_axial_m_s2']['source'] == 'ch1'
+    chans = doc['channels']
+    assert chans['force_moving_n']['source'] == 'ch0' and chans['accel_axial_m_s2']['source'] == 'ch1'
     assert doc['channels']['force_moving_n']['unit'] == 'FILL_IN' and 'guessed from the order' in text
     with pytest.raises(BagError, match="unit 'FILL_IN' is not a unit I can convert"):
         load_channel_map(doc)

@@ -655,8 +655,8 @@ def skeleton_map(path: str | Path) -> str:
                          f'            # the file states {fu!r}: the unit of its values (V, mV, mV/V, ...)'
                          if fu else '            # the file states none: the unit of its values (V, mV, ...)'))
             per = SENSITIVITY_PER.get(dim, SI_UNIT[dim])
-            lines.append(f'    sensitivity: {FILL_IN} {"mV" if u in (None, "V") else u}/{per}   # the sensor\'s, from its '
-                         'calibration sheet '
+            num = 'mV' if u in (None, 'V') else u
+            lines.append(f'    sensitivity: {FILL_IN} {num}/{per}   # the sensor\'s, from its calibration sheet '
                          f'(or scale: {SI_UNIT[dim]} per {u or "file unit"})')
         lines += ['    sign: tension            # the direction the file counts positive: tension or compression',
                   f'    # range: {FILL_IN} {SENSITIVITY_PER.get(dim, SI_UNIT[dim])}'
