@@ -10,7 +10,16 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, SRC_DIRS, run_cli, write_lvm
+from daq_data import (
+    ACCEL_MV_PER_G,
+    FORCE_MV_PER_N,
+    IMPACTOR_CHANNEL_MAP,
+    SRC_DIRS,
+    run_cli,
+    write_lvm,
+    write_mf4,
+    write_uff,
+)
 
 for _d in reversed(SRC_DIRS):
     if str(_d) not in sys.path:
@@ -46,30 +55,6 @@ def write_map(path, doc=None, **changes):
         ch, field = key.split('__')
         doc['channels'][ch][field] = value
     path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def write_mf4(path, volts: dict, rate: float):
-    from asammdf import MDF, Signal
-    n = len(next(iter(volts.values())))
-    t = np.arange(n) / rate
-    mdf = MDF(version='4.10')
-    mdf.append([Signal(v, t, name=name, unit='V') for name, v in volts.items()])
-    mdf.save(str(path), overwrite=True)
-    mdf.close()
-    return path
-
-
-def write_uff(path, volts: dict, rate: float):
-    import pyuff
-    uff = pyuff.UFF(str(path))
-    for i, (name, v) in enumerate(volts.items()):
-        uff.write_sets(pyuff.prepare_58(
-            func_type=1, rsp_node=i + 1, rsp_dir=3, ref_node=0, ref_dir=0, id1=name, data=np.asarray(v),
-            x=np.arange(len(v)) / rate,
-            abscissa_spacing=1, abscissa_min=0.0, abscissa_inc=1.0 / rate, ordinate_axis_units_lab='V',
-            abscissa_axis_units_lab='s', rsp_ent_name=name, ref_ent_name='none', abscissa_spec_data_type=17,
-            ordinate_spec_data_type=0, orddenom_spec_data_type=0), mode='add' if i else 'overwrite')
     return path
 
 

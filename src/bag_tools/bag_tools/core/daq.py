@@ -45,6 +45,7 @@ from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of thi
     check_absent,
     file_format,
     load_channel_map,
+    quiet,
     read_csv,
     read_records,
     time_column,
@@ -289,7 +290,8 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
             from None
     path = Path(path)
     try:
-        tdms = nptdms.TdmsFile.read(str(path))
+        with quiet():
+            tdms = nptdms.TdmsFile.read(str(path))
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
     by_name: dict = {}
@@ -351,6 +353,15 @@ def parse_mapping(items: Iterable[str]) -> dict:
 Mapper = Callable[..., Any]
 
 
+def is_file(path: Path) -> bool:
+    """Whether path is a file; False, not OSError, for a name the file system refuses (longer than it allows: a
+    campaign.yaml's file name is input, found by fuzzing)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
 def campaign_index(path: str | Path) -> tuple:
     """campaign.yaml of a campaign folder, validated, without reading the pulls:
     (folder, sample_rate_hz or None, rig file name or None, [(meta, campaign.yaml entry)])."""
@@ -377,7 +388,7 @@ def campaign_index(path: str | Path) -> tuple:
     rate = None if rate is None else float(rate)
     rig = doc.get('rig')
     if rig is not None:
-        if not isinstance(rig, str) or not (path / rig).is_file():
+        if not isinstance(rig, str) or not is_file(path / rig):
             raise BagError(f'{str(cfile)!r}: rig {rig!r} is not a file in the campaign folder')
     entries = []
     seen = set()
@@ -386,7 +397,7 @@ def campaign_index(path: str | Path) -> tuple:
         if meta['file'] in seen:
             raise BagError(f'{str(cfile)!r}: file {meta["file"]!r} is listed twice')
         seen.add(meta['file'])
-        if not (path / meta['file']).is_file():
+        if not is_file(path / meta['file']):
             raise BagError(f'{str(cfile)!r}: pull #{i} file {meta["file"]!r} does not exist in '
                            f'{str(path)!r}')
         entries.append((meta, entry))
@@ -406,7 +417,7 @@ def campaign_channels(path: str | Path) -> tuple:
     cmap = None
     if doc.get('channels') is not None:
         name = doc['channels']
-        if not isinstance(name, str) or not (path / name).is_file():
+        if not isinstance(name, str) or not is_file(path / name):
             raise BagError(f'{str(cfile)!r}: channels {name!r} is not a file in the campaign folder; expected '
                            'the channel map YAML')
         cmap = load_channel_map(path / name)

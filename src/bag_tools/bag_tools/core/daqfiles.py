@@ -14,8 +14,11 @@ their own format (asammdf alone takes about 2 s to import). ROS-free.
 
 from __future__ import annotations
 
+import contextlib
 import io
+import logging
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, NamedTuple
@@ -96,6 +99,29 @@ def time_column(n: int, rate_hz: float) -> np.ndarray:
     return np.arange(n) / rate_hz
 
 
+@contextlib.contextmanager
+def quiet():
+    """A library's own stderr kept off the user's terminal while it reads a file: its log lines (npTDMS warns of a
+    short last segment on two lines), Python warnings and numpy's floating-point warnings (a value that
+    overflows to inf on scaling). The command's one line says what matters; found by fuzzing."""
+    loggers = [lg for name, lg in list(logging.Logger.manager.loggerDict.items())     # npTDMS: one a module
+               if isinstance(lg, logging.Logger) and name.split('.')[0] in QUIET_LOGGERS]
+    was = [lg.disabled for lg in loggers]
+    for lg in loggers:
+        lg.disabled = True
+    try:
+        with warnings.catch_warnings(), np.errstate(all='ignore'):
+            warnings.simplefilter('ignore')
+            yield
+    finally:
+        for lg, w in zip(loggers, was):
+            lg.disabled = w
+
+
+#: The loggers of the readers' libraries (quiet()).
+QUIET_LOGGERS = ('nptdms', 'asammdf', 'pyuff', 'lvm_read')
+
+
 def _missing(pip: str) -> BagError:
     return BagError(f'reading this format needs {pip}: pip install {pip} (see requirements.txt)')
 
@@ -108,7 +134,8 @@ def read_lvm(path: Path) -> list:
     except ImportError:
         raise _missing('lvm-read') from None
     try:
-        doc = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
+        with quiet():
+            doc = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read LVM file {str(path)!r}: {one_line(exc)}') from None
     records = []
@@ -141,32 +168,66 @@ def read_lvm(path: Path) -> list:
 
 
 def read_mdf(path: Path) -> list:
-    """ASAM MDF4: one Record; every non-master channel, its unit; the rate from its timestamps."""
+    """ASAM MDF4: one Record; every non-master channel, its unit; the rate from its timestamps.
+
+    asammdf parses in a forked child process: on some corrupt files its C code dies of a segmentation fault
+    (found by fuzzing, docs/reliability.md), which here is a BagError, not the end of the command. The child
+    keeps asammdf's log lines and its half-built objects' errors off the user's terminal."""
     try:
-        import asammdf  # noqa: PLC0415 - imported only for its format
+        import asammdf  # noqa: F401, PLC0415 - imported only for its format, before the fork (2 s)
     except ImportError:
         raise _missing('asammdf') from None
+    import multiprocessing  # noqa: PLC0415
+    ctx = multiprocessing.get_context('fork')
+    receive, send = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_mdf_child, args=(str(path), send), daemon=True)
+    child.start()
+    send.close()
     try:
-        mdf = asammdf.MDF(str(path))
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'cannot read MDF4 file {str(path)!r}: {one_line(exc)}') from None
-    chans, units, stamps = {}, {}, {}
-    try:
-        for sig in mdf.iter_channels():
-            if sig.name in chans:
-                continue
-            chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
-            units[sig.name] = sig.unit or None
-            stamps[sig.name] = np.asarray(sig.timestamps, dtype=np.float64)
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'cannot read MDF4 file {str(path)!r}: {one_line(exc)}') from None
+        kind, *rest = receive.recv()
+    except EOFError:       # the child died before it answered
+        kind, rest = 'died', []
     finally:
-        mdf.close()
-    time = next(iter(stamps.values()), None)
+        receive.close()
+        child.join()
+    if kind == 'died':
+        raise BagError(f'cannot read MDF4 file {str(path)!r}: the MDF4 reader (asammdf) crashed on it (exit code '
+                       f'{child.exitcode}); expected a valid ASAM MDF4 file')
+    if kind == 'error':
+        raise BagError(f'cannot read MDF4 file {str(path)!r}: {rest[0]}')
+    chans, units, time = rest
     rate = None
     if time is not None and time.size > 1 and time[-1] > time[0]:
         rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
     return [Record(chans, units, rate, time)]
+
+
+def _mdf_child(path: str, send) -> None:
+    """read_mdf's child: ('ok', channels, units, the first channel's time) or ('error', one line) on the pipe."""
+    import logging  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    import asammdf  # noqa: PLC0415
+    logging.getLogger('asammdf').disabled = True
+    sys.unraisablehook = lambda _unraisable: None     # a half-built MDF4's __del__ raises AttributeError
+    try:
+        mdf = asammdf.MDF(path)
+        chans, units, time = {}, {}, None
+        try:
+            for sig in mdf.iter_channels():
+                if sig.name in chans:
+                    continue
+                chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
+                units[sig.name] = sig.unit or None
+                if time is None:
+                    time = np.asarray(sig.timestamps, dtype=np.float64)
+        finally:
+            mdf.close()
+        send.send(('ok', chans, units, time))
+    except Exception as exc:  # noqa: BLE001 - whatever asammdf raises is the file's fault
+        send.send(('error', one_line(exc)))
+    finally:
+        send.close()
 
 
 def read_uff(path: Path) -> list:
@@ -176,7 +237,8 @@ def read_uff(path: Path) -> list:
     except ImportError:
         raise _missing('pyuff') from None
     try:
-        sets = pyuff.UFF(str(path)).read_sets()
+        with quiet():
+            sets = pyuff.UFF(str(path)).read_sets()
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read UFF file {str(path)!r}: {one_line(exc)}') from None
     sets = [sets] if isinstance(sets, dict) else list(sets)
@@ -202,7 +264,8 @@ def read_tdms_raw(path: Path) -> list:
     except ImportError:
         raise _missing('npTDMS') from None
     try:
-        tdms = nptdms.TdmsFile.read(str(path))
+        with quiet():
+            tdms = nptdms.TdmsFile.read(str(path))
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
     chans, units, rate = {}, {}, None
@@ -395,7 +458,7 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
         raise BagError(f'{where}: {channel} unit {u!r} is not a unit I can convert; known: {known_units()}')
     u = None if u is None else unit_name(u)
     sign_text = entry.get('sign', 'tension')
-    if sign_text not in SIGNS:
+    if isinstance(sign_text, bool) or not isinstance(sign_text, (str, int)) or sign_text not in SIGNS:
         raise BagError(f'{where}: {channel} sign {sign_text!r} is invalid; expected tension or '
                        'compression (the direction the file counts positive) or +1/-1')
     offset = entry.get('offset', 0.0)
@@ -447,7 +510,7 @@ def _rated(text, channel: str, dim: str, file_unit: str | None, factor: float | 
     parts = str(text).split(None, 1) if not isinstance(text, (int, float)) or isinstance(text, bool) else [text]
     try:
         value = float(parts[0])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, IndexError):     # IndexError: an empty range ('')
         value = math.nan
     if not math.isfinite(value) or value <= 0:
         raise BagError(f'{where}: {channel} range {text!r} is invalid; expected the sensor\'s rated range, a '
@@ -476,6 +539,8 @@ def load_channel_map(source) -> ChannelMap:
             doc = yaml.safe_load(Path(source).read_text(encoding='utf-8'))
         except OSError as exc:
             raise BagError(f'cannot read {where}: {one_line(exc)}') from None
+        except UnicodeDecodeError as exc:
+            raise BagError(f'{where} is not UTF-8 text ({one_line(exc)}); expected a YAML file') from None
         except yaml.YAMLError as exc:
             raise BagError(f'{where} is not valid YAML: {one_line(exc)}') from None
     if not isinstance(doc, Mapping) or not isinstance(doc.get('channels'), Mapping):
@@ -486,6 +551,9 @@ def load_channel_map(source) -> ChannelMap:
         raise BagError(f'{where}: key {bad[0]!r} is not known; expected channels, absent, sample_rate_hz')
     cmap = ChannelMap(where)
     absent = doc.get('absent') or []
+    if not isinstance(absent, (str, list, tuple)):
+        raise BagError(f'{where}: absent {absent!r} is invalid; expected a list of channels, some of '
+                       f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
     absent = [absent] if isinstance(absent, str) else list(absent)
     for channel, entry in doc['channels'].items():
         if channel not in CHANNELS or channel == 'time_s' and entry == 'absent':
@@ -535,8 +603,9 @@ def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
                 if ud != CHANNEL_DIMENSION[ch]:
                     raise BagError(f'{where}: channel {spec.source!r} ({ch}) is in {u!r}, not a '
                                    f'{CHANNEL_DIMENSION[ch]} unit; give a sensitivity or scale in the channel map')
-        out[ch] = spec.sign * (raw - spec.offset) * factor if (spec.sign, spec.offset, factor) != (1.0, 0.0, 1.0) \
-            else raw
+        with np.errstate(all='ignore'):     # a value that overflows is inf, as the file said in effect
+            out[ch] = spec.sign * (raw - spec.offset) * factor if (spec.sign, spec.offset, factor) != (1.0, 0.0, 1.0) \
+                else raw
         used.append((ch, spec.source, u, spec.how + (' compression positive' if spec.sign < 0 else '') +
                      (f', rated +/-{spec.rated:.6g} {SI_UNIT[CHANNEL_DIMENSION[ch]]}' if spec.rated else '')))
     for ch in CORE_CHANNELS[1:]:
