@@ -91,6 +91,7 @@ def test_mutated_inputs_through_the_real_cli(fmt, fuzzed, tmp_path):
 
 
 # --------------------------------------------------------------------------- each defect the fuzzing found
+@pytest.mark.slow
 def test_an_mdf4_file_that_crashes_asammdf_is_one_line(tmp_path):
     """asammdf dies of a segmentation fault on this file (tests/data/fuzz/README.md); read_mdf parses in a forked
     child, so the command says so in one line and lives (before: the process died, no message)."""

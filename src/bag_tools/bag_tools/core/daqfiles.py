@@ -18,6 +18,9 @@ import contextlib
 import io
 import logging
 import math
+import os
+import pickle
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -172,27 +175,30 @@ def read_mdf(path: Path) -> list:
 
     asammdf parses in a forked child process: on some corrupt files its C code dies of a segmentation fault
     (found by fuzzing, docs/reliability.md), which here is a BagError, not the end of the command. The child
-    keeps asammdf's log lines and its half-built objects' errors off the user's terminal."""
+    keeps asammdf's log lines and its half-built objects' errors off the user's terminal; its answer comes back
+    pickled through a pipe (the channels: a copy, as big as the file's samples)."""
     try:
         import asammdf  # noqa: F401, PLC0415 - imported only for its format, before the fork (2 s)
     except ImportError:
         raise _missing('asammdf') from None
-    import multiprocessing  # noqa: PLC0415
-    ctx = multiprocessing.get_context('fork')
-    receive, send = ctx.Pipe(duplex=False)
-    child = ctx.Process(target=_mdf_child, args=(str(path), send), daemon=True)
-    child.start()
-    send.close()
-    try:
-        kind, *rest = receive.recv()
-    except EOFError:       # the child died before it answered
-        kind, rest = 'died', []
-    finally:
-        receive.close()
-        child.join()
+    receive, send = os.pipe()
+    pid = os.fork()        # os.fork, not multiprocessing: a Dask worker is a daemonic process, which may not have one
+    if pid == 0:           # the child: parse, answer, exit without running the parent's exit handlers
+        try:
+            os.close(receive)
+            with os.fdopen(send, 'wb') as fh:
+                fh.write(pickle.dumps(_mdf_child(str(path)), protocol=pickle.HIGHEST_PROTOCOL))
+        finally:
+            os._exit(0)
+    os.close(send)
+    with os.fdopen(receive, 'rb') as fh:
+        answer = fh.read()
+    _pid, status = os.waitpid(pid, 0)
+    kind, *rest = pickle.loads(answer) if answer else ('died',)
     if kind == 'died':
+        code = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
         raise BagError(f'cannot read MDF4 file {str(path)!r}: the MDF4 reader (asammdf) crashed on it (exit code '
-                       f'{child.exitcode}); expected a valid ASAM MDF4 file')
+                       f'{code}); expected a valid ASAM MDF4 file')
     if kind == 'error':
         raise BagError(f'cannot read MDF4 file {str(path)!r}: {rest[0]}')
     chans, units, time = rest
@@ -202,32 +208,31 @@ def read_mdf(path: Path) -> list:
     return [Record(chans, units, rate, time)]
 
 
-def _mdf_child(path: str, send) -> None:
-    """read_mdf's child: ('ok', channels, units, the first channel's time) or ('error', one line) on the pipe."""
-    import logging  # noqa: PLC0415
-    import sys  # noqa: PLC0415
+def _mdf_child(path: str) -> tuple:
+    """read_mdf's child: ('ok', channels, units, the first channel's time) or ('error', one line)."""
+    import faulthandler  # noqa: PLC0415
 
     import asammdf  # noqa: PLC0415
+    faulthandler.disable()     # a crash here is the parent's one line, not a dump of this child's stack
     logging.getLogger('asammdf').disabled = True
     sys.unraisablehook = lambda _unraisable: None     # a half-built MDF4's __del__ raises AttributeError
     try:
-        mdf = asammdf.MDF(path)
-        chans, units, time = {}, {}, None
-        try:
-            for sig in mdf.iter_channels():
-                if sig.name in chans:
-                    continue
-                chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
-                units[sig.name] = sig.unit or None
-                if time is None:
-                    time = np.asarray(sig.timestamps, dtype=np.float64)
-        finally:
-            mdf.close()
-        send.send(('ok', chans, units, time))
+        with quiet():
+            mdf = asammdf.MDF(path)
+            chans, units, time = {}, {}, None
+            try:
+                for sig in mdf.iter_channels():
+                    if sig.name in chans:
+                        continue
+                    chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
+                    units[sig.name] = sig.unit or None
+                    if time is None:
+                        time = np.asarray(sig.timestamps, dtype=np.float64)
+            finally:
+                mdf.close()
+        return 'ok', chans, units, time
     except Exception as exc:  # noqa: BLE001 - whatever asammdf raises is the file's fault
-        send.send(('error', one_line(exc)))
-    finally:
-        send.close()
+        return 'error', one_line(exc)
 
 
 def read_uff(path: Path) -> list:
