@@ -144,3 +144,17 @@ def test_a_campaign_file_name_too_long_for_the_file_system_is_bad_input(tmp_path
     (tmp_path / 'lab' / 'campaign.yaml').write_text(yaml.safe_dump({'pulls': [{'file': 'a' * 300 + '.csv'}]}))
     r = run_cli('--verbose', 'import', tmp_path / 'lab', '--dry-run')
     assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'does not exist' in r.stderr, r.stderr
+
+
+@pytest.mark.slow
+def test_the_fuzz_benchmark_prints_its_table_and_refuses_an_unknown_format():
+    r = subprocess.run([str(ROOT / 'ft'), 'bench', 'fuzz', '--inputs', '20', '--cli', '1', '--formats', 'csv,uff'],
+                       capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = {line.split()[0]: line.split()[1:] for line in r.stdout.splitlines() if line.startswith(('csv ', 'uff '))}
+    assert set(rows) == {'csv', 'uff'} and all(v[0] == '20' for v in rows.values())
+    assert all(int(v[1]) + int(v[2]) == 20 and v[3:6] == ['0', '0', '0'] for v in rows.values()), rows
+    assert 'csv          1/1 ok' in r.stdout and 'defects: 0' in r.stdout
+    r = subprocess.run([str(ROOT / 'ft'), 'bench', 'fuzz', '--formats', 'xls'], capture_output=True, text=True,
+                       timeout=120, cwd=ROOT)
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "format 'xls' is unknown" in r.stderr
