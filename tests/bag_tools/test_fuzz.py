@@ -17,7 +17,7 @@ from bag_tools.core.daqfiles import load_channel_map, read_records
 from bag_tools.core.errors import BagError
 
 ROOT = Path(__file__).resolve().parents[2]
-DATA = ROOT / 'tests' / 'data' / 'fuzz'
+DATA = ROOT / 'tests' / 'bag_tools' / 'data' / 'fuzz'
 #: inputs per format in the suite, and the seconds one input may take
 INPUTS = 300
 LIMIT_S = 10.0
@@ -93,7 +93,7 @@ def test_mutated_inputs_through_the_real_cli(fmt, fuzzed, tmp_path):
 # --------------------------------------------------------------------------- each defect the fuzzing found
 @pytest.mark.slow
 def test_an_mdf4_file_that_crashes_asammdf_is_one_line(tmp_path):
-    """asammdf dies of a segmentation fault on this file (tests/data/fuzz/README.md); read_mdf parses in a forked
+    """asammdf dies of a segmentation fault on this file (tests/bag_tools/data/fuzz/README.md); read_mdf parses in a forked
     child, so the command says so in one line and lives (before: the process died, no message)."""
     with pytest.raises(BagError, match=r'the MDF4 reader \(asammdf\) crashed on it \(exit code -11\)'):
         read_records(DATA / 'asammdf_segfault.mf4')
@@ -101,6 +101,7 @@ def test_an_mdf4_file_that_crashes_asammdf_is_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'crashed on it' in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_a_corrupt_mdf4_leaves_no_library_noise_on_stderr(tmp_path):
     """asammdf logs 'asammdf - ERROR - ...' and its half-built object's __del__ prints 'Exception ignored ...
     AttributeError' on a corrupt header: the user sees the one line only."""

@@ -1,4 +1,4 @@
-"""Real recordings of another lab (issue 40): LADISK's two modal-hammer hits (tests/data/ladisk_beam_hammer, MIT,
+"""Real recordings of another lab (issue 40): LADISK's two modal-hammer hits (tests/bag_tools/data/ladisk_beam_hammer, MIT,
 its README gives the provenance), LabVIEW files with a decimal comma and units written `g` and `Newtons`, imported
 through the real CLI with a channel map that --init-map wrote."""
 from __future__ import annotations
@@ -20,7 +20,7 @@ from bag_tools.core.daq import read_campaign  # noqa: E402
 from bag_tools.core.daqfiles import read_records  # noqa: E402
 from force_tester_common.core.units import G_M_S2  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1] / 'data' / 'ladisk_beam_hammer'
+DATA = Path(__file__).resolve().parent / 'data' / 'ladisk_beam_hammer'
 #: peak force (N) of each hit, as the files hold it
 PEAKS = {'acceleration.lvm': 195.605522, 'camera.lvm': 422.370802}
 
