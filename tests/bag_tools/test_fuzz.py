@@ -93,7 +93,7 @@ def test_mutated_inputs_through_the_real_cli(fmt, fuzzed, tmp_path):
 # --------------------------------------------------------------------------- each defect the fuzzing found
 @pytest.mark.slow
 def test_an_mdf4_file_that_crashes_asammdf_is_one_line(tmp_path):
-    """asammdf dies of a segmentation fault on this file (tests/bag_tools/data/fuzz/README.md); read_mdf parses in a forked
+    """asammdf dies of a segmentation fault on this file (data/fuzz/README.md); read_mdf parses in a forked
     child, so the command says so in one line and lives (before: the process died, no message)."""
     with pytest.raises(BagError, match=r'the MDF4 reader \(asammdf\) crashed on it \(exit code -11\)'):
         read_records(DATA / 'asammdf_segfault.mf4')
@@ -159,3 +159,36 @@ def test_the_fuzz_benchmark_prints_its_table_and_refuses_an_unknown_format():
     r = subprocess.run([str(ROOT / 'ft'), 'bench', 'fuzz', '--formats', 'xls'], capture_output=True, text=True,
                        timeout=120, cwd=ROOT)
     assert r.returncode == 2 and r.stderr.count('\n') == 1 and "format 'xls' is unknown" in r.stderr
+
+
+def test_a_time_column_whose_rate_is_infinite_is_one_line(tmp_path):
+    """An MDF4 time channel stepping by a subnormal number: its rate is inf (before: OverflowError in snap_rate,
+    an internal error); now the pull's time check says what is wrong."""
+    from bag_tools.core.daq import check_channels
+    from bag_tools.core.daqfiles import Record, apply_map, snap_rate
+    assert snap_rate(float('inf')) == float('inf') and snap_rate(25_000.0000001) == 25_000.0
+    n = 5
+    rec = Record({'force_moving_n': [1.0] * n, 'accel_axial_m_s2': [0.0] * n}, {}, snap_rate(float('inf')),
+                 None)
+    raw, absent, _used = apply_map(rec, load_channel_map({'channels': {}, 'absent': [
+        'force_stationary_n', 'encoder_position_m']}), 'x.mf4')
+    with pytest.raises(BagError, match='time_s is not increasing'):
+        check_channels(raw, 'x.mf4', None, [], absent)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('fmt, i, expect', [
+    ('metadata', 1103, 'relative_file_paths -9223372036854775808 is invalid; expected a list'),   # was TypeError
+    ('mcap', 1366, 'PullEvent message on /pull_event is not what the type says'),   # was AttributeError
+    ('mf4', 1001, 'time_s is not increasing'),     # an infinite rate: was OverflowError
+])
+def test_inputs_the_fuzz_benchmark_found(fmt, i, expect, fuzzed):
+    """Inputs of `./ft bench fuzz` (seed 0) that ended in another exception; each is now a one-line BagError: a bag
+    whose metadata.yaml lists its files as a number, an MCAP whose embedded PullEvent definition lost test_set, an
+    MDF4 time channel spanning a subnormal interval."""
+    _root, seeds, readers = fuzzed
+    try:
+        outcome, detail = readers.feed(fmt, mutate(fmt, seeds[fmt], 0, i))
+    finally:
+        readers.path(fmt).write_bytes(seeds[fmt])
+    assert outcome == 'clean' and expect in detail, (outcome, detail)

@@ -1,6 +1,6 @@
-"""Real recordings of another lab (issue 40): LADISK's two modal-hammer hits (tests/bag_tools/data/ladisk_beam_hammer, MIT,
-its README gives the provenance), LabVIEW files with a decimal comma and units written `g` and `Newtons`, imported
-through the real CLI with a channel map that --init-map wrote."""
+"""Real recordings of another lab (issue 40): LADISK's two modal-hammer hits (data/ladisk_beam_hammer beside
+this file, MIT, its README gives the provenance), LabVIEW files with a decimal comma and units written `g` and
+`Newtons`, imported through the real CLI with a channel map that --init-map wrote."""
 from __future__ import annotations
 
 import sys

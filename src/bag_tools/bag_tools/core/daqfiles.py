@@ -84,6 +84,8 @@ def file_format(path: str | Path) -> str:
 
 
 def snap_rate(rate: float) -> float:
+    if not math.isfinite(rate):      # a corrupt time column: the checks after say what is wrong with it
+        return float(rate)
     if abs(round(rate) - rate) <= RATE_SNAP * rate:
         return float(round(rate))
     return float(rate)
@@ -225,7 +227,8 @@ def read_mdf(path: Path) -> list:
     chans, units, time = rest
     rate = None
     if time is not None and time.size > 1 and time[-1] > time[0]:
-        rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
+        with np.errstate(all='ignore'):     # a subnormal span: an infinite rate, which the time checks refuse
+            rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
     return [Record(chans, units, rate, time)]
 
 
