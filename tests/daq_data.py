@@ -75,8 +75,9 @@ def no_partials(folder: Path):
     return [p.name for p in folder.iterdir() if p.name.startswith('.')]
 
 
-def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E') -> Path:
-    """A LabVIEW Measurement File as LabVIEW writes it: tab separated, one X column, Delta_X per channel."""
+def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E', units: dict | None = None) -> Path:
+    """A LabVIEW Measurement File as LabVIEW writes it: tab separated, one X column, Delta_X per channel;
+    units: {channel: its Y_Unit_Label} (default Volts)."""
     names = list(volts)
     k = len(names)
     tab = '\t'
@@ -85,7 +86,8 @@ def write_lvm(path: Path, volts: dict, rate: float, fmt: str = '%.9E') -> Path:
             'Operator\tlab', 'Date\t2026/11/24', 'Time\t12:00:00.000', '***End_of_Header***\t', '\t',
             f'Channels\t{k}' + tab * k, 'Samples' + ''.join(f'\t{len(volts[c])}' for c in names) + tab,
             'Date' + '\t2026/11/24' * k + tab, 'Time' + '\t12:00:00.000' * k + tab,
-            'Y_Unit_Label' + '\tVolts' * k + tab, 'X_Dimension' + '\tTime' * k + tab,
+            'Y_Unit_Label' + ''.join(f'\t{(units or {}).get(c, "Volts")}' for c in names) + tab,
+            'X_Dimension' + '\tTime' * k + tab,
             'X0' + '\t0.0000000000000000E+0' * k + tab, 'Delta_X' + f'\t{1 / rate:.6E}' * k + tab,
             '***End_of_Header***' + tab * (k + 1), 'X_Value\t' + tab.join(names) + '\tComment']
     n = len(volts[names[0]])
@@ -107,3 +109,27 @@ IMPACTOR_CHANNEL_MAP = {
     },
     'absent': ['force_stationary_n', 'encoder_position_m'],
 }
+
+
+def write_mf4(path, volts: dict, rate: float):
+    from asammdf import MDF, Signal
+    n = len(next(iter(volts.values())))
+    t = np.arange(n) / rate
+    mdf = MDF(version='4.10')
+    mdf.append([Signal(v, t, name=name, unit='V') for name, v in volts.items()])
+    mdf.save(str(path), overwrite=True)
+    mdf.close()
+    return path
+
+
+def write_uff(path, volts: dict, rate: float):
+    import pyuff
+    uff = pyuff.UFF(str(path))
+    for i, (name, v) in enumerate(volts.items()):
+        uff.write_sets(pyuff.prepare_58(
+            func_type=1, rsp_node=i + 1, rsp_dir=3, ref_node=0, ref_dir=0, id1=name, data=np.asarray(v),
+            x=np.arange(len(v)) / rate,
+            abscissa_spacing=1, abscissa_min=0.0, abscissa_inc=1.0 / rate, ordinate_axis_units_lab='V',
+            abscissa_axis_units_lab='s', rsp_ent_name=name, ref_ent_name='none', abscissa_spec_data_type=17,
+            ordinate_spec_data_type=0, orddenom_spec_data_type=0), mode='add' if i else 'overwrite')
+    return path

@@ -10,7 +10,16 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, SRC_DIRS, run_cli, write_lvm
+from daq_data import (
+    ACCEL_MV_PER_G,
+    FORCE_MV_PER_N,
+    IMPACTOR_CHANNEL_MAP,
+    SRC_DIRS,
+    run_cli,
+    write_lvm,
+    write_mf4,
+    write_uff,
+)
 
 for _d in reversed(SRC_DIRS):
     if str(_d) not in sys.path:
@@ -46,30 +55,6 @@ def write_map(path, doc=None, **changes):
         ch, field = key.split('__')
         doc['channels'][ch][field] = value
     path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def write_mf4(path, volts: dict, rate: float):
-    from asammdf import MDF, Signal
-    n = len(next(iter(volts.values())))
-    t = np.arange(n) / rate
-    mdf = MDF(version='4.10')
-    mdf.append([Signal(v, t, name=name, unit='V') for name, v in volts.items()])
-    mdf.save(str(path), overwrite=True)
-    mdf.close()
-    return path
-
-
-def write_uff(path, volts: dict, rate: float):
-    import pyuff
-    uff = pyuff.UFF(str(path))
-    for i, (name, v) in enumerate(volts.items()):
-        uff.write_sets(pyuff.prepare_58(
-            func_type=1, rsp_node=i + 1, rsp_dir=3, ref_node=0, ref_dir=0, id1=name, data=np.asarray(v),
-            x=np.arange(len(v)) / rate,
-            abscissa_spacing=1, abscissa_min=0.0, abscissa_inc=1.0 / rate, ordinate_axis_units_lab='V',
-            abscissa_axis_units_lab='s', rsp_ent_name=name, ref_ent_name='none', abscissa_spec_data_type=17,
-            ordinate_spec_data_type=0, orddenom_spec_data_type=0), mode='add' if i else 'overwrite')
     return path
 
 
@@ -277,3 +262,131 @@ def test_lvm_of_several_segments_imports_a_pull_each(tmp_path):
     r = run_cli('import', f, '--channels', write_map(tmp_path / 'map.yaml'), '--dry-run')
     assert r.returncode == 0, r.stderr
     assert '3 pull(s) at 100000 Hz' in r.stdout and 'duration 0.15 s, 3 event(s)' in r.stdout
+
+
+# --------------------------------------------------------------------------- units as labs write them (issue 40)
+def test_units_as_labs_write_them_import(tmp_path):
+    """LADISK's LabVIEW files label force 'Newtons' and acceleration 'g'; others write 'G', 'Volts', 'm/s²'. A map
+    that only names the sources imports them, and a map's units, sensitivities and ranges take the same
+    spellings; an unknown label is still refused in one line that names the known units."""
+    si, volts = impact_record(25_000.0, 5000, 2)
+    accel_g = -si['accel_axial_m_s2'] / G_M_S2
+    f = write_lvm(tmp_path / 'hammer.lvm', {'Force': -si['force_moving_n'], 'Accel': accel_g}, 25_000.0,
+                  units={'Force': 'Newtons', 'Accel': 'G'})
+    doc = {'channels': {'force_moving_n': {'source': 'Force', 'sign': 'compression'},
+                        'accel_axial_m_s2': {'source': 'Accel', 'sign': 'compression', 'range': '500 G'}},
+           'absent': ['force_stationary_n', 'encoder_position_m']}
+    r = run_cli('import', f, '--channels', write_map(tmp_path / 'map.yaml', doc), '--dry-run')
+    assert r.returncode == 0, r.stderr
+    assert "force_moving_n [N] <- 'Force' in Newtons" in r.stdout and "<- 'Accel' in G" in r.stdout, r.stdout
+    assert f'rated +/-{500 * G_M_S2:.6g} m/s^2' in r.stdout
+    r = run_cli('import', f, tmp_path / 'bag', '--channels', tmp_path / 'map.yaml')
+    assert r.returncode == 0, r.stderr
+    back = read_campaign(bag_to_campaign(tmp_path / 'bag', tmp_path / 'back')).pulls[0].channels
+    np.testing.assert_allclose(back['force_moving_n'], si['force_moving_n'], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(back['accel_axial_m_s2'], si['accel_axial_m_s2'], rtol=1e-9, atol=1e-6)
+
+    spelled = write_map(tmp_path / 'volts.yaml', force_moving_n__unit='Volts',
+                        force_moving_n__sensitivity=f'{FORCE_MV_PER_N} millivolts/newton',
+                        accel_axial_m_s2__unit='volt', accel_axial_m_s2__sensitivity=f'{ACCEL_MV_PER_G} mv/G')
+    rec, = read_records(write_lvm(tmp_path / 'volts.lvm', volts, 25_000.0))
+    from bag_tools.core.daqfiles import apply_map
+    out, _absent, _used = apply_map(rec, load_channel_map(spelled), 'volts.lvm')
+    for ch, v in si.items():
+        np.testing.assert_allclose(out[ch], v, rtol=1e-9, atol=1e-9 * np.abs(v).max())
+
+    f = write_lvm(tmp_path / 'odd.lvm', {'Force': si['force_moving_n'], 'Accel': accel_g}, 25_000.0,
+                  units={'Force': 'Kilopond', 'Accel': 'G'})
+    r = run_cli('--verbose', 'import', f, '--channels', tmp_path / 'map.yaml', '--dry-run')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'Traceback' not in r.stderr, r.stderr
+    assert "has unit 'Kilopond', not one I can convert" in r.stderr and 'known units: N, kN' in r.stderr
+
+
+def test_bridge_output_in_mv_per_v_with_a_scale(tmp_path):
+    """A strain-gauge amplifier that records mV/V: scale: 2500 N/(mV/V) is 2 mV/V at 5 kN."""
+    si, _volts = impact_record(25_000.0, 3000, 5)
+    f = write_lvm(tmp_path / 'bridge.lvm', {'Bridge': si['force_moving_n'] / 2500.0, 'Accel': si['accel_axial_m_s2']},
+                  25_000.0, units={'Bridge': 'mV/V', 'Accel': 'm/s²'})
+    doc = {'channels': {'force_moving_n': {'source': 'Bridge', 'unit': 'mV/V', 'scale': '2500 N/(mV/V)'},
+                        'accel_axial_m_s2': {'source': 'Accel'}},
+           'absent': ['force_stationary_n', 'encoder_position_m']}
+    cmap = load_channel_map(doc)
+    assert cmap.specs['force_moving_n'].factor == pytest.approx(2500.0)
+    from bag_tools.core.daqfiles import apply_map
+    out, _absent, _used = apply_map(read_records(f)[0], cmap, 'bridge.lvm')
+    np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(out['accel_axial_m_s2'], si['accel_axial_m_s2'], rtol=1e-9, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_campaign_yaml_with_only_file_keys_imports(tmp_path):
+    """Issue 40 item 3: another lab's campaign.yaml names its files and nothing of our rig (set, coupon, speed,
+    deceleration are 0: unknown); a key given is still checked."""
+    folder, truth = lvm_campaign(tmp_path, n=4000, records=2)
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump({'channels': 'channels.yaml',
+                                                          'pulls': [{'file': 'rec1.lvm'}, {'file': 'rec2.lvm'}]}))
+    r = run_cli('import', folder, tmp_path / 'bag')
+    assert r.returncode == 0, r.stderr
+    back = read_campaign(bag_to_campaign(tmp_path / 'bag', tmp_path / 'back'))
+    assert [p.meta['set'] for p in back.pulls] == [0, 0]
+    assert {p.meta['coupon_lbf'] for p in back.pulls} == {p.meta['velocity_fps'] for p in back.pulls} == {0.0}
+    np.testing.assert_allclose(back.pulls[1].channels['force_moving_n'], truth[1]['force_moving_n'], rtol=1e-9,
+                               atol=1e-6)
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump({'channels': 'channels.yaml',
+                                                          'pulls': [{'file': 'rec1.lvm', 'decel_g': 'fast'}]}))
+    r = run_cli('import', folder, tmp_path / 'bag2')
+    assert r.returncode == 2 and "decel_g 'fast' is invalid" in r.stderr and r.stderr.count('\n') == 1
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump({'pulls': [{'set': 1}]}))
+    r = run_cli('import', folder, tmp_path / 'bag3')
+    assert r.returncode == 2 and "lacks 'file'" in r.stderr and r.stderr.count('\n') == 1
+
+
+# --------------------------------------------------------------------------- --init-map (issue 40)
+@pytest.mark.slow
+def test_init_map_writes_a_skeleton_that_imports_once_filled_in(tmp_path):
+    """./ft bag import FILE --init-map MAP.yaml on a LabVIEW file in volts: the map names the file's channels with
+    their units, the rate and the duration, guesses which is which, and leaves the sensitivities FILL_IN: refused
+    in one line until they are filled in; then the file imports to the right SI values."""
+    si, volts = impact_record(25_000.0, 5000, 4)
+    f = write_lvm(tmp_path / 'drop.lvm', {'Accel': volts['Accel'], 'Load cell': volts['Load cell'],
+                                          'Trigger': np.zeros(5000)}, 25_000.0)
+    m = tmp_path / 'map.yaml'
+    r = run_cli('import', f, '--init-map', m)
+    assert r.returncode == 0, r.stderr
+    assert 'fill in its 2 FILL_IN(s)' in r.stdout and not (tmp_path / 'bag').exists()
+    text = m.read_text()
+    assert '5000 samples at 25000 Hz, 0.2 s' in text
+    assert '"Load cell" [Volts]' in text and '"Accel" [Volts]' in text and '"Trigger" [Volts]' in text
+    doc = yaml.safe_load(text)
+    assert doc['channels']['force_moving_n']['source'] == 'Load cell'        # by its name
+    assert doc['channels']['accel_axial_m_s2']['source'] == 'Accel'
+    assert doc['absent'] == ['encoder_position_m', 'force_stationary_n']
+    r = run_cli('import', f, '--channels', m, '--dry-run')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "sensitivity 'FILL_IN mV/N'" in r.stderr, r.stderr
+    filled = (text.replace('FILL_IN mV/N', f'{FORCE_MV_PER_N} mV/N').replace('FILL_IN mV/g', f'{ACCEL_MV_PER_G} mV/g')
+              .replace('sign: tension', 'sign: compression'))
+    m.write_text(filled)
+    r = run_cli('import', f, tmp_path / 'bag', '--channels', m)
+    assert r.returncode == 0, r.stderr
+    back = read_campaign(bag_to_campaign(tmp_path / 'bag', tmp_path / 'back')).pulls[0].channels
+    for ch, v in si.items():
+        np.testing.assert_allclose(back[ch], v, rtol=1e-8, atol=1e-8 * np.abs(v).max())
+    r = run_cli('import', f, '--init-map', m)                        # never overwritten
+    assert r.returncode == 2 and 'exists already' in r.stderr and m.read_text() == filled
+    r = run_cli('import', f, tmp_path / 'bag2', '--init-map', tmp_path / 'm2.yaml')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'writes the channel map only' in r.stderr
+
+
+def test_init_map_of_a_csv_without_rate_or_units(tmp_path):
+    """A CSV with no time column and no units: the map asks for the rate and the units (FILL_IN); the channels
+    are guessed from their order."""
+    (tmp_path / 'a.csv').write_text('ch0,ch1\n' + '\n'.join(f'{0.001 * k},{-0.002 * k}' for k in range(50)) + '\n')
+    from bag_tools.core.daqfiles import skeleton_map
+    text = skeleton_map(tmp_path / 'a.csv')
+    doc = yaml.safe_load(text)
+    assert doc['sample_rate_hz'] == 'FILL_IN' and 'no sample rate in the file' in text
+    chans = doc['channels']
+    assert chans['force_moving_n']['source'] == 'ch0' and chans['accel_axial_m_s2']['source'] == 'ch1'
+    assert doc['channels']['force_moving_n']['unit'] == 'FILL_IN' and 'guessed from the order' in text
+    with pytest.raises(BagError, match="unit 'FILL_IN' is not a unit I can convert"):
+        load_channel_map(doc)

@@ -332,3 +332,38 @@ def test_report_json_has_the_same_keys_with_and_without_a_reference(tmp_path):
     assert isinstance(with_ref['beyond_catalog'], list) and NOT_AVAILABLE in with_ref['per_pull']
     shape = {'name', *LISTED_KEYS, 'gain', 'channel', 'where'}      # a named cause has one shape on both paths
     assert without['causes'] and all(set(c) == shape for c in with_ref['causes'] + without['causes'])
+
+
+def test_cli_on_lab_files_with_only_file_keys_or_no_campaign_yaml(tmp_path):
+    """Issue 40 item 3: another lab's campaign.yaml needs only file: keys, and `./ft discover lab/*.lvm --channels
+    map.yaml` needs none; both through the real ./ft in a subprocess, on LabVIEW files in volts."""
+    import subprocess
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    imp = Impactor(record_s=0.05)
+    folder = lab_campaign(tmp_path / 'lab', imp, records=2, fmt='.lvm')
+    files = sorted(str(f) for f in folder.glob('*.lvm'))
+
+    def ft(*args):
+        return subprocess.run([str(root / 'ft'), 'discover', *map(str, args), '--rig', str(folder / 'rig.yaml'),
+                               '--scheduler', 'inline'], capture_output=True, text=True, timeout=600)
+
+    (folder / 'campaign.yaml').write_text(yaml.safe_dump(
+        {'channels': 'channels.yaml', 'pulls': [{'file': Path(f).name} for f in files]}))
+    r = ft(folder, '--out', tmp_path / 'o1')
+    assert r.returncode == 0, r.stderr
+    assert 'no reference (encoder_position_m, force_stationary_n absent)' in r.stdout
+    (folder / 'campaign.yaml').unlink()
+    r = ft(*files, '--channels', folder / 'channels.yaml', '--out', tmp_path / 'o2')
+    assert r.returncode == 0, r.stderr
+    assert 'no reference (encoder_position_m, force_stationary_n absent)' in r.stdout
+    one, two = (json.loads((tmp_path / o / 'report.json').read_text()) for o in ('o1', 'o2'))
+    assert one['pulls'] == two['pulls'] == ['drop1.lvm', 'drop2.lvm']
+    assert one['candidates'] == two['candidates']    # the same pulls, read the same way: the same results
+    r = ft(files[0], folder, '--channels', folder / 'channels.yaml', '--out', tmp_path / 'o3')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'is a folder; expected DAQ files' in r.stderr
+    (tmp_path / 'other').mkdir()
+    twin = (tmp_path / 'other' / 'drop1.lvm')
+    twin.write_bytes(Path(files[0]).read_bytes())
+    r = ft(files[0], twin, '--channels', folder / 'channels.yaml', '--out', tmp_path / 'o4')
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "two DAQ files are named 'drop1.lvm'" in r.stderr

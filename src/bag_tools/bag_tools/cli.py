@@ -246,6 +246,8 @@ def cmd_import(args) -> int:
     warnings: list = []
     src = args.src
     used = None
+    if args.init_map:
+        return init_map(args)
     if not os.path.isdir(src):
         src, used = file_campaign(src, args)
     elif args.map:
@@ -273,6 +275,30 @@ def cmd_import(args) -> int:
     return report_engine('import', mapper, info['failed'])
 
 
+def init_map(args) -> int:
+    """import FILE --init-map MAP.yaml: write a skeleton channel map of FILE (nothing is imported)."""
+    from .core.daqfiles import FILL_IN, file_format, skeleton_map
+    if os.path.isdir(args.src):
+        raise BagError(f'--init-map applies to a DAQ file, not the folder {args.src!r}; expected e.g. '
+                       'import lab/rec1.lvm --init-map lab/map.yaml')
+    if args.bag is not None or args.channels or args.dry_run:
+        raise BagError('--init-map writes the channel map only; expected no BAG, --channels or --dry-run '
+                       '(import again with --channels MAP.yaml once it is filled in)')
+    file_format(args.src)
+    if not os.path.isfile(args.src):
+        raise BagError(f'DAQ file {args.src!r} does not exist')
+    out = Path(args.init_map)
+    if out.exists():
+        raise BagError(f'channel map {str(out)!r} exists already; expected a new file name (it is never overwritten)')
+    text = skeleton_map(args.src)
+    with open(out, 'x', encoding='utf-8') as fh:
+        fh.write(text)
+    todo = text.count(FILL_IN) - text.count(f'# range: {FILL_IN}') - text.count(f'Fill in every {FILL_IN}')
+    print(f'wrote the channel map skeleton {out}: ' + (f'fill in its {todo} {FILL_IN}(s), check its guesses, then '
+          if todo else 'check its guesses, then ') + f'./ft bag import {args.src} --channels {out} --dry-run')
+    return 0
+
+
 # --------------------------------------------------------------------------- parser
 def positive_float(name):
     def conv(text):
@@ -291,6 +317,7 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     it (force_correction adds correct and plot), which bag_tools itself does not import."""
     from force_tester_common.engine import add_scheduler_argument
 
+    from .core.daq import META_DEFAULTS
     from .core.playback import PLAY_DESCRIPTION, add_play_arguments
     p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
                 'rosbag2 bags (MCAP or sqlite3) and DAQ campaign folders (see '
@@ -343,6 +370,9 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     im.add_argument('--channels', metavar='MAP.yaml', default=None,
                     help='channel map: file channel -> workspace channel, unit, sensitivity or scale, sign, '
                     'absent channels, sample rate (see src/bag_tools/README.md)')
+    im.add_argument('--init-map', metavar='MAP.yaml', default=None,
+                    help='write a skeleton channel map of the DAQ file (its channels, units, rate and duration, a '
+                    'guess of which is which, FILL_IN where only you know) and stop; import nothing')
     im.add_argument('--dry-run', action='store_true',
                     help='read and convert, write nothing: print the channels, units, rate, duration and '
                     'events understood')
@@ -353,10 +383,10 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
                     help="TDMS only: DAQ column <- TDMS channel ('Channel' or 'Group/Channel'); repeat")
     tg.add_argument('--rate', type=positive_float('--rate'), default=None,
                     help='sample rate, Hz, when the file gives none')
-    tg.add_argument('--set', type=int, default=0, help='test set (default 0: unknown)')
-    tg.add_argument('--coupon-lbf', type=float, default=0.0)
-    tg.add_argument('--velocity-fps', type=float, default=0.0)
-    tg.add_argument('--decel-g', type=float, default=0.0)
+    tg.add_argument('--set', type=int, default=META_DEFAULTS['set'], help='test set (default 0: unknown)')
+    tg.add_argument('--coupon-lbf', type=float, default=META_DEFAULTS['coupon_lbf'], help='(default 0: unknown)')
+    tg.add_argument('--velocity-fps', type=float, default=META_DEFAULTS['velocity_fps'], help='(default 0: unknown)')
+    tg.add_argument('--decel-g', type=float, default=META_DEFAULTS['decel_g'], help='(default 0: unknown)')
     tg.add_argument('--start-ns', type=int, default=None, help='stamp of the first sample')
     tg.add_argument('--pull-id', type=int, default=None)
     im.set_defaults(func=cmd_import)

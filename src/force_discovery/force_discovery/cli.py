@@ -1,6 +1,7 @@
 """./ft discover DATA [--rig RIG.yaml] --out DIR: find what the model of record gets wrong in a campaign.
 
-DATA is a campaign folder in the DAQ export format or a bag (converted to a temporary campaign first).
+DATA is a campaign folder in the DAQ export format, a bag (converted to a temporary campaign first), or DAQ files
+(a pull each, `lab/*.lvm --channels map.yaml`: no campaign.yaml needed).
 Writes DIR/report.json, DIR/report.md (+ residuals.png when matplotlib is importable) and DIR/extension.yaml.
 The pulls are streamed (bounded memory); the per-pull stages run on Dask (--scheduler, see
 force_tester_common.engine). A pull whose file cannot be read is left out and named.
@@ -14,7 +15,11 @@ from pathlib import Path
 
 
 def add_arguments(p):
-    p.add_argument('data', metavar='DATA', help='campaign folder (DAQ export format) or a bag')
+    p.add_argument('data', metavar='DATA', nargs='+',
+                   help='campaign folder (DAQ export format), a bag, or DAQ files (.lvm .mf4 .uff .tdms .csv: a '
+                   'pull each; with --channels)')
+    p.add_argument('--channels', metavar='MAP.yaml', default=None,
+                   help='channel map of the DAQ files given as DATA (see src/bag_tools/README.md)')
     p.add_argument('--rig', metavar='RIG.yaml', default=None,
                    help='nominal rig YAML (default: the packaged nominal rig)')
     p.add_argument('--out', metavar='DIR', required=True, help='output folder')
@@ -40,12 +45,22 @@ def main(args) -> int:
         from .core.pipeline import discover
         from .core.report import HELD_OUT
         rig = load_rig(args.rig)
-        data = Path(args.data)
-        if not data.exists():
-            return _error(f'DATA {str(data)!r} does not exist; expected a campaign folder or a bag')
+        items = [args.data] if isinstance(args.data, str) else list(args.data)
+        data = Path(items[0])
+        for item in items:
+            if not Path(item).exists():
+                return _error(f'DATA {item!r} does not exist; expected a campaign folder, a bag or DAQ files')
+        channels = getattr(args, 'channels', None)
+        files = len(items) > 1 or channels is not None or data.is_file()
+        if files and any(Path(i).is_dir() for i in items):
+            return _error(f'DATA {next(i for i in items if Path(i).is_dir())!r} is a folder; expected DAQ files '
+                          'only (a campaign folder names its channel map in campaign.yaml, channels:)')
         scheduler = getattr(args, 'scheduler', None)
         check_scheduler(scheduler)   # an unreachable scheduler fails now, not after the bag is converted
-        if data.is_dir() and (data / 'campaign.yaml').is_file():
+        if files:
+            from .core.source import file_refs
+            folder = file_refs(items, channels)
+        elif data.is_dir() and (data / 'campaign.yaml').is_file():
             folder = data
         else:
             from bag_tools.core.convert import bag_to_campaign

@@ -45,6 +45,7 @@ from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of thi
     check_absent,
     file_format,
     load_channel_map,
+    quiet,
     read_csv,
     read_records,
     time_column,
@@ -63,7 +64,12 @@ DEFAULT_EPOCH_NS = 946_684_800 * NS_PER_S
 #: Gap between pulls placed without start_ns (a time gap: the live filter restarts there).
 DEFAULT_GAP_NS = NS_PER_S
 
-META_REQUIRED = ('file', 'set', 'coupon_lbf', 'velocity_fps', 'decel_g')
+META_REQUIRED = ('file',)
+#: What a pull's metadata says when campaign.yaml (or ./ft bag import) does not: 0, unknown (another lab's rig
+#: has no test set, coupon rating, commanded speed or deceleration of ours).
+META_DEFAULTS = {'set': 0, 'coupon_lbf': 0.0, 'velocity_fps': 0.0, 'decel_g': 0.0}
+#: Every key a pull's metadata has once checked (check_meta), in the order campaign.yaml is written.
+META_KEYS = META_REQUIRED + tuple(META_DEFAULTS)
 META_OPTIONAL = ('start_ns', 'pull_id')
 
 
@@ -102,15 +108,16 @@ def _is_real(x) -> bool:
 
 
 def check_meta(meta: Mapping, where: str, index: int) -> dict:
-    """Validated copy of one pull's metadata (campaign.yaml entry)."""
+    """Validated copy of one pull's metadata (campaign.yaml entry): only ``file`` is required; set, coupon_lbf,
+    velocity_fps and decel_g default to META_DEFAULTS (unknown), start_ns and pull_id to None."""
     if not isinstance(meta, Mapping):
         raise BagError(f'{where}: pull #{index} is {meta!r}; expected a mapping with keys '
-                       f'{", ".join(META_REQUIRED)}')
+                       f'{", ".join(META_REQUIRED)} (optional {", ".join(META_KEYS[1:] + META_OPTIONAL)})')
     for key in META_REQUIRED:
         if key not in meta:
             raise BagError(f'{where}: pull #{index} lacks {key!r}; expected keys '
-                           f'{", ".join(META_REQUIRED)} (optional {", ".join(META_OPTIONAL)})')
-    out = dict(meta)
+                           f'{", ".join(META_REQUIRED)} (optional {", ".join(META_KEYS[1:] + META_OPTIONAL)})')
+    out = {**META_DEFAULTS, **meta}
     f = out['file']
     if not isinstance(f, str) or not f or '/' in f or '\\' in f or f.startswith('.'):
         raise BagError(f'{where}: pull #{index} file {f!r} is invalid; expected a plain file '
@@ -283,7 +290,8 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
             from None
     path = Path(path)
     try:
-        tdms = nptdms.TdmsFile.read(str(path))
+        with quiet():
+            tdms = nptdms.TdmsFile.read(str(path))
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
     by_name: dict = {}
@@ -345,6 +353,15 @@ def parse_mapping(items: Iterable[str]) -> dict:
 Mapper = Callable[..., Any]
 
 
+def is_file(path: Path) -> bool:
+    """Whether path is a file; False, not OSError, for a name the file system refuses (longer than it allows: a
+    campaign.yaml's file name is input, found by fuzzing)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
 def campaign_index(path: str | Path) -> tuple:
     """campaign.yaml of a campaign folder, validated, without reading the pulls:
     (folder, sample_rate_hz or None, rig file name or None, [(meta, campaign.yaml entry)])."""
@@ -362,7 +379,8 @@ def campaign_index(path: str | Path) -> tuple:
         raise BagError(f'{str(cfile)!r} is not valid YAML: {one_line(exc)}') from None
     if not isinstance(doc, dict) or not isinstance(doc.get('pulls'), list) or not doc['pulls']:
         raise BagError(f'{str(cfile)!r} has no pulls list; expected a mapping with '
-                       "'pulls: [{file, set, coupon_lbf, velocity_fps, decel_g}, ...]'")
+                       "'pulls: [{file: rec1.lvm}, ...]' (optional per pull: set, coupon_lbf, velocity_fps, "
+                       'decel_g, start_ns, pull_id)')
     rate = doc.get('sample_rate_hz')
     if rate is not None and (not _is_real(rate) or rate <= 0):
         raise BagError(f'{str(cfile)!r}: sample_rate_hz {rate!r} is invalid; expected a '
@@ -370,7 +388,7 @@ def campaign_index(path: str | Path) -> tuple:
     rate = None if rate is None else float(rate)
     rig = doc.get('rig')
     if rig is not None:
-        if not isinstance(rig, str) or not (path / rig).is_file():
+        if not isinstance(rig, str) or not is_file(path / rig):
             raise BagError(f'{str(cfile)!r}: rig {rig!r} is not a file in the campaign folder')
     entries = []
     seen = set()
@@ -379,7 +397,7 @@ def campaign_index(path: str | Path) -> tuple:
         if meta['file'] in seen:
             raise BagError(f'{str(cfile)!r}: file {meta["file"]!r} is listed twice')
         seen.add(meta['file'])
-        if not (path / meta['file']).is_file():
+        if not is_file(path / meta['file']):
             raise BagError(f'{str(cfile)!r}: pull #{i} file {meta["file"]!r} does not exist in '
                            f'{str(path)!r}')
         entries.append((meta, entry))
@@ -399,12 +417,36 @@ def campaign_channels(path: str | Path) -> tuple:
     cmap = None
     if doc.get('channels') is not None:
         name = doc['channels']
-        if not isinstance(name, str) or not (path / name).is_file():
+        if not isinstance(name, str) or not is_file(path / name):
             raise BagError(f'{str(cfile)!r}: channels {name!r} is not a file in the campaign folder; expected '
                            'the channel map YAML')
         cmap = load_channel_map(path / name)
         absent += [c for c in cmap.absent if c not in absent]
     return cmap, tuple(c for c in CHANNELS if c in absent)
+
+
+def files_index(files: Iterable, channel_map=None) -> tuple:
+    """A campaign given as DAQ files and a channel map, with no campaign.yaml (``./ft discover lab/*.lvm
+    --channels map.yaml``): (channel map or None, its absent channels, [(folder, meta)]), a pull per file in the
+    order given, each with META_DEFAULTS. channel_map: a map YAML path, a ChannelMap or None. Each file must
+    exist and be of a known format (one record each, checked when it is read); two files of one name are
+    refused (a pull is named by its file)."""
+    files = [Path(f) for f in files]
+    if not files:
+        raise BagError(f'no DAQ files given; expected one or more files of a known format ({", ".join(FORMATS)})')
+    cmap = channel_map if channel_map is None or isinstance(channel_map, ChannelMap) \
+        else load_channel_map(channel_map)
+    out, seen = [], {}
+    for i, f in enumerate(files):
+        file_format(f)
+        if not f.is_file():
+            raise BagError(f'DAQ file {str(f)!r} does not exist' + (' (it is a folder)' if f.is_dir() else ''))
+        if f.name in seen:
+            raise BagError(f'two DAQ files are named {f.name!r} ({str(seen[f.name])!r} and {str(f)!r}); expected '
+                           'one name per pull')
+        seen[f.name] = f
+        out.append((str(f.resolve().parent), check_meta({'file': f.name}, str(f), i)))
+    return cmap, (cmap.absent if cmap is not None else ()), out
 
 
 def read_pull(job: tuple) -> tuple:
@@ -568,8 +610,8 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                    absent: Iterable = (), notes: list | None = None, warnings: list | None = None) -> Path:
     """Write a campaign folder atomically (temp folder beside it, renamed when complete).
 
-    pulls: (meta, channels) pairs (a list or any iterable, read once); meta needs META_REQUIRED except
-    'file' (default pull_NNNN.csv); channels need the required columns. time_s is rewritten as k / rate
+    pulls: (meta, channels) pairs (a list or any iterable, read once); meta: any of META_KEYS ('file' default
+    pull_NNNN.csv, the others META_DEFAULTS); channels need the required columns. time_s is rewritten as k / rate
     (rate = sample_rate_hz, else the first pull's). rig: a rig YAML file copied into the folder.
     extra: {file name: bytes|str} written too (e.g. scores.json).
     mapper: formats and writes the CSV files in parallel (force_tester_common.engine.map_pulls; the
@@ -614,7 +656,7 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                 if not meta['file'].lower().endswith('.csv'):   # a lab's rec1.lvm is written as rec1.csv
                     stem, dot, suffix = meta['file'].rpartition('.')
                     meta['file'] = (stem if dot and '.' + suffix.lower() in FORMATS else meta['file']) + '.csv'
-                entry = {k: meta[k] for k in META_REQUIRED}
+                entry = {k: meta[k] for k in META_KEYS}
                 for k in META_OPTIONAL:
                     if meta.get(k) is not None:
                         entry[k] = int(meta[k])

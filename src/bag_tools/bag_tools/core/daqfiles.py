@@ -14,10 +14,19 @@ their own format (asammdf alone takes about 2 s to import). ROS-free.
 
 from __future__ import annotations
 
+import contextlib
 import io
+import logging
 import math
+import os
+import pickle
+import select
+import signal
+import sys
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import monotonic
 from typing import Mapping, NamedTuple
 
 import numpy as np
@@ -30,7 +39,7 @@ from force_tester_common.core.channels import (
     OPTIONAL_CHANNELS,
     REQUIRED_CHANNELS,
 )
-from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT, UNITS, unit
+from force_tester_common.core.units import CHANNEL_DIMENSION, SI_UNIT, known_units, unit, unit_name
 
 from .errors import BagError, one_line
 
@@ -75,6 +84,8 @@ def file_format(path: str | Path) -> str:
 
 
 def snap_rate(rate: float) -> float:
+    if not math.isfinite(rate):      # a corrupt time column: the checks after say what is wrong with it
+        return float(rate)
     if abs(round(rate) - rate) <= RATE_SNAP * rate:
         return float(round(rate))
     return float(rate)
@@ -96,6 +107,29 @@ def time_column(n: int, rate_hz: float) -> np.ndarray:
     return np.arange(n) / rate_hz
 
 
+@contextlib.contextmanager
+def quiet():
+    """A library's own stderr kept off the user's terminal while it reads a file: its log lines (npTDMS warns of a
+    short last segment on two lines), Python warnings and numpy's floating-point warnings (a value that
+    overflows to inf on scaling). The command's one line says what matters; found by fuzzing."""
+    loggers = [lg for name, lg in list(logging.Logger.manager.loggerDict.items())     # npTDMS: one a module
+               if isinstance(lg, logging.Logger) and name.split('.')[0] in QUIET_LOGGERS]
+    was = [lg.disabled for lg in loggers]
+    for lg in loggers:
+        lg.disabled = True
+    try:
+        with warnings.catch_warnings(), np.errstate(all='ignore'):
+            warnings.simplefilter('ignore')
+            yield
+    finally:
+        for lg, w in zip(loggers, was):
+            lg.disabled = w
+
+
+#: The loggers of the readers' libraries (quiet()).
+QUIET_LOGGERS = ('nptdms', 'asammdf', 'pyuff', 'lvm_read')
+
+
 def _missing(pip: str) -> BagError:
     return BagError(f'reading this format needs {pip}: pip install {pip} (see requirements.txt)')
 
@@ -108,7 +142,8 @@ def read_lvm(path: Path) -> list:
     except ImportError:
         raise _missing('lvm-read') from None
     try:
-        doc = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
+        with quiet():
+            doc = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read LVM file {str(path)!r}: {one_line(exc)}') from None
     records = []
@@ -141,32 +176,93 @@ def read_lvm(path: Path) -> list:
 
 
 def read_mdf(path: Path) -> list:
-    """ASAM MDF4: one Record; every non-master channel, its unit; the rate from its timestamps."""
+    """ASAM MDF4: one Record; every non-master channel, its unit; the rate from its timestamps.
+
+    asammdf parses in a forked child process: on some corrupt files its C code dies of a segmentation fault
+    (found by fuzzing, docs/reliability.md), which here is a BagError, not the end of the command. The child
+    keeps asammdf's log lines and its half-built objects' errors off the user's terminal; its answer comes back
+    pickled through a pipe (the channels: a copy, as big as the file's samples)."""
     try:
-        import asammdf  # imported only for its format
+        import asammdf  # noqa: F401 - imported only for its format, before the fork (2 s)
     except ImportError:
         raise _missing('asammdf') from None
+    limit = MDF_LIMIT_S + path.stat().st_size / MDF_LIMIT_BYTES_PER_S
+    receive, send = os.pipe()
+    pid = os.fork()        # os.fork, not multiprocessing: a Dask worker is a daemonic process, which may not have one
+    if pid == 0:           # the child: parse, answer, exit without running the parent's exit handlers
+        try:
+            os.close(receive)
+            quiet_fd = os.open(os.devnull, os.O_WRONLY)     # asammdf prints (CHANNEL ARRAY ...) on some files
+            os.dup2(quiet_fd, 1)
+            os.dup2(quiet_fd, 2)
+            with os.fdopen(send, 'wb') as fh:
+                fh.write(pickle.dumps(_mdf_child(str(path)), protocol=pickle.HIGHEST_PROTOCOL))
+        finally:
+            os._exit(0)
+    os.close(send)
+    answer, deadline = bytearray(), monotonic() + limit
+    with os.fdopen(receive, 'rb', buffering=0) as fh:
+        while True:
+            ready, _w, _x = select.select([fh], [], [], max(0.0, deadline - monotonic()))
+            if not ready:          # asammdf loops or allocates without end on some corrupt files
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+                raise BagError(f'cannot read MDF4 file {str(path)!r}: the MDF4 reader (asammdf) took over '
+                               f'{limit:.0f} s on it and was stopped; expected a valid ASAM MDF4 file')
+            chunk = fh.read(1 << 20)
+            if not chunk:
+                break
+            answer += chunk
+    _pid, status = os.waitpid(pid, 0)
     try:
-        mdf = asammdf.MDF(str(path))
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'cannot read MDF4 file {str(path)!r}: {one_line(exc)}') from None
-    chans, units, stamps = {}, {}, {}
-    try:
-        for sig in mdf.iter_channels():
-            if sig.name in chans:
-                continue
-            chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
-            units[sig.name] = sig.unit or None
-            stamps[sig.name] = np.asarray(sig.timestamps, dtype=np.float64)
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'cannot read MDF4 file {str(path)!r}: {one_line(exc)}') from None
-    finally:
-        mdf.close()
-    time = next(iter(stamps.values()), None)
+        kind, *rest = pickle.loads(answer) if answer else ('died',)
+    except Exception:  # noqa: BLE001 - a child killed while it wrote its answer
+        kind, rest = 'died', []
+    if kind == 'died':
+        code = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
+        raise BagError(f'cannot read MDF4 file {str(path)!r}: the MDF4 reader (asammdf) crashed on it (exit code '
+                       f'{code}); expected a valid ASAM MDF4 file')
+    if kind == 'error':
+        raise BagError(f'cannot read MDF4 file {str(path)!r}: {rest[0]}')
+    chans, units, time = rest
     rate = None
     if time is not None and time.size > 1 and time[-1] > time[0]:
-        rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
+        with np.errstate(all='ignore'):     # a subnormal span: an infinite rate, which the time checks refuse
+            rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
     return [Record(chans, units, rate, time)]
+
+
+#: How long asammdf may take on an MDF4 file before it is stopped: this, plus the file's size at this rate (its
+#: parse of a valid file runs at 100 MB/s and more; fuzzing found corrupt 6 kB files it never finished).
+MDF_LIMIT_S = 30.0
+MDF_LIMIT_BYTES_PER_S = 5e6
+
+
+def _mdf_child(path: str) -> tuple:
+    """read_mdf's child: ('ok', channels, units, the first channel's time) or ('error', one line)."""
+    import faulthandler  # noqa: PLC0415
+
+    import asammdf
+    faulthandler.disable()     # a crash here is the parent's one line, not a dump of this child's stack
+    logging.getLogger('asammdf').disabled = True
+    sys.unraisablehook = lambda _unraisable: None     # a half-built MDF4's __del__ raises AttributeError
+    try:
+        with quiet():
+            mdf = asammdf.MDF(path)
+            chans, units, time = {}, {}, None
+            try:
+                for sig in mdf.iter_channels():
+                    if sig.name in chans:
+                        continue
+                    chans[sig.name] = np.asarray(sig.samples, dtype=np.float64)
+                    units[sig.name] = sig.unit or None
+                    if time is None:
+                        time = np.asarray(sig.timestamps, dtype=np.float64)
+            finally:
+                mdf.close()
+        return 'ok', chans, units, time
+    except Exception as exc:  # noqa: BLE001 - whatever asammdf raises is the file's fault
+        return 'error', one_line(exc)
 
 
 def read_uff(path: Path) -> list:
@@ -176,7 +272,8 @@ def read_uff(path: Path) -> list:
     except ImportError:
         raise _missing('pyuff') from None
     try:
-        sets = pyuff.UFF(str(path)).read_sets()
+        with quiet():
+            sets = pyuff.UFF(str(path)).read_sets()
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read UFF file {str(path)!r}: {one_line(exc)}') from None
     sets = [sets] if isinstance(sets, dict) else list(sets)
@@ -202,7 +299,8 @@ def read_tdms_raw(path: Path) -> list:
     except ImportError:
         raise _missing('npTDMS') from None
     try:
-        tdms = nptdms.TdmsFile.read(str(path))
+        with quiet():
+            tdms = nptdms.TdmsFile.read(str(path))
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
     chans, units, rate = {}, {}, None
@@ -370,9 +468,9 @@ def _quantity(text, key: str, where: str) -> tuple:
     ratio = parts[1].replace(' ', '').replace('(', '').replace(')', '')
     for i, ch in enumerate(ratio):
         if ch == '/' and unit(ratio[:i]) and unit(ratio[i + 1:]):
-            return value, ratio[:i], ratio[i + 1:]
+            return value, unit_name(ratio[:i]), unit_name(ratio[i + 1:])
     raise BagError(f'{where}: {key} unit {parts[1]!r} is not UNIT/UNIT of known units; known units: '
-                   f'{", ".join(UNITS)}')
+                   f'{known_units()}')
 
 
 def _spec(channel: str, entry, where: str) -> ChannelSpec:
@@ -392,9 +490,10 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
     dim = CHANNEL_DIMENSION[channel]
     u = entry.get('unit')
     if u is not None and unit(u) is None:
-        raise BagError(f'{where}: {channel} unit {u!r} is not a unit I can convert; known: {", ".join(UNITS)}')
+        raise BagError(f'{where}: {channel} unit {u!r} is not a unit I can convert; known: {known_units()}')
+    u = None if u is None else unit_name(u)
     sign_text = entry.get('sign', 'tension')
-    if sign_text not in SIGNS:
+    if isinstance(sign_text, bool) or not isinstance(sign_text, (str, int)) or sign_text not in SIGNS:
         raise BagError(f'{where}: {channel} sign {sign_text!r} is invalid; expected tension or '
                        'compression (the direction the file counts positive) or +1/-1')
     offset = entry.get('offset', 0.0)
@@ -414,12 +513,12 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
         if u is None:
             raise BagError(f'{where}: {channel} has a {key} but no unit; expected unit: the unit '
                            "of the file's values (e.g. V)")
-        ud, uf = UNITS[u.strip()]
+        ud, uf = unit(u)
         if num is None:      # bare number: a scale in SI per file unit, a sensitivity in file unit per SI
             si = value if key == 'scale' else 1.0 / value
         else:
-            nd, nf = UNITS[num]
-            dd, df = UNITS[den]
+            nd, nf = unit(num)
+            dd, df = unit(den)
             want = (ud, dim) if key == 'sensitivity' else (dim, ud)
             if (nd, dd) != want:
                 raise BagError(f'{where}: {channel} {key} {entry[key]!r} is in {num}/{den}; '
@@ -429,14 +528,14 @@ def _spec(channel: str, entry, where: str) -> ChannelSpec:
             si = 1.0 / si if key == 'sensitivity' else si
         factor, how = uf * si, f'{key} {entry[key]}'
     if factor is None and u is not None:
-        ud, uf = UNITS[u.strip()]
+        ud, uf = unit(u)
         if ud != CHANNEL_DIMENSION[channel]:
             raise BagError(f'{where}: {channel} unit {u!r} ({ud}) cannot be converted to '
                            f'{SI_UNIT[dim]} without a sensitivity or scale; expected a {dim} unit or '
                            'sensitivity: e.g. 0.225 mV/N')
         factor = uf
     rated = _rated(entry['range'], channel, dim, u, factor, where) if 'range' in entry else None
-    return ChannelSpec(channel, str(src), None if u is None else u.strip(), factor, float(offset),
+    return ChannelSpec(channel, str(src), u, factor, float(offset),
                        SIGNS[sign_text], how, rated)
 
 
@@ -446,7 +545,7 @@ def _rated(text, channel: str, dim: str, file_unit: str | None, factor: float | 
     parts = str(text).split(None, 1) if not isinstance(text, (int, float)) or isinstance(text, bool) else [text]
     try:
         value = float(parts[0])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, IndexError):     # IndexError: an empty range ('')
         value = math.nan
     if not math.isfinite(value) or value <= 0:
         raise BagError(f'{where}: {channel} range {text!r} is invalid; expected the sensor\'s rated range, a '
@@ -455,11 +554,11 @@ def _rated(text, channel: str, dim: str, file_unit: str | None, factor: float | 
         return value
     u = parts[1].strip()
     if unit(u) is None:
-        raise BagError(f'{where}: {channel} range unit {u!r} is not a unit I can convert; known: {", ".join(UNITS)}')
-    ud, uf = UNITS[u]
+        raise BagError(f'{where}: {channel} range unit {u!r} is not a unit I can convert; known: {known_units()}')
+    ud, uf = unit(u)
     if ud == dim:
         return value * uf
-    if file_unit is not None and u == file_unit.strip() and factor is not None:
+    if file_unit is not None and unit_name(u) == unit_name(file_unit) and factor is not None:
         return value * factor
     raise BagError(f'{where}: {channel} range {text!r} is in {u}; expected a unit of {dim} ({SI_UNIT[dim]}) or the '
                    f'file unit{" " + repr(file_unit) if file_unit else ""}')
@@ -475,6 +574,8 @@ def load_channel_map(source) -> ChannelMap:
             doc = yaml.safe_load(Path(source).read_text(encoding='utf-8'))
         except OSError as exc:
             raise BagError(f'cannot read {where}: {one_line(exc)}') from None
+        except UnicodeDecodeError as exc:
+            raise BagError(f'{where} is not UTF-8 text ({one_line(exc)}); expected a YAML file') from None
         except yaml.YAMLError as exc:
             raise BagError(f'{where} is not valid YAML: {one_line(exc)}') from None
     if not isinstance(doc, Mapping) or not isinstance(doc.get('channels'), Mapping):
@@ -485,6 +586,9 @@ def load_channel_map(source) -> ChannelMap:
         raise BagError(f'{where}: key {bad[0]!r} is not known; expected channels, absent, sample_rate_hz')
     cmap = ChannelMap(where)
     absent = doc.get('absent') or []
+    if not isinstance(absent, (str, list, tuple)):
+        raise BagError(f'{where}: absent {absent!r} is invalid; expected a list of channels, some of '
+                       f'{", ".join(ABSENTABLE_CHANNELS + OPTIONAL_CHANNELS)}')
     absent = [absent] if isinstance(absent, str) else list(absent)
     for channel, entry in doc['channels'].items():
         if channel not in CHANNELS or channel == 'time_s' and entry == 'absent':
@@ -526,15 +630,17 @@ def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
             u = record.units.get(spec.source)
             if u and unit(u) is None:
                 raise BagError(f'{where}: channel {spec.source!r} ({ch}) has unit {u!r}, not one I can '
-                               f'convert; give unit: and a sensitivity or scale in the channel map')
+                               f'convert; give unit: and a sensitivity or scale in the channel map; known units: '
+                               f'{known_units()}')
             factor = 1.0
             if u:
                 ud, factor = unit(u)
                 if ud != CHANNEL_DIMENSION[ch]:
                     raise BagError(f'{where}: channel {spec.source!r} ({ch}) is in {u!r}, not a '
                                    f'{CHANNEL_DIMENSION[ch]} unit; give a sensitivity or scale in the channel map')
-        out[ch] = spec.sign * (raw - spec.offset) * factor if (spec.sign, spec.offset, factor) != (1.0, 0.0, 1.0) \
-            else raw
+        with np.errstate(all='ignore'):     # a value that overflows is inf, as the file said in effect
+            out[ch] = spec.sign * (raw - spec.offset) * factor if (spec.sign, spec.offset, factor) != (1.0, 0.0, 1.0) \
+                else raw
         used.append((ch, spec.source, u, spec.how + (' compression positive' if spec.sign < 0 else '') +
                      (f', rated +/-{spec.rated:.6g} {SI_UNIT[CHANNEL_DIMENSION[ch]]}' if spec.rated else '')))
     for ch in CORE_CHANNELS[1:]:
@@ -565,3 +671,109 @@ def apply_map(record: Record, cmap: ChannelMap | None, where: str) -> tuple:
         raise BagError(f'{where}: required channel {missing[0]!r} is not in the file (its channels: {names}); '
                        "expected it in the channel map, or named absent (absent: [" + missing[0] + '])')
     return out, tuple(c for c in absent if c not in out), used
+
+
+# --------------------------------------------------------------------------- a skeleton channel map (--init-map)
+#: What a skeleton channel map leaves for the user to write: load_channel_map refuses it in one line until it is.
+FILL_IN = 'FILL_IN'
+#: The workspace channels a skeleton map guesses, in order: (channel, name fragments that suggest it).
+GUESSED = (('force_moving_n', ('force', 'load', 'kraft', 'cell', 'hammer')), ('accel_axial_m_s2', ('acc',)),
+           ('force_stationary_n', ('stat', 'reference')), ('encoder_position_m', ('enc', 'pos', 'disp')))
+#: The physical unit a sensitivity placeholder is written in, per dimension.
+SENSITIVITY_PER = {'force': 'N', 'acceleration': 'g', 'length': 'mm'}
+
+
+def _scalar(text) -> str:
+    """A YAML scalar for any text (JSON's double-quoted string is YAML)."""
+    import json
+    return json.dumps(str(text), ensure_ascii=False)
+
+
+def skeleton_map(path: str | Path) -> str:
+    """A channel map YAML for a DAQ file (``./ft bag import FILE --init-map MAP.yaml``): the file's channels with
+    their units and ranges of values, its rate, duration and records, and a guess of which file channel is which
+    workspace channel (by its unit, else its name, else its order), with comments saying what to fill in. What
+    only the user knows (a sensitivity of a channel in volts, a unit the file does not state, a rate it lacks) is
+    written FILL_IN, which load_channel_map refuses, so an unfilled map never imports."""
+    path = Path(path)
+    records = read_records(path)
+    rec = records[0]
+    names = list(rec.channels)
+    if not names:
+        raise BagError(f'DAQ file {str(path)!r} has no channels; expected at least a force and an acceleration')
+    dims = {c: (unit(rec.units.get(c)) or (None,))[0] for c in names}
+    n = len(rec.channels[names[0]])
+    rate = rec.rate_hz
+    if rate is None and rec.time is not None and len(rec.time) > 1 and rec.time[-1] > rec.time[0]:
+        rate = snap_rate((len(rec.time) - 1) / (rec.time[-1] - rec.time[0]))
+    taken: dict = {}       # workspace channel -> (file channel, why)
+    for ch, _hints in GUESSED:                      # 1: a file channel whose unit is of the channel's kind
+        free = [c for c in names if c not in {s for s, _ in taken.values()} and dims[c] == CHANNEL_DIMENSION[ch]]
+        if free:
+            taken[ch] = (free[0], f'its unit {rec.units[free[0]]!r} measures {CHANNEL_DIMENSION[ch]}')
+    raw = [c for c in names if dims[c] not in set(CHANNEL_DIMENSION.values()) - {'voltage'}]
+    for ch, hints in GUESSED:                       # 2: a channel in volts (or no known unit) named like it
+        if ch in taken:
+            continue
+        free = [c for c in raw if c not in {s for s, _ in taken.values()} and any(h in c.lower() for h in hints)]
+        if free:
+            taken[ch] = (free[0], 'guessed from its name: check')
+    for ch in CORE_CHANNELS[1:][::-1]:              # 3: the core channels from what is left, in order
+        if ch in taken:
+            continue
+        free = [c for c in raw if c not in {s for s, _ in taken.values()}]
+        if free:
+            taken[ch] = (free[0], 'guessed from the order of the channels: check')
+    duration = n / rate if rate else None
+    lines = [f'# Channel map skeleton of {path.name} (./ft bag import {path.name} --init-map): which channel of the',
+             '# file is which workspace channel, and how its values become SI (src/bag_tools/README.md, "DAQ files as',
+             '# labs write them"). Fill in every FILL_IN (an unfilled map is refused), check every guess, then:',
+             f'#   ./ft bag import {path.name} --channels THIS.yaml --dry-run',
+             f'# file: {FORMATS[path.suffix.lower()]}, {len(records)} record(s) (a pull each); the first: {n} samples'
+             + (f' at {rate:g} Hz, {duration:.6g} s' if rate else ', no sample rate in the file'),
+             '# its channels (unit as the file states it; values min .. max):']
+    for c in names:
+        v = rec.channels[c]
+        fin = v[np.isfinite(v)]
+        span = f'{fin.min():.6g} .. {fin.max():.6g}' if fin.size else 'no finite value'
+        lines.append(f'#   {_scalar(c)} [{rec.units.get(c) or "no unit"}] {span}')
+    if rate and rec.rate_hz:
+        lines.append(f'# sample_rate_hz: not needed, the file gives {rate:g} Hz')
+    elif rate:
+        lines.append(f'# sample_rate_hz: not needed, the file\'s time column gives {rate:g} Hz')
+    else:
+        lines.append(f'sample_rate_hz: {FILL_IN}     # the file gives no rate: the DAQ\'s sample rate, Hz')
+    lines.append('channels:')
+    for ch, _hints in GUESSED:
+        if ch not in taken:
+            continue
+        src, why = taken[ch]
+        dim = CHANNEL_DIMENSION[ch]
+        fu = rec.units.get(src)
+        lines += [f'  {ch}:                  # {why}', f'    source: {_scalar(src)}']
+        if dims[src] == dim:
+            lines.append(f'    unit: {_scalar(fu)}            # as the file states it: no sensitivity needed')
+        else:
+            u = unit_name(fu) if fu and unit(fu) else None
+            lines.append(f'    unit: {_scalar(u or FILL_IN)}' + ('' if u else
+                         f'            # the file states {fu!r}: the unit of its values (V, mV, mV/V, ...)'
+                         if fu else '            # the file states none: the unit of its values (V, mV, ...)'))
+            per = SENSITIVITY_PER.get(dim, SI_UNIT[dim])
+            num = 'mV' if u in (None, 'V') else u
+            lines.append(f'    sensitivity: {FILL_IN} {num}/{per}   # the sensor\'s, from its calibration sheet '
+                         f'(or scale: {SI_UNIT[dim]} per {u or "file unit"})')
+        lines += ['    sign: tension            # the direction the file counts positive: tension or compression',
+                  f'    # range: {FILL_IN} {SENSITIVITY_PER.get(dim, SI_UNIT[dim])}'
+                  '   # optional: the sensor\'s rated range (+/-); beyond it is an overload']
+    absent = [c for c in ABSENTABLE_CHANNELS if c not in taken]
+    left = [c for c in names if c not in {s for s, _ in taken.values()}]
+    if left:
+        lines.append('  # other channels of the file: map one to ' + ', '.join(OPTIONAL_CHANNELS) + ' if it is one')
+        lines += [f'  #   {_scalar(c)} [{rec.units.get(c) or "no unit"}]' for c in left]
+    if absent:
+        lines.append(f'absent: [{", ".join(absent)}]   # the channels your rig does not have')
+    missing = [c for c in CORE_CHANNELS[1:] if c not in taken]
+    if missing:
+        lines.append(f'# NOT FOUND in the file: {", ".join(missing)}: the correction and discover need both; map them '
+                     'above')
+    return '\n'.join(lines) + '\n'

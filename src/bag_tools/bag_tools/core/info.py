@@ -11,7 +11,7 @@ from rosbags.typesys.store import Typestore
 from force_tester_common.core.channels import PULL_EVENT_TYPE, PULL_START
 from force_tester_common.core.clock import NS_PER_S
 
-from .errors import BagError
+from .errors import BagError, one_line
 from .reader import BagReaderHandle, open_bag
 from .typestore import MSG_PACKAGE
 
@@ -37,6 +37,30 @@ def _first_array_len(msg: Any) -> int:
                 and name not in ('header', '__msgtype__'):
             return len(val)
     return 0
+
+
+def _count(msg: Any, topic: str, type_name: str, state: dict, pulls: dict) -> None:
+    """Add one block or pull event message to bag_info's tallies."""
+    if type_name == PULL_EVENT_TYPE:
+        if int(msg.event) == PULL_START:
+            pulls['count'] += 1
+            ts = int(msg.test_set)
+            pulls['per_test_set'][ts] = pulls['per_test_set'].get(ts, 0) + 1
+            pulls['pull_ids'].append(int(msg.pull_id))
+        else:
+            pulls['ends'] += 1
+        return
+    st = state[topic]
+    st['rates'].add(float(msg.sample_rate_hz))
+    st['samples'] += _first_array_len(msg)
+    seq = int(msg.seq)
+    if st['first'] is None:
+        st['first'] = seq
+    elif seq > st['last']:
+        st['gaps'] += seq - st['last'] - 1
+    else:  # repeated or going back: publisher restart, not a drop
+        st['resets'] += 1
+    st['last'] = seq
 
 
 def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, Any]:
@@ -71,26 +95,11 @@ def bag_info(path: str | Path, typestore: Typestore | None = None) -> dict[str, 
         if wanted:
             for topic, type_name, _stamp, cdr in bag.messages(wanted):
                 msg = bag.deserialize(cdr, type_name)
-                if type_name == PULL_EVENT_TYPE:
-                    if int(msg.event) == PULL_START:
-                        pulls['count'] += 1
-                        ts = int(msg.test_set)
-                        pulls['per_test_set'][ts] = pulls['per_test_set'].get(ts, 0) + 1
-                        pulls['pull_ids'].append(int(msg.pull_id))
-                    else:
-                        pulls['ends'] += 1
-                    continue
-                st = state[topic]
-                st['rates'].add(float(msg.sample_rate_hz))
-                st['samples'] += _first_array_len(msg)
-                seq = int(msg.seq)
-                if st['first'] is None:
-                    st['first'] = seq
-                elif seq > st['last']:
-                    st['gaps'] += seq - st['last'] - 1
-                else:  # repeated or going back: publisher restart, not a drop
-                    st['resets'] += 1
-                st['last'] = seq
+                try:
+                    _count(msg, topic, type_name, state, pulls)
+                except (AttributeError, TypeError, ValueError) as exc:   # the bag's own definition of the type
+                    raise BagError(f'bag {str(path)!r}: a {type_name} message on {topic} is not what the type says '
+                                   f'({one_line(exc)}); expected the message definition of {type_name}') from None
         for name, st in state.items():
             rates = sorted(st['rates'])
             topics[name].update({

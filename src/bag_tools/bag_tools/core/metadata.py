@@ -65,7 +65,11 @@ def load_metadata(bag_dir: str | Path) -> dict[str, Any]:
     info = doc.get(ROOT_KEY) if isinstance(doc, dict) else None
     if not isinstance(info, dict):
         raise BagError(f'metadata {str(meta)!r} lacks {ROOT_KEY}; expected a rosbag2 {METADATA_FILE}')
-    for rel in info.get('relative_file_paths') or []:
+    rels = info.get('relative_file_paths') or []
+    if not isinstance(rels, list):     # found by fuzzing: an int here was a TypeError
+        raise BagError(f'metadata {str(meta)!r}: relative_file_paths {rels!r} is invalid; expected a list of the '
+                       'storage file names')
+    for rel in rels:
         if not (path / str(rel)).is_file():
             raise BagError(f'bag {str(path)!r} lists storage file {str(rel)!r} in '
                            f'{METADATA_FILE} but it is missing')

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
-from bag_tools.core.daq import campaign_channels, campaign_index, read_pull
+from bag_tools.core.daq import campaign_channels, campaign_index, files_index, read_pull
 from force_tester_common.core.channels import REQUIRED_CHANNELS
 
 from .errors import DiscoveryError
@@ -40,6 +40,13 @@ def campaign_refs(folder) -> list:
     cmap, absent = campaign_channels(path)
     return [PullRef(meta['file'], str(Path(path).resolve()), meta, dict(entry), rate, None, cmap, tuple(absent))
             for meta, entry in entries]
+
+
+def file_refs(files, channel_map=None) -> list:
+    """PullRef per DAQ file given one by one, with a channel map and no campaign.yaml (bag_tools.core.daq.files_index;
+    no pull data read)."""
+    cmap, absent, entries = files_index(files, channel_map)
+    return [PullRef(meta['file'], folder, meta, {}, None, None, cmap, tuple(absent)) for folder, meta in entries]
 
 
 def memory_refs(campaign_pulls: Sequence) -> list:
@@ -80,4 +87,4 @@ def campaign_absent(refs: Sequence[PullRef]) -> tuple:
     return absent
 
 
-__all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'memory_refs', 'load_channels', 'rated_ranges']
+__all__ = ['PullRef', 'campaign_absent', 'campaign_refs', 'file_refs', 'memory_refs', 'load_channels', 'rated_ranges']
