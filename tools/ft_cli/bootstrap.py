@@ -229,8 +229,8 @@ def install_chromium(log: Path) -> str:
 
 
 def download(lock: Path, into: Path, log: Path, npm_folders: tuple = ()) -> int:
-    """Fill INTO with uv's wheel and every file the lock pins (hashes checked), the sdists' build tools, and the npm tarballs
-    of each folder of NPM_FOLDERS (one npm cache holds them all)."""
+    """Fill INTO with uv's wheel and every file the lock pins (hashes checked), the sdists' build tools, and the npm
+    tarballs of each folder of NPM_FOLDERS (one npm cache holds them all)."""
     into.mkdir(parents=True, exist_ok=True)
     log.parent.mkdir(parents=True, exist_ok=True)
     log.write_text('')

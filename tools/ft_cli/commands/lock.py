@@ -119,8 +119,9 @@ def _uv() -> str:
 
 def add_arguments(p):
     p.description = ('Write requirements.lock: every package requirements.txt pulls in, at one version with its '
-                     'hashes, for CPython 3.11 on x86_64 Linux (uv pip compile; uv, as requirements-uv.lock pins it, is installed '
-                     'into .ft/uv on first use). Versions already pinned are kept where requirements.txt allows them.')
+                     'hashes, for CPython 3.11 on x86_64 Linux (uv pip compile; uv, as requirements-uv.lock pins '
+                     'it, is installed into .ft/uv on first use). Versions already pinned are kept where '
+                     'requirements.txt allows them.')
     p.add_argument('--check', action='store_true',
                    help='only check: exit 1 with one line if the lock does not match requirements.txt')
     p.add_argument('--upgrade', action='store_true', help='take the newest allowed version of every package')
