@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -98,8 +99,15 @@ def setup_once(rev: str, into: Path) -> tuple:
         subprocess.run([str(into / 'ft'), 'bag', 'info', str(into / 'no-such-bag')], cwd=into, env=env,
                        capture_output=True)           # set up, then a one-line error: the set-up is what is timed
         t_build = time.perf_counter() - t0
+        keep = CACHE / 'setup_logs' / f'{rev}_{time.strftime("%H%M%S")}'   # the logs outlive the tree: the profile
+        keep.mkdir(parents=True, exist_ok=True)
+        for log in (into / '.ft').glob('*.log'):
+            shutil.copy2(log, keep / log.name)
         if not (into / 'install' / 'setup.bash').is_file():
-            raise SystemExit(f'{rev}: the build failed (log: {into / ".ft" / "build.log"})')
+            raise SystemExit(f'{rev}: the build failed (log: {keep / "build.log"})')
+        steps = re.findall(r'^Finished <<< (\S+) \[([\d.]+)s\]', (keep / 'build.log').read_text(), re.M)
+        print(f'  {rev}: venv {t_venv:.1f} s, build {t_build:.1f} s (colcon: '
+              f'{", ".join(f"{name} {s}" for name, s in steps)}; logs: {keep})', file=sys.stderr)
         return t_venv, t_build
     finally:
         subprocess.run(['git', 'worktree', 'remove', '--force', str(into)], cwd=ROOT, capture_output=True)

@@ -119,9 +119,8 @@ def ensure_uv(log: Path, wheels: Path | None = None, home: Path = UV_HOME, uv_lo
 
 
 def _uv_env() -> dict:
-    """uv with no configuration of this machine's or of a folder above (it reads uv.toml and pyproject.toml)."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith('UV_') or k == 'UV_CACHE_DIR'}
-    return dict(env, UV_NO_CONFIG='1', UV_NO_PROGRESS='1', _ROS_WHEELS_BOOTSTRAP_COMPLETE='1')
+    """uv with this machine's configuration (its index, cache, certificates), as pip had it; no progress bars."""
+    return dict(os.environ, UV_NO_PROGRESS='1', _ROS_WHEELS_BOOTSTRAP_COMPLETE='1')
 
 
 def install_lock(python: Path, lock: Path, log: Path, wheels: Path | None = None, uv: Path | None = None) -> None:
