@@ -1,5 +1,5 @@
-"""Benchmark: `./ft bag correct` as a whole process, and the share of it that is start-up
-(./ft bench startup [--pulls 30] [--reps 5] [--baseline REV]).
+"""Benchmark: the set-up from nothing, and `./ft bag correct` as a whole process with the share of it that is
+start-up (./ft bench startup [--pulls 30] [--reps 5] [--baseline REV] [--setup N]).
 
 A bag of --pulls sim pulls (2 s at 50 kHz each, made once and kept under runs/bench_startup/) is
 corrected by `./ft bag correct BAG OUT` in a new process, --reps times. Printed: the median wall
@@ -8,14 +8,22 @@ interpreter, nothing imported); the same correction in this process after a firs
 arithmetic and the I/O alone); and the start-up share, 1 - in process / whole process.
 Target: >= 150x real time as a whole process.
 
---baseline REV also checks REV out into a git worktree beside this one (sharing .venv, with its
-own colcon build) and runs its `./ft bag correct` alternately with this one's, so both are
-measured side by side in one run on the same machine state.
+--baseline REV also checks REV out into a git worktree under /tmp (sharing .venv, with its own colcon build)
+and runs its `./ft bag correct` alternately with this one's, so both are measured side by side in one run on the
+same machine state, and prints the ratios.
+
+--setup N: the set-up from nothing, N times for each tree (this one's HEAD and REV, alternately), each in a new git
+worktree under /tmp with no .venv, install/ or .ft/: the venv step (`python -m ft_cli.bootstrap venv`, what ./ft
+runs first: making .venv and installing the lock) and the build step (`./ft` up to its first command: colcon).
+The package caches (pip's, uv's) are whatever the machine has: the first of the N runs warms them; the table
+gives every run. Target: <= 90 s in all.
 """
 from __future__ import annotations
 
 import argparse
 import hashlib
+import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -48,12 +56,14 @@ def make_bag(n_pulls: int) -> tuple:
 
 
 def baseline_tree(rev: str) -> Path:
-    """REV checked out beside this workspace, sharing its .venv; built once by its own ./ft."""
-    tree = CACHE / f'baseline_{rev}'
+    """REV checked out under /tmp, sharing this workspace's .venv; built once by its own ./ft."""
+    sha = subprocess.run(['git', 'rev-parse', '--short', rev], cwd=ROOT, check=True, capture_output=True,
+                         text=True).stdout.strip()
+    tree = Path(tempfile.gettempdir()) / f'ft_baseline_{sha}'
     if not (tree / 'ft').is_file():
-        subprocess.run(['git', 'worktree', 'add', '--detach', '--force', str(tree), rev], cwd=ROOT, check=True,
+        subprocess.run(['git', 'worktree', 'add', '--detach', '--force', str(tree), sha], cwd=ROOT, check=True,
                        capture_output=True)
-        (tree / '.venv').symlink_to(ROOT / '.venv')
+        (tree / '.venv').symlink_to((ROOT / '.venv').resolve())
         state = tree / '.ft'
         state.mkdir(exist_ok=True)
         # the stamps the older ./ft may keep, so that it takes the shared venv as set up
@@ -65,6 +75,63 @@ def baseline_tree(rev: str) -> Path:
     subprocess.run([str(tree / 'ft'), 'bag', '--help'], cwd=tree, check=True, capture_output=True)
     subprocess.run([str(tree / 'ft'), 'bag', 'info', str(tree / 'ft')], cwd=tree, capture_output=True)
     return tree
+
+
+def setup_once(rev: str, into: Path) -> tuple:
+    """(venv s, build s) of REV set up from nothing in a new git worktree INTO (removed afterwards)."""
+    subprocess.run(['git', 'worktree', 'add', '--detach', '--force', str(into), rev], cwd=ROOT, check=True,
+                   capture_output=True)
+    try:
+        (into / '.ft').mkdir(exist_ok=True)
+        env = {k: v for k, v in os.environ.items()
+               if k not in ('PYTHONPATH', 'VIRTUAL_ENV', 'AMENT_PREFIX_PATH', 'CMAKE_PREFIX_PATH', 'LD_LIBRARY_PATH',
+                            'COLCON_PREFIX_PATH', '_ROS_WHEELS_BOOTSTRAP_COMPLETE')}
+        env['PATH'] = os.pathsep.join(d for d in env['PATH'].split(os.pathsep) if '.venv' not in d)
+        python = shutil.which('python3', path=env['PATH'])
+        t0 = time.perf_counter()
+        subprocess.run([python, '-m', 'ft_cli.bootstrap', 'venv', '--venv', str(into / '.venv'), '--lock',
+                        str(into / 'requirements.lock'), '--log', str(into / '.ft' / 'venv.log'), '--mend',
+                        str(into / 'tools' / 'fix_ros_wheels.py')], cwd=into, check=True,
+                       env=dict(env, PYTHONPATH=str(into / 'tools')))
+        t_venv = time.perf_counter() - t0
+        (into / '.ft' / 'venv.stamp').touch()       # what ./ft does after the step
+        t0 = time.perf_counter()
+        subprocess.run([str(into / 'ft'), 'bag', 'info', str(into / 'no-such-bag')], cwd=into, env=env,
+                       capture_output=True)           # set up, then a one-line error: the set-up is what is timed
+        t_build = time.perf_counter() - t0
+        keep = CACHE / 'setup_logs' / f'{rev}_{time.strftime("%H%M%S")}'   # the logs outlive the tree: the profile
+        keep.mkdir(parents=True, exist_ok=True)
+        for log in (into / '.ft').glob('*.log'):
+            shutil.copy2(log, keep / log.name)
+        if not (into / 'install' / 'setup.bash').is_file():
+            raise SystemExit(f'{rev}: the build failed (log: {keep / "build.log"})')
+        steps = re.findall(r'^Finished <<< (\S+) \[([\d.]+)s\]', (keep / 'build.log').read_text(), re.M)
+        print(f'  {rev}: venv {t_venv:.1f} s, build {t_build:.1f} s (colcon: '
+              f'{", ".join(f"{name} {s}" for name, s in steps)}; logs: {keep})', file=sys.stderr)
+        return t_venv, t_build
+    finally:
+        subprocess.run(['git', 'worktree', 'remove', '--force', str(into)], cwd=ROOT, capture_output=True)
+        shutil.rmtree(into, ignore_errors=True)
+
+
+def bench_setup(revs: dict, runs: int) -> None:
+    """The set-up from nothing of each tree, alternately, RUNS times; the ratios of the last runs' medians."""
+    got = {name: [] for name in revs}
+    for k in range(runs):
+        for name, rev in revs.items():
+            print(f'set-up {k + 1} of {runs}: {name} ({rev})', file=sys.stderr)
+            got[name].append(setup_once(rev, Path(tempfile.gettempdir()) / f'ft_setup_{rev}'))
+    print(f'set-up from nothing (empty venv, no install/), {runs} run(s) each, alternately; the first warms the '
+          'package caches (target <= 90 s):')
+    for name, rows in got.items():
+        cells = '   '.join(f'venv {v:5.1f} s + build {b:5.1f} s = {v + b:5.1f} s' for v, b in rows)
+        print(f'  {name:<12} {cells}')
+    if len(got) == 2 and runs > 1:
+        (a, ra), (b, rb) = got.items()
+        def ratio(pick):
+            return statistics.median(pick(r) for r in rb[1:]) / statistics.median(pick(r) for r in ra[1:])
+        print(f'  {b} / {a}, warm runs, median: venv {ratio(lambda r: r[0]):.1f}x, build '
+              f'{ratio(lambda r: r[1]):.1f}x, all {ratio(sum):.1f}x')
 
 
 def whole(ft: Path, bag: Path, out: Path) -> float:
@@ -79,7 +146,13 @@ def main() -> int:
     ap.add_argument('--pulls', type=int, default=30, help='pulls in the bag (2 s of data each; default 30)')
     ap.add_argument('--reps', type=int, default=5, help='whole-process runs of each (default 5)')
     ap.add_argument('--baseline', metavar='REV', help='also run REV (a commit) side by side, alternately')
+    ap.add_argument('--setup', type=int, default=0, metavar='N',
+                    help='also time the set-up from nothing N times each (this HEAD and --baseline REV)')
     args = ap.parse_args()
+    if args.setup:
+        head = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT, check=True, capture_output=True,
+                              text=True).stdout.strip()
+        bench_setup({'this HEAD': head, **({args.baseline: args.baseline} if args.baseline else {})}, args.setup)
     bag, seconds = make_bag(args.pulls)
     trees = {'this tree': ROOT}
     if args.baseline:

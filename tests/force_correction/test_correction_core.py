@@ -512,6 +512,18 @@ def test_score_pull_ignores_nan_and_rejects_bad_peak():
         score_pull(np.ones(5), np.ones(4), np.ones(5), np.ones(5))
 
 
+def test_score_pull_peaks_are_nanmax_with_and_without_nan():
+    """A peak is the max over the finite samples: a NaN at the largest sample, everywhere, or nowhere."""
+    s, raw, cor, fil = hand_pull()
+    cor = cor.copy()
+    cor[int(np.argmax(cor))] = np.nan            # the largest sample lost: the next largest is the peak
+    fil = np.full_like(fil, np.nan)              # no filtered sample at all: no filtered peak
+    r = score_pull(s, raw, cor, fil)
+    assert r.raw_peak_n == np.nanmax(raw) and r.corrected_peak_n == np.nanmax(cor)
+    assert r.corrected_peak_n < np.max(hand_pull()[2])
+    assert math.isnan(r.filtered_peak_n)
+
+
 def test_pull_accumulator_splits_straddling_blocks():
     s, raw, cor, fil = hand_pull()
     rate = 1000.0                      # 1 ms per sample

@@ -8,7 +8,7 @@ import pytest
 
 from force_correction.core.errors import CorrectionError
 from force_correction.core.params import CorrectionParams
-from force_correction.core.peak_uncertainty import PeakInputs, peak_uncertainty
+from force_correction.core.peak_uncertainty import MC_SEED, PeakInputs, mc_normals, peak_uncertainty
 from force_correction.core.streaming import correct_signal
 
 RATE = 50_000.0
@@ -78,3 +78,31 @@ def test_peak_u_option_reads_four_numbers_or_names_the_value():
     for bad in ('0.01,abc', '0.01,0.02', '0.01,-0.1,0,0'):
         with pytest.raises(CorrectionError, match='-0.1' if '-' in bad else re.escape(repr(bad))):
             peak_inputs_arg(bad)
+
+
+def test_the_draws_are_the_seeded_generators_in_order():
+    """mc_normals (kept once a process) are MC_SEED's normals: 4 x draws for the inputs, then draws x width."""
+    z, noise = mc_normals(400, 101)
+    rng = np.random.default_rng(MC_SEED)
+    assert np.array_equal(z, rng.standard_normal((4, 400)))
+    assert np.array_equal(noise, rng.standard_normal((400, 101)))
+    assert not z.flags.writeable and not noise.flags.writeable
+
+
+@pytest.mark.parametrize('hole', [None, 'after_peak', 'before_peak'])
+def test_no_lag_reads_each_sample_as_the_interpolation_does(hole):
+    """With no lag drawn the draws read F at their own samples; a lag so small that it moves no sample goes
+    through the interpolation, and both give the same U to the last bit, a NaN next to the peak included."""
+    out, _ = pull(seed=4)
+    c, ma, fl = out.corrected_n.copy(), out.inertial_n.copy(), out.filtered_n
+    i = int(np.argmax(c))
+    if hole == 'after_peak':
+        c[i + 3] = np.nan
+    elif hole == 'before_peak':
+        ma[i - 2] = np.nan
+    base = dict(mass_rel=0.01, gain_rel=0.004, accel_sensitivity_rel=0.003)
+    none = peak_uncertainty(c, ma, fl, RATE, PeakInputs(**base))
+    tiny = peak_uncertainty(c, ma, fl, RATE, PeakInputs(**base, accel_delay_s=1e-300))
+    assert (none.u_n, none.expanded_n, none.filtered_expanded_n, none.peak_n) == \
+        (tiny.u_n, tiny.expanded_n, tiny.filtered_expanded_n, tiny.peak_n)
+    assert none.u_n > 0

@@ -1,5 +1,6 @@
-"""./ft's set-up: the lock is installed exactly, whatever the registry serves next; an air-gapped
-machine installs from a folder; a failing step says why in one line.
+"""./ft's set-up: the lock is installed exactly (by uv, itself pinned and hash-checked), whatever the registry
+serves next; an air-gapped machine installs from a folder; a failing step says why in one line; a change builds
+only the packages it touched.
 
 The packages here are real wheels built by the test: `alpha` requires `beta[fast]>=1.0` (a
 requirement with an extra, as pytest-cov requires `coverage[toml]`), and the wheel folder holds
@@ -75,6 +76,24 @@ def registry(tmp_path_factory):
     return folder, write_lock(root / 'requirements.lock', wheels)
 
 
+@pytest.fixture(scope='module')
+def uv(tmp_path_factory):
+    """The workspace's uv (requirements-uv.lock, in .ft/uv: ./ft installed it to set this workspace up)."""
+    return bootstrap.ensure_uv(tmp_path_factory.mktemp('uv') / 'uv.log')
+
+
+@pytest.fixture(scope='module')
+def uv_wheel(tmp_path_factory):
+    """A folder with the uv wheel that requirements-uv.lock pins (hash checked; FT_WHEELS if set, else PyPI)."""
+    folder = tmp_path_factory.mktemp('uv_wheel')
+    wheels = os.environ.get('FT_WHEELS')
+    subprocess.run([str(Path(bootstrap.ensure_uv(folder / 'log').parent / 'python')), '-m', 'pip', 'download',
+                    '--no-deps', '--require-hashes', '--no-input', '-q', '-d', str(folder),
+                    *bootstrap.source_args(Path(wheels) if wheels else None), '-r', str(bootstrap.UV_LOCK)],
+                   check=True)
+    return next(folder.glob('uv-*.whl'))
+
+
 def fresh_python(path: Path) -> Path:
     """A new venv with the pip that `python -m venv` bundles, as ./ft's first step makes one."""
     venv.EnvBuilder(with_pip=True).create(path)
@@ -95,17 +114,17 @@ def installed_version(python: Path, name: str) -> str:
 
 @pytest.mark.slow
 def test_a_newer_release_of_a_dependency_required_with_an_extra_does_not_change_the_install(
-        registry, tmp_path, monkeypatch):
+        registry, uv, tmp_path, monkeypatch):
     folder, lock_file = registry
     for k in [k for k in os.environ if k.startswith('PIP_')]:
         monkeypatch.delenv(k)
     monkeypatch.setenv('PIP_CONFIG_FILE', os.devnull)
     python = fresh_python(tmp_path / 'venv')
     log = tmp_path / 'venv.log'
-    bootstrap.install_lock(python, lock_file, log, wheels=folder)
+    bootstrap.install_lock(python, lock_file, log, wheels=folder, uv=uv)
     assert installed_version(python, 'beta') == PACKAGES['beta'][0]
     assert installed_version(python, 'gamma') == PACKAGES['gamma'][0]
-    assert 'No broken requirements found' in log.read_text()
+    assert 'All installed packages are compatible' in log.read_text()   # uv pip check
 
 
 @pytest.mark.slow
@@ -121,7 +140,7 @@ def test_the_resolving_install_of_before_fails_on_the_same_folder(registry, tmp_
 
 
 @pytest.mark.slow
-def test_a_failing_install_says_the_step_the_log_and_the_line_that_explains_it(registry, tmp_path):
+def test_a_failing_install_says_the_step_the_log_and_the_line_that_explains_it(registry, uv, tmp_path):
     folder, lock_file = registry
     text = lock_file.read_text()
     bad = tmp_path / 'requirements.lock'
@@ -129,37 +148,65 @@ def test_a_failing_install_says_the_step_the_log_and_the_line_that_explains_it(r
     python = fresh_python(tmp_path / 'venv')
     log = tmp_path / 'venv.log'
     with pytest.raises(bootstrap.SetupError) as err:
-        bootstrap.install_lock(python, bad, log, wheels=folder)
+        bootstrap.install_lock(python, bad, log, wheels=folder, uv=uv)
     message = str(err.value)
-    assert message.startswith('pip install failed: ') and str(log) in message
+    assert message.startswith('uv pip install failed: ') and str(log) in message
     assert '\n' not in message and 'hash' in message.lower()
 
 
 @pytest.mark.slow
-def test_the_wheels_folder_installs_with_no_network(registry, tmp_path):
-    """`./ft wheels DIR` fills DIR from the lock (hashes checked); FT_WHEELS=DIR installs from it in a
-    network namespace with no interface but loopback."""
+def test_the_wheels_folder_installs_with_no_network(registry, uv_wheel, tmp_path):
+    """`./ft wheels DIR` fills DIR from the lock and requirements-uv.lock (hashes checked); FT_WHEELS=DIR installs
+    uv and then the lock from it in a network namespace with no interface but loopback."""
     folder, lock_file = registry
+    source = tmp_path / 'registry'
+    shutil.copytree(folder, source)
+    shutil.copy2(uv_wheel, source)
     carried = tmp_path / 'carried'
-    env = dict(offline_env(), PIP_FIND_LINKS=str(folder))
+    env = dict(offline_env(), PIP_FIND_LINKS=str(source))
     res = subprocess.run([sys.executable, '-c', 'import sys; from ft_cli import bootstrap; sys.exit(0 if '
                           f'bootstrap.download(bootstrap.Path({str(lock_file)!r}), bootstrap.Path({str(carried)!r}), '
-                          f'bootstrap.Path({str(tmp_path / "wheels.log")!r})) == 3 else 1)'],
+                          f'bootstrap.Path({str(tmp_path / "wheels.log")!r})) == 4 else 1)'],
                          env=dict(env, PYTHONPATH=str(Path(bootstrap.__file__).parents[1])))
     assert res.returncode == 0, (tmp_path / 'wheels.log').read_text()
     assert sorted(p.name for p in carried.iterdir()) == sorted(
-        f'{n}-{v}-py3-none-any.whl' for n, (v, _, _) in PACKAGES.items())
+        [uv_wheel.name, *(f'{n}-{v}-py3-none-any.whl' for n, (v, _, _) in PACKAGES.items())])
     python = fresh_python(tmp_path / 'venv')
+    home = tmp_path / 'uv_home'   # a machine without uv: installed from the folder too
     script = ('import sys; from pathlib import Path; from ft_cli import bootstrap; '
-              f'bootstrap.install_lock(Path({str(python)!r}), Path({str(lock_file)!r}), '
-              f'Path({str(tmp_path / "venv.log")!r}), wheels=Path({str(carried)!r}))')
+              f'log = Path({str(tmp_path / "venv.log")!r}); wheels = Path({str(carried)!r}); '
+              f'uv = bootstrap.ensure_uv(log, wheels, home=Path({str(home)!r})); '
+              f'bootstrap.install_lock(Path({str(python)!r}), Path({str(lock_file)!r}), log, wheels=wheels, uv=uv)')
     cmd = [sys.executable, '-c', script]
     if shutil.which('unshare') and subprocess.run(['unshare', '-n', 'true']).returncode == 0:
         cmd = ['unshare', '-n', *cmd]  # no network at all
     res = subprocess.run(cmd, env=dict(offline_env(), PYTHONPATH=str(Path(bootstrap.__file__).parents[1])),
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr + (tmp_path / 'venv.log').read_text()
+    assert (home / 'bin' / 'uv').exists()
     assert installed_version(python, 'beta') == PACKAGES['beta'][0]
+
+
+def test_only_the_changed_packages_and_those_above_them_are_built(tmp_path):
+    """The build's selection: a package whose files changed (names and times) or that install/ lacks."""
+    src, install = tmp_path / 'src', tmp_path / 'install'
+    for name in ('low', 'high'):
+        (src / name / name).mkdir(parents=True)
+        (src / name / 'package.xml').write_text(f'<package><name>{name}</name></package>')
+        (src / name / name / '__init__.py').write_text('')
+        (install / name).mkdir(parents=True)
+    states = bootstrap.package_states(src)
+    assert sorted(states) == ['high', 'low']
+    assert bootstrap.changed_packages(states, states, install) == []
+    (src / 'high' / 'high' / '__pycache__').mkdir()          # byte-code is not a change
+    (src / 'high' / 'high' / '__pycache__' / 'x.pyc').write_text('')
+    assert bootstrap.package_states(src) == states
+    os.utime(src / 'low' / 'low' / '__init__.py', ns=(1, 1))    # touched
+    assert bootstrap.changed_packages(bootstrap.package_states(src), states, install) == ['low']
+    (src / 'high' / 'high' / 'new.py').write_text('')           # a file added
+    shutil.rmtree(install / 'low')
+    assert bootstrap.changed_packages(bootstrap.package_states(src), {}, install) == ['high', 'low']
+    assert bootstrap.changed_packages(states, states, install) == ['low']   # install/ lacks it
 
 
 def test_an_incomplete_closure_fails_the_lock_check(registry):
@@ -202,6 +249,9 @@ def test_help_and_env_answer_on_a_fresh_clone_without_setting_anything_up(tmp_pa
      '  By not providing "Findrosidl_default_generators.cmake"\n--- stderr: force_tester_msgs\n'
      'Failed   <<< force_tester_msgs [1.2s, exited with code 1]\n',
      'CMake Error at CMakeLists.txt:12 (find_package): By not providing "Findrosidl_default_generators.cmake"'),
+    ('Resolved 3 packages in 3ms\nerror: Failed to download `alpha==1.0`\n  cause: Hash mismatch for `alpha==1.0`\n\n'
+     '         Expected:\n           sha256:0000\n',
+     'error: Failed to download `alpha==1.0`: Hash mismatch for `alpha==1.0`'),
     ('npm error code ENOTCACHED\nnpm error request to https://registry/x failed: cache mode is only-if-cached\n',
      'npm error code ENOTCACHED'),
 ])

@@ -2,7 +2,8 @@
 
 requirements.txt says what the workspace needs; requirements.lock (made by `uv pip compile
 --generate-hashes` for CPython 3.11 on x86_64 Linux) says exactly what gets installed, and ./ft
-installs with `pip --require-hashes` from it, so a new release somewhere cannot change a fresh
+installs with `uv pip install --no-deps --require-hashes` from it (the same uv, pinned in
+requirements-uv.lock), so a new release somewhere cannot change a fresh
 machine. The lock's first line records the SHA-256 of the requirements.txt it was made from;
 `./ft lock --check` (and a test) fail when they differ, a requirement is not pinned or a pin has
 no hashes, or when the closure is incomplete: a locked package requires something the lock does
@@ -16,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -26,7 +26,6 @@ from ..paths import ROOT
 REQUIREMENTS = ROOT / 'requirements.txt'
 LOCK = ROOT / 'requirements.lock'
 STAMP = '# made from requirements.txt sha256 '
-UV_ENV = ROOT / '.ft' / 'uv'
 PLATFORM = ('--python-version', '3.11', '--python-platform', 'x86_64-unknown-linux-gnu')
 
 
@@ -109,22 +108,20 @@ def lock_problems(requirements: Path = REQUIREMENTS, lock: Path = LOCK, requires
 
 
 def _uv() -> str:
-    found = shutil.which('uv')
-    if found:
-        return found
-    uv = UV_ENV / 'bin' / 'uv'
-    if not uv.exists():
-        print(f'ft lock: installing uv into {UV_ENV} (once)', file=sys.stderr)
-        if subprocess.run([sys.executable, '-m', 'venv', str(UV_ENV)]).returncode or subprocess.run(
-                [str(UV_ENV / 'bin' / 'pip'), 'install', '--quiet', '--disable-pip-version-check', 'uv']).returncode:
-            return ''
-    return str(uv)
+    """The uv that installs the lock (requirements-uv.lock, in .ft/uv), so that one uv compiles and installs."""
+    from ..bootstrap import SetupError, ensure_uv
+    try:
+        return str(ensure_uv(ROOT / '.ft' / 'uv.log'))
+    except SetupError as exc:
+        print(f'ft lock: error: {exc}', file=sys.stderr)
+        return ''
 
 
 def add_arguments(p):
     p.description = ('Write requirements.lock: every package requirements.txt pulls in, at one version with its '
-                     'hashes, for CPython 3.11 on x86_64 Linux (uv pip compile; uv is installed into .ft/uv on '
-                     'first use). Versions already pinned are kept where requirements.txt allows them.')
+                     'hashes, for CPython 3.11 on x86_64 Linux (uv pip compile; uv, as requirements-uv.lock pins '
+                     'it, is installed into .ft/uv on first use). Versions already pinned are kept where '
+                     'requirements.txt allows them.')
     p.add_argument('--check', action='store_true',
                    help='only check: exit 1 with one line if the lock does not match requirements.txt')
     p.add_argument('--upgrade', action='store_true', help='take the newest allowed version of every package')
@@ -143,7 +140,6 @@ def run(args) -> int:
           f'{", keeping the current pins" if keep else ", newest versions"})', file=sys.stderr)
     uv = _uv()
     if not uv:
-        print('ft lock: error: could not install uv from PyPI (see above)', file=sys.stderr)
         return 1
     out = LOCK.with_suffix('.lock.tmp')
     # uv prefers the versions pinned in the file it writes over; seeded without hashes, it takes those

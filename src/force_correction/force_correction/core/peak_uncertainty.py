@@ -30,6 +30,7 @@ Everything runs once per pull on arrays the validator already holds; no state cr
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -109,6 +110,19 @@ def quiet_noise(corrected: np.ndarray, sample_rate_hz: float) -> float:
     return float(np.std(d) / math.sqrt(2.0)) if len(d) >= 8 else math.nan
 
 
+@functools.lru_cache(maxsize=8)
+def mc_normals(draws: int, width: int) -> tuple:
+    """The Monte Carlo's standard normals for ``draws`` draws over a window of ``width`` samples: (4 x draws) for
+    m2, the gain, the sensitivity and the lag, then (draws x width) for the noise, from one generator seeded with
+    MC_SEED, in that order. The same for every pull of that window (the seed is fixed), so drawn once a process
+    (read-only arrays)."""
+    rng = np.random.default_rng(MC_SEED)
+    z = rng.standard_normal((4, draws))
+    noise = rng.standard_normal((draws, width))
+    z.flags.writeable = noise.flags.writeable = False
+    return z, noise
+
+
 def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, inputs: PeakInputs,
                      k: float = COVERAGE_FACTOR, draws: int = MC_DRAWS) -> PeakUncertainty:
     """The corrected peak of one pull and its expanded uncertainty (module docstring).
@@ -133,38 +147,43 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
         raise CorrectionError('the pull has no finite corrected sample; expected at least one')
     i = int(np.flatnonzero(fin)[np.argmax(c[fin])])
     peak = float(c[i])
-    force = c + ma
     noise = quiet_noise(c, rate)
     sigma = 0.0 if math.isnan(noise) else noise
+    n = len(c)
+    h = max(2, int(round(PEAK_WINDOW_S * rate)))
+    lo, hi = max(i - h, 0), min(i + h + 1, n)
+    force = c[lo:hi] + ma[lo:hi]        # the force the correction used, where it is read: around the peak
 
     # the linear budget at the peak (sensitivity coefficient x standard uncertainty)
     def slope(j0, j1):
+        j0, j1 = j0 - lo, j1 - lo
         return (force[j1] - force[j0]) * rate / (j1 - j0) if j1 > j0 and np.isfinite(force[[j0, j1]]).all() else 0.0
-    n = len(c)
     dfdt = max(abs(slope(max(i - 1, 0), i)), abs(slope(i, min(i + 1, n - 1))))
-    components = (('mass', abs(ma[i]) * inputs.mass_rel), ('gain', abs(force[i]) * inputs.gain_rel),
+    components = (('mass', abs(ma[i]) * inputs.mass_rel), ('gain', abs(force[i - lo]) * inputs.gain_rel),
                   ('accel_sensitivity', abs(ma[i]) * inputs.accel_sensitivity_rel),
                   ('accel_delay', dfdt * inputs.accel_delay_s), ('noise', sigma))
 
     # Monte Carlo over the window around the peak
-    h = max(2, int(round(PEAK_WINDOW_S * rate)))
-    lo, hi = max(i - h, 0), min(i + h + 1, n)
     idx = np.arange(lo, hi)
-    f_w, ma_w = force[lo:hi], ma[lo:hi]
+    f_w, ma_w = force, ma[lo:hi]
     ok = np.isfinite(f_w) & np.isfinite(ma_w)
-    rng = np.random.default_rng(MC_SEED)
-    z = rng.standard_normal((4, draws))
+    z, z_noise = mc_normals(draws, hi - lo)
     em, eg, es = inputs.mass_rel * z[0], inputs.gain_rel * z[1], inputs.accel_sensitivity_rel * z[2]
-    shift = inputs.accel_delay_s * rate * z[3]                     # samples; F(t - delta) by linear interpolation
-    pos = np.clip(idx[None, :] - shift[:, None], lo, hi - 1) - lo
-    j = np.floor(pos).astype(int)
-    j1 = np.minimum(j + 1, len(idx) - 1)
-    w = pos - j
     fv = np.where(ok, f_w, np.nan)
-    f_shift = (1 - w) * fv[j] + w * fv[j1]
+    if inputs.accel_delay_s == 0.0:
+        # no lag drawn: every draw reads F at its own sample. The interpolation below would give 1 * F[j] +
+        # 0 * F[j + 1], so F[j + 1]'s NaN still makes the sample NaN: kept, on one row instead of every draw's.
+        f_shift = (fv + 0.0 * fv[np.minimum(np.arange(1, len(idx) + 1), len(idx) - 1)])[None, :]
+    else:
+        shift = inputs.accel_delay_s * rate * z[3]                 # samples; F(t - delta) by linear interpolation
+        pos = np.clip(idx[None, :] - shift[:, None], lo, hi - 1) - lo
+        j = np.floor(pos).astype(int)
+        j1 = np.minimum(j + 1, len(idx) - 1)
+        w = pos - j
+        f_shift = (1 - w) * fv[j] + w * fv[j1]
     drawn = f_shift * (1 + eg)[:, None] - ma_w[None, :] * ((1 + em) * (1 + es))[:, None]
     if sigma > 0:
-        drawn = drawn + sigma * rng.standard_normal(drawn.shape)
+        drawn = drawn + sigma * z_noise
     peaks = np.nanmax(np.where(ok[None, :], drawn, np.nan), axis=1)
     u = float(np.std(peaks, ddof=1)) if draws > 1 else 0.0
     # the max of a noisy plateau is its highest noise sample: a one-sided bias the draws' spread does not show.

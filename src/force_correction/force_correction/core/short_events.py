@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from force_tester_common.core.correction import EVENT_BANDWIDTH_ENERGY, MA_HALF_POWER, SHORT_EVENT_WINDOWS
-from force_tester_common.core.events import event_spans, event_width_s
+from force_tester_common.core.events import event_width_s, find_events
 
 
 @dataclass(frozen=True)
@@ -91,8 +91,11 @@ def short_events(force_moving_n, corrected_n, rate_hz: float, window: int) -> li
     f = np.asarray(force_moving_n, dtype=np.float64)
     corr = np.asarray(corrected_n, dtype=np.float64)
     out = []
-    for span in event_spans(f, rate_hz):
-        width = event_width_s(f, rate_hz, span)
+    spans, median = find_events(f, rate_hz)
+    # event_width_s's baseline is the nanmedian, which is find_events' median unless a sample is infinite
+    baseline = median if spans and not np.isinf(f).any() else None
+    for span in spans:
+        width = event_width_s(f, rate_hz, span, baseline)
         if width * rate_hz >= SHORT_EVENT_WINDOWS * window:
             continue
         a, b = span

@@ -5,6 +5,8 @@ excursion (baseline: the record's median), of either sign: a tension pull, a com
 a braking load. Stretches closer than ``EVENT_GAP_S`` are one event. Pure numpy.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 #: Fraction of the record's largest excursion above which a sample is in an event.
@@ -20,28 +22,55 @@ WIDTH_LEVEL = 0.5
 
 def event_spans(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> list:
     """[(first, end)] sample index ranges of the events in ``force`` (NaN samples are never in one)."""
+    return find_events(force, rate_hz, level, gap_s)[0]
+
+
+def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> tuple:
+    """(event_spans, baseline): the spans and the record's median of its finite samples (NaN when there is
+    none), for a caller that needs both (event_width_s takes it) without a second median of the record."""
     x = np.asarray(force, dtype=np.float64)
     ok = np.isfinite(x)
     if x.size < 2 or not ok.any():
-        return []
-    dev = np.abs(x - np.median(x[ok]))
-    dev[~ok] = 0.0
+        return [], float('nan')
+    whole = bool(ok.all())   # the usual record: no copies of it without its non-finite samples
+    base = np.median(x if whole else x[ok])
+    dev = np.abs(x - base)
+    if not whole:
+        dev[~ok] = 0.0
     peak = dev.max()
-    noise = 1.4826 * np.median(dev[ok])
-    if not peak > 0 or peak < EVENT_SNR * noise:
-        return []
+    if not peak > 0 or _below_snr(dev if whole else dev[ok], peak):
+        return [], float(base)
     idx = np.flatnonzero(dev > level * peak)
     gap = max(1, int(round(gap_s * rate_hz)))
     cut = np.flatnonzero(np.diff(idx) > gap)
     starts = np.concatenate([[idx[0]], idx[cut + 1]])
     ends = np.concatenate([idx[cut], [idx[-1]]]) + 1
-    return [(int(a), int(b)) for a, b in zip(starts, ends)]
+    return [(int(a), int(b)) for a, b in zip(starts, ends)], float(base)
 
 
-def event_width_s(force, rate_hz: float, span: tuple) -> float:
-    """Full width of one event at WIDTH_LEVEL of its peak excursion, s."""
+#: relative margin around the noise threshold within which below_snr takes the exact median
+_MARGIN = 1e-6
+
+
+def _below_snr(dev: np.ndarray, peak: float) -> bool:
+    """peak < EVENT_SNR * 1.4826 * median(dev), exactly, without the median's partial sort where two counts
+    decide it: the median (the mean of the sorted middle pair) lies clearly above the threshold when at most
+    (n - 1) // 2 samples are at or below it, clearly below when more than n // 2 are below it; only a median
+    within _MARGIN of the threshold is computed (a record whose peak is ~EVENT_SNR noise deviations)."""
+    thr = peak / (EVENT_SNR * 1.4826)
+    n = dev.size
+    if np.count_nonzero(dev <= thr * (1 + _MARGIN)) <= (n - 1) // 2:
+        return True
+    if np.count_nonzero(dev < thr * (1 - _MARGIN)) > n // 2:
+        return False
+    return bool(peak < EVENT_SNR * (1.4826 * np.median(dev)))
+
+
+def event_width_s(force, rate_hz: float, span: tuple, baseline: float | None = None) -> float:
+    """Full width of one event at WIDTH_LEVEL of its peak excursion, s. baseline: the record's nanmedian when
+    the caller has it (find_events' baseline, for a record with no infinite sample), else computed here."""
     x = np.asarray(force, dtype=np.float64)
-    base = np.nanmedian(x)
+    base = np.nanmedian(x) if baseline is None else baseline
     seg = np.abs(np.nan_to_num(x[span[0]:span[1]] - base))
     if not seg.size or not seg.max() > 0:
         return 0.0
