@@ -334,6 +334,7 @@ def test_report_json_has_the_same_keys_with_and_without_a_reference(tmp_path):
     assert without['causes'] and all(set(c) == shape for c in with_ref['causes'] + without['causes'])
 
 
+@pytest.mark.slow
 def test_cli_on_lab_files_with_only_file_keys_or_no_campaign_yaml(tmp_path):
     """Issue 40 item 3: another lab's campaign.yaml needs only file: keys, and `./ft discover lab/*.lvm --channels
     map.yaml` needs none; both through the real ./ft in a subprocess, on LabVIEW files in volts."""
