@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, write_lvm
+from daq_data import ACCEL_MV_PER_G, FORCE_MV_PER_N, IMPACTOR_CHANNEL_MAP, write_lvm, write_mf4
 from kinds import timed
 
 from force_tester_common.core.units import G_M_S2
@@ -138,17 +138,6 @@ def rig_yaml(path: Path, rate_hz: float, record_s: float) -> Path:
     doc['force_chain']['load_cell_stiffness_n_per_m'] = CELL_STIFFNESS
     doc.pop('uncertainty', None)
     path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def write_mf4(path: Path, v: dict, rate: float) -> Path:
-    from asammdf import MDF, Signal
-    n = len(next(iter(v.values())))
-    t = np.arange(n) / rate
-    mdf = MDF(version='4.10')
-    mdf.append([Signal(x, t, name=name, unit='V') for name, x in v.items()])
-    mdf.save(str(path), overwrite=True)
-    mdf.close()
     return path
 
 
