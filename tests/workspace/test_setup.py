@@ -257,3 +257,29 @@ def test_help_and_env_answer_on_a_fresh_clone_without_setting_anything_up(tmp_pa
 ])
 def test_the_explaining_line_is_the_first_error(log, expected):
     assert bootstrap.explaining_line(log) == expected
+
+
+def test_the_mend_never_edits_a_file_uv_linked_from_its_cache(tmp_path):
+    """uv installs a wheel's files as hard links to its cache: the mend writes a new file instead of editing the
+    linked one (an edit in place put one venv's numpy path into every later venv), and it rewrites such a foreign
+    path, as it rewrites the wheel builder's."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'tools'))
+    from fix_ros_wheels import mend
+    line = '  INTERFACE_INCLUDE_DIRECTORIES "{py};{np}"\n'
+    builder = line.format(py='/opt/python/cp311-cp311/include/python3.11',
+                          np='/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include')
+    foreign = line.format(py='/usr/include/python3.11',
+                          np='/tmp/other/.venv/lib/python3.11/site-packages/numpy/_core/include')
+    cache, prefix = tmp_path / 'cache', tmp_path / 'venv'
+    cache.mkdir()
+    for pkg, text in (('std_msgs', builder), ('rcl_interfaces', foreign)):
+        (cache / pkg).write_text(text)
+        (prefix / 'share' / pkg / 'cmake').mkdir(parents=True)
+        os.link(cache / pkg, prefix / 'share' / pkg / 'cmake' / f'export_{pkg}__rosidl_generator_pyExport.cmake')
+    want = line.format(py='/py/include/python3.11', np=str(prefix / 'lib/python3.11/site-packages/numpy/_core/include'))
+    assert mend(prefix, '/py/include/python3.11', str(prefix / 'lib/python3.11/site-packages/numpy/_core/include')) == 2
+    for pkg, text in (('std_msgs', builder), ('rcl_interfaces', foreign)):
+        assert (prefix / 'share' / pkg / 'cmake' / f'export_{pkg}__rosidl_generator_pyExport.cmake').read_text() == want
+        assert (cache / pkg).read_text() == text            # the cache's file as uv unpacked it
+    assert mend(prefix, '/py/include/python3.11', str(prefix / 'lib/python3.11/site-packages/numpy/_core/include')) == 0
+
