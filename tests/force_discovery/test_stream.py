@@ -12,7 +12,6 @@ import json
 import math
 import time
 import tracemalloc
-import weakref
 
 import numpy as np
 import pytest
@@ -112,22 +111,12 @@ def test_streamed_report_is_the_one_pass_report(tmp_path):
     assert (tmp_path / 'streamed' / 'ringing.png').is_file() and (tmp_path / 'streamed' / 'residuals.png').is_file()
 
 
-def _traced_peak(camp, tmp, live: list, monkeypatch) -> int:
+def _traced_peak(camp, tmp, live: list) -> int:
     """tracemalloc's peak (bytes allocated by discover itself: the campaign's channels exist before) of a streamed
-    discovery in this process; live: the number of prepared pulls alive each time a pull finishes a stage. Every
-    Pull made is watched through a weak reference (made in Pull.__new__; searching the heap with gc.get_objects at
-    each of ~90 events cost more than the discovery), and no garbage collection runs between events: a pull must
-    be freed when its last reference goes, not left in a cycle for the collector."""
-    refs = []
-
-    def watched(cls, *args, **kwargs):
-        obj = object.__new__(cls)
-        refs.append(weakref.ref(obj))
-        return obj
-    monkeypatch.setattr(Pull, '__new__', watched)
-
+    discovery in this process; live: the number of prepared pulls alive each time a pull finishes a stage."""
     def progress(stage, done, total):
-        live.append(sum(r() is not None for r in refs))
+        gc.collect()
+        live.append(sum(isinstance(o, Pull) for o in gc.get_objects()))
     gc.collect()
     tracemalloc.start()
     try:
@@ -135,19 +124,18 @@ def _traced_peak(camp, tmp, live: list, monkeypatch) -> int:
         return tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-        monkeypatch.undo()
 
 
 @pytest.mark.slow
-def test_memory_is_flat_in_the_number_of_pulls(tmp_path, monkeypatch):
+def test_memory_is_flat_in_the_number_of_pulls(tmp_path):
     """The streamed discovery of 16 pulls allocates at its peak no more than that of 8 pulls (plus 10 %): the pulls
     pass through one at a time and only small results stay. Not timed: tracemalloc counts every numpy allocation
     exactly, the same on every run. And no prepared pull outlives its stage (counted when each pull finishes)."""
     small = make_campaign(None, seed=62, sets=(2, 3), pulls=4)
     large = make_campaign(None, seed=62, sets=(2, 3), pulls=8)
     live_small, live_large = [], []
-    peak_small = _traced_peak(small, tmp_path / 'small', live_small, monkeypatch)
-    peak_large = _traced_peak(large, tmp_path / 'large', live_large, monkeypatch)
+    peak_small = _traced_peak(small, tmp_path / 'small', live_small)
+    peak_large = _traced_peak(large, tmp_path / 'large', live_large)
     one_pull = sum(np.asarray(v).nbytes for v in large[0][1].values())   # one pull's channels
     # the measure sees the work (a pull is prepared, filtered and re-simulated) ...
     assert peak_small > one_pull, (peak_small, one_pull)
