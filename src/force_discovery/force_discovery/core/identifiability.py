@@ -89,11 +89,11 @@ def full_identifiability(tested: Sequence[str]) -> Tuple[list, list]:
 
 def identifiability_lines(report: dict) -> list:
     """report.md's lines on what the channels identify (both paths)."""
-    if 'identifiable' not in report:
+    yes, no = report.get('identifiable'), report.get('not_identifiable')
+    if not isinstance(yes, list):   # absent, or {'not_available': why} (no usable pull: nothing was analysed)
         return []
-    out = ['## Identifiable from these channels', '',
-           ', '.join(q['quantity'] for q in report['identifiable']) or '-', '']
-    if report['not_identifiable']:
-        out += ['Not identifiable:', ''] + [f'- {q["quantity"]}: {q["reason"]}' for q in report['not_identifiable']]
+    out = ['## Identifiable from these channels', '', ', '.join(q['quantity'] for q in yes) or '-', '']
+    if isinstance(no, list) and no:
+        out += ['Not identifiable:', ''] + [f'- {q["quantity"]}: {q["reason"]}' for q in no]
         out.append('')
     return out
