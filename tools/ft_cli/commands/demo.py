@@ -38,6 +38,7 @@ EXT_NS = '/extension'   # the extension pair's topics: /extension/force_correcte
 EXT_SCORE_TOPIC = EXT_NS + PULL_SCORE_TOPIC
 EXT_CORRECTION = 'correction_extension'   # the extension pair's node names (graph.launch.xml names them alike)
 EXT_VALIDATOR = 'validator_extension'
+GRAPH_UP_S = 120.0   # how long the nodes may take to subscribe before the sim starts
 
 
 def add_arguments(p):
@@ -169,7 +170,13 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
         want = {CORRECTED_TOPIC: 2, '/force': 1 + 2 * pairs, PULL_EVENT_TOPIC: 1 + pairs}
         if extension:
             want[EXT_NS + CORRECTED_TOPIC] = 1
-        collector.wait_for_graph(want, timeout=30)
+        # every node up before the first pull (on a loaded machine six processes take more than 30 s to start; a
+        # pair that came up during pull 0 scored it from part of its blocks)
+        if not collector.wait_for_graph(want, timeout=GRAPH_UP_S):
+            short = {t: f'{collector.node.count_subscribers(t)}/{n}' for t, n in want.items()
+                     if collector.node.count_subscribers(t) < n}
+            raise RuntimeError(f'the graph was not up after {GRAPH_UP_S:.0f} s: subscribers (have/want) {short}, '
+                               f'nodes that died {graph.dead()}')
         graph.start('force_tester_sim', 'sim_node', {
             'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
             'rate': float(rate), 'wait_for_subscribers': 1 + pairs, 'exit_when_done': True, **rig_params(rig)})
