@@ -25,7 +25,8 @@ from pathlib import Path
 import pytest
 from daq_data import removed_warning
 
-from netlab.dask_hosts import discover_first_pass, run_campaign
+from force_discovery.core.passes import read_pass
+from netlab.dask_hosts import run_campaign
 from netlab.netns import STAR_SUBNET, Impairment, probe
 
 pytestmark = pytest.mark.netns
@@ -152,10 +153,12 @@ def test_discovery_finds_the_same_with_the_host_lost(runs):
     assert (ref / 'extension.yaml').read_bytes() == (out / 'extension.yaml').read_bytes()
 
 
+# discover's first pass over the pulls, as the engine names its tasks (pull-<function>-...)
+DISCOVER_FIRST_PASS = f'pull-{read_pass.__name__}-'
 SCHEDULER_LOST = {   # command, the task key prefix on which A is lost, the output it must not leave
     'import': (['bag', 'import', '{campaign}', '{out}'], 'pull-read_pull-'),
     'export': (['bag', 'export', '{bag}', '{out}'], 'pull-write_pull-'),
-    'discover': (['discover', '{campaign}', '--out', '{out}'], discover_first_pass()),
+    'discover': (['discover', '{campaign}', '--out', '{out}'], DISCOVER_FIRST_PASS),
 }
 
 

@@ -141,12 +141,6 @@ class StageClock:
                 self.i += 1
 
 
-def discover_first_pass() -> str:
-    """The task key prefix of discover's first pass over the pulls (the engine names keys pull-<function>-...)."""
-    from force_discovery.core.passes import read_pass
-    return f'pull-{read_pass.__name__}-'
-
-
 def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment | None = None,
                  lose: str | None = 'c', lose_on: str | None = None, back: bool = False,
                  lose_in: tuple = (), timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
@@ -167,7 +161,8 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
     (``losses``: stage, lost_s, dropped_s when the scheduler let its workers go, back_s, registered_s, used_s and
     the first task a new worker of the host processed), the tasks each worker ran (``executed``), the link
     counters."""
-    lose_on = discover_first_pass() if lose_on is None else lose_on
+    if lose is not None and not lose_in and not lose_on:
+        raise ValueError(f'lose={lose!r} needs lose_on (a task key prefix) or lose_in (stages)')
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     res = {'rc': None, 'stdout': '', 'stderr': '', 'removed': [], 'lost_s': None, 'back_s': None,
