@@ -112,11 +112,6 @@ def catalog_truths(truth: dict) -> dict:
     return out
 
 
-def hidden(truth: dict) -> list:
-    """The names of the truth's catalog departures."""
-    return [d['catalog']['name'] for d in truth['departures'] if d.get('catalog')]
-
-
 def beyond_term(truth: dict):
     """The first grammar term the truth's departures state ({channel, term, coefficient}), or None when the
     departure has none (its physics is outside the grammar)."""
