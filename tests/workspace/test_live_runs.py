@@ -157,12 +157,11 @@ class EventWatch:
         from force_tester_msgs.msg import PullEvent
 
         from force_tester_common.ros import EVENT_QOS
-        self.collector, self.started = collector, set()
+        self.collector, self.started, self.ended = collector, set(), set()
         collector.node.create_subscription(PullEvent, '/pull_event', self._on_event, EVENT_QOS)
 
     def _on_event(self, msg):
-        if msg.event == msg.START:
-            self.started.add(msg.pull_id)
+        (self.started if msg.event == msg.START else self.ended).add(msg.pull_id)
 
     def wait_start(self, pull_id, timeout=120, alive=lambda: True) -> bool:
         deadline = time.monotonic() + timeout
@@ -264,8 +263,8 @@ def test_a_restarted_validator_keeps_its_scores(tmp_path, ros_domain):
 
 def test_each_validator_follows_its_own_correction(tmp_path, ros_domain):
     """The demo's two pairs (the plain one and the extension's, as `./ft demo` starts them): the window of
-    /correction changed mid-pull 1 marks the plain pull 1 RECONFIGURED and not the extension's; the window of
-    /correction_extension changed mid-pull 3 marks the extension's pull 3 and not the plain one (issue 41)."""
+    /correction changed mid-pull (1, else 2) marks that plain pull RECONFIGURED and not the extension's; the window
+    of /correction_extension changed two pulls later marks the extension's pull and not the plain one (issue 41)."""
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
@@ -278,13 +277,20 @@ def test_each_validator_follows_its_own_correction(tmp_path, ros_domain):
     events = EventWatch(collector)
     alive = lambda: not graph.dead()  # noqa: E731
 
-    def set_window(node, pull_id):
-        assert events.wait_start(pull_id, alive=alive), graph.tail('sim_node')
-        client = AsyncParameterClient(collector.node, node)
-        assert client.wait_for_services(timeout_sec=30)
-        future = client.set_parameters([Parameter('window', value=200)])
-        collector.executor.spin_until_future_complete(future, timeout_sec=30)
-        assert future.done() and all(r.successful for r in future.result().results)
+    def set_window_mid_pull(client, pull_ids, value):
+        """The window set while one of pull_ids runs: the first pull whose END had not come when the change was
+        acknowledged (on a loaded machine the sim may finish a pull before the call returns: then the next)."""
+        for pull_id in pull_ids:
+            assert events.wait_start(pull_id, alive=alive), graph.tail('sim_node')
+            if pull_id in events.ended:
+                continue
+            future = client.set_parameters([Parameter('window', value=value)])
+            collector.executor.spin_until_future_complete(future, timeout_sec=30)
+            assert future.done() and all(r.successful for r in future.result().results)
+            if pull_id not in events.ended:
+                return pull_id
+            value += 1   # a new value, so the next try is a change too
+        raise AssertionError(f'pulls {pull_ids} all ended before the change of window was acknowledged')
     try:
         graph.start('force_correction', 'correction_node')
         graph.start('force_correction', 'validator_node')
@@ -292,17 +298,18 @@ def test_each_validator_follows_its_own_correction(tmp_path, ros_domain):
             graph.start('force_correction', f'{exe}_node', **kw)
         wanted = {'/force_corrected': 1, '/extension/force_corrected': 1, '/force': 4, '/pull_event': 3}
         assert collector.wait_for_graph(wanted, timeout=60), {t: collector.node.count_subscribers(t) for t in wanted}
-        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 4, 'rate': 0.5,
-                                                      'wait_for_subscribers': 3})
-        assert collector.wait(1, 120, alive=alive), graph.tail('validator_node')
-        set_window('correction', 1)
-        assert collector.wait(3, 120, alive=alive), graph.tail(EXT_CORRECTION)
-        set_window(EXT_CORRECTION, 3)
-        assert collector.wait(4, 120, alive=alive), graph.tail('validator_extension')
+        # the parameter services are found before the sim starts: a change is then one round trip
+        plain_client, ext_client = (AsyncParameterClient(collector.node, n) for n in ('correction', EXT_CORRECTION))
+        assert plain_client.wait_for_services(timeout_sec=60) and ext_client.wait_for_services(timeout_sec=60)
+        graph.start('force_tester_sim', 'sim_node', {'test_sets': '[3]', 'pulls_per_set': 6, 'rate': 0.5,
+                                                      'wait_for_subscribers': 3, 'wait_for_block_subscribers': 4})
+        plain_pull = set_window_mid_pull(plain_client, (1, 2), 200)
+        ext_pull = set_window_mid_pull(ext_client, (plain_pull + 2, plain_pull + 3), 200)
+        assert collector.wait(ext_pull + 1, 120, alive=alive), graph.tail('validator_extension')
     finally:
         graph.stop()
         collector.close()
     plain = {s['pull_id']: s['status'] for s in collector.scores}
     ext = {s['pull_id']: s['status'] for s in collector.also_scores[EXT_SCORE_TOPIC]}
-    assert plain[1] == PULL_RECONFIGURED != plain[3], plain
-    assert ext[3] == PULL_RECONFIGURED != ext[1], ext
+    assert plain[plain_pull] == PULL_RECONFIGURED != plain[ext_pull], (plain_pull, ext_pull, plain)
+    assert ext[ext_pull] == PULL_RECONFIGURED != ext[plain_pull], (plain_pull, ext_pull, ext)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import socket
 import threading
 import uuid
 from typing import Any, Callable, Iterable, List, Optional, Sequence, Tuple
@@ -106,11 +107,31 @@ def _embedded(retries: int):
     return client, cluster, f'embedded LocalCluster ({n} worker processes x 1 thread) at {cluster.scheduler_address}'
 
 
+def _probe(address: str, timeout: float) -> None:
+    """A plain TCP connect before Dask is imported: a port nobody listens on is refused at once, so the one
+    line comes in well under a second instead of after Dask's retries for the whole timeout."""
+    scheme, rest = address.split('://', 1)
+    host, _, port = rest.rpartition(':')
+    if scheme != 'tcp' or not port.isdigit():
+        return   # another transport, or no port: Dask's own connect judges it
+    try:
+        socket.create_connection((host.strip('[]') or '127.0.0.1', int(port)), timeout=timeout).close()
+    except OSError as exc:
+        why = f'no answer within {timeout:g} s' if isinstance(exc, TimeoutError) else (exc.strerror or one_line(exc))
+        raise _unreachable(address, why.lower()) from None
+
+
+def _unreachable(address: str, why: str) -> EngineError:
+    return EngineError(f'scheduler {address!r} is unreachable ({why}); expected a running dask scheduler there '
+                       f'(no --scheduler, no ${SCHEDULER_ENV}: a local one)')
+
+
 def _connect(address: str, timeout: float):
     if '://' not in address or not address.split('://', 1)[1]:
         raise EngineError(f'scheduler address {address!r} is invalid; expected tcp://HOST:PORT '
                           f'(a running dask scheduler), or leave out --scheduler and ${SCHEDULER_ENV} '
                           'for the embedded cluster')
+    _probe(address, timeout)
     import logging
 
     import dask
@@ -122,8 +143,7 @@ def _connect(address: str, timeout: float):
             client = Client(address, timeout=timeout, set_as_default=False)
     except Exception as exc:  # noqa: BLE001 - refused, unresolvable, timed out, not a scheduler
         why = f'no answer within {timeout:g} s' if 'Timed out' in str(exc) else one_line(exc)
-        raise EngineError(f'scheduler {address!r} is unreachable ({why}); expected a running dask scheduler '
-                          f'there (no --scheduler, no ${SCHEDULER_ENV}: a local one)') from None
+        raise _unreachable(address, why) from None
     info = client.scheduler_info()
     workers = info.get('workers', {})
     threads = sum(w.get('nthreads', 0) for w in workers.values())

@@ -51,6 +51,9 @@ SPECS = [
     ParamSpec('wait_for_subscribers', 1, 'before publishing, wait until /force and /pull_event each have this '
                                          'many matched subscribers, and no more match for SETTLE_S (0: at once)',
               (0, 100)),
+    ParamSpec('wait_for_block_subscribers', 0, 'wait_for_subscribers for /force alone, when it has more readers '
+                                               'than /pull_event (the correction nodes read it too; 0: as many as '
+                                               'wait_for_subscribers)', (0, 100)),
     ParamSpec('wait_timeout_s', WAIT_TIMEOUT_S, 'wait_for_subscribers: give up after this many seconds '
                                                 'without the readers: the node exits (code 2) with one line '
                                                 'naming the topics, their readers and what to start (0: wait '
@@ -103,14 +106,16 @@ class SimNode(Node):
                 return
             self.diag.report(ERROR, f'simulation stopped: {exc}', latch=True)
 
-    def _wait_for_subscribers(self, want: int, timeout_s: float) -> bool:
-        """Wait until the block and event publishers have ``want`` matched subscribers each and
-        the counts have not changed for SETTLE_S (readers discovered together all match; a pull
-        event sent before a reader matched would be lost to it). False if the node stops, or
-        after ``timeout_s`` (0: no limit): then the node fails (``failure``, one line)."""
-        if not want:
+    def _wait_for_subscribers(self, want: int, want_blocks: int, timeout_s: float) -> bool:
+        """Wait until the event publisher has ``want`` matched subscribers and the block publisher
+        ``want_blocks`` (0: want), and the counts have not changed for SETTLE_S (readers discovered
+        together all match; a pull event or block sent before a reader matched would be lost to it).
+        False if the node stops, or after ``timeout_s`` (0: no limit): then the node fails
+        (``failure``, one line)."""
+        if not want and not want_blocks:
             return True
         pubs = [self.event_pub] + [p for t, p in self.block_pubs if t.topic == FORCE_TOPIC]
+        wants = [want, want_blocks or want]
         counts, start = None, time.monotonic()
         since = start
         while True:
@@ -118,16 +123,17 @@ class SimNode(Node):
             if now != counts:
                 counts, since = now, time.monotonic()
                 self.get_logger().info('matched subscribers: ' + ', '.join(
-                    f'{p.topic_name} {n}' for p, n in zip(pubs, now)) + f' (waiting for {want} each)')
-            if min(now) >= want and time.monotonic() - since >= SETTLE_S:
+                    f'{p.topic_name} {n}' for p, n in zip(pubs, now)) + ' (waiting for ' + (
+                    f'{want} each)' if wants[0] == wants[1] else f'{wants[0]} and {wants[1]})'))
+            if all(n >= w for n, w in zip(now, wants)) and time.monotonic() - since >= SETTLE_S:
                 return True
             if timeout_s and time.monotonic() - start >= timeout_s:
-                self._give_up(pubs, now, want, timeout_s)
+                self._give_up(pubs, now, wants, timeout_s)
                 return False
             if self._stop.wait(0.05):
                 return False
 
-    def _give_up(self, pubs, counts, want: int, timeout_s: float) -> None:
+    def _give_up(self, pubs, counts, wants, timeout_s: float) -> None:
         """The readers never came: one line saying which topics (resolved names), the readers they
         have, the readers wanted and what to start; then the node shuts down (spin_nodes prints it)."""
         have = []
@@ -135,21 +141,24 @@ class SimNode(Node):
             nodes = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
                             for i in self.get_subscriptions_info_by_topic(pub.topic_name)})
             have.append(f"{pub.topic_name} has {n} ({', '.join(nodes) or 'no reader'})")
-        short = [(pub.topic_name, topic) for pub, n, topic in zip(pubs, counts, (PULL_EVENT_TOPIC, FORCE_TOPIC))
-                 if n < want]
+        short = [(pub.topic_name, topic)
+                 for pub, n, w, topic in zip(pubs, counts, wants, (PULL_EVENT_TOPIC, FORCE_TOPIC)) if n < w]
         start = '; '.join(f'{name}: {READERS[topic]}' for name, topic in short)
         namespace = self.get_namespace()
         where = f' with -r __ns:={namespace}' if namespace != '/' else ''
+        waiting = (f'waiting for {wants[0]} on each (wait_for_subscribers {wants[0]})' if wants[0] == wants[1] else
+                   f'waiting for {wants[0]} and {wants[1]} (wait_for_subscribers {wants[0]}, '
+                   f'wait_for_block_subscribers {wants[1]})')
         self.failure = SimError(
-            f'no readers after {timeout_s:g} s (wait_timeout_s): {"; ".join(have)}; waiting for {want} on each '
-            f'(wait_for_subscribers {want}). Start the missing reader(s){where} ({start}), or set '
-            f'wait_for_subscribers to the readers you run')
+            f'no readers after {timeout_s:g} s (wait_timeout_s): {"; ".join(have)}; {waiting}. Start the missing '
+            f'reader(s){where} ({start}), or set wait_for_subscribers to the readers you run')
         self.diag.report(ERROR, str(self.failure), log=False, latch=True)
         self.context.try_shutdown()
 
     def _publish_all(self):
-        if not self._wait_for_subscribers(self.params.values['wait_for_subscribers'],
-                                          self.params.values['wait_timeout_s']):
+        values = self.params.values
+        if not self._wait_for_subscribers(values['wait_for_subscribers'], values['wait_for_block_subscribers'],
+                                          values['wait_timeout_s']):
             return
         config = self.params.config
         pulls = list(self._schedule(config))

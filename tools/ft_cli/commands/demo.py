@@ -179,7 +179,8 @@ def run_live(out: Path, sets, pulls: int, seed: int, rate: float, timeout: float
                                f'nodes that died {graph.dead()}')
         graph.start('force_tester_sim', 'sim_node', {
             'test_sets': '[' + ','.join(str(s) for s in sets) + ']', 'pulls_per_set': pulls, 'seed': seed,
-            'rate': float(rate), 'wait_for_subscribers': 1 + pairs, 'exit_when_done': True, **rig_params(rig)})
+            'rate': float(rate), 'wait_for_subscribers': want[PULL_EVENT_TOPIC],
+            'wait_for_block_subscribers': want['/force'], 'exit_when_done': True, **rig_params(rig)})
         say(f'demo: {expected} pull(s) of 2 s at 50 kHz, sets {list(sets)}, {rig} rig; logs in {graph.log_dir}')
         ok = collector.wait(expected, timeout, alive=lambda: not graph.dead(),
                             progress=lambda sc: say(f"demo: scored pull {sc['pull_id'] + 1}/{expected} "
