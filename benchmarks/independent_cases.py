@@ -13,6 +13,9 @@ record the benchmark alone reads) and the truths each benchmark scores against.
 """
 from __future__ import annotations
 
+import hashlib
+import os
+import pickle
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,10 +62,39 @@ class Case:
     seed: int            # the seed that made it (the one asked for, or a redraw's)
 
 
+#: where made campaigns are kept (a campaign takes ~20 s to make and ~5 s to discover): $FT_BENCH_CACHE, else
+#: runs/cache/independent; keyed by the generator's source, so a change to it makes them anew
+CACHE_ENV = 'FT_BENCH_CACHE'
+
+
+def _cache_path(seed: int, departures, pulls: int, sets, all_channels: bool) -> Path:
+    src = hashlib.sha256()
+    for f in sorted(Path(R.__file__).parent.glob('*.py')):
+        src.update(f.read_bytes())
+    key = repr((src.hexdigest(), seed, departures, pulls, tuple(sets), all_channels)).encode()
+    root = Path(os.environ.get(CACHE_ENV) or ROOT / 'runs' / 'cache' / 'independent')
+    return root / f'{hashlib.sha256(key).hexdigest()[:24]}.pickle'
+
+
 def case(seed: int, departures, *, pulls: int = PULLS, sets=SETS, all_channels: bool = True) -> Case:
     """An independent campaign with these departures (a list of {'name': ...}, [] for none, or 'catalog' /
-    'beyond' / 'draw' for the generator's own draw). A drawn rig that cannot make an admissible pull of one of the
-    sets (the generator's rejection rules give up on it) is drawn again with the next seed, said on stderr."""
+    'beyond' / 'draw' for the generator's own draw), from the cache when it was made before. A drawn rig that
+    cannot make an admissible pull of one of the sets (the generator's rejection rules give up on it) is drawn
+    again with the next seed, said on stderr."""
+    path = _cache_path(seed, departures, pulls, sets, all_channels)
+    if path.is_file():
+        with path.open('rb') as f:
+            return pickle.load(f)  # noqa: S301 - this benchmark's own files
+    made = _make(seed, departures, pulls, sets, all_channels)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f'.{os.getpid()}.tmp')
+    with tmp.open('wb') as f:
+        pickle.dump(made, f)
+    os.replace(tmp, path)
+    return made
+
+
+def _make(seed: int, departures, pulls: int, sets, all_channels: bool) -> Case:
     for k in range(REDRAWS):
         s = seed + k * REDRAW_STEP
         try:
