@@ -131,7 +131,7 @@ def tolerance(cause: str, par: str, rig, truth: float) -> float:
     generator's identification tolerance."""
     b = band(cause, rig.tolerances, rig.force_chain.m2)
     if b.parameter == par and math.isfinite(b.hi) and (cause not in ('mains_hum', 'coulomb_friction', 'accel_delay')
-                                                        or b.lo == 0.0):
+                                                        or b.lo <= 0.0):
         return 0.5 * (b.hi - b.lo) if b.lo > 0 else b.hi
     rel, ab = G.TOLERANCE[par]
     return max(rel * abs(truth), ab)

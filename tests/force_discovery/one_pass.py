@@ -101,9 +101,10 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
                   for p in cand[t].parameters} for t in TERMS}
     ld = B.load_dependence(ForceModel(pulls, m2, hums), B.load_groups(fit, [p.peak for p in pulls]), m2, u_stat,
                            delay)
+    mf = B.extra_systematics(lambda extra: ForceModel(pulls, m2, hums, extra=extra), fit, m2)
     for t, params in fs.items():
         for p, comps in params.items():
-            out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+            out.setdefault(t, {})[p] = {**comps, **mf[t][p], **({'load_dependence': ld[t][p]} if t in ld else {})}
     few = few_pulls(fit)
     hum_freqs = hum_frequencies([pre_residual(pulls[j], m2) for j in few], cand['mains_hum'].parameters['frequency_hz'])
     out.update(B.pull_to_pull_parts(cand, [free_decay_mode(pulls[j]) for j in few], hum_freqs))

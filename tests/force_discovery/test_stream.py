@@ -73,8 +73,10 @@ def test_streamed_report_is_the_one_pass_report(tmp_path):
     from force_discovery.core.report import clean
     from force_discovery.core.stream import Stream
     from force_tester_common.engine import Mapper
+    # (the hum at 4 N: with 4 held-out pulls a 3 N hum's t sits at the significance threshold of 4, 3.99 on this
+    # seed since the delay became a shift, and this test is about the two paths agreeing, not the hum's power)
     deps = {'mount_resonance': {'frequency_hz': 1100.0, 'damping_ratio': 0.02}, 'coulomb_friction': {'force_n': 120.0},
-            'mains_hum': {'frequency_hz': 50.0, 'amplitude_n': 3.0}, 'accel_delay': {'delay_s': 4e-5},
+            'mains_hum': {'frequency_hz': 50.0, 'amplitude_n': 4.0}, 'accel_delay': {'delay_s': 4e-5},
             'moving_cell_gain': {'gain': 1.02}, 'effective_mass': {'mass_kg': 1.3}}
     camp = make_campaign(deps, seed=61, sets=(2, 3), pulls=4)
     rig = load_rig()

@@ -11,7 +11,9 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
 - model form: the same refits under plausible variants of the model of record: the cells' damping one standard
   uncertainty off (the rig's, or when the free decay measured it, the measurement's: cell_damping_u), a 4th-order
   Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
-  later, 50 ms earlier).
+  later, 50 ms earlier). And, on every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
+  the model of record has the two cells simultaneous; a DAQ that samples its channels in turn, or a stationary cell
+  that lags, makes them not): what the data say about an assumption the model cannot test on its own.
 - DAQ: the sample clock's relative uncertainty (rig daq.sample_rate_hz) on every time or frequency parameter.
   The samples' resolution and noise act pull to pull: they are in the statistical part.
 - definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
@@ -38,7 +40,7 @@ import numpy as np
 from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 
 from .candidate import Candidate
-from .force_model import TERMS, force_params
+from .force_model import EXTRA, TERMS, force_params
 from .force_stats import ForceStats
 from .friction import friction_row, friction_stat
 from .prep import Pull, tension_from_stationary
@@ -57,6 +59,7 @@ KIND = {STATISTICAL: 'statistical',
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
         'cell_damping': 'model form', 'anti_alias_filter': 'model form', 'analysis_window': 'model form',
+        'tension_timing': 'model form',
         'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
 FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window')
 DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
@@ -171,6 +174,12 @@ def force_systematics(fm_nominal, fm_variants: Mapping[str, object], idx: Sequen
                 scale = rate_scale(1.0 / v if v > 0 else math.inf) if term == 'ac_coupling' else 1.0
                 out.setdefault(term, {}).setdefault(par, {})[name] = abs(pv[term][par] - v) / scale
     return out
+
+
+def extra_systematics(model_with, fit: Sequence[int], m2: float) -> dict:
+    """force_systematics of the force model with each EXTRA regressor added against the model of record, on every
+    fitted pull (model_with(extra): a ForceModel or ForceStats of the campaign with those regressors)."""
+    return force_systematics(model_with(()), {e: model_with((e,)) for e in EXTRA}, fit, m2)
 
 
 def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
@@ -369,11 +378,13 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
                                range(len(vidx)), m2)
         u_stat = {t: {p: (rate_stat_u(t, cand[t]) if t == 'ac_coupling' else statistical_u(t, cand[t], p))
                       for p in cand[t].parameters} for t in TERMS}
-        all_blocks = ForceStats([st.blocks for st in stats], [st.dt for st in stats], m2, scales)
+        blocks, dts = [st.blocks for st in stats], [st.dt for st in stats]
+        all_blocks = ForceStats(blocks, dts, m2, scales)
         ld = load_dependence(all_blocks, load_groups(fit, peaks), m2, u_stat, delay)
+        mf = extra_systematics(lambda extra: ForceStats(blocks, dts, m2, scales, extra=extra), fit, m2)
         for t, params in fs.items():
             for p, comps in params.items():
-                out.setdefault(t, {})[p] = {**comps, **({'load_dependence': ld[t][p]} if t in ld else {})}
+                out.setdefault(t, {})[p] = {**comps, **mf[t][p], **({'load_dependence': ld[t][p]} if t in ld else {})}
     out.update(pull_to_pull_parts(cand, modes, hum_freqs))
     if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
         out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint))}
@@ -381,6 +392,6 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
 
 
 __all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
-           'clock_relative', 'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants',
-           'honest', 'honest_all', 'load_dependence', 'load_groups', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u',
-           'statistical_u', 'term_budget', 'variant_pulls']
+           'clock_relative', 'extra_systematics', 'force_systematics', 'force_variants', 'friction_systematics',
+           'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups', 'pull_to_pull_parts',
+           'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget', 'variant_pulls']

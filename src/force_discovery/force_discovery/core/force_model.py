@@ -1,6 +1,15 @@
 """The force model: F_move - hum = g T + M a2(t + d) - k C on the analysis window, fitted over the pulls' samples
 (ForceModel; force_stats.ForceStats answers the same questions from per-pull sufficient statistics), and its
-coefficients as catalog parameters with their intervals. ROS-free."""
+coefficients as catalog parameters with their intervals. ROS-free.
+
+The accelerometer's delay d is a shift of a2 (shift.Shifter: band-limited, exact), not an interpolation between
+samples: a real sensor's or DAQ's delay does not low-pass the channel it delays, and an interpolated one does (by
+5 % at a 3 kHz mode sampled at 10 kHz, half a sample off), which the effective mass then takes up. The delay is
+searched on a grid (delay_grid) from a lead (d < 0: a DAQ that samples its channels in turn samples the
+accelerometer after the moving cell) to a lag; between two grid delays a fit uses the two neighbours' normal
+equations, weighted linearly (design(): both neighbours' rows, each scaled by the square root of its weight), so
+every fit is one least-squares problem whatever d is, and the statistics of force_stats reproduce it.
+"""
 from __future__ import annotations
 
 import math
@@ -8,73 +17,146 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from force_tester_sim.core.departures import fractional_delay
+from force_tester_sim.core.shift import Shifter
 
+from .errors import DiscoveryError
 from .prep import Pull
 from .uncertainty import jackknife_ci
 
 TERMS = ('moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling')
+DELAY_MAX_S = 200e-6       # the delay search: the accelerometer lags the force by up to this ...
+DELAY_LEAD_S = 50e-6       # ... or leads it by up to this (a DAQ's channel skew, a moving cell that lags)
+DELAY_STEP_MAX_S = 5e-6    # the grid's step: half a sample, but not coarser than this (the normal equations are
+                           # weighted linearly between grid delays: a bias of the order of the step squared)
+
+
+#: regressors a model-form variant adds (budget: extra_systematics): the tension's own timing against the moving
+#: cell, T's rate in N per us of shift (the model of record has the two cells simultaneous; a DAQ that samples its
+#: channels in turn, or a stationary cell that lags, makes them not)
+EXTRA = ('tension_timing',)
+TIMING_UNIT_S = 1e-6
+
+
+def tension_rate(p: Pull) -> np.ndarray:
+    """The tension_timing column over the whole record: dT/dt (band-limited) times TIMING_UNIT_S."""
+    return Shifter(p.T, p.dt).rate() * TIMING_UNIT_S
+
+
+def delay_grid(dt: float) -> np.ndarray:
+    """The delays the force model tries: -DELAY_LEAD_S .. DELAY_MAX_S (to whole steps), 0 included."""
+    step = min(dt / 2, DELAY_STEP_MAX_S)
+    return np.arange(-int(math.ceil(DELAY_LEAD_S / step - 1e-9)), int(math.floor(DELAY_MAX_S / step + 1e-9)) + 1) * step
+
+
+def grid_weights(grid: np.ndarray, d: float) -> Tuple[int, float]:
+    """(i, f): d lies between grid[i] and grid[i + 1], a share f of the way (clipped to the grid)."""
+    x = (d - grid[0]) / (grid[1] - grid[0])
+    i = min(max(int(math.floor(x)), 0), len(grid) - 2)
+    return i, min(max(x - i, 0.0), 1.0)
+
+
+def checked_extra(extra: Sequence[str]) -> tuple:
+    bad = [e for e in extra if e not in EXTRA]
+    if bad:
+        raise DiscoveryError(f'extra regressor(s) {bad} unknown; expected some of {list(EXTRA)}')
+    return tuple(extra)
 
 
 class ForceModel:
-    """F_move - hum = g T + M a2(t + d) - k C on W (C: running integral of F_move - hum over the whole record).
+    """F_move - hum = g T + M a2(t + d) - k C on W (C: running integral of F_move - hum over the whole record)."""
 
-    The accelerometer delay is applied to the force side (F_move, T, C delayed by d with linear interpolation),
-    so a linearly interpolated (low-passing) delay in the accelerometer path is matched exactly."""
-
-    def __init__(self, pulls: Sequence[Pull], m2: float, hums: Optional[Sequence] = None):
-        """hums: the mains-hum estimate per pull (whole record) to subtract from F_move, or None."""
+    def __init__(self, pulls: Sequence[Pull], m2: float, hums: Optional[Sequence] = None, extra: Sequence[str] = ()):
+        """hums: the mains-hum estimate per pull (whole record) to subtract from F_move, or None; extra: EXTRA
+        regressors every fit adds."""
         self.m2 = m2
         self.pulls = pulls
+        self.extra = checked_extra(extra)
+        self.rates = [tension_rate(p)[p.w0:p.w1] for p in pulls] if self.extra else []
         self.full = []
         for p, h in zip(pulls, hums if hums is not None else [None] * len(pulls)):
             y = p.fm - (h if h is not None else 0.0)
-            self.full.append((y, p.T, np.cumsum(y) * p.dt))
-        self.a2 = [p.a2[p.w0:p.w1] for p in pulls]
+            self.full.append((y[p.w0:p.w1], p.T[p.w0:p.w1], (np.cumsum(y) * p.dt)[p.w0:p.w1]))
+        self._shifters: Dict[int, Shifter] = {}
         self._cache: Dict[float, list] = {}
 
-    def at(self, d: float) -> list:
-        key = round(d, 10)
+    def a2_at(self, j: int, d: float) -> np.ndarray:
+        """Pull j's a2(t + d) on W."""
+        key = round(d, 12)
         if key not in self._cache:
-            if len(self._cache) > 64:
+            if len(self._cache) > 128:
                 self._cache.clear()
-            out = []
-            for p, arrs in zip(self.pulls, self.full):
-                m = min(p.w0, 16)   # d <= 200 us = 10 samples: a short lead-in is enough
-                out.append(tuple(fractional_delay(a[p.w0 - m:p.w1], d / p.dt)[m:] for a in arrs))
-            self._cache[key] = out
-        return self._cache[key]
-
-    def design(self, terms, d, idx, masked=True):
-        """(y adjusted for fixed terms, regressor matrix, column names) per pull of idx, on W: the usable samples
-        only (masked=True), or all of W."""
-        sig = self.at(d if 'accel_delay' in terms else 0.0)
-        a2 = self.a2
-        ys, Xs = [], []
-        for j in idx:
-            y0, Tj, Cj = sig[j]
-            y = y0.copy()
-            cols, names = [], []
-            if 'moving_cell_gain' in terms:
-                if 'effective_mass' in terms:
-                    cols += [Tj, a2[j]]
-                    names += ['g', 'M']
-                else:
-                    cols += [Tj + self.m2 * a2[j]]
-                    names += ['g']
+            self._cache[key] = [None] * len(self.pulls)
+        row = self._cache[key]
+        if row[j] is None:
+            p = self.pulls[j]
+            if d == 0.0:
+                row[j] = p.a2[p.w0:p.w1]
             else:
-                y = y - Tj
-                if 'effective_mass' in terms:
-                    cols += [a2[j]]
-                    names += ['M']
-                else:
-                    y = y - self.m2 * a2[j]
-            if 'ac_coupling' in terms:
-                cols += [-Cj]
-                names += ['k']
-            ok = self.pulls[j].usable(self.pulls[j].w0, self.pulls[j].w1) if masked else slice(None)
-            ys.append(y[ok])
-            Xs.append(np.column_stack(cols)[ok] if cols else np.zeros((len(ys[-1]), 0)))
+                if j not in self._shifters:
+                    self._shifters[j] = Shifter(p.a2, p.dt)
+                row[j] = self._shifters[j](d)[p.w0:p.w1]
+        return row[j]
+
+    def delay_grid(self) -> np.ndarray:
+        return delay_grid(self.pulls[0].dt)
+
+    def _columns(self, terms, j: int, a2: np.ndarray, m2: float):
+        """(y, columns, names) of pull j's design on W given its a2 there (ForceStats._combination's, in samples)."""
+        y0, Tj, Cj = self.full[j]
+        y = y0.copy()
+        cols, names = [], []
+        if 'moving_cell_gain' in terms:
+            if 'effective_mass' in terms:
+                cols += [Tj, a2]
+                names += ['g', 'M']
+            else:
+                cols += [Tj + m2 * a2]
+                names += ['g']
+        else:
+            y = y - Tj
+            if 'effective_mass' in terms:
+                cols += [a2]
+                names += ['M']
+            else:
+                y = y - m2 * a2
+        if 'ac_coupling' in terms:
+            cols += [-Cj]
+            names += ['k']
+        for e in self.extra:
+            cols += [self.rates[j]]
+            names += [e]
+        return y, cols, names
+
+    def design(self, terms, d, idx, masked=True, t2=False):
+        """(ys, Xs, names) per pull of idx, on W: y adjusted for the fixed terms and the regressors (t2: T^2
+        appended as the last column). masked=True: the usable samples, and between two grid delays both
+        neighbours' rows, scaled by the square roots of their weights (module doc); masked=False: all of W with
+        a2 shifted by d itself (a residual to look at, not to fit)."""
+        d = d if 'accel_delay' in terms else 0.0
+        grid = self.delay_grid()
+        ys, Xs, names = [], [], []
+        for j in idx:
+            p = self.pulls[j]
+            if not masked:
+                y, cols, names = self._columns(terms, j, self.a2_at(j, d), self.m2)
+                ys.append(y)
+                Xs.append(np.column_stack(cols) if cols else np.zeros((len(y), 0)))
+                continue
+            ok = p.usable(p.w0, p.w1)
+            parts = [(0.0, 1.0)]
+            if d != 0.0:
+                i, f = grid_weights(grid, d)
+                parts = [(dk, w) for dk, w in ((grid[i], 1.0 - f), (grid[i + 1], f)) if w > 0]
+            yy, XX = [], []
+            for dk, w in parts:
+                y, cols, names = self._columns(terms, j, self.a2_at(j, dk), self.m2)
+                if t2:
+                    cols = cols + [self.full[j][1] ** 2]
+                r = math.sqrt(w)
+                yy.append(r * y[ok])
+                XX.append(r * np.column_stack(cols)[ok] if cols else np.zeros((int(np.count_nonzero(ok)), 0)))
+            ys.append(np.concatenate(yy))
+            Xs.append(np.vstack(XX))
         return ys, Xs, names
 
     def fit(self, terms, idx, d=0.0):
@@ -94,9 +176,6 @@ class ForceModel:
         d = float(grid[k] + _parabolic_offset(sse, k) * (grid[1] - grid[0]))
         coef, s = self.fit(terms, idx, d)
         return coef, s, d
-
-    def delay_grid(self, d_max=200e-6) -> np.ndarray:
-        return np.arange(0.0, d_max + 1e-12, self.pulls[0].dt / 2)
 
     def loo_fits(self, terms, idx) -> List[Tuple[dict, float]]:
         """Leave-one-pull-out refits over idx: [(coef, delay)], the delay refitted on the grid when it is a term.
@@ -135,19 +214,12 @@ class ForceModel:
 
     def t2_reduction(self, coef, d, fit, held) -> float:
         """Relative held-out SSE reduction when T^2 is added to the full model (coef, d: its fit)."""
-        fm_ = self
-        sig = fm_.at(d)
-
-        def t2(j):   # T^2 on W, on the usable samples as design() takes them
-            p = fm_.pulls[j]
-            return sig[j][1][p.usable(p.w0, p.w1)] ** 2
-        ys, Xs, names = fm_.design(set(TERMS), d, fit)
-        X = np.vstack([np.column_stack([Xk, t2(j)]) for Xk, j in zip(Xs, fit)])
-        c, *_ = np.linalg.lstsq(X, np.concatenate(ys), rcond=None)
-        ys2, Xs2, _ = fm_.design(set(TERMS), d, held)
+        ys, Xs, names = self.design(set(TERMS), d, fit, t2=True)
+        c, *_ = np.linalg.lstsq(np.vstack(Xs), np.concatenate(ys), rcond=None)
+        ys2, Xs2, _ = self.design(set(TERMS), d, held, t2=True)
         c0 = np.array([coef[n] for n in names])
-        s0 = sum(float(np.sum((y - Xk @ c0) ** 2)) for y, Xk in zip(ys2, Xs2))
-        s1 = sum(float(np.sum((y - np.column_stack([Xk, t2(j)]) @ c) ** 2)) for y, Xk, j in zip(ys2, Xs2, held))
+        s0 = sum(float(np.sum((y - Xk[:, :-1] @ c0) ** 2)) for y, Xk in zip(ys2, Xs2))
+        s1 = sum(float(np.sum((y - Xk @ c) ** 2)) for y, Xk in zip(ys2, Xs2))
         return float(1 - s1 / s0) if s0 > 0 else 0.0
 
 

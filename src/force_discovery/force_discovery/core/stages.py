@@ -12,8 +12,8 @@ Method (every step is a regression on measured channels; no simulation loop):
 2. Channel "force": the model of record says F_move = T + m2 a2 (ideal sensors). The residual
    r = F_move - T - m2_nom a2 is explained by the linear model
        F_move = g T + (g m) a2(t + d) - (1/tau) C + hum,   C = integral of F_move (AC coupling, exact),
-   with d found on a grid (dt/2 steps to 200 us, parabolic refinement; the delay is applied to the force side
-   by linear interpolation, i.e. exactly as a DAQ/sim channel delay acts on a2) and hum = A sin(2 pi f t + phase_pull)
+   with d found on a grid (-50 to 200 us, a lead to a lag, in steps of half a sample up to 5 us, parabolic
+   refinement; a2 shifted band-limited, as a real delay acts: force_model) and hum = A sin(2 pi f t + phase_pull)
    (f searched 45-65 Hz on the pre-pull record, phase per pull from the pre-pull record).
 3. Channel "ringing": after the break T = 0 and, in the carriage frame, a2 - a3 is a free decay. The model of
    record's only mode there is the moving cell on m2 (sqrt(K_LC2/m2), about 3.9 kHz). A dominant lightly damped

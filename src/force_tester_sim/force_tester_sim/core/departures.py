@@ -21,6 +21,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 import numpy as np
 
 from .errors import SimError
+from .shift import Shifter
 
 # mount_resonance: the base mass between the mount and the moving cell's sensing element (the bracket: the
 # cell's carriage-side half and its adapter plate), by default as a fraction of the true m2 (light next to m2,
@@ -159,15 +160,6 @@ def departures_from_data(data: Any) -> Departures:
 
 
 # ---------------------------------------------------------------- sensor-side departures
-def fractional_delay(x: np.ndarray, delay_samples: float) -> np.ndarray:
-    """x delayed by ``delay_samples`` (>= 0, fractional): linear interpolation, first value held before."""
-    x = np.asarray(x, dtype=float)
-    if delay_samples == 0.0:
-        return x.copy()
-    idx = np.arange(len(x)) - delay_samples
-    return np.interp(idx, np.arange(len(x)), x, left=x[0])
-
-
 def high_pass(x: np.ndarray, time_constant_s: float, dt_s: float) -> np.ndarray:
     """First-order high-pass (piezo discharge), exact for a piecewise-constant-in-steps input:
     y[k] = a (y[k-1] + x[k] - x[k-1]), a = exp(-dt/tau); starts settled at 0 with x[0] as the baseline."""
@@ -200,5 +192,5 @@ def apply_sensor_departures(deps: Departures, t: np.ndarray, force_moving: np.nd
         fm = fm + d['amplitude_n'] * np.sin(2.0 * math.pi * d['frequency_hz'] * t + hum_phase(seed))
     d = deps.get('accel_delay')
     if d is not None:
-        a2 = fractional_delay(a2, d['delay_s'] / dt)
+        a2 = Shifter(a2, dt)(-d['delay_s'])   # a delay, not an interpolation: it does not low-pass a2
     return fm, a2

@@ -76,7 +76,9 @@ def band(cause: str, tol: Tolerances, nominal_m2_kg: float) -> Band:
         return Band(cause, par, nominal_m2_kg * (1.0 - v), nominal_m2_kg * (1.0 + v))
     if cause == 'ac_coupling':
         return Band(cause, par, v, math.inf)
-    return Band(cause, par, 0.0, v)   # delay, hum amplitude, friction, ring-to-noise: from zero up to v
+    if cause == 'accel_delay':
+        return Band(cause, par, -v, v)   # a lead as well as a lag (a DAQ that samples its channels in turn)
+    return Band(cause, par, 0.0, v)   # hum amplitude, friction, ring-to-noise: from zero up to v
 
 
 def tolerances_from_data(data: Any) -> Tolerances:

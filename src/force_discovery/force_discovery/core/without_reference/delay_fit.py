@@ -7,7 +7,10 @@ from typing import Sequence, Tuple
 
 import numpy as np
 
-DELAY_MAX_S = 200e-6
+from force_tester_sim.core.shift import Shifter
+
+from ..force_model import DELAY_MAX_S
+
 DELAY_STEP_SHARE = 0.25        # the delay grid's step, in samples ...
 DELAY_STEP_MIN_S = 2.5e-6      # ... but not finer than this (a parabola refines the minimum)
 DELAY_STEP_MAX_S = 5e-6        # ... nor coarser: the pooled fits interpolate each pull's normal equations linearly
@@ -15,22 +18,6 @@ DELAY_STEP_MAX_S = 5e-6        # ... nor coarser: the pooled fits interpolate ea
                                # step, 5 kHz with a 60 us delay; 0.03 % at 5 us)
 ALIAS_SHARE = 0.01             # local SSE minima this close (share of its range) to the least are equal fits
 DELAY_LOCAL_STEPS = 8          # refits search this many steps either side of the first estimate(s)
-
-
-class Shifter:
-    """x(t + d) for any d, band-limited (exact in the frequency domain; the end trend removed first and put
-    back): the spectrum computed once."""
-
-    def __init__(self, x: np.ndarray, dt: float):
-        n = len(x)
-        self.n, self.dt = n, dt
-        self.trend = np.linspace(x[0], x[-1], n)
-        self.slope = (x[-1] - x[0]) / (dt * (n - 1))
-        self.X = np.fft.rfft(x - self.trend)
-        self.w = 2 * np.pi * np.fft.rfftfreq(n, dt)
-
-    def __call__(self, d: float) -> np.ndarray:
-        return np.fft.irfft(self.X * np.exp(1j * self.w * d), self.n) + self.trend + self.slope * d
 
 
 def fit_at(fm: np.ndarray, a: np.ndarray, w: np.ndarray) -> Tuple[float, float]:
