@@ -48,8 +48,15 @@ def _differences(a: dict, b: dict, rtol: float, skip=STREAMED) -> list:
     for p in set(la) & set(lb):
         x, y = la[p], lb[p]
         if isinstance(x, float) or isinstance(y, float):
+            # a budget line is the change of a parameter between two fits: rounding at the parameter's scale
+            est = None
+            if p[0] == 'uncertainty_budget':   # the report's own budget section: {cause: {parameter: {line: u}}}
+                est = la.get(('candidates', p[1], 'parameters', p[2]))
+            elif 'uncertainty_budget' in p:
+                est = la.get(p[:p.index('uncertainty_budget')] + ('parameters', p[-2]))
+            floor = rtol * abs(est) if isinstance(est, float) and math.isfinite(est) else 1e-300
             if not (isinstance(x, (int, float)) and isinstance(y, (int, float))
-                    and math.isclose(x, y, rel_tol=rtol, abs_tol=1e-300)):
+                    and math.isclose(x, y, rel_tol=rtol, abs_tol=floor)):
                 out.append((p, x, y))
         elif x != y:
             out.append((p, x, y))

@@ -2,7 +2,7 @@
 (ForceModel; force_stats.ForceStats answers the same questions from per-pull sufficient statistics), and its
 coefficients as catalog parameters with their intervals. ROS-free.
 
-The accelerometer's delay d is a shift of a2 (shift.Shifter: band-limited, exact), not an interpolation between
+The accelerometer's delay d is a shift of a2 (WindowShift: band-limited, exact), not an interpolation between
 samples: a real sensor's or DAQ's delay does not low-pass the channel it delays, and an interpolated one does (by
 5 % at a 3 kHz mode sampled at 10 kHz, half a sample off), which the effective mass then takes up. The delay is
 searched on a grid (delay_grid) from a lead (d < 0: a DAQ that samples its channels in turn samples the
@@ -37,9 +37,29 @@ EXTRA = ('tension_timing',)
 TIMING_UNIT_S = 1e-6
 
 
+SHIFT_MARGIN = 256   # samples either side of W a shift sees (a delay reaches 20 samples at 100 kHz; the ends' ripple
+                     # stays in the margin): a 2 s record is shifted from about a fifth of it
+
+
+class WindowShift:
+    """A channel on W (p.w0:p.w1) shifted band-limited by any d (Shifter on W and SHIFT_MARGIN samples either
+    side: ForceModel and force_blocks shift alike)."""
+
+    def __init__(self, x: np.ndarray, p: Pull):
+        m = min(p.w0, SHIFT_MARGIN)
+        self.x, self.m, self.n = x[p.w0:p.w1], m, p.w1 - p.w0
+        self.shifter = Shifter(x[p.w0 - m:p.w1 + SHIFT_MARGIN], p.dt)
+
+    def __call__(self, d: float) -> np.ndarray:
+        return self.x if d == 0.0 else self.shifter(d)[self.m:self.m + self.n]
+
+    def rate(self) -> np.ndarray:
+        return self.shifter.rate()[self.m:self.m + self.n]
+
+
 def tension_rate(p: Pull) -> np.ndarray:
-    """The tension_timing column over the whole record: dT/dt (band-limited) times TIMING_UNIT_S."""
-    return Shifter(p.T, p.dt).rate() * TIMING_UNIT_S
+    """The tension_timing column on W: dT/dt (band-limited) times TIMING_UNIT_S."""
+    return WindowShift(p.T, p).rate() * TIMING_UNIT_S
 
 
 def delay_grid(dt: float) -> np.ndarray:
@@ -71,12 +91,12 @@ class ForceModel:
         self.m2 = m2
         self.pulls = pulls
         self.extra = checked_extra(extra)
-        self.rates = [tension_rate(p)[p.w0:p.w1] for p in pulls] if self.extra else []
+        self.rates = [tension_rate(p) for p in pulls] if self.extra else []
         self.full = []
         for p, h in zip(pulls, hums if hums is not None else [None] * len(pulls)):
             y = p.fm - (h if h is not None else 0.0)
             self.full.append((y[p.w0:p.w1], p.T[p.w0:p.w1], (np.cumsum(y) * p.dt)[p.w0:p.w1]))
-        self._shifters: Dict[int, Shifter] = {}
+        self._shifters: Dict[int, WindowShift] = {}
         self._cache: Dict[float, list] = {}
 
     def a2_at(self, j: int, d: float) -> np.ndarray:
@@ -88,13 +108,9 @@ class ForceModel:
             self._cache[key] = [None] * len(self.pulls)
         row = self._cache[key]
         if row[j] is None:
-            p = self.pulls[j]
-            if d == 0.0:
-                row[j] = p.a2[p.w0:p.w1]
-            else:
-                if j not in self._shifters:
-                    self._shifters[j] = Shifter(p.a2, p.dt)
-                row[j] = self._shifters[j](d)[p.w0:p.w1]
+            if j not in self._shifters:
+                self._shifters[j] = WindowShift(self.pulls[j].a2, self.pulls[j])
+            row[j] = self._shifters[j](d)
         return row[j]
 
     def delay_grid(self) -> np.ndarray:

@@ -32,10 +32,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from force_tester_sim.core.shift import Shifter
-
 from .errors import DiscoveryError
-from .force_model import ForceModel, checked_extra, delay_grid, grid_weights, tension_rate
+from .force_model import ForceModel, WindowShift, checked_extra, delay_grid, grid_weights, tension_rate
 from .prep import Pull
 
 BASE = ('fm', 'T', 'CF', 'H', 'CH', 'TT', 'dT', 'a2')
@@ -51,14 +49,14 @@ def force_blocks(p: Pull, hum: np.ndarray) -> np.ndarray:
                              f'window; expected at least {len(BASE)}')
     T = p.T[p.w0:p.w1][ok]
     fixed = np.column_stack([p.fm[p.w0:p.w1][ok], T, (np.cumsum(p.fm) * p.dt)[p.w0:p.w1][ok], hum[p.w0:p.w1][ok],
-                             (np.cumsum(hum) * p.dt)[p.w0:p.w1][ok], T * T, tension_rate(p)[p.w0:p.w1][ok]])
+                             (np.cumsum(hum) * p.dt)[p.w0:p.w1][ok], T * T, tension_rate(p)[ok]])
     Q, R0 = np.linalg.qr(fixed)
-    shift = Shifter(p.a2, p.dt)
+    shift = WindowShift(p.a2, p)
     grid = delay_grid(p.dt)
     out = np.zeros((len(grid), len(BASE), len(BASE)))
     out[:, :-1, :-1] = R0
     for i, g in enumerate(grid):
-        a = (p.a2 if g == 0.0 else shift(g))[p.w0:p.w1][ok]
+        a = shift(g)[ok]
         r = Q.T @ a
         out[i, :-1, -1] = r
         out[i, -1, -1] = float(np.linalg.norm(a - Q @ r))   # what the fixed columns leave of a2 (no cancellation)
