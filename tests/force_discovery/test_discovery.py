@@ -8,6 +8,7 @@ data and the nominal rig.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -487,3 +488,23 @@ def test_effects_are_found_through_the_nuisances(name, tmp_path):
     truth = draw(name, seed=43)
     report = run(make_campaign({name: truth}, seed=43, nuisance=draw_nuisance(43, within_tolerance=False)), tmp_path)
     assert check_identified(report, name, truth) == []
+
+
+def test_a_lead_of_the_accelerometer_is_simulated_and_stated_not_corrected():
+    """A named accel_delay < 0 (the accelerometer sampled after the moving cell): the sim's departures take it
+    (the resimulation shifts a2 ahead), the correction, which delays F_move only, keeps 0 and the lead goes into
+    the delay's stated uncertainty, and an assumption says so."""
+    from force_discovery.core.extension import extension
+    from force_tester_sim.core.departures import departures_from_data
+    rig = load_rig()
+    lead = -3e-6
+    report = {'causes': [{'name': 'accel_delay', 'parameters': {'delay_s': lead}}],
+              'candidates': {'accel_delay': {'parameters': {'delay_s': lead},
+                                             'parameters_ci95': {'delay_s': [lead - 2e-7, lead + 2e-7]}}}}
+    ext = extension(report, rig)
+    assert ext['departures']['accel_delay']['delay_s'] == lead
+    assert departures_from_data(ext['departures'])   # the sim's catalog takes a lead
+    assert ext['correction']['accel_delay_s'] == 0.0
+    assert 'leads the moving cell by 3 us' in ext['assumptions']['accel_delay']
+    u = ext['uncertainty']['departures']['accel_delay']['delay_s']
+    assert u == pytest.approx(math.hypot(1e-7, lead))

@@ -60,8 +60,14 @@ def extension(report, rig) -> dict:
             f'quantities) mapped to the mount through the carriage-mount-bracket-cell-m2 chain with an assumed '
             f'bracket mass base_mass_kg = {MOUNT_BASE_MASS_FRACTION} x m2 = {mb:.4f} kg (not identifiable from '
             f'these channels); another bracket mass gives other mount parameters and the same observed mode')
+    delay = float(deps.get('accel_delay', {}).get('delay_s', 0.0))
+    if delay < 0:
+        assumptions['accel_delay'] = (
+            f'the accelerometer leads the moving cell by {-delay * 1e6:.3g} us (a DAQ that samples its channels in '
+            f'turn); the correction delays F_move only, so it keeps accel_delay_s 0 and the lead is in the '
+            f'uncertainty it states for the delay')
     corr = {'mass_kg': m2,
-            'accel_delay_s': float(deps.get('accel_delay', {}).get('delay_s', 0.0)),
+            'accel_delay_s': max(delay, 0.0),
             'moving_cell_gain': float(deps.get('moving_cell_gain', {}).get('gain', 1.0))}
     if 'ac_coupling' in deps:
         corr['ac_coupling_time_constant_s'] = deps['ac_coupling']['time_constant_s']

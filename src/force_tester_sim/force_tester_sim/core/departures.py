@@ -33,8 +33,8 @@ MOUNT_BASE_MASS_FRACTION = 0.25
 CATALOG: Dict[str, Tuple[str, Dict[str, tuple], str]] = {
     'effective_mass': ('physical', {'mass_kg': (0.0, 1.0e3, False)},
                        'true moving-side mass m2 differs from nominal (the correction uses nominal)'),
-    'accel_delay': ('sensor', {'delay_s': (0.0, 0.01, True)},
-                    'accelerometer channel lags the force channels by delay_s (fractional delay)'),
+    'accel_delay': ('sensor', {'delay_s': (-0.01, 0.01, True)},
+                    'accelerometer channel lags the force channels by delay_s (a shift; < 0: it leads them)'),
     'moving_cell_gain': ('sensor', {'gain': (0.0, 100.0, False)},
                          'moving-cell channel = gain * true F_move'),
     'mount_resonance': ('physical', {'frequency_hz': (0.0, 20000.0, False), 'damping_ratio': (0.0, 1.0, False)},
