@@ -108,8 +108,9 @@ def _embedded(retries: int):
 
 
 def _probe(address: str, timeout: float) -> None:
-    """A plain TCP connect before Dask is imported: a port nobody listens on is refused at once, so the one
-    line comes in well under a second instead of after Dask's retries for the whole timeout."""
+    """One plain TCP connect before Dask is imported (check_scheduler: a CLI's address): a port nobody listens
+    on is refused at once, so the one line comes in well under a second instead of after Dask's retries for the
+    whole timeout. get_client itself keeps trying for its timeout (a scheduler that is still starting)."""
     scheme, rest = address.split('://', 1)
     host, _, port = rest.rpartition(':')
     if scheme != 'tcp' or not port.isdigit():
@@ -131,7 +132,6 @@ def _connect(address: str, timeout: float):
         raise EngineError(f'scheduler address {address!r} is invalid; expected tcp://HOST:PORT '
                           f'(a running dask scheduler), or leave out --scheduler and ${SCHEDULER_ENV} '
                           'for the embedded cluster')
-    _probe(address, timeout)
     import logging
 
     import dask
@@ -198,6 +198,8 @@ def check_scheduler(scheduler: Optional[str] = None, *, connect_timeout: float =
     address = resolve_scheduler(scheduler)
     if address is None or address == INLINE:
         return INLINE if address == INLINE else 'embedded LocalCluster (started on first use)'
+    if '://' in address:
+        _probe(address, connect_timeout)
     return get_client(address, connect_timeout=connect_timeout)[1]
 
 
