@@ -23,7 +23,7 @@ from force_tester_common.core import correction as C
 from force_tester_common.node_params import NodeParams, ParamSpec
 from force_tester_common.ros import BLOCK_QOS, OK, WARN, Diagnostics, guarded, in_namespace, main_for, qos_watch
 
-from .core.extension import Extension, ForcePrefilter
+from .core.extension import Extension, ForcePrefilter, load_filters
 from .core.pairing import BlockAligner
 from .core.params import CorrectionParams
 from .core.short_events import ShortEventMonitor, advice
@@ -76,6 +76,7 @@ class CorrectionNode(Node):
         params, ext = config
         self.corrector = InertialCorrector(params)
         self.extension = ext
+        load_filters(ext)
         self.prefilters = {}  # sample rate -> ForcePrefilter
         self.monitors = {}    # sample rate -> ShortEventMonitor
         self.diag.report(OK, f'(re)started: m = {params.mass_kg:g} kg, N = {params.window}, '

@@ -152,6 +152,14 @@ class Extension:
         return tuple(out)
 
 
+def load_filters(extension: Extension) -> None:
+    """Import what the extension's filters run on (scipy.signal) now, not on the first block: a node calls this when
+    it (re)starts. On a busy machine the import took longer than a validator's 5 s without a block, and the
+    extension pair of `./ft demo` lost its first pull."""
+    if extension.stages(1.0) or extension.mains_hum_hz is not None:
+        _lfilter()
+
+
 def not_undone(extra_terms) -> Tuple[str, ...]:
     """'channel: term' of each of an extension's extra_terms that changes the corrected force (CORRECTED_CHANNELS)
     and that the correction does not undo (not in CORRECTION_TERMS): a cable's drag on the moving cell, a drifting
