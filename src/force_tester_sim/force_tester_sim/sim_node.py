@@ -75,6 +75,11 @@ def config_from(values: dict) -> SimConfig:
                      **{k: values[k] for k in CONFIG_FIELDS})
 
 
+def waiting_for(wants) -> str:
+    """'waiting for N on each' or 'waiting for N and M' (the /pull_event and /force readers wanted)."""
+    return f'waiting for {wants[0]} on each' if wants[0] == wants[1] else f'waiting for {wants[0]} and {wants[1]}'
+
+
 class SimNode(Node):
     def __init__(self, **kwargs):
         super().__init__('sim', **kwargs)
@@ -123,8 +128,7 @@ class SimNode(Node):
             if now != counts:
                 counts, since = now, time.monotonic()
                 self.get_logger().info('matched subscribers: ' + ', '.join(
-                    f'{p.topic_name} {n}' for p, n in zip(pubs, now)) + ' (waiting for ' + (
-                    f'{want} each)' if wants[0] == wants[1] else f'{wants[0]} and {wants[1]})'))
+                    f'{p.topic_name} {n}' for p, n in zip(pubs, now)) + f' ({waiting_for(wants)})')
             if all(n >= w for n, w in zip(now, wants)) and time.monotonic() - since >= SETTLE_S:
                 return True
             if timeout_s and time.monotonic() - start >= timeout_s:
@@ -146,11 +150,11 @@ class SimNode(Node):
         start = '; '.join(f'{name}: {READERS[topic]}' for name, topic in short)
         namespace = self.get_namespace()
         where = f' with -r __ns:={namespace}' if namespace != '/' else ''
-        waiting = (f'waiting for {wants[0]} on each (wait_for_subscribers {wants[0]})' if wants[0] == wants[1] else
-                   f'waiting for {wants[0]} and {wants[1]} (wait_for_subscribers {wants[0]}, '
-                   f'wait_for_block_subscribers {wants[1]})')
+        params = (f'wait_for_subscribers {wants[0]}' + ('' if wants[0] == wants[1] else
+                                                       f', wait_for_block_subscribers {wants[1]}'))
         self.failure = SimError(
-            f'no readers after {timeout_s:g} s (wait_timeout_s): {"; ".join(have)}; {waiting}. Start the missing '
+            f'no readers after {timeout_s:g} s (wait_timeout_s): {"; ".join(have)}; {waiting_for(wants)} '
+            f'({params}). Start the missing '
             f'reader(s){where} ({start}), or set wait_for_subscribers to the readers you run')
         self.diag.report(ERROR, str(self.failure), log=False, latch=True)
         self.context.try_shutdown()

@@ -27,7 +27,8 @@ TERMS = ('moving_cell_gain', 'effective_mass', 'accel_delay', 'ac_coupling')
 DELAY_MAX_S = 200e-6       # the delay search: the accelerometer lags the force by up to this ...
 DELAY_LEAD_S = 50e-6       # ... or leads it by up to this (a DAQ's channel skew, a moving cell that lags)
 DELAY_STEP_MAX_S = 5e-6    # the grid's step: half a sample, but not coarser than this (the normal equations are
-                           # weighted linearly between grid delays: a bias of the order of the step squared)
+                           # weighted linearly between grid delays: a bias of the order of the step squared; the
+                           # reference-free path's delay grid keeps to it too)
 
 
 #: regressors a model-form variant adds (budget: extra_systematics): the tension's own timing against the moving
@@ -68,11 +69,15 @@ def delay_grid(dt: float) -> np.ndarray:
     return np.arange(-int(math.ceil(DELAY_LEAD_S / step - 1e-9)), int(math.floor(DELAY_MAX_S / step + 1e-9)) + 1) * step
 
 
-def grid_weights(grid: np.ndarray, d: float) -> Tuple[int, float]:
-    """(i, f): d lies between grid[i] and grid[i + 1], a share f of the way (clipped to the grid)."""
+def grid_parts(grid: np.ndarray, d: float) -> List[Tuple[int, float]]:
+    """[(index into grid, weight)]: the grid delays a fit at d uses, its two neighbours weighted linearly (clipped
+    to the grid), or the grid's 0 alone for d = 0 (ForceModel.design and ForceStats.design alike)."""
+    if d == 0.0:
+        return [(int(np.argmin(np.abs(grid))), 1.0)]
     x = (d - grid[0]) / (grid[1] - grid[0])
     i = min(max(int(math.floor(x)), 0), len(grid) - 2)
-    return i, min(max(x - i, 0.0), 1.0)
+    f = min(max(x - i, 0.0), 1.0)
+    return [(k, w) for k, w in ((i, 1.0 - f), (i + 1, f)) if w > 0]
 
 
 def checked_extra(extra: Sequence[str]) -> tuple:
@@ -159,13 +164,9 @@ class ForceModel:
                 Xs.append(np.column_stack(cols) if cols else np.zeros((len(y), 0)))
                 continue
             ok = p.usable(p.w0, p.w1)
-            parts = [(0.0, 1.0)]
-            if d != 0.0:
-                i, f = grid_weights(grid, d)
-                parts = [(dk, w) for dk, w in ((grid[i], 1.0 - f), (grid[i + 1], f)) if w > 0]
             yy, XX = [], []
-            for dk, w in parts:
-                y, cols, names = self._columns(terms, j, self.a2_at(j, dk), self.m2)
+            for k, w in grid_parts(grid, d):
+                y, cols, names = self._columns(terms, j, self.a2_at(j, grid[k]), self.m2)
                 if t2:
                     cols = cols + [self.full[j][1] ** 2]
                 r = math.sqrt(w)

@@ -33,7 +33,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .errors import DiscoveryError
-from .force_model import ForceModel, WindowShift, checked_extra, delay_grid, grid_weights, tension_rate
+from .force_model import ForceModel, WindowShift, checked_extra, delay_grid, grid_parts, tension_rate
 from .prep import Pull
 
 BASE = ('fm', 'T', 'CF', 'H', 'CH', 'TT', 'dT', 'a2')
@@ -125,12 +125,7 @@ class ForceStats(ForceModel):
         ys, Xs, names = [], [], []
         for j in idx:
             blocks = self.blocks[j]
-            grid = delay_grid(self.dts[j])
-            if d == 0.0:
-                parts = [(int(np.argmin(np.abs(grid))), 1.0)]
-            else:
-                i, f = grid_weights(grid, d)
-                parts = [(k, w) for k, w in ((i, 1.0 - f), (i + 1, f)) if w > 0]
+            parts = grid_parts(delay_grid(self.dts[j]), d)
             s = 0.0 if self.scales is None else self.scales[j]
             M, names = self._combination(terms, s, t2)
             A = np.vstack([math.sqrt(w) * (blocks[k] @ M) for k, w in parts])

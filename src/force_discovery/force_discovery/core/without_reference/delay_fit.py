@@ -9,11 +9,11 @@ import numpy as np
 
 from force_tester_sim.core.shift import Shifter
 
-from ..force_model import DELAY_MAX_S
+from ..force_model import DELAY_MAX_S, DELAY_STEP_MAX_S
 
 DELAY_STEP_SHARE = 0.25        # the delay grid's step, in samples ...
-DELAY_STEP_MIN_S = 2.5e-6      # ... but not finer than this (a parabola refines the minimum)
-DELAY_STEP_MAX_S = 5e-6        # ... nor coarser: the pooled fits interpolate each pull's normal equations linearly
+DELAY_STEP_MIN_S = 2.5e-6      # ... but not finer than this (a parabola refines the minimum), nor coarser than
+                               # DELAY_STEP_MAX_S: the pooled fits interpolate each pull's normal equations linearly
                                # between grid delays, which biases G = fa / aa by O(step^2) (1.7 % low at a 50 us
                                # step, 5 kHz with a 60 us delay; 0.03 % at 5 us)
 ALIAS_SHARE = 0.01             # local SSE minima this close (share of its range) to the least are equal fits
