@@ -10,8 +10,17 @@ import yaml
 from daq_data import MSG_DIR, RATE, T0, N, make_pulls, no_partials, removed_warning, run_cli
 
 from bag_tools.core import BagWriter, bag_info, make_typestore, open_bag
+from bag_tools.core.channel_map import pairs_map
 from bag_tools.core.convert import bag_to_campaign, campaign_to_bag
-from bag_tools.core.daq import CAMPAIGN_FILE, BagError, read_campaign, read_csv, read_tdms, write_campaign, write_csv
+from bag_tools.core.daq import (
+    CAMPAIGN_FILE,
+    BagError,
+    pull_from_file,
+    read_campaign,
+    read_csv,
+    write_campaign,
+    write_csv,
+)
 from force_tester_common.core.channels import OPTIONAL_CHANNELS, REQUIRED_CHANNELS
 
 
@@ -260,8 +269,9 @@ def test_export_needs_pull_events(tmp_path):
 # --------------------------------------------------------------------------- optional deps
 def test_tdms_without_nptdms_says_so(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, 'nptdms', None)   # as on a machine without it: `import nptdms` fails
-    with pytest.raises(BagError, match='reading TDMS needs npTDMS'):
-        read_tdms(tmp_path / 'x.tdms')
+    (tmp_path / 'x.tdms').write_bytes(b'TDSm')
+    with pytest.raises(BagError, match='reading this format needs npTDMS'):
+        pull_from_file(tmp_path / 'x.tdms', None)
 
 
 def test_tdms_import(tmp_path):
@@ -416,7 +426,7 @@ def test_a_killed_recording_is_never_removed_by_an_import(tmp_path, camp):
 
 
 def test_tdms_reader_logic_with_a_stand_in_module(tmp_path, monkeypatch):
-    """The mapping / time logic of read_tdms, with a minimal stand-in for npTDMS."""
+    """TDMS through the one channel-map path (--map pairs, the time from wf_increment), with a stand-in npTDMS."""
     import types
     _m, ch = make_pulls(1, optional=False)[0]
     names = {'force_moving_n': 'LC moving', 'force_stationary_n': 'LC stat'}
@@ -435,16 +445,18 @@ def test_tdms_reader_logic_with_a_stand_in_module(tmp_path, monkeypatch):
     fake = types.SimpleNamespace(TdmsFile=types.SimpleNamespace(
         read=lambda p: types.SimpleNamespace(groups=lambda: [group])))
     monkeypatch.setitem(sys.modules, 'nptdms', fake)
-    got = read_tdms(tmp_path / 'x.tdms', ['force_moving_n=DAQ/LC moving',
-                                          'force_stationary_n=LC stat'])
+    (tmp_path / 'x.tdms').write_bytes(b'TDSm')       # read_records wants a file; the stand-in reads none
+    got = pull_from_file(tmp_path / 'x.tdms', pairs_map(['force_moving_n=DAQ/LC moving',
+                                                         'force_stationary_n=LC stat'])).channels
     assert set(got) == set(REQUIRED_CHANNELS)
     assert got['time_s'].tobytes() == ch['time_s'].tobytes()
     assert got['force_moving_n'].tobytes() == ch['force_moving_n'].tobytes()
-    with pytest.raises(BagError, match="has no channel 'Nope' \\(mapped to 'force_moving_n'\\)"):
-        read_tdms(tmp_path / 'x.tdms', {'force_moving_n': 'Nope'})
+    with pytest.raises(BagError, match="source 'Nope' is not a channel of the file"):
+        pull_from_file(tmp_path / 'x.tdms', pairs_map({'force_moving_n': 'Nope'}))
     with pytest.raises(BagError, match="--map column 'bogus' is not a DAQ column"):
-        read_tdms(tmp_path / 'x.tdms', {'bogus': 'LC moving'})
-    # the same file through the CLI path's validation: a missing required column is named
-    from bag_tools.core.daq import check_channels
-    with pytest.raises(BagError, match="required column 'force_moving_n' is missing"):
-        check_channels(read_tdms(tmp_path / 'x.tdms'), 'x.tdms', None)
+        pairs_map({'bogus': 'LC moving'})
+    with pytest.raises(BagError, match="expected COLUMN=CHANNEL"):
+        pairs_map(['force_moving_n'])
+    # unmapped, the channels keep the file's names, and the moving cell's is not ours: named in one line
+    with pytest.raises(BagError, match='no force_moving_n channel'):
+        pull_from_file(tmp_path / 'x.tdms', None)

@@ -25,9 +25,10 @@ for _d in reversed(SRC_DIRS):
     if str(_d) not in sys.path:
         sys.path.insert(0, str(_d))
 
+from bag_tools.core.channel_map import load_channel_map  # noqa: E402
 from bag_tools.core.convert import bag_to_campaign, campaign_to_bag  # noqa: E402
 from bag_tools.core.daq import read_campaign  # noqa: E402
-from bag_tools.core.daqfiles import load_channel_map, read_records  # noqa: E402
+from bag_tools.core.daqfiles import read_records  # noqa: E402
 from bag_tools.core.errors import BagError  # noqa: E402
 from force_tester_common.core.units import G_M_S2  # noqa: E402
 
@@ -93,7 +94,7 @@ def test_mf4_written_by_asammdf_and_uff_by_pyuff(tmp_path):
         rec, = read_records(writer(tmp_path / name, volts, 25_000.0))
         assert rec.rate_hz == 25_000.0 and set(rec.channels) >= {'Load cell', 'Accel'}
         assert rec.units['Load cell'] == 'V'
-        from bag_tools.core.daqfiles import apply_map
+        from bag_tools.core.channel_map import apply_map
         out, absent, _used = apply_map(rec, load_channel_map(CHANNEL_MAP), name)
         assert absent == ('encoder_position_m', 'force_stationary_n')
         for ch, v in si.items():
@@ -215,7 +216,7 @@ def test_example_channel_map_reads_the_lab_files(tmp_path):
     assert cmap.absent == ('encoder_position_m', 'force_stationary_n') and cmap.sample_rate_hz == 100_000.0
     assert cmap.specs['force_moving_n'].rated == 20_000.0 and cmap.specs['accel_axial_m_s2'].rated > 4900.0
     si, volts = impact_record(100_000.0, 3000, 4)
-    from bag_tools.core.daqfiles import apply_map
+    from bag_tools.core.channel_map import apply_map
     out, _absent, _used = apply_map(read_records(write_mf4(tmp_path / 'x.mf4', volts, 100_000.0))[0], cmap, 'x')
     np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-12, atol=1e-9)
 
@@ -290,7 +291,7 @@ def test_units_as_labs_write_them_import(tmp_path):
                         force_moving_n__sensitivity=f'{FORCE_MV_PER_N} millivolts/newton',
                         accel_axial_m_s2__unit='volt', accel_axial_m_s2__sensitivity=f'{ACCEL_MV_PER_G} mv/G')
     rec, = read_records(write_lvm(tmp_path / 'volts.lvm', volts, 25_000.0))
-    from bag_tools.core.daqfiles import apply_map
+    from bag_tools.core.channel_map import apply_map
     out, _absent, _used = apply_map(rec, load_channel_map(spelled), 'volts.lvm')
     for ch, v in si.items():
         np.testing.assert_allclose(out[ch], v, rtol=1e-9, atol=1e-9 * np.abs(v).max())
@@ -312,7 +313,7 @@ def test_bridge_output_in_mv_per_v_with_a_scale(tmp_path):
            'absent': ['force_stationary_n', 'encoder_position_m']}
     cmap = load_channel_map(doc)
     assert cmap.specs['force_moving_n'].factor == pytest.approx(2500.0)
-    from bag_tools.core.daqfiles import apply_map
+    from bag_tools.core.channel_map import apply_map
     out, _absent, _used = apply_map(read_records(f)[0], cmap, 'bridge.lvm')
     np.testing.assert_allclose(out['force_moving_n'], si['force_moving_n'], rtol=1e-9, atol=1e-6)
     np.testing.assert_allclose(out['accel_axial_m_s2'], si['accel_axial_m_s2'], rtol=1e-9, atol=1e-6)
@@ -381,7 +382,7 @@ def test_init_map_of_a_csv_without_rate_or_units(tmp_path):
     """A CSV with no time column and no units: the map asks for the rate and the units (FILL_IN); the channels
     are guessed from their order."""
     (tmp_path / 'a.csv').write_text('ch0,ch1\n' + '\n'.join(f'{0.001 * k},{-0.002 * k}' for k in range(50)) + '\n')
-    from bag_tools.core.daqfiles import skeleton_map
+    from bag_tools.core.channel_map import skeleton_map
     text = skeleton_map(tmp_path / 'a.csv')
     doc = yaml.safe_load(text)
     assert doc['sample_rate_hz'] == 'FILL_IN' and 'no sample rate in the file' in text

@@ -250,7 +250,7 @@ def test_the_catalog_page_names_every_cause_and_band():
 def test_the_channel_map_reference_names_every_key_and_channel():
     import yaml
 
-    from bag_tools.core.daqfiles import MAP_KEYS
+    from bag_tools.core.channel_map import MAP_KEYS
     from force_tester_common.core.channels import CHANNELS
     example = yaml.safe_load((ROOT / 'config' / 'channel_maps' / 'drop_impactor.yaml').read_text())
     want = set(MAP_KEYS) | set(CHANNELS) | set(example) | keys_of(example['channels'])

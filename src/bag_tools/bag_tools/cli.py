@@ -178,26 +178,25 @@ def cmd_export(args) -> int:
 
 def file_campaign(src: str, args) -> tuple:
     """(Campaign, [(channel, source, file unit, how)]) of one DAQ file: one pull per record."""
-    from .core.daq import Campaign, DaqPull, check_channels, check_meta, parse_mapping, read_tdms
-    from .core.daqfiles import ChannelMap, apply_map, file_format, load_channel_map, read_records
+    from .core.channel_map import ChannelMap, apply_map, load_channel_map, pairs_map
+    from .core.daq import Campaign, DaqPull, check_channels, check_meta
+    from .core.daqfiles import file_format, read_records
     suffix = file_format(src)
     if not os.path.isfile(src):
         raise BagError(f'DAQ file {src!r} does not exist')
-    cmap = load_channel_map(args.channels) if args.channels else None
+    if args.map and args.channels:
+        raise BagError(f'--map {" ".join(args.map)!r} and --channels {args.channels!r} both name the channels; '
+                       'expected one of them')
+    if args.map and suffix != '.tdms':
+        raise BagError(f'--map applies to a .tdms source, not {src!r}; use --channels MAP.yaml')
+    cmap = load_channel_map(args.channels) if args.channels else pairs_map(args.map)
     if args.rate is not None:
         cmap = ChannelMap('--rate', {}, (), args.rate) if cmap is None else \
             ChannelMap(cmap.path, cmap.specs, cmap.absent, cmap.sample_rate_hz or args.rate)
     warnings: list = []
-    if suffix == '.tdms' and cmap is None or args.map:
-        if suffix != '.tdms':
-            raise BagError(f'--map applies to a .tdms source, not {src!r}; use --channels MAP.yaml')
-        raws = [(read_tdms(src, parse_mapping(args.map or []), args.rate), (), [])]
-    else:
-        records = read_records(src)
-        raws = []
-        for k, rec in enumerate(records):
-            where = src if len(records) == 1 else f'{src} record {k + 1}'
-            raws.append(apply_map(rec, cmap, where))
+    records = read_records(src)
+    raws = [apply_map(rec, cmap, src if len(records) == 1 else f'{src} record {k + 1}')
+            for k, rec in enumerate(records)]
     pulls, absent, rate = [], (), None
     used = raws[0][2]
     for k, (raw, absent, _used) in enumerate(raws):
@@ -240,9 +239,9 @@ def describe_campaign(camp, used=None) -> str:
 
 def cmd_import(args) -> int:
     mapper = engine_for(args)
+    from .core.channel_map import load_channel_map
     from .core.convert import campaign_to_bag
     from .core.daq import read_campaign
-    from .core.daqfiles import load_channel_map
     warnings: list = []
     src = args.src
     used = None
@@ -277,7 +276,8 @@ def cmd_import(args) -> int:
 
 def init_map(args) -> int:
     """import FILE --init-map MAP.yaml: write a skeleton channel map of FILE (nothing is imported)."""
-    from .core.daqfiles import FILL_IN, file_format, skeleton_map
+    from .core.channel_map import FILL_IN, skeleton_map
+    from .core.daqfiles import file_format
     if os.path.isdir(args.src):
         raise BagError(f'--init-map applies to a DAQ file, not the folder {args.src!r}; expected e.g. '
                        'import lab/rec1.lvm --init-map lab/map.yaml')

@@ -16,7 +16,7 @@ from __future__ import annotations
 import itertools
 import math
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Iterator, Mapping, NamedTuple
 
 import numpy as np
 from rosbags.typesys.store import Typestore
@@ -52,6 +52,8 @@ from .daq import (
     Campaign,
     DaqPull,
     Mapper,
+    Produced,
+    PullJob,
     campaign_channels,
     campaign_index,
     check_rate,
@@ -267,13 +269,13 @@ def _stream_to_bag(path: Path, rate, entries: list, columns: list, bag_path, blo
     topics = campaign_topics(columns)
     seqs = {t[0]: 0 for t in topics}
     state: dict = {'rate': rate, 'place': None, 'pulls': 0}
-    jobs = [(path / meta['file'], entry.get('map'), rate, None, absent) for meta, entry in entries]
+    jobs = [PullJob(path / meta['file'], entry.get('map'), rate, None, absent) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
     with BagWriter(bag_path, store, warnings=warnings, rewritable=True) as writer:
         def write(i: int, result: tuple) -> None:
             channels, prate, pull_warnings = result
             warnings.extend(pull_warnings)
-            state['rate'] = check_rate(jobs[i][0], prate, state['rate'])
+            state['rate'] = check_rate(jobs[i].path, prate, state['rate'])
             if state['place'] is None:
                 state['place'] = PullPlacer(state['rate'])
             pull = DaqPull(entries[i][0], channels)
@@ -523,10 +525,36 @@ def iter_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | No
 WINDOW_LEAD_NS = NS_PER_S
 
 
-def bag_pull_windows(bag_path: str | Path, warnings: list) -> tuple:
-    """(sample rate, {block topic: type}, [(start_ns, end_ns, meta)]) of a bag's complete pulls, in start order,
-    from its /pull_event messages and its first block alone (the blocks are not read): what read_bag_pull needs to
-    read each pull by itself. The warnings and errors are iter_bag_pulls'."""
+class BagWindows(NamedTuple):
+    """A bag's complete pulls, as read_bag_pull needs them: the sample rate, {block topic: type} and, in start
+    order, each pull's BagPullJob."""
+
+    rate_hz: float
+    block_topics: dict
+    jobs: list
+
+
+class BagPullJob(NamedTuple):
+    """One pull of a bag for read_bag_pull: the bag, {block topic: type}, START and END stamps and the meta."""
+
+    bag_path: Path
+    block_topics: dict
+    start_ns: int
+    end_ns: int
+    meta: dict
+
+
+class BagPullNotes(NamedTuple):
+    """What read_bag_pull says of a pull beside its channels: its warnings and the columns it has."""
+
+    warnings: list
+    columns: list
+
+
+def bag_pull_windows(bag_path: str | Path, warnings: list) -> BagWindows:
+    """A bag's complete pulls (``BagWindows``), from its /pull_event messages and its first block alone (the blocks
+    are not read): what read_bag_pull needs to read each pull by itself. The warnings and errors are
+    iter_bag_pulls'."""
     with open_bag(bag_path) as bag:
         block_topics, event_topics = _split_topics(bag.topics(), bag_path, warnings)
         rate = None
@@ -559,16 +587,16 @@ def bag_pull_windows(bag_path: str | Path, warnings: list) -> tuple:
             warnings.append(f'pull {meta["pull_id"]}: {n} sample(s) between START and END; skipped')
             continue
         meta['file'] = f'pull_{len(windows) + 1:04d}.csv'
-        windows.append((start, end, meta))
+        windows.append(BagPullJob(Path(bag_path), block_topics, start, end, meta))
     if not windows:
         raise BagError(f'bag {str(bag_path)!r} has no complete pull (START and END); nothing to export')
-    return rate, block_topics, windows
+    return BagWindows(rate, block_topics, windows)
 
 
-def read_bag_pull(job: tuple) -> tuple:
+def read_bag_pull(job: BagPullJob) -> Produced:
     """One pull of a bag, read from the bag itself (run where the pull is written: a worker reads its pull from
-    the shared storage; no samples cross between processes). job: (bag path, {block topic: type}, start_ns,
-    end_ns, meta), from bag_pull_windows. Returns (channels, (warnings, its columns)); the samples are those
+    the shared storage; no samples cross between processes). Returns its channels with ``BagPullNotes``; the
+    samples are those
     iter_bag_pulls cuts for the pull, read from the blocks logged from WINDOW_LEAD_NS before its START until
     every block topic has passed its END."""
     bag_path, block_topics, start, end, meta = job
@@ -583,7 +611,7 @@ def read_bag_pull(job: tuple) -> tuple:
         raise BagError(f'pull {meta["pull_id"]} in bag {str(bag_path)!r} has no block samples; expected /force, '
                        '/accel, /encoder blocks')
     pull = cutter.cut(start, end, meta)
-    return pull.channels, (warnings, sorted(pull.channels))
+    return Produced(pull.channels, BagPullNotes(warnings, sorted(pull.channels)))
 
 
 def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None
@@ -632,20 +660,20 @@ def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progres
 
 
 def _export_on_workers(bag_path: Path, out_dir: Path, progress, warnings: list, mapper) -> Path:
-    rate, block_topics, windows = bag_pull_windows(bag_path, warnings)
-    start, end, meta = windows[0]   # its channels name what the bag lacks (as the one-pass path's first pull)
-    first = read_bag_pull((bag_path, block_topics, start, end, dict(meta)))[0]
+    rate, _topics, windows = bag_pull_windows(bag_path, warnings)
+    # the first pull's channels name what the bag lacks (as the one-pass path's first pull)
+    first = read_bag_pull(windows[0]._replace(meta=dict(windows[0].meta))).channels
     absent = [c for c in ABSENTABLE_CHANNELS if c not in first]
     del first
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: named absent in campaign.yaml')
     notes: list = []
-    jobs = [(meta, (bag_path, block_topics, start, end, meta)) for start, end, meta in windows]
+    jobs = [(job.meta, job) for job in windows]
     out = write_campaign(out_dir, jobs, sample_rate_hz=rate, mapper=mapper, produce=read_bag_pull, absent=absent,
                          notes=notes, progress=progress, warnings=warnings)
-    for pull_warnings, _columns in notes:
-        warnings.extend(pull_warnings)
-    columns = [set(cols) for _w, cols in notes]
+    for note in notes:
+        warnings.extend(note.warnings)
+    columns = [set(note.columns) for note in notes]
     absent = [c for c in OPTIONAL_CHANNELS if all(c not in cols for cols in columns)]
     if absent:
         warnings.append(f'bag has no samples of {", ".join(absent)}: column(s) not written')

@@ -37,18 +37,16 @@ from force_tester_common.core.clock import NS_PER_S
 from force_tester_common.core.mapping import map_here
 from force_tester_common.core.partial import Marked, clear_stale, tell
 
-from .daqfiles import (  # noqa: F401 - read_csv and time_column are part of this module's interface
+from .channel_map import ChannelMap, Mapped, apply_map, check_absent, load_channel_map, pairs_map
+from .daqfiles import (  # noqa: F401 - read_csv, write_csv and time_column are part of this module's interface
     FORMATS,
     NOTHING_TO_CORRECT,
-    ChannelMap,
-    apply_map,
-    check_absent,
     file_format,
-    load_channel_map,
     quiet,
     read_csv,
     read_records,
     time_column,
+    write_csv,
 )
 from .errors import BagError, one_line
 
@@ -208,145 +206,6 @@ def check_channels(channels: Mapping[str, Any], where: str, rate_hz: float | Non
     return out, rate_hz
 
 
-# --------------------------------------------------------------------------- CSV
-def _fmt_column(a: np.ndarray) -> list:
-    # repr of a Python float is the shortest string that reads back to the same double.
-    return list(map(repr, a.tolist()))
-
-
-def format_column(a: np.ndarray):
-    """A column as Python's repr of each value (the shortest string that reads back to the same double), as a
-    pyarrow string array, formatted in C++: pyarrow casts to the same shortest digits but lays some out
-    differently, and those are mended here: integers gain '.0', exponents two digits (1e-5 -> 1e-05), and
-    what is left (fixed notation below 1e-4, exponents from 1e-4 to 1e16: a few in a pull) is repr'd."""
-    import pyarrow as pa  # only where CSV is written
-    import pyarrow.compute as pc
-    v = np.ascontiguousarray(a, dtype=np.float64)
-    sample = v.view(np.int64)[::max(1, v.size // 2048)]
-    if v.size > 64 and np.unique(sample).size <= sample.size // 2:
-        # a column of few distinct values (a command, a quantised encoder, zeros): each formatted once
-        bits, inverse = np.unique(v.view(np.int64), return_inverse=True)   # by bits: -0.0 is not 0.0
-        if bits.size <= v.size // 4:
-            return format_column(bits.view(np.float64)).take(pa.array(inverse.astype(np.int32)))
-    s = pc.cast(pa.array(v), pa.string())
-    mag = np.abs(v)
-    fin = np.isfinite(v)
-    dot = pc.match_substring(s, '.').to_numpy(zero_copy_only=False)
-    exp = pc.match_substring(s, 'e').to_numpy(zero_copy_only=False)
-    sci = (mag < 1e-4) | (mag >= 1e16)        # where repr writes an exponent
-    whole = ~dot & ~exp & fin & ~sci          # '12' -> '12.0'
-    short = exp & fin & sci                   # '1e-5' -> '1e-05'
-    other = fin & ~((dot & ~exp & ~sci) | whole | short)
-    for mask, mend in ((whole, lambda x: pc.binary_join_element_wise(x, '.0', '')),
-                       (short, lambda x: pc.replace_substring_regex(x, r'e([+-])(\d)$', r'e\10\2'))):
-        if mask.any():
-            m = pa.array(mask)
-            s = pc.replace_with_mask(s, m, mend(pc.filter(s, m)))
-    if other.any():
-        s = pc.replace_with_mask(s, pa.array(other), pa.array(_fmt_column(v[other]), pa.string()))
-    return s
-
-
-def write_csv(path: Path, channels: Mapping[str, np.ndarray]) -> None:
-    """One pull CSV: a header row, then a row per sample of repr'd floats (lossless). Formatted in C++ by
-    pyarrow (format_column) when it is installed: the same bytes as the plain Python below."""
-    names = list(channels)
-    try:
-        import pyarrow.compute as pc
-    except ImportError:
-        pc = None
-    cols = {c: np.asarray(channels[c], dtype=np.float64) for c in names}
-    n = len(cols[names[0]]) if names else 0
-    if pc is None or n == 0:
-        text = [_fmt_column(cols[c]) for c in names]
-        with open(path, 'w', encoding='utf-8', newline='') as fh:
-            fh.write(','.join(names) + '\n')
-            fh.write('\n'.join(map(','.join, zip(*text))))
-            fh.write('\n')
-        return
-    with open(path, 'wb') as fh:
-        fh.write((','.join(names) + '\n').encode('utf-8'))
-        for k in range(0, n, CSV_ROWS):   # 1M rows a time keeps pyarrow's 32-bit string offsets in range
-            rows = pc.binary_join_element_wise(*[format_column(cols[c][k:k + CSV_ROWS]) for c in names], ',')
-            rows = pc.binary_join_element_wise(rows, '', '\n')      # each row and its newline, end to end
-            offsets = np.frombuffer(rows.buffers()[1], dtype=np.int32)[rows.offset:rows.offset + len(rows) + 1]
-            fh.write(memoryview(rows.buffers()[2])[int(offsets[0]):int(offsets[-1])])
-
-
-#: Rows formatted at once by write_csv.
-CSV_ROWS = 1_000_000
-
-
-# --------------------------------------------------------------------------- TDMS
-def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
-              sample_rate_hz: float | None = None) -> dict:
-    """NI TDMS file -> {column: array}. mapping: DAQ column -> TDMS channel name (either
-    'Channel' or 'Group/Channel'); unmapped columns are looked up by their own name. time_s
-    absent: built from sample_rate_hz or the channels' wf_increment property."""
-    try:
-        import nptdms  # optional dependency
-    except ImportError:
-        raise BagError('reading TDMS needs npTDMS: pip install npTDMS (see requirements.txt)') \
-            from None
-    path = Path(path)
-    try:
-        with quiet():
-            tdms = nptdms.TdmsFile.read(str(path))
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'cannot read TDMS file {str(path)!r}: {one_line(exc)}') from None
-    by_name: dict = {}
-    for group in tdms.groups():
-        for ch in group.channels():
-            by_name.setdefault(ch.name, ch)
-            by_name[f'{group.name}/{ch.name}'] = ch
-    if isinstance(mapping, (list, tuple)):
-        mapping = parse_mapping(mapping)
-    elif mapping is not None and not isinstance(mapping, Mapping):
-        raise BagError(f'TDMS channel map {mapping!r} for {str(path)!r} is invalid; expected '
-                       'a mapping {column: channel} or a list of COLUMN=CHANNEL')
-    mapping = {str(k): str(v) for k, v in (mapping or {}).items()}
-    bad = [k for k in mapping if k not in KNOWN_COLUMNS]
-    if bad:
-        raise BagError(f'--map column {bad[0]!r} is not a DAQ column; expected one of '
-                       f'{", ".join(KNOWN_COLUMNS)}')
-    out: dict = {}
-    increment = None
-    for col in CHANNELS:
-        src = mapping.get(col, col)
-        ch = by_name.get(src)
-        if ch is None:
-            if col in mapping:
-                raise BagError(f'TDMS file {str(path)!r} has no channel {src!r} (mapped to '
-                               f'{col!r}); channels: {", ".join(sorted(by_name))}')
-            continue
-        out[col] = np.asarray(ch[:], dtype=np.float64)
-        inc = ch.properties.get('wf_increment')
-        if inc and increment is None:
-            increment = float(inc)
-    if 'time_s' not in out:
-        rate = sample_rate_hz or (1.0 / increment if increment else None)
-        if rate is not None and abs(round(rate) - rate) <= RATE_RTOL * rate:
-            rate = float(round(rate))
-        if rate is None:
-            raise BagError(f'TDMS file {str(path)!r} has no time_s channel and no wf_increment; '
-                           'expected --map time_s=CHANNEL or --rate HZ')
-        lengths = {len(v) for v in out.values()}
-        n = max(lengths) if lengths else 0
-        out = {'time_s': time_column(n, rate), **out}
-    return out
-
-
-def parse_mapping(items: Iterable[str]) -> dict:
-    """['force_moving_n=Dev1/ai0', ...] -> {'force_moving_n': 'Dev1/ai0'}."""
-    out = {}
-    for item in items:
-        if '=' not in item:
-            raise BagError(f'--map {item!r} is invalid; expected COLUMN=TDMS_CHANNEL')
-        k, v = item.split('=', 1)
-        out[k.strip()] = v.strip()
-    return out
-
-
 # --------------------------------------------------------------------------- campaign
 #: mapper(fn, items, names=..., progress=...) -> an object with .results (in item order, None for a failed
 #: item) and .failed ([(name, one line)]): force_tester_common.engine.map_pulls, or None for a plain loop here.
@@ -362,9 +221,33 @@ def is_file(path: Path) -> bool:
         return False
 
 
-def campaign_index(path: str | Path) -> tuple:
-    """campaign.yaml of a campaign folder, validated, without reading the pulls:
-    (folder, sample_rate_hz or None, rig file name or None, [(meta, campaign.yaml entry)])."""
+class CampaignIndex(NamedTuple):
+    """campaign.yaml read and checked, no pull read: the folder, its sample rate (None: the pulls' own), its rig
+    file name (or None) and, per pull, (meta, campaign.yaml entry)."""
+
+    folder: Path
+    rate_hz: float | None
+    rig: str | None
+    entries: list
+
+
+class CampaignChannels(NamedTuple):
+    """A campaign's channel map (None: its files name their channels as ours) and the channels it does not have."""
+
+    channel_map: ChannelMap | None
+    absent: tuple
+
+
+class FilesIndex(NamedTuple):
+    """DAQ files given one by one: their channel map (or None), its absent channels, and per file (folder, meta)."""
+
+    channel_map: ChannelMap | None
+    absent: tuple
+    entries: list
+
+
+def campaign_index(path: str | Path) -> CampaignIndex:
+    """campaign.yaml of a campaign folder, validated, without reading the pulls (``CampaignIndex``)."""
     path = Path(path)
     if not path.is_dir():
         what = 'does not exist' if not path.exists() else 'is not a directory'
@@ -401,11 +284,11 @@ def campaign_index(path: str | Path) -> tuple:
             raise BagError(f'{str(cfile)!r}: pull #{i} file {meta["file"]!r} does not exist in '
                            f'{str(path)!r}')
         entries.append((meta, entry))
-    return path, rate, rig, entries
+    return CampaignIndex(path, rate, rig, entries)
 
 
-def campaign_channels(path: str | Path) -> tuple:
-    """(channel map or None, absent channels) of a campaign folder: campaign.yaml's ``channels:`` (a
+def campaign_channels(path: str | Path) -> CampaignChannels:
+    """The channel map (or None) and the absent channels of a campaign folder: campaign.yaml's ``channels:`` (a
     channel map YAML file in the folder) and ``absent:`` (with the map's own absent channels)."""
     path = Path(path)
     cfile = path / CAMPAIGN_FILE
@@ -422,12 +305,12 @@ def campaign_channels(path: str | Path) -> tuple:
                            'the channel map YAML')
         cmap = load_channel_map(path / name)
         absent += [c for c in cmap.absent if c not in absent]
-    return cmap, tuple(c for c in CHANNELS if c in absent)
+    return CampaignChannels(cmap, tuple(c for c in CHANNELS if c in absent))
 
 
-def files_index(files: Iterable, channel_map=None) -> tuple:
+def files_index(files: Iterable, channel_map=None) -> FilesIndex:
     """A campaign given as DAQ files and a channel map, with no campaign.yaml (``./ft discover lab/*.lvm
-    --channels map.yaml``): (channel map or None, its absent channels, [(folder, meta)]), a pull per file in the
+    --channels map.yaml``): a ``FilesIndex``, a pull per file in the
     order given, each with META_DEFAULTS. channel_map: a map YAML path, a ChannelMap or None. Each file must
     exist and be of a known format (one record each, checked when it is read); two files of one name are
     refused (a pull is named by its file)."""
@@ -446,32 +329,50 @@ def files_index(files: Iterable, channel_map=None) -> tuple:
                            'one name per pull')
         seen[f.name] = f
         out.append((str(f.resolve().parent), check_meta({'file': f.name}, str(f), i)))
-    return cmap, (cmap.absent if cmap is not None else ()), out
+    return FilesIndex(cmap, (cmap.absent if cmap is not None else ()), out)
 
 
-def read_pull(job: tuple) -> tuple:
-    """One pull file, read and validated (the per-pull step of read_campaign, run on a worker).
+class PullJob(NamedTuple):
+    """What read_pull reads: a pull's file, its ``map:`` of campaign.yaml (``--map``'s COLUMN=CHANNEL pairs, for a
+    TDMS file) or None, campaign.yaml's sample rate or None, the campaign's channel map or None, and the channels
+    the rig does not have."""
 
-    job: (file path, TDMS channel map or None, campaign.yaml's sample rate or None[, channel map or None
-    [, absent channels]]). A file of a lab's format (LVM, MDF4, UFF), or any file when a channel map is
-    given, goes through the channel map (daqfiles.apply_map) and must hold one record.
-    Returns (channels, sample rate, warnings)."""
-    fpath, mapping, rate = job[:3]
-    cmap = job[3] if len(job) > 3 else None
-    absent = tuple(job[4]) if len(job) > 4 else ()
-    fpath = Path(fpath)
+    path: Path
+    pairs: Any = None
+    rate: float | None = None
+    channel_map: ChannelMap | None = None
+    absent: tuple = ()
+
+
+class PullRead(NamedTuple):
+    """A pull read and validated: its channels, its sample rate and the warnings reading it gave."""
+
+    channels: dict
+    rate_hz: float
+    warnings: list
+
+
+def read_pull(job: PullJob) -> PullRead:
+    """One pull file, read and validated (the per-pull step of read_campaign, run on a worker). A campaign
+    CSV with no map is read as it is; any other file, or any file with a channel map or ``map:`` pairs, goes
+    through the one channel-map path (channel_map.apply_map) and must hold one record."""
+    fpath = Path(job.path)
+    cmap, absent = job.channel_map, tuple(job.absent)
     suffix = file_format(fpath)
     warnings: list = []
-    if cmap is not None or suffix not in ('.csv', '.tdms'):
-        raw, absent = pull_from_file(fpath, cmap, rate, absent)
+    if cmap is None and job.pairs:
+        cmap = pairs_map(job.pairs, where=f'{str(fpath)!r} map')
+    if cmap is None and suffix == '.csv':
+        raw = read_csv(fpath)
     else:
-        raw = read_tdms(fpath, mapping, rate) if suffix == '.tdms' else read_csv(fpath)
-    channels, prate = check_channels(raw, str(fpath), rate, warnings, absent)
-    return channels, prate, warnings
+        raw, absent, _used = pull_from_file(fpath, cmap, job.rate, absent)
+    channels, prate = check_channels(raw, str(fpath), job.rate, warnings, absent)
+    return PullRead(channels, prate, warnings)
 
 
-def pull_from_file(fpath: Path, cmap: ChannelMap | None, rate: float | None = None, absent=()) -> tuple:
-    """(channels in SI, absent channels) of a one-record DAQ file through a channel map."""
+def pull_from_file(fpath: Path, cmap: ChannelMap | None, rate: float | None = None, absent=()) -> Mapped:
+    """A one-record DAQ file through a channel map: its channels in SI and the absent channels (the map's and
+    ``absent``)."""
     records = read_records(fpath)
     if len(records) != 1:
         raise BagError(f'{str(fpath)!r} holds {len(records)} records; expected one per pull file (import the '
@@ -480,8 +381,8 @@ def pull_from_file(fpath: Path, cmap: ChannelMap | None, rate: float | None = No
         cmap = ChannelMap(cmap.path, cmap.specs, cmap.absent, rate)
     elif rate is not None and cmap is None and records[0].rate_hz is None:
         cmap = ChannelMap('campaign.yaml', {}, (), rate)
-    raw, map_absent, _used = apply_map(records[0], cmap, str(fpath))
-    return raw, tuple(c for c in CHANNELS if c in absent or c in map_absent)
+    raw, map_absent, used = apply_map(records[0], cmap, str(fpath))
+    return Mapped(raw, tuple(c for c in CHANNELS if c in absent or c in map_absent), used)
 
 
 def csv_columns(path: Path) -> set | None:
@@ -545,7 +446,7 @@ def read_campaign(path: str | Path, mapper: Mapper | None = None, skip_failed: b
     if channel_map is not None:
         cmap = channel_map
         absent = tuple(c for c in CHANNELS if c in absent or c in channel_map.absent)
-    jobs = [(path / meta['file'], entry.get('map'), rate, cmap, absent) for meta, entry in entries]
+    jobs = [PullJob(path / meta['file'], entry.get('map'), rate, cmap, absent) for meta, entry in entries]
     names = [meta['file'] for meta, _ in entries]
     results, failed = _map(read_pull, jobs, names, mapper, progress, skip_failed)
     if failed and not skip_failed:
@@ -581,26 +482,46 @@ def _atomic_dir(path: Path) -> Path:
     return Path(tempfile.mkdtemp(prefix=f'.{path.name}.partial-', dir=path.parent))
 
 
-def write_pull(job: tuple) -> float:
-    """Write one pull's CSV (the per-pull step of write_campaign, run on a worker). Returns its rate, or
-    (rate, notes) when produce gave notes.
+class Produced(NamedTuple):
+    """What a write_campaign ``produce`` may return instead of bare channels: the channels and notes about them,
+    which go back to the caller in pull order (write_campaign's ``notes``)."""
 
-    job: (CSV path, channels or produce's argument, produce or None, rate or None, name for messages).
-    produce(argument) -> channels, or (channels, notes), makes the pull where it is written (a simulation,
-    or a pull read from a bag, for example)."""
-    dest, data, produce, rate, where = job[:5]
-    absent = job[5] if len(job) > 5 else ()
-    channels, notes = produce(data) if produce is not None else data, None
-    if isinstance(channels, tuple):   # produce gave (channels, notes): the notes go back with the rate
-        channels, notes = channels
-    chans, prate = check_channels(channels, where, rate, absent=absent)
-    rate = prate if rate is None else rate
+    channels: dict
+    notes: Any
+
+
+class WriteJob(NamedTuple):
+    """One pull for write_pull: its CSV path, its channels (or produce's argument), produce or None, the
+    campaign's rate or None (the pull's own), a name for messages, and the channels the campaign does not have."""
+
+    dest: Path
+    data: Any
+    produce: Callable | None
+    rate: float | None
+    where: str
+    absent: tuple = ()
+
+
+class Written(NamedTuple):
+    """A pull written: its sample rate, and produce's notes (None when it gave none)."""
+
+    rate_hz: float
+    notes: Any = None
+
+
+def write_pull(job: WriteJob) -> Written:
+    """Write one pull's CSV (the per-pull step of write_campaign, run on a worker). produce(data) -> channels
+    or ``Produced`` makes the pull where it is written (a simulation, or a pull read from a bag, for example)."""
+    out = job.produce(job.data) if job.produce is not None else job.data
+    channels, notes = (out.channels, out.notes) if isinstance(out, Produced) else (out, None)
+    chans, prate = check_channels(channels, job.where, job.rate, absent=job.absent)
+    rate = prate if job.rate is None else job.rate
     n = len(chans['time_s'])
     ordered = {'time_s': time_column(n, rate)}
     ordered.update((c, chans[c]) for c in CHANNELS[1:] if c in chans)
     ordered.update((c, v) for c, v in chans.items() if c not in ordered)
-    write_csv(Path(dest), ordered)
-    return float(rate) if notes is None else (float(rate), notes)
+    write_csv(Path(job.dest), ordered)
+    return Written(float(rate), notes)
 
 
 def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | None = None,
@@ -622,7 +543,7 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
     written (the campaign is never whole in this process); its rate is then its own, and every pull's
     must agree.
     absent: required channels the pulls do not have, written as campaign.yaml's ``absent:``.
-    notes: when produce returns (channels, notes), each pull's notes are appended here, in pull order.
+    notes: when produce returns ``Produced``, each pull's notes are appended here, in pull order.
     While it is written the hidden folder holds a lock file (force_tester_common.core.partial): a writer killed
     midway leaves it behind, and the next write of ``path`` removes it, saying so in ``warnings`` (logged when
     None).
@@ -662,7 +583,7 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                         entry[k] = int(meta[k])
                 entries.append(entry)
                 names.append(meta['file'])
-                yield tmp / meta['file'], data, produce, rate, f'{str(path)}/{meta["file"]}', absent
+                yield WriteJob(tmp / meta['file'], data, produce, rate, f'{str(path)}/{meta["file"]}', absent)
 
         if mapper is None:
             rates = map_here(write_pull, jobs(), progress=progress, total=len(pulls) if isinstance(pulls, Sized) else 0,
@@ -674,8 +595,8 @@ def write_campaign(path: str | Path, pulls: Iterable, rig: str | os.PathLike | N
                 raise BagError(f'{str(path)!r}: {failed_line(done.failed)}; nothing written')
             rates = done.results
         if notes is not None:
-            notes.extend(r[1] for r in rates if isinstance(r, tuple))
-        rates = [r[0] if isinstance(r, tuple) else r for r in rates]
+            notes.extend(r.notes for r in rates if r.notes is not None)
+        rates = [r.rate_hz for r in rates]
         if rate is None:
             rate = rates[0]
             for name, r in zip(names, rates):

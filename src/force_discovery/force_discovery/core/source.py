@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
-from bag_tools.core.daq import campaign_channels, campaign_index, files_index, read_pull
+from bag_tools.core.daq import PullJob, campaign_channels, campaign_index, files_index, read_pull
 from force_tester_common.core.channels import REQUIRED_CHANNELS
 
 from .errors import DiscoveryError
@@ -58,9 +58,9 @@ def load_channels(ref: PullRef) -> Tuple[dict, dict]:
     """(meta, channels) of one pull: read from its file (and checked as read_campaign checks it), or as given."""
     if ref.channels is not None:
         return ref.meta, ref.channels
-    channels, _rate, _warnings = read_pull((Path(ref.folder) / ref.meta['file'], (ref.entry or {}).get('map'),
-                                            ref.rate_hz, ref.channel_map, ref.absent))
-    return ref.meta, channels
+    read = read_pull(PullJob(Path(ref.folder) / ref.meta['file'], (ref.entry or {}).get('map'), ref.rate_hz,
+                             ref.channel_map, ref.absent))
+    return ref.meta, read.channels
 
 
 def rated_ranges(ref: PullRef) -> dict:
