@@ -614,12 +614,18 @@ def read_bag_pull(job: BagPullJob) -> Produced:
     return Produced(pull.channels, BagPullNotes(warnings, sorted(pull.channels)))
 
 
-def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None
-                   ) -> tuple:
-    """(sample_rate_hz, [DaqPull with meta start_ns/pull_id, file pull_NNNN.csv]) of a bag, all in memory."""
+class BagPulls(NamedTuple):
+    """A bag's pulls in memory: the sample rate and [DaqPull with meta start_ns/pull_id, file pull_NNNN.csv]."""
+
+    rate_hz: float
+    pulls: list
+
+
+def read_bag_pulls(bag_path: str | Path, warnings: list, progress: Progress | None = None) -> BagPulls:
+    """A bag's pulls, all in memory (``BagPulls``)."""
     state: dict = {}
     pulls = list(iter_bag_pulls(bag_path, warnings, progress, state))
-    return state['sample_rate_hz'], pulls
+    return BagPulls(state['sample_rate_hz'], pulls)
 
 
 def bag_to_campaign(bag_path: str | Path, out_dir: str | Path, progress: Progress | None = None,

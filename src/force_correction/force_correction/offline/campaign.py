@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from bag_tools.core import daq
-from bag_tools.core.convert import place_pulls, read_bag_pulls
+from bag_tools.core.convert import BagPulls, place_pulls, read_bag_pulls
 from bag_tools.core.daq import Campaign, DaqPull, Mapper, write_campaign
 from force_tester_common.core.channels import ABSENTABLE_CHANNELS
 from force_tester_common.core.clock import NS_PER_S, end_stamp_ns, record_stamps_ns
@@ -22,9 +23,24 @@ from .stream import CorrectionStream
 CORRECTED_COLUMNS = tuple((c, c.removesuffix('_n')) for c in daq.CORRECTED_COLUMNS)
 
 
-def correct_runs(camp: Campaign, stream: CorrectionStream) -> tuple:
-    """Correct each pull (joining contiguous pulls into one run). Returns (pull windows, the
-    corrected columns of each pull)."""
+class PullWindow(NamedTuple):
+    """Where a pull lies in the stream: its first and last sample stamps (ns), its test set and its pull id."""
+
+    start_ns: int
+    end_ns: int
+    set_id: int
+    pull_id: int
+
+
+class CorrectedRuns(NamedTuple):
+    """A campaign corrected: each pull's window, and each pull's corrected columns {column: array}."""
+
+    windows: list
+    columns: list
+
+
+def correct_runs(camp: Campaign, stream: CorrectionStream) -> CorrectedRuns:
+    """Correct each pull (joining contiguous pulls into one run)."""
     rate = camp.sample_rate_hz
     windows, groups, prev_end = [], [], None
     for (start, pid), p in zip(place_pulls(camp), camp.pulls):
@@ -35,7 +51,7 @@ def correct_runs(camp: Campaign, stream: CorrectionStream) -> tuple:
         else:
             groups.append([(start, n, p)])
         prev_end = end_stamp_ns(start, n, rate) if placed else None
-        windows.append((start, end_stamp_ns(start, n, rate), int(p.meta['set']), pid))
+        windows.append(PullWindow(start, end_stamp_ns(start, n, rate), int(p.meta['set']), pid))
     columns = []
     for g in groups:
         ch = [x[2].channels for x in g]
@@ -48,10 +64,10 @@ def correct_runs(camp: Campaign, stream: CorrectionStream) -> tuple:
         for _s, n, _p in g:
             columns.append({c: getattr(out, c)[pos:pos + n] for c, _ in CORRECTED_COLUMNS})
             pos += n
-    return windows, columns
+    return CorrectedRuns(windows, columns)
 
 
-def bag_pulls_with_columns(src: Path, arrays: dict) -> tuple:
+def bag_pulls_with_columns(src: Path, arrays: dict) -> BagPulls:
     """The pulls of a corrected bag as campaign pulls with the corrected columns (NaN where the
     stream has no sample), and their rate."""
     rate, pulls = read_bag_pulls(src, [], None)
@@ -69,7 +85,7 @@ def bag_pulls_with_columns(src: Path, arrays: dict) -> tuple:
             ch[col] = values
         p.meta['file'] = f'pull_{i + 1:04d}.csv'
         out.append(DaqPull(p.meta, ch))
-    return out, rate
+    return BagPulls(rate, out)
 
 
 def write_corrected_campaign(dst: Path, pulls: list, rate: float, rig, scores: dict,

@@ -213,7 +213,7 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
             bagio.rewrite_bag(src, dst, stream.arrays(), read, pulls, running, warnings)
         return _result(setup, pulls, stats, stream, used, warnings)
     result = _result(setup, pulls, stats, stream, used, warnings)
-    camp_pulls, rate = bag_pulls_with_columns(src, stream.arrays())
+    rate, camp_pulls = bag_pulls_with_columns(src, stream.arrays())
     write_corrected_campaign(dst, camp_pulls, rate, None, _scores_doc(result), mapper)
     return result
 

@@ -6,6 +6,7 @@ matplotlib is imported lazily (only here, only when plotting), with the Agg back
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,9 +30,15 @@ def _pyplot():
     return plt
 
 
-def load_pull(src: str | Path, pull: int, warnings: list | None = None) -> tuple:
-    """(DaqPull, sample_rate_hz) of pull number `pull` (1-based position in the campaign or
-    bag, in time order)."""
+class LoadedPull(NamedTuple):
+    """One pull of a campaign or bag, and its sample rate."""
+
+    pull: DaqPull
+    rate_hz: float
+
+
+def load_pull(src: str | Path, pull: int, warnings: list | None = None) -> LoadedPull:
+    """Pull number `pull` (1-based position in the campaign or bag, in time order)."""
     warnings = [] if warnings is None else warnings
     if source_kind(src) == 'campaign':
         camp = read_campaign(src)
@@ -42,7 +49,7 @@ def load_pull(src: str | Path, pull: int, warnings: list | None = None) -> tuple
     if isinstance(pull, bool) or not isinstance(pull, int) or not 1 <= pull <= len(pulls):
         raise CorrectionError(f'pull {pull!r} is out of range; expected 1..{len(pulls)} '
                        f'({len(pulls)} pull(s) in {str(src)!r})')
-    return pulls[pull - 1], rate
+    return LoadedPull(pulls[pull - 1], rate)
 
 
 def plot_pull(pull: DaqPull, rate_hz: float, out: str | Path, si: bool = False,

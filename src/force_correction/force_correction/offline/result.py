@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from force_tester_common.core.scores import PULL_SCORE_FIELDS
 
 from ..core.params import CorrectionParams
-from ..core.scoring import PullScoreResult
+from ..core.scoring import PullScoreResult, SetStatistics
 
 
 @dataclass(frozen=True)
@@ -24,6 +25,15 @@ class PullRecord:
         return {'pull_id': self.pull_id, 'set': self.test_set, 'start_ns': self.start_ns,
                 'end_ns': self.end_ns, 'dropped_blocks': self.score.dropped_blocks,
                 **{k: float(getattr(self.score, k)) for k in PULL_SCORE_FIELDS}}
+
+
+class Scored(NamedTuple):
+    """Every pull of a correction scored: the PullRecords in window order, the per-set statistics, and the
+    warnings (a pull that could not be scored, and why)."""
+
+    pulls: tuple
+    sets: SetStatistics
+    warnings: list
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from force_tester_common.core.clock import sample_stamps_ns
 from ..core.errors import CorrectionError
 from ..core.scoring import SetStatistics, score_pull
 from ..core.short_events import short_events
-from .result import PullRecord
+from .result import PullRecord, Scored
 
 SCORED = ('stationary', 'raw', 'corrected', 'filtered', 'inertial')
 #: a pull whose filtered peak is below its corrected peak by more than this share is searched for short events
@@ -85,8 +85,8 @@ class PullScorer:
             self.events += [(int(pull_id), e, rate) for e in short_events(arrays[1], arrays[2], rate,
                                                                           self.short_window)]
 
-    def finish(self) -> tuple:
-        """(PullRecords in window order, SetStatistics, warnings)."""
+    def finish(self) -> Scored:
+        """Every pull scored (``Scored``: PullRecords in window order)."""
         for i in list(self.open):
             self._score(i)
         stats, pulls, warnings = SetStatistics(), [], []
@@ -99,7 +99,7 @@ class PullScorer:
             s = replace(s, dropped_blocks=dropped)
             pulls.append(PullRecord(int(pull_id), int(set_id), int(start), int(end), s))
             stats.add(set_id, s)
-        return tuple(pulls), stats, warnings
+        return Scored(tuple(pulls), stats, warnings)
 
 
 def running_summaries(pulls, stats: SetStatistics) -> list:

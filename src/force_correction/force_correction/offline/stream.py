@@ -14,6 +14,7 @@ import numpy as np
 from ..core.extension import Extension, ForcePrefilter
 from ..core.params import CorrectionParams
 from ..core.streaming import correct_block, initial_state
+from .result import Scored
 from .scorer import BlockStamps, PullScorer
 
 PIECE_KEYS = ('t', 'stationary', 'raw', 'inertial', 'corrected', 'filtered')
@@ -83,9 +84,9 @@ class CorrectionStream:
         return {k: (v[0] if len(v) == 1 else np.concatenate(v) if v else np.empty(0))
                 for k, v in self.parts.items()}
 
-    def scores(self, windows: list, drops: list) -> tuple:
-        """(PullRecords, SetStatistics, warnings): from the scorer fed as the data came when the
-        windows were known first, else from the kept arrays."""
+    def scores(self, windows: list, drops: list) -> Scored:
+        """Every pull scored: from the scorer fed as the data came when the windows were known first, else from
+        the kept arrays."""
         if self.scorer is None:
             self.windows_known(windows, drops)
             self.scorer.add(self.arrays(), self.rate_hz)
