@@ -138,6 +138,47 @@ def test_a_rated_range_in_the_channel_map_flags_what_goes_beyond_it(tmp_path):
     assert not [d for d in rep['data_quality'] if d['kind'] == 'overload']
 
 
+def hit_time(imp, seed):
+    from impactor import simulate_record
+    ch = simulate_record(imp, seed)
+    return float(ch['time_s'][np.argmax(np.abs(ch['force_moving_n']))])
+
+
+@pytest.mark.parametrize('rated', [False, True])
+def test_the_channel_that_left_its_physics_is_blamed_not_the_impact(rated):
+    """Issue 40's drop test, fourth record: ~700 N impacts, the accelerometer reading ~500 m/s^2 during them; in
+    the fourth it bursts to 8984 m/s^2 (beyond its 500 g rating) 8 ms after the impact, with no force. The
+    accelerometer is flagged; the impact, in both channels as in the other records, is not (it was flagged as a
+    force-channel burst 'in this channel alone': the accelerometer's own burst set the bar it was held to)."""
+    from impactor import simulate_record
+
+    from force_discovery.core.quality import OVERLOAD, screen_pull
+    from force_tester_common.core.units import G_M_S2
+    imp = Impactor(record_s=0.08, speed_m_s=0.065)
+    imp = Impactor(record_s=0.08, speed_m_s=0.065, overload={3: (hit_time(imp, 3) + 8e-3, 0.5e-3, 8984.0)})
+    ranges = {'accel_axial_m_s2': 500 * G_M_S2, 'force_moving_n': 20e3} if rated else None
+    for seed in range(4):
+        ch = simulate_record(imp, seed)
+        assert 650 < np.max(np.abs(ch['force_moving_n'])) < 800 and np.max(np.abs(ch['accel_axial_m_s2'])) > 500
+        bad = [(d.channel, d.kind) for d in screen_pull(f'drop{seed + 1}', ch, ranges).defects]
+        assert bad == ([('accel_axial_m_s2', OVERLOAD)] if seed == 3 else []), (seed, bad)
+
+
+def test_a_force_burst_the_accelerometer_does_not_show_is_the_force_s():
+    """The same rule the other way round: a 3 kN glitch on the force 8 ms after a ~700 N impact, the accelerometer
+    quiet there, is a force overload; the accelerometer's impact is not."""
+    from impactor import simulate_record
+
+    from force_discovery.core.quality import OVERLOAD, screen_pull
+    imp = Impactor(record_s=0.08, speed_m_s=0.065)
+    ch = simulate_record(imp, 1)
+    on = (ch['time_s'] >= hit_time(imp, 1) + 8e-3) & (ch['time_s'] < hit_time(imp, 1) + 8.3e-3)
+    ch['force_moving_n'][on] += 3000.0
+    sc = screen_pull('drop2', ch)
+    assert [(d.channel, d.kind) for d in sc.defects] == [('force_moving_n', OVERLOAD)], sc.defects
+    assert sc.defects[0].t_start_s == pytest.approx(hit_time(imp, 1) + 8e-3, abs=1e-4)
+
+
 def test_no_moving_cell_is_refused_in_one_line(tmp_path):
     imp = Impactor(record_s=0.04)
     camp = [(m, {k: v for k, v in ch.items() if k != 'force_moving_n'}) for m, ch in memory_campaign(imp, 1)]
