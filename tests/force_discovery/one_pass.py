@@ -56,6 +56,7 @@ from force_discovery.core.report import (
     build_report,
     campaign_section,
     complete,
+    rig_state,
     unusable_report,
 )
 from force_discovery.core.resim import simulation_check
@@ -229,7 +230,8 @@ def discover_in_memory(campaign_pulls, rig, out_dir) -> dict:
     analysis = one.analysis
     decision = decide(analysis, rig)
     if not analysis.pulls:   # the data-quality stage left too few pulls: say so, name nothing
-        report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, ()), 'plots': []}, {},
+        report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, ()), 'plots': [],
+                           'rig': rig_state(rig)}, {},
                           'the data-quality screen left too few pulls to analyse (data_quality)')
         write_outputs(report, analysis, None, (), rig, Path(out_dir))
         return report
@@ -247,7 +249,7 @@ def discover_in_memory(campaign_pulls, rig, out_dir) -> dict:
     add_simulation(report, check)
     no_search = 'the one-pass oracle has no search beyond the catalog (the stream\'s only: test_stream.BEYOND)'
     absent = campaign_absent(memory_refs(campaign_pulls))
-    report = complete({**report, **campaign_section(analysis, absent), 'plots': []},
+    report = complete({**report, **campaign_section(analysis, absent), 'plots': [], 'rig': rig_state(rig)},
                       {**WITHOUT_REFERENCE_ONLY, 'beyond_catalog': no_search, 'beyond_search': no_search})
     write_outputs(report, analysis, errors, decision.named, rig, Path(out_dir), check, ext)
     return report

@@ -138,6 +138,78 @@ def test_a_rated_range_in_the_channel_map_flags_what_goes_beyond_it(tmp_path):
     assert not [d for d in rep['data_quality'] if d['kind'] == 'overload']
 
 
+@pytest.mark.slow
+def test_no_rig_given_judges_nothing_against_our_nominal(tmp_path):
+    """Issue 40 item 1: without a rig, another lab's data are not judged against our rig's nominal (m2 = 1.152 kg):
+    nothing is named, report.json and report.md say no rig was given, and g m2 is read in words. An impactor whose
+    accelerometer moves with a 0.33 kg tip reads as a mass the cell carries; one whose force has nothing of the
+    accelerometer in it (the cell on the hammer, the accelerometer on the struck beam) reads as zero, with what
+    that means."""
+    imp = Impactor(mount_hz=1800.0, record_s=0.06)
+    camp = memory_campaign(imp, 4)
+    rep = run(camp, None, tmp_path / 'out')
+    assert rep['rig'] == {'given': False, 'file': None, 'what': rep['rig']['what']} and 'no rig' in rep['rig']['what']
+    assert rep['causes'] == [] and rep['cause'] == 'none' and rep['indicated'] == []
+    assert all(c['tolerance']['verdict'] == 'not_judged' and c['tolerance']['band'] is None
+               for c in rep['candidates'].values())
+    assert 'mount_resonance' not in rep['candidates'] and 'not_available' in rep['cell_mode_hz']
+    assert rep['candidates']['gain_mass_product']['parameters']['gain_mass_kg'] == pytest.approx(0.33, rel=0.01)
+    assert any('the cell carries a mass moving with the accelerometer' in n for n in rep['notes']), rep['notes']
+    md = (tmp_path / 'out' / 'report.md').read_text()
+    assert 'Rig: none; no rig given' in md and '1.152' not in md
+    rng = np.random.default_rng(7)          # the accelerometer elsewhere: the same records, the force only noise
+    apart = [(m, {**ch, 'force_moving_n': rng.normal(0.0, 2.0, len(ch['time_s'])) + 400.0 * (
+        np.abs(ch['time_s'] - ch['time_s'][np.argmax(np.abs(ch['force_moving_n']))]) < 5e-4)}) for m, ch in camp]
+    rep = run(apart, None, tmp_path / 'apart')
+    lo, hi = rep['candidates']['gain_mass_product']['parameters_ci95']['gain_mass_kg']
+    assert lo < 0 < hi and hi - lo < 0.01 and rep['causes'] == []
+    assert any('consistent with zero' in n and 'not on the cell\'s body' in n for n in rep['notes']), rep['notes']
+    assert 'consistent with zero' in (tmp_path / 'apart' / 'report.md').read_text()
+    with_rig = run(apart, lab_rig(tmp_path, imp), tmp_path / 'rig')      # a rig given: judged against its m2
+    assert with_rig['rig']['given'] and with_rig['candidates']['gain_mass_product']['tolerance']['band'] is not None
+
+
+def hit_time(imp, seed):
+    from impactor import simulate_record
+    ch = simulate_record(imp, seed)
+    return float(ch['time_s'][np.argmax(np.abs(ch['force_moving_n']))])
+
+
+@pytest.mark.parametrize('rated', [False, True])
+def test_the_channel_that_left_its_physics_is_blamed_not_the_impact(rated):
+    """Issue 40's drop test, fourth record: ~700 N impacts, the accelerometer reading ~500 m/s^2 during them; in
+    the fourth it bursts to 8984 m/s^2 (beyond its 500 g rating) 8 ms after the impact, with no force. The
+    accelerometer is flagged; the impact, in both channels as in the other records, is not (it was flagged as a
+    force-channel burst 'in this channel alone': the accelerometer's own burst set the bar it was held to)."""
+    from impactor import simulate_record
+
+    from force_discovery.core.quality import OVERLOAD, screen_pull
+    from force_tester_common.core.units import G_M_S2
+    imp = Impactor(record_s=0.08, speed_m_s=0.065)
+    imp = Impactor(record_s=0.08, speed_m_s=0.065, overload={3: (hit_time(imp, 3) + 8e-3, 0.5e-3, 8984.0)})
+    ranges = {'accel_axial_m_s2': 500 * G_M_S2, 'force_moving_n': 20e3} if rated else None
+    for seed in range(4):
+        ch = simulate_record(imp, seed)
+        assert 650 < np.max(np.abs(ch['force_moving_n'])) < 800 and np.max(np.abs(ch['accel_axial_m_s2'])) > 500
+        bad = [(d.channel, d.kind) for d in screen_pull(f'drop{seed + 1}', ch, ranges).defects]
+        assert bad == ([('accel_axial_m_s2', OVERLOAD)] if seed == 3 else []), (seed, bad)
+
+
+def test_a_force_burst_the_accelerometer_does_not_show_is_the_force_s():
+    """The same rule the other way round: a 3 kN glitch on the force 8 ms after a ~700 N impact, the accelerometer
+    quiet there, is a force overload; the accelerometer's impact is not."""
+    from impactor import simulate_record
+
+    from force_discovery.core.quality import OVERLOAD, screen_pull
+    imp = Impactor(record_s=0.08, speed_m_s=0.065)
+    ch = simulate_record(imp, 1)
+    on = (ch['time_s'] >= hit_time(imp, 1) + 8e-3) & (ch['time_s'] < hit_time(imp, 1) + 8.3e-3)
+    ch['force_moving_n'][on] += 3000.0
+    sc = screen_pull('drop2', ch)
+    assert [(d.channel, d.kind) for d in sc.defects] == [('force_moving_n', OVERLOAD)], sc.defects
+    assert sc.defects[0].t_start_s == pytest.approx(hit_time(imp, 1) + 8e-3, abs=1e-4)
+
+
 def test_no_moving_cell_is_refused_in_one_line(tmp_path):
     imp = Impactor(record_s=0.04)
     camp = [(m, {k: v for k, v in ch.items() if k != 'force_moving_n'}) for m, ch in memory_campaign(imp, 1)]
@@ -318,14 +390,18 @@ def test_report_json_has_the_same_keys_with_and_without_a_reference(tmp_path):
                    tmp_path / 'with')
     imp = Impactor(mount_hz=1800.0, accel_delay_s=30e-6, m2_kg=0.33, gain=1.02, record_s=0.06)
     without = run(memory_campaign(imp, 4), lab_rig(tmp_path, imp), tmp_path / 'without')
-    on_disk = [json.loads((tmp_path / d / 'report.json').read_text()) for d in ('with', 'without')]
-    assert list(on_disk[0]) == list(on_disk[1]) == list(with_ref) == list(without)
+    no_rig = run(memory_campaign(imp, 4), None, tmp_path / 'no_rig')       # no rig given: a first-class state
+    on_disk = [json.loads((tmp_path / d / 'report.json').read_text()) for d in ('with', 'without', 'no_rig')]
+    assert list(on_disk[0]) == list(on_disk[1]) == list(on_disk[2]) == list(with_ref) == list(without) == list(no_rig)
     assert with_ref['validation']['method'] == 'held-out' and without['validation']['method'] == 'leave-one-out'
-    for rep in (with_ref, without):
+    assert with_ref['rig']['given'] and without['rig']['given'] and not no_rig['rig']['given']
+    assert no_rig['causes'] == [] and {c['tolerance']['verdict'] for c in no_rig['candidates'].values()} == {
+        'not_judged'}
+    for rep in (with_ref, without, no_rig):
         assert all(list(c) == list(CANDIDATE_KEYS) for c in rep['candidates'].values()), rep['candidates']
         assert {c['tolerance']['verdict'] for c in rep['candidates'].values()} <= {
             'named', 'within_tolerance', 'inconclusive', 'not_significant', 'indicated', 'not_indicated',
-            'per_pull_only'}
+            'per_pull_only', 'not_judged'}
         said = [v[NOT_AVAILABLE] for v in rep.values() if isinstance(v, dict) and NOT_AVAILABLE in v]
         assert said and all(isinstance(w, str) and len(w) > 20 for w in said), said
     assert without['beyond_catalog'][NOT_AVAILABLE].startswith('the search beyond the catalog')

@@ -21,7 +21,8 @@ def add_arguments(p):
     p.add_argument('--channels', metavar='MAP.yaml', default=None,
                    help='channel map of the DAQ files given as DATA (see src/bag_tools/README.md)')
     p.add_argument('--rig', metavar='RIG.yaml', default=None,
-                   help='nominal rig YAML (default: the packaged nominal rig)')
+                   help='your rig YAML: departures are named against its nominal values and tolerances (default: '
+                   'none; without a reference nothing is judged, with one the packaged nominal rig, ours)')
     p.add_argument('--out', metavar='DIR', required=True, help='output folder')
     from force_tester_common.engine import add_scheduler_argument
     add_scheduler_argument(p)
@@ -44,7 +45,7 @@ def main(args) -> int:
 
         from .core.pipeline import discover
         from .core.report import HELD_OUT
-        rig = load_rig(args.rig)
+        rig = load_rig(args.rig) if args.rig else None
         items = [args.data] if isinstance(args.data, str) else list(args.data)
         data = Path(items[0])
         for item in items:
@@ -66,7 +67,7 @@ def main(args) -> int:
             from bag_tools.core.convert import bag_to_campaign
             tmp = Path(tempfile.mkdtemp(prefix='ft_discover_'))
             folder = bag_to_campaign(data, tmp / 'campaign')
-        report = discover(folder, rig, Path(args.out), scheduler=scheduler, progress=_progress())
+        report = discover(folder, rig, Path(args.out), scheduler=scheduler, progress=_progress(), rig_file=args.rig)
     except (BagError, DiscoveryError, SimError, EngineError) as exc:
         return _error(exc)
     except OSError as exc:
@@ -112,12 +113,17 @@ def print_reference_free(report: dict, out: Path) -> int:
         f'{len(report["pulls"])} pull(s), too few for the analysis with a reference'
     print(f'{why}: cause: {report["cause"]} (named: {names}); '
           f'{report["validation"]["method"]} over {len(report["fitted_pulls"])} pull(s)')
+    if not report['rig']['given']:
+        print(report['rig']['what'])
     c = report.get('candidates') or {}
     if 'gain_mass_product' in c:
         g, d = c['gain_mass_product'], c['accel_delay']
         print(f'g m2 = {g["parameters"]["gain_mass_kg"]:.5g} kg, accelerometer delay '
               f'{1e6 * d["parameters"]["delay_s"]:.3g} us' + ('; modes: ' + ', '.join(
                   f'{m["frequency_hz"]:.1f} Hz' for m in report['modes'][:3]) if report.get('modes') else ''))
+        from .core.without_reference.report import readings
+        for line in readings(c):
+            print(line)
     if 'moving_cell_gain' in c:
         print(f'with the stationary cell: g = {c["moving_cell_gain"]["parameters"]["gain"]:.5g}, m2 = '
               f'{c["effective_mass"]["parameters"]["mass_kg"]:.5g} kg')

@@ -4,6 +4,7 @@ One module an idea, in the order a discovery runs (pipeline.discover -> stream.p
 
 - source.py       where a campaign's pulls come from (a folder read pull by pull, or channels in memory)
 - quality.py      the data-quality screen (defects found, repaired and masked; pulls left out)
+- overload.py     ... its overloads: bursts in one channel alone; when two channels disagree, which one is blamed
 - prep.py         per-pull preparation: T, the low-passed channels, carriage motion, the analysis window
 - cells.py        cell calibration: the stationary cell's frequency and damping from the free decay, T recomputed
 - hum.py          mains hum: the line's frequency (from pre-pull records or free-phase residuals), each pull's

@@ -20,6 +20,12 @@ def _fmt_params(p):
     return ', '.join(f'{k} = {v:.4g}' if isinstance(v, (int, float)) else f'{k} = {v}' for k, v in p.items())
 
 
+def rig_line(r) -> str:
+    """report.md's line on the rig the data were judged against (report.json rig), on both paths."""
+    rig = r['rig']
+    return f'Rig: {rig["file"] or ("given" if rig["given"] else "none")}; {rig["what"]}.'
+
+
 def markdown(r, plots, screens=(), excluded=None) -> str:
     if r['gain'] is None and not r['fitted_pulls']:
         return '\n'.join(['# Discovery report', '', f'**Primary cause: `{r["cause"]}`.** {r["notes"][0]}.', '']
@@ -28,7 +34,7 @@ def markdown(r, plots, screens=(), excluded=None) -> str:
          f'**Primary cause: `{r["cause"]}`.** Baseline error {r["baseline_error"]:.4g}, '
          f'extended {r["extended_error"]:.4g}, '
          f'gain {r["gain"]:.3g}x' if r['gain'] else f'**Primary cause: `{r["cause"]}`.**', '',
-         f'Metric: {r["metric"]}.', '',
+         f'Metric: {r["metric"]}.', '', rig_line(r), '',
          f'Fitted on {len(r["fitted_pulls"])} pulls (every other pull: list positions 0, 2, 4, ...), '
          f'scored on {len(r["held_out_pulls"])} held-out pulls.',
          f'Moving-cell prediction residual (held-out, analysis window): {r["force_channel"]["baseline_rms_n"]:.3g} N '

@@ -24,6 +24,7 @@ from .report import (
     build_report,
     campaign_section,
     complete,
+    rig_state,
     unusable_report,
 )
 from .source import campaign_absent
@@ -39,21 +40,29 @@ def spills_locally(scheduler: Optional[str]) -> bool:
 
 
 def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
-             progress: Optional[Callable[[str, int, int], None]] = None, mapper=None) -> dict:
+             progress: Optional[Callable[[str, int, int], None]] = None, mapper=None, rig_file=None) -> dict:
     """Analyse, decide, re-simulate the held-out pulls, write DIR/report.json, report.md, extension.yaml (+ plots).
     Returns the report dict. campaign: a campaign folder (read pull by pull), [(meta, channels)] or
     [source.PullRef]; scheduler: where the per-pull stages run (force_tester_common.engine: None for the embedded
     cluster or $DASK_SCHEDULER_ADDRESS, 'inline', or tcp://HOST:PORT), or mapper: a force_tester_common.engine.Mapper
-    to run them (its scheduler then); progress(stage, done, total) as pulls finish."""
+    to run them (its scheduler then); progress(stage, done, total) as pulls finish. rig: the rig given (a
+    RigParams; rig_file: the file it came from), or None when none was given: the reference-free path then judges
+    nothing against a nominal (report.rig_state), the path with a reference takes the packaged nominal rig."""
     from force_tester_common.engine import Mapper
     mapper = Mapper(scheduler) if mapper is None else mapper
     refs = pull_refs(campaign)
     absent = campaign_absent(refs)
     check_core_channels(absent)
+    state = rig_state(rig, rig_file)
     if needs_reference_free(absent):   # no stationary cell or no encoder: what the remaining channels support
-        return discover_without_reference(refs, absent, rig, out_dir, mapper, progress)
+        return discover_without_reference(refs, absent, rig, out_dir, mapper, progress, rig_state=state)
     if len(refs) < MIN_PULLS:          # too few to fit half and hold half out: the free phases, leave-one-out
-        return discover_without_reference(refs, absent, rig, out_dir, mapper, progress, few=MIN_PULLS)
+        return discover_without_reference(refs, absent, rig, out_dir, mapper, progress, few=MIN_PULLS,
+                                          rig_state=state)
+    if rig is None:                    # the analysis with a reference needs a model of record: ours
+        from force_tester_sim.core.params import load_rig
+        rig = load_rig()
+        state = rig_state(rig, nominal=True)
     spill = tempfile.mkdtemp(prefix='ft_discover_spill_') if spills_locally(mapper.scheduler) else None
     try:
         st = Stream(refs, rig, mapper, spill, progress)
@@ -61,7 +70,8 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
         decision = decide(analysis, rig)
         out = Path(out_dir)
         if not analysis.pulls:
-            report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, absent), 'plots': []},
+            report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, absent), 'plots': [],
+                               'rig': state},
                               {}, 'the data-quality screen left too few pulls to analyse (data_quality)')
             write_outputs(report, analysis, None, (), rig, out)
             return report
@@ -83,7 +93,8 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
             check = None
         add_simulation(report, check)
         add_beyond(report, found)
-        report = complete({**report, **campaign_section(analysis, absent), 'plots': []}, WITHOUT_REFERENCE_ONLY)
+        report = complete({**report, **campaign_section(analysis, absent), 'plots': [], 'rig': state},
+                          WITHOUT_REFERENCE_ONLY)
         write_outputs(report, analysis, errors, decision.named, rig, out, check, ext, found.traces)
         return report
     finally:

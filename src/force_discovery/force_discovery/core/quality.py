@@ -21,16 +21,18 @@ checks apply to them):
   is masked.
 - ``clipping``: sensor channels; a run of >= ``CLIP_MIN_RUN`` consecutive samples exactly at the record's
   maximum or minimum (the value at which the sensor or the ADC saturates), with the samples at that value
-  less than ``MERGE_GAP_S`` before or after it (noise dithers in and out of the clip at its edges).
+  less than ``MERGE_GAP_S`` before or after it (noise dithers in and out of the clip at its edges); or shorter
+  runs that come back to that value (``CLIP_MIN_VISITS``: a sensor ringing past its limit).
 - ``held``: sensor channels; a run of >= ``HELD_MIN_SAMPLES`` samples each exactly equal to the one before
   (noise never repeats a value). When every sensor channel holds over the same span it is one defect on
   channel ``ALL`` (a DAQ buffer under-run: the DAQ repeated its last sample on every channel) and every
   channel is masked there. The encoder alone may stay constant for seconds while the carriage is at rest;
   it is held (a defect) only when it moved by more than ``ENCODER_JUMP_QUANTA`` counts in the one sample
   before or after the constant run, i.e. it was moving while it reported no motion.
-- ``overload``: sensor channels; see ``_overloads``: a burst of up to 5 ms far above the rest of the channel's
-  record (1.5 x its largest other excursion, 50 x its noise) that no other channel shows (a sensor or amplifier
-  driven past its range, e.g. +/-9000 m/s^2 on an accelerometer in a free phase).
+- ``overload``: sensor channels; samples beyond the rated range a channel map gives; and, see ``overload.py``, a
+  burst of up to 5 ms far above the rest of the channel's record (1.5 x its largest other excursion, 50 x its
+  noise) that no other channel shows (a sensor or amplifier driven past its range, e.g. +/-9000 m/s^2 on an
+  accelerometer in a free phase); when two channels disagree, the one that left its physics is blamed.
 - ``spike``: sensor channels; see ``_spikes``: a short (<= ``SPIKE_MAX_SAMPLES``) excursion that stands out
   of the fourth difference (which all but removes the rig's ringing and trends), is explained by a compact
   excursion alone, returns to the trend it left, and shows in one channel only (the rig's sharp events --
@@ -61,6 +63,8 @@ from force_tester_common.core.channels import (
     REQUIRED_CHANNELS,
 )
 from force_tester_sim.core.pull import ACCEL_NOISE_M_S2, LOAD_CELL_NOISE_N
+
+from .overload import OVERLOAD_MAX_S, overloads
 
 # ------------------------------------------------------------------------------------------ names
 SPIKE = 'spike'
@@ -110,6 +114,12 @@ STUCK_NOISE_FRACTION = 0.01
 # maximum is one sample; even a quantised channel with ~1 LSB of noise does not sit on its extreme code for
 # five samples in a row unless it is saturated.
 CLIP_MIN_RUN = 5
+# ... or fewer at a time, but back on the extreme in >= 2 runs of >= 2 samples (>= CLIP_MIN_RUN in all): a sensor
+# ringing far past its limit sits on it 2-4 samples a period (LADISK's camera.lvm, 50 kHz: 26 samples at +/-54.7 g
+# in 8 ms). A continuous-valued signal does not return to exactly its record's extreme; such visits less than 5 ms
+# apart (a burst's length) are one clipping defect.
+CLIP_MIN_VISITS = 2
+CLIP_VISIT_GAP_S = OVERLOAD_MAX_S
 # Held: >= 25 samples (0.5 ms, half the shortest under-run seen, 1 ms) each exactly equal to the one before.
 # Float noise never repeats; a quantised channel with ~1 LSB of noise repeats with p < 0.5 per sample, so a
 # run of 25 has p < 3e-8 per sample (< 0.003 per 100,000-sample record).
@@ -140,17 +150,6 @@ SPIKE_COINCIDENCE_S = 0.3e-3     # a glitch is in ONE channel; the pull's sharp 
 SPIKE_COINCIDENCE_Z = 6.0        # ringing onset) are in both cells and the accelerometer within ~0.1 ms (the
 #                                  accelerometer's delay <= 0.1 ms): a group with |r| > 6 sigma_r in another of
 #                                  those channels within 0.3 ms is not a spike
-# Overload (see _overloads): a burst of <= 5 ms on one sensor channel standing > 1.5 x above everything else of
-# that channel (and > 50 x its noise) while no other of the coincidence channels has an event there (within 2 ms,
-# above 30 % of its own largest excursion): a sensor or amplifier driven past its range (an accelerometer's
-# +/-9000 m/s^2 burst in a free phase). The rig's events are in every channel at once: the break, the impact.
-OVERLOAD_MAX_S = 5e-3
-OVERLOAD_RATIO = 1.5
-OVERLOAD_SNR = 50.0
-OVERLOAD_CONTEXT_S = 2e-3
-OVERLOAD_COINCIDENCE = 0.3
-OVERLOAD_EDGE = 0.25             # the burst's samples: above this share of its peak excursion
-OVERLOAD_MAX_COUNT = 3           # bursts looked for per channel
 RATED_FLANK = 0.5                # beyond a rated range: the excursion down to this share of it is masked
 # repair(): gaps up to a spike's length get a cubic bridge, longer ones (held, NaN runs) a straight line
 REPAIR_CUBIC_MAX = SPIKE_MAX_SAMPLES
@@ -445,9 +444,11 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
             if np.count_nonzero(at) < CLIP_MIN_RUN:
                 continue
             s, e = _runs(at)
-            longest = np.maximum.reduceat(e - s, np.r_[0, np.flatnonzero(s[1:] - e[:-1] > gap) + 1])
-            for (i0, i1), run in zip(_merge(s, e, gap), longest):
-                if run < CLIP_MIN_RUN:
+            ceiling = np.count_nonzero(e - s > 1) >= CLIP_MIN_VISITS     # back on the one value, again and again
+            g = int(round(CLIP_VISIT_GAP_S / dt)) if ceiling else gap
+            longest = np.maximum.reduceat(e - s, np.r_[0, np.flatnonzero(s[1:] - e[:-1] > g) + 1])
+            for (i0, i1), run in zip(_merge(s, e, g), longest):
+                if run < CLIP_MIN_RUN and not ceiling:
                     continue
                 pending.append((c, c, CLIPPING, i0, i1, f'{int(np.count_nonzero(at[i0:i1]))} samples at the '
                               f'record {side} {level:.6g} (saturated sensor or ADC)'))
@@ -466,54 +467,13 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
         for i0, i1, peak, detail in _spikes(xw, r, max(sigma_r, 1e-12), others, dt):
             found.append((c, c, SPIKE, i0, i1, f'{peak:+.4g} from the signal interpolated across it, over '
                           f'{_ms(i1 - i0, dt)} {detail}'))
-    devs = {c: np.abs(xw - np.median(xw)) for c, (xw, _r, _s) in rough.items()}
-    for c, (xw, _r, sigma_r) in rough.items():
-        others = [devs[o] for o in COINCIDENCE_CHANNELS if o != c and o in devs]
-        beyond = [(f[3], f[4]) for f in found if f[0] == c and f[2] == OVERLOAD]     # the rated range's
-        for i0, i1, peak, ratio in _overloads(xw, devs[c], sigma_r / R_PER_SIGMA, others, dt):
-            if any(i0 < b1 and b0 < i1 for b0, b1 in beyond):
-                continue
-            found.append((c, c, OVERLOAD, i0, i1, f'a burst of {peak:+.4g} over {_ms(i1 - i0, dt)}, {ratio:.3g} x '
-                          'the rest of the record, in this channel alone (sensor overload)'))
+    left = {c: [(f[3], f[4]) for f in found + pending if f[0] == c and f[2] in (OVERLOAD, CLIPPING)] for c in rough}
+    sensed = {c: (xw, sigma_r / R_PER_SIGMA) for c, (xw, _r, sigma_r) in rough.items()}
+    for c, i0, i1, peak, ratio in overloads(sensed, left, dt, COINCIDENCE_CHANNELS):
+        found.append((c, c, OVERLOAD, i0, i1, f'a burst of {peak:+.4g} over {_ms(i1 - i0, dt)}, {ratio:.3g} x the '
+                      'rest of the record, in this channel alone (sensor overload)'))
     found += _held_records(held, pending, n, dt)
     return _build(name, t, dt, channels, found)
-
-
-def _overloads(x: np.ndarray, dev: np.ndarray, sigma: float, others: Sequence[np.ndarray], dt: float) -> list:
-    """Bursts in x (dev: |x - median|; sigma: its noise): [(i0, i1, signed peak, ratio to the rest)]. The
-    largest excursion is a burst when it lasts <= OVERLOAD_MAX_S, stands OVERLOAD_RATIO x above the rest of the
-    record and OVERLOAD_SNR x above the noise, and no other channel (others: their |x - median|) has an event
-    within OVERLOAD_CONTEXT_S of it (OVERLOAD_COINCIDENCE of its own largest excursion); repeated on the rest
-    up to OVERLOAD_MAX_COUNT times. A record without another channel to compare is not judged."""
-    if not others:
-        return []
-    n = len(x)
-    w = max(1, int(round(OVERLOAD_MAX_S / dt)))
-    g = max(1, int(round(OVERLOAD_CONTEXT_S / dt)))
-    d = dev.copy()
-    out = []
-    tops = [float(np.max(o)) for o in others]
-    for _ in range(OVERLOAD_MAX_COUNT):
-        k = int(np.argmax(d))
-        peak = float(d[k])
-        if not peak > OVERLOAD_SNR * max(sigma, 1e-12):
-            break
-        lo, hi = max(0, k - w), min(n, k + w + 1)
-        big = np.flatnonzero(d[lo:hi] > OVERLOAD_EDGE * peak) + lo
-        i0, i1 = int(big[0]), int(big[-1]) + 1
-        if i1 - i0 > w:
-            break
-        rest = np.concatenate((d[:max(0, i0 - g)], d[min(n, i1 + g):]))
-        top_rest = float(np.max(rest)) if len(rest) else 0.0
-        if peak < OVERLOAD_RATIO * top_rest:
-            break
-        c0, c1 = max(0, i0 - g), min(n, i1 + g)
-        if any(np.max(o[c0:c1]) >= OVERLOAD_COINCIDENCE * top for o, top in zip(others, tops) if top > 0):
-            break
-        out.append((i0, i1, float(x[k] - np.median(x)),
-                    peak / max(top_rest, 1e-12)))
-        d[c0:c1] = 0.0
-    return out
 
 
 def _held_records(held: Dict[str, List[Tuple[int, int]]], pending: list, n: int, dt: float) -> list:

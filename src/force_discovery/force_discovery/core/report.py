@@ -25,7 +25,8 @@ FORCE_CHANNEL = ('mains_hum',) + TERMS
 HELD_OUT = 'held-out'     # validation.method with a reference: half the pulls fitted, half held out
 #: report.json's top-level keys, on both paths (a test checks a campaign with a reference and one without). A key a
 #: path cannot fill is {NOT_AVAILABLE: why} (complete), never left out
-REPORT_KEYS = ('cause', 'causes', 'baseline_error', 'extended_error', 'gain', 'metric', 'reference', 'stationary_cell',
+REPORT_KEYS = ('cause', 'causes', 'baseline_error', 'extended_error', 'gain', 'metric', 'rig', 'reference',
+               'stationary_cell',
                'absent', 'channels', 'validation', 'identifiable', 'not_identifiable', 'force_channel',
                'within_tolerance', 'inconclusive', 'indicated', 'tolerances', 'pulls', 'fitted_pulls',
                'held_out_pulls', 'excluded_pulls', 'significance_rule', 'uncertainty_budget', 'candidates', 'modes',
@@ -33,6 +34,23 @@ REPORT_KEYS = ('cause', 'causes', 'baseline_error', 'extended_error', 'gain', 'm
                'beyond_catalog', 'beyond_search', 'data_quality', 'notes', 'plots', 'failed_pulls', 'retried_pulls',
                'scheduler')
 NOT_AVAILABLE = 'not_available'
+NO_RIG = ('no rig given (--rig): the estimates are reported with what they mean; nothing is judged against a '
+          'nominal or a tolerance band, so no cause is named')
+
+
+def rig_state(rig, file=None, nominal: bool = False) -> dict:
+    """report.json's ``rig``: what the data were judged against. rig None: none given (NO_RIG); nominal: none
+    given, and the analysis with a reference took the packaged nominal rig (ours) as its model of record; else the
+    rig given, from ``file`` (None: given in memory)."""
+    if rig is None:
+        return {'given': False, 'file': None, 'what': NO_RIG}
+    if nominal:
+        from force_tester_sim.core.params import NOMINAL_YAML
+        return {'given': False, 'file': str(NOMINAL_YAML),
+                'what': 'no rig given (--rig): the analysis with a reference (the stationary cell, the encoder) '
+                        'judges the data against the packaged nominal rig, the workspace\'s own'}
+    return {'given': True, 'file': None if file is None else str(file),
+            'what': 'departures are named against this rig\'s nominal values and tolerance bands'}
 #: why the path without a reference cannot fill a key (the keys only the analysis with a reference fills)
 WITH_REFERENCE_ONLY = {
     'force_channel': 'the held-out force-channel error needs the tension T and the carriage motion (the stationary '

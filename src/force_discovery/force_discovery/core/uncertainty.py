@@ -29,6 +29,9 @@ NAMED, WITHIN, INCONCLUSIVE, NOT_SIGNIFICANT = 'named', 'within_tolerance', 'inc
 # the verdicts a campaign of 1-3 pulls can give (the reference-free path's leave-one-out): one pull has no interval;
 # 2-3 held-out pulls cannot meet t >= MIN_T, so what departs on every one of them is indicated, not named
 PER_PULL_ONLY, INDICATED, NOT_INDICATED = 'per_pull_only', 'indicated', 'not_indicated'
+# no rig given (the reference-free path without --rig): no nominal and no tolerance band to judge an estimate
+# against; it is reported with what it means, never named
+NOT_JUDGED = 'not_judged'
 
 
 def t_quantile(n: int) -> float:

@@ -99,10 +99,11 @@ def stats_pass(item) -> FreeStats:
 
 
 def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_dir, mapper, progress=None,
-                               few: int = 0) -> dict:
+                               few: int = 0, rig_state: Optional[dict] = None) -> dict:
     """The reference-free discovery of a campaign lacking ``absent`` (module docstring), or of one with every
     channel but fewer pulls than ``few`` (the analysis with a reference needs that many); writes DIR/report.json,
-    report.md and extension.yaml and returns the report."""
+    report.md and extension.yaml and returns the report. rig None: no rig was given (nothing is judged against a
+    nominal: leave_one_out.campaign_analysis); rig_state: report.json's ``rig`` (pipeline.rig_state)."""
     def run(stage, fn, items, names):
         prog = (lambda done, total: progress(stage, done, total)) if progress else None
         return mapper(fn, items, names=list(names), keep=True, on_result=None, progress=prog)
@@ -125,14 +126,15 @@ def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_d
         raise DiscoveryError(failed[0][1].split(': ', 1)[-1])       # no moving cell in any pull: one line
     if not usable:
         notes.append(f'0 of {len(refs)} pulls are usable (excluded_pulls, failed_pulls say why)')
-        rep = campaign_report(None, [], absent, screens, excluded, failed, rig, notes, few, **run_info)
+        rep = campaign_report(None, [], absent, screens, excluded, failed, rig, notes, few, rig_state, **run_info)
         write_report(rep, screens, rig, Path(out_dir), METHOD)
         return rep
     pulls = [s.pull for _r, s in usable]
     pres = [(p.hum_t, p.hum_r) for p in pulls if len(p.hum_t) > 100]
     f_hum = hum_frequency_free(pres) if pres else float(np.mean(HUM_BAND_HZ))
     grid = delay_grid(pulls[0].dt, [p.delay_s for p in pulls])
-    res2 = run('statistics', stats_pass, [(r, s, f_hum, grid, rig.force_chain) for r, s in usable],
+    fc = rig.force_chain if rig is not None else None
+    res2 = run('statistics', stats_pass, [(r, s, f_hum, grid, fc) for r, s in usable],
                [p.name for p in pulls])
     if res2.failed:
         name, why = res2.failed[0]
@@ -140,7 +142,7 @@ def discover_without_reference(refs: Sequence, absent: Sequence[str], rig, out_d
                              'to finish it')
     analysis = campaign_analysis(pulls, res2.results, f_hum, rig)
     run_info['retried'] += [n for n in res2.retried if n not in run_info['retried']]
-    rep = campaign_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few, **run_info)
+    rep = campaign_report(analysis, pulls, absent, screens, excluded, failed, rig, notes, few, rig_state, **run_info)
     write_report(rep, screens, rig, Path(out_dir), METHOD)
     return rep
 

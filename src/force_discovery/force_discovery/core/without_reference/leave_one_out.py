@@ -13,7 +13,7 @@ from force_tester_sim.core.tolerances import Band
 from ..candidate import Candidate, Evidence
 from ..ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
 from ..significance import MIN_REL_REDUCTION, MIN_T, significance
-from ..uncertainty import NAMED, jackknife_ci, mean_ci, verdict_rule
+from ..uncertainty import NAMED, NOT_JUDGED, jackknife_ci, mean_ci, verdict_rule
 from .phase_stats import FreeStats, gain_at, pooled, sse_at
 from .phases import FreePull
 from .stationary_cell import fit, gram_at, models, reference_fits
@@ -36,11 +36,13 @@ def _evidence(ev, base, ext, where: str = 'free-phase', **more) -> Evidence:
 
 def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_hum: float, rig) -> dict:
     """The campaign's estimates, their intervals, the held-out evidence and the verdicts (report.json's core):
-    causes {name: Candidate}, tolerance {name: its verdict with the band (uncertainty.verdict's form)}."""
+    causes {name: Candidate}, tolerance {name: its verdict with the band (uncertainty.verdict's form)}. rig None:
+    no rig was given, so there is no nominal to depart from: g m2's held-out evidence is against g m2 = 0 (no mass
+    moving with the accelerometer), every verdict is NOT_JUDGED, and no mode is told a mount's (no cell mode)."""
     n = len(pulls)
-    fc = rig.force_chain
-    tol = rig.tolerances
-    g0 = fc.m2                        # the model of record: g = 1, the rig's m2, no delay
+    fc = rig.force_chain if rig is not None else None
+    tol = rig.tolerances if rig is not None else None
+    g0 = fc.m2 if fc is not None else 0.0     # the model of record: g = 1, the rig's m2, no delay
     allj = list(range(n))
     G, d = pooled(stats, allj)
     loo = [pooled(stats, [k for k in allj if k != j]) for j in allj] if n >= 2 else []
@@ -61,7 +63,7 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     # the G cause: nominal g m2 vs fitted G (delay fitted in both); the delay: G alone vs G and d; hum: without/with
     g_nom_d = np.array([sse_at(stats[j], g0, loo[j][1] if n >= 2 else d, 'hum') for j in allj])
     causes, tolerance = {}, {}
-    band_g = (tol.moving_cell_gain_rel + tol.effective_mass_rel) * g0
+    band_g = (tol.moving_cell_gain_rel + tol.effective_mass_rel) * g0 if tol is not None else 0.0
     ci_g = _jackknife(G, [x[0] for x in loo])
     ci_d = _jackknife(d, [x[1] for x in loo])
     amp = float(np.mean(hum_amps))
@@ -73,12 +75,12 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
         ev = significance(ev_base, ev_ext)
         departs = ev.rel_sse_reduction >= MIN_REL_REDUCTION and bool(np.all(ev_ext < ev_base)) and bool(outside)
         v = verdict_rule(bool(inside), bool(outside), ev.significant, can_name=n >= MIN_NAMED_PULLS,
-                         departs=departs, one_pull=n < 2)
+                         departs=departs, one_pull=n < 2) if rig is not None else NOT_JUDGED
         causes[name] = Candidate(params, ci, n, _evidence(ev, ev_base, ev_ext, where, **more), channel)
         par, lo_, hi_, est = band
         pci = ci.get(par)
-        tolerance[name] = {'band': Band(name, par, lo_, hi_).as_dict(), 'estimate': est,
-                           'ci95': None if pci is None else list(pci), 'pulls': n, 'verdict': v}
+        tolerance[name] = {'band': Band(name, par, lo_, hi_).as_dict() if rig is not None else None,
+                           'estimate': est, 'ci95': None if pci is None else list(pci), 'pulls': n, 'verdict': v}
 
     def band_test(ci, est, lo_, hi_):
         lo_ci, hi_ci = (ci if ci is not None else (est, est))
@@ -87,13 +89,14 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     ins, outs = band_test(ci_g, G, g0 - band_g, g0 + band_g)
     entry('gain_mass_product', {'gain_mass_kg': G}, {'gain_mass_kg': ci_g}, g_nom_d, full, ins if n >= 2 else None,
           outs, 'force_moving_n = g m2 a2(t + d), free phases', ('gain_mass_kg', g0 - band_g, g0 + band_g, G))
-    ins, outs = band_test(ci_d, d, -tol.accel_delay_s, tol.accel_delay_s)
+    tol_d, tol_h = (tol.accel_delay_s, tol.mains_hum_amplitude_n) if tol is not None else (0.0, 0.0)
+    ins, outs = band_test(ci_d, d, -tol_d, tol_d)
     entry('accel_delay', {'delay_s': d}, {'delay_s': ci_d}, no_delay, full, ins if n >= 2 else None, outs,
-          'force_moving_n = g m2 a2(t + d), free phases', ('delay_s', -tol.accel_delay_s, tol.accel_delay_s, d))
-    ins, outs = band_test(ci_h, amp, 0.0, tol.mains_hum_amplitude_n)
+          'force_moving_n = g m2 a2(t + d), free phases', ('delay_s', -tol_d, tol_d, d))
+    ins, outs = band_test(ci_h, amp, 0.0, tol_h)
     entry('mains_hum', {'frequency_hz': f_hum, 'amplitude_n': amp}, {'amplitude_n': ci_h}, full_nohum, full,
           ins if n >= 2 else None, outs, 'force_moving_n - g m2 a2(t + d), free phases',
-          ('amplitude_n', 0.0, tol.mains_hum_amplitude_n, amp))
+          ('amplitude_n', 0.0, tol_h, amp))
     ref = [s.ref for s in stats]
     reference = None
     if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (stationary_cell.py)
@@ -104,19 +107,19 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
         rg, rm = reference['g'], reference['m2']
         ci_rg = _jackknife(rg, [x[0] for x in reference['loo']])
         ci_rm = _jackknife(rm, [x[1] for x in reference['loo']])
-        bg = tol.moving_cell_gain_rel
+        bg = tol.moving_cell_gain_rel if tol is not None else 0.0
         ins, outs = band_test(ci_rg, rg, 1.0 - bg, 1.0 + bg)
         entry('moving_cell_gain', {'gain': rg}, {'gain': ci_rg}, held['unit_gain'], held['full'],
               ins if n >= 2 else None, outs, chan, ('gain', 1.0 - bg, 1.0 + bg, rg), where)
-        bm = tol.effective_mass_rel * g0
+        bm = tol.effective_mass_rel * g0 if tol is not None else 0.0
         ins, outs = band_test(ci_rm, rm, g0 - bm, g0 + bm)
         entry('effective_mass', {'mass_kg': rm}, {'mass_kg': ci_rm}, held['record_mass'], held['full'],
               ins if n >= 2 else None, outs, chan, ('mass_kg', g0 - bm, g0 + bm, rm), where,
               ac_coupling_per_s=reference['k'])
     modes = cluster_modes(pulls)
-    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi)
+    f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi) if fc is not None else None
     noise = float(np.median([p.accel_noise for p in pulls]))
-    mount = next((m for m in modes if m['frequency_hz'] < MOUNT_MAX_FRACTION * f_cell), None)
+    mount = next((m for m in modes if f_cell and m['frequency_hz'] < MOUNT_MAX_FRACTION * f_cell), None)
     if mount is not None:
         cell = [(f_cell, fc.load_cell_damping_ratio)]
         b, e, r2n = [], [], []

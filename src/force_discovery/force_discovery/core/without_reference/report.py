@@ -13,7 +13,9 @@ from force_tester_common.core.channels import CHANNELS, REQUIRED_CHANNELS
 from .. import quality as Q
 from ..extension import correction_uncertainty, extension_yaml
 from ..identifiability import COMPUTED, FREE_CHANNELS, identifiability
-from ..report import CANDIDATE_KEYS, LISTED_KEYS, WITH_REFERENCE_ONLY, clean, complete
+from ..markdown import rig_line
+from ..report import CANDIDATE_KEYS, LISTED_KEYS, NO_RIG, NOT_AVAILABLE, WITH_REFERENCE_ONLY, clean, complete
+from ..report import rig_state as state_of
 from ..significance import MIN_REL_REDUCTION, MIN_T
 from ..uncertainty import INCONCLUSIVE, INDICATED, WITHIN
 from .leave_one_out import MIN_NAMED_PULLS, validation_text
@@ -43,16 +45,18 @@ REFERENCE_WHAT = ('from the stationary cell: F_move = g T + g m2 a2(t + d) - k C
 
 def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent: Sequence[str], screens: Sequence,
                     excluded: Dict[str, str], failed: Sequence, rig, notes: Sequence[str] = (), few: int = 0,
-                    retried: Sequence[str] = (), scheduler: Optional[str] = None) -> dict:
+                    rig_state: Optional[dict] = None, retried: Sequence[str] = (),
+                    scheduler: Optional[str] = None) -> dict:
     """report.json of the reference-free path (few: run because the campaign has fewer pulls than this): the keys
-    of the path with a reference (report.REPORT_KEYS), those it cannot fill saying why."""
+    of the path with a reference (report.REPORT_KEYS), those it cannot fill saying why. rig None: none given
+    (report.rig_state; rig_state: report.json's rig, from the pipeline)."""
     with_ref = bool(analysis and analysis.get('reference'))
     yes, no = identifiability(absent, COMPUTED + (REFERENCE_COMPUTED if with_ref else ()), few=few)
     for q in yes:
         if q['quantity'] in REFERENCE_COMPUTED:
             q['what'] = REFERENCE_WHAT
     n = len(pulls)
-    rep = {'reference': False, 'stationary_cell': with_ref, 'absent': list(absent),
+    rep = {'rig': rig_state or state_of(rig), 'reference': False, 'stationary_cell': with_ref, 'absent': list(absent),
            'channels': [c for c in CHANNELS if c not in absent and (c in REQUIRED_CHANNELS or c in FREE_CHANNELS)],
            'identifiable': yes, 'not_identifiable': no, 'validation': validation_text(max(n, 1), with_ref),
            'pulls': [p.name for p in pulls], 'fitted_pulls': [p.name for p in pulls],
@@ -60,14 +64,17 @@ def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent:
            'data_quality': Q.defect_dicts(screens), 'excluded_pulls': dict(excluded),
            'failed_pulls': [{'pull': p, 'error': e} for p, e in failed], 'notes': list(notes),
            'retried_pulls': list(retried), 'scheduler': scheduler or None, 'plots': [],
-           'tolerances': dataclasses.asdict(rig.tolerances), 'significance_rule': SIGNIFICANCE_RULE}
+           'tolerances': dataclasses.asdict(rig.tolerances) if rig is not None else {NOT_AVAILABLE: NO_RIG},
+           'significance_rule': SIGNIFICANCE_RULE}
     rep['notes'].append(f'the stationary cell separates g and m2 ({REFERENCE_WHAT})' if with_ref else
                         'g and m2 separate only with a reference (the stationary cell) or a known calibration '
                         'mass: the free phases give their product g m2')
+    why = {**WITH_REFERENCE_ONLY, 'cell_mode_hz': f'{NO_RIG}: the rig\'s cell mode, which a mount mode is told from, '
+                                                  'needs its cell stiffness and m2'}
     if analysis is None:
         rep.update(cause='unexplained', causes=[], candidates={}, gain=None, baseline_error=None,
                    extended_error=None, modes=[], per_pull=[])
-        return complete(clean(rep), WITH_REFERENCE_ONLY, 'no usable pulls (excluded_pulls, failed_pulls say why)')
+        return complete(clean(rep), why, 'no usable pulls (excluded_pulls, failed_pulls say why)')
     c = {k: {**cand.as_dict(), 'tolerance': analysis['tolerance'][k]} for k, cand in analysis['causes'].items()}
     c = {k: {f: v[f] for f in CANDIDATE_KEYS} for k, v in c.items()}
     named = analysis['named']
@@ -81,6 +88,7 @@ def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent:
             rep['notes'].append(f'indicated (departs on every held-out pull, too few pulls to name): '
                                 f'{", ".join(ind)}')
     samples = max(analysis['samples'], 1)
+    rep['notes'] += readings(c)
 
     def listed(verdict, **more):
         return [{'name': k, **{f: c[k][f] for f in LISTED_KEYS}, **more} for k in c
@@ -91,13 +99,37 @@ def campaign_report(analysis: Optional[dict], pulls: Sequence[FreePull], absent:
                indicated=listed(INDICATED), within_tolerance=listed(WITHIN),
                inconclusive=listed(INCONCLUSIVE, pulls_to_settle=None),
                metric='RMS moving-cell residual in the free phases, held out (leave-one-out); baseline: '
-                      'g m2 = the rig\'s m2, no delay, no hum',
+                      + ('g m2 = the rig\'s m2' if rig is not None else 'g m2 = 0 (no rig given)')
+                      + ', no delay, no hum',
                baseline_error=math.sqrt(analysis['baseline_sse'] / samples),
                extended_error=math.sqrt(analysis['extended_sse'] / samples),
-               modes=analysis['modes'], per_pull=analysis['per_pull'], cell_mode_hz=analysis['cell_mode_hz'])
+               modes=analysis['modes'], per_pull=analysis['per_pull'])
+    if analysis['cell_mode_hz'] is not None:
+        rep['cell_mode_hz'] = analysis['cell_mode_hz']
     rep['gain'] = rep['baseline_error'] / rep['extended_error'] if rep['extended_error'] else None
     rep['uncertainty_budget'] = {k: v['uncertainty_budget'] for k, v in c.items()}
-    return complete(clean(rep), WITH_REFERENCE_ONLY)
+    return complete(clean(rep), why)
+
+
+def readings(c: dict) -> list:
+    """What g m2 means, in words (report.json notes, report.md, the CLI): consistent with zero, a mass the cell
+    carries, or a sign to check; the meaning needs no rig."""
+    g = c.get('gain_mass_product')
+    if not g:
+        return []
+    est, ci = g['parameters']['gain_mass_kg'], g['parameters_ci95']['gain_mass_kg']
+    if not ci or ci[0] is None:
+        return [f'g m2 = {est:.3g} kg (one pull: no interval, no reading)']
+    said = f'g m2 = {est:.3g} kg, 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] kg'
+    if ci[0] <= 0.0 <= ci[1]:
+        return [f'{said}: consistent with zero. In the free phases the cell carries no mass that moves with the '
+                'accelerometer: the accelerometer is not on the cell\'s body (on the struck structure, say), so '
+                'the m a correction has nothing to subtract, and the accelerometer delay is not defined']
+    if ci[0] > 0.0:
+        return [f'{said}: the cell carries a mass moving with the accelerometer (its gain g times that mass m2; '
+                'they separate only with a reference or a known calibration mass)']
+    return [f'{said}: negative: the cell and the accelerometer count opposite directions positive; check the '
+            'signs in the channel map']
 
 
 def _fmt_ci(ci, scale=1.0, fmt='.4g') -> str:
@@ -111,11 +143,15 @@ def report_markdown(rep: dict, screens: Sequence, method: str) -> str:
     lines = ['# Discovery without a reference', '',
              f'Channels: {", ".join(rep["channels"])}; absent: {", ".join(rep["absent"]) or "-"}. '
              f'{len(rep["pulls"])} usable pulls ({rep["validation"]["method"]}).', '',
+             rig_line(rep), '',
              f'**Cause: {rep["cause"]}**' + (f' (named: {", ".join(c["name"] for c in rep["causes"])})'
                                              if rep['causes'] else ''), '']
     if rep.get('gain'):
         lines += [f'{rep["metric"]}: {rep["baseline_error"]:.4g} N -> {rep["extended_error"]:.4g} N '
                   f'(x{rep["gain"]:.3g}).', '']
+    said = readings(rep.get('candidates') or {})
+    if said:
+        lines += ['## What the estimates mean', ''] + [f'- {x}' for x in said] + ['']
     lines += ['## Identifiable from these channels', '', '| quantity | from | what |', '|---|---|---|']
     lines += [f'| {q["quantity"]} | {", ".join(q["needs"]) or "every channel"} | {q["what"]} |'
               for q in rep['identifiable']]
@@ -137,7 +173,8 @@ def report_markdown(rep: dict, screens: Sequence, method: str) -> str:
         lines.append('')
     if rep.get('modes'):
         lines += ['## Ringing modes (a2, free decay after the last event)', '',
-                  f'The rig\'s cell mode: {rep["cell_mode_hz"]:.0f} Hz.', '',
+                  (f'The rig\'s cell mode: {rep["cell_mode_hz"]:.0f} Hz.' if isinstance(rep['cell_mode_hz'], float)
+                   else 'No rig given: no cell mode, so no mode is told a mount\'s.'), '',
                   '| frequency (Hz) | damping ratio | pulls | 95 % interval (Hz) |', '|---|---|---|---|']
         lines += [f'| {m["frequency_hz"]:.1f} | {m["damping_ratio"]:.4f} | {m["pulls"]} | '
                   f'{_fmt_ci(m["frequency_ci95"], fmt=".1f")} |' for m in rep['modes']]
@@ -166,7 +203,9 @@ def report_extension(rep: dict, rig) -> dict:
     F_move / moving_cell_gain; with g unknown, mass_kg is g m2 and the gain 1, so the corrected force is g times
     the force at the contact (stated under assumptions)."""
     c = rep.get('candidates') or {}
-    corr = {'mass_kg': rig.force_chain.m2, 'accel_delay_s': 0.0, 'moving_cell_gain': 1.0}
+    measured = c['gain_mass_product']['parameters']['gain_mass_kg'] if 'gain_mass_product' in c else 0.0
+    corr = {'mass_kg': rig.force_chain.m2 if rig is not None else measured, 'accel_delay_s': 0.0,
+            'moving_cell_gain': 1.0}
     named = {x['name'] for x in rep.get('causes', [])}
     if 'gain_mass_product' in named:
         corr['mass_kg'] = c['gain_mass_product']['parameters']['gain_mass_kg']
@@ -182,7 +221,9 @@ def report_extension(rep: dict, rig) -> dict:
     return {'departures': {}, 'correction': corr, **_stated(correction_uncertainty(c, corr, PRODUCT_CORRECTED)),
             'assumptions': {'moving_cell_gain': 'not identifiable without a reference or a calibration mass: '
                             'mass_kg is g m2 and the gain 1, so the corrected force is g times the contact force; '
-                            'the corrected peak\'s uncertainty keeps the rig\'s u of the gain for it'}}
+                            'the corrected peak\'s uncertainty keeps the rig\'s u of the gain for it',
+                            **({} if rig is not None else {'mass_kg': f'{NO_RIG}: mass_kg is the g m2 measured in '
+                                                           'the free phases'})}}
 
 
 def _stated(unc: dict) -> dict:

@@ -39,14 +39,15 @@ class RefStats:
 
 def reference_stats(name: str, ch: dict, screen: Q.PullScreen, f_hum: float, delays: np.ndarray,
                     fc) -> Optional[RefStats]:
-    """RefStats of one pull (None without a stationary cell channel); fc: the rig's force chain (m1, k1, c1)."""
+    """RefStats of one pull (None without a stationary cell channel); fc: the rig's force chain (m1, k1, c1;
+    None, no rig given: T is the stationary cell's reading, its own mass's inertia unknown)."""
     if REFERENCE not in ch:
         return None
     t, dt, fm, a2, ok, _raw = prepared(name, ch, screen)
     fixed = Q.repair(ch, screen) if screen.spans else ch
     ok = ok & screen.usable(REFERENCE, grow_s=MASK_GROW_S)
-    T = tension_from_stationary(np.asarray(fixed[REFERENCE], float), dt, fc.m1, fc.load_cell_stiffness_n_per_m,
-                                fc.c1)
+    m1, k1, c1 = (fc.m1, fc.load_cell_stiffness_n_per_m, fc.c1) if fc is not None else (0.0, 1.0, 0.0)
+    T = tension_from_stationary(np.asarray(fixed[REFERENCE], float), dt, m1, k1, c1)
     C = np.cumsum(fm) * dt
     tk = t[ok]
     N = np.column_stack([np.ones(len(tk)), np.sin(2 * np.pi * f_hum * tk), np.cos(2 * np.pi * f_hum * tk)])
