@@ -58,8 +58,9 @@ def test_pilot_shows_pulls_sets_health_and_nodes_from_real_messages():
               pull_score(2, 3, 3300.0, 54.0, 12.0, 3.5), pull_score(3, 3, 3310.0, 50.0, 9.0, 2.0, status=1)]
     for s in scores:
         feed.put(('score', s, now))
-    feed.put(('diagnostics', diagnostics('sim: simulator', DiagnosticStatus.OK, 'publishing', pulls=4), now))
-    feed.put(('diagnostics', diagnostics('validator: validator', DiagnosticStatus.WARN, 'pull 3 INCOMPLETE'), now))
+    fresh = now + 60 * NS_PER_S   # fresh for the whole test: on a loaded machine the app may draw after STALE_S
+    feed.put(('diagnostics', diagnostics('sim: simulator', DiagnosticStatus.OK, 'publishing', pulls=4), fresh))
+    feed.put(('diagnostics', diagnostics('validator: validator', DiagnosticStatus.WARN, 'pull 3 INCOMPLETE'), fresh))
     feed.put(('diagnostics', diagnostics('correction: inertial correction', DiagnosticStatus.OK, 'x', pairs=9),
               now - 10 * NS_PER_S))   # its last report long ago: STALE
     health = MonitorHealth(window_s=2.0, recorder_messages=12345, recorder_report_age_s=0.3, clients=1, topics=[
