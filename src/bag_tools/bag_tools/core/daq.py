@@ -38,13 +38,14 @@ from force_tester_common.core.mapping import map_here
 from force_tester_common.core.partial import Marked, clear_stale, tell
 
 from .channel_map import ChannelMap, Mapped, apply_map, check_absent, load_channel_map, pairs_map
-from .daqfiles import (  # noqa: F401 - read_csv, write_csv and time_column are part of this module's interface
+from .daqfiles import (
     FORMATS,
     NOTHING_TO_CORRECT,
+    RATE_SNAP,
     file_format,
-    quiet,
     read_csv,
     read_records,
+    snap_rate,
     time_column,
     write_csv,
 )
@@ -55,8 +56,9 @@ FORMAT = 'force_tester_daq/1'
 #: Columns written by `correct` into a campaign (optional extras, also accepted on reading).
 CORRECTED_COLUMNS = tuple(f for f in CORRECTED_FIELDS if f != 'raw_n')
 KNOWN_COLUMNS = CHANNELS + CORRECTED_COLUMNS
-#: Relative tolerance between campaign.yaml's sample_rate_hz and the rate of the time column.
-RATE_RTOL = 1e-6
+#: Relative tolerance between campaign.yaml's sample_rate_hz and the rate of the time column (the same as an
+#: integer rate's: daqfiles.RATE_SNAP).
+RATE_RTOL = RATE_SNAP
 #: Stamp of the first pull's first sample when campaign.yaml gives no start_ns (2000-01-01Z).
 DEFAULT_EPOCH_NS = 946_684_800 * NS_PER_S
 #: Gap between pulls placed without start_ns (a time gap: the live filter restarts there).
@@ -183,10 +185,7 @@ def check_channels(channels: Mapping[str, Any], where: str, rate_hz: float | Non
                        f'{t[i]!r} s; expected strictly increasing times')
     implied = (n - 1) / (t[-1] - t[0])
     if rate_hz is None:
-        rate_hz = float(implied)
-        # snap to an integer rate when the column says so (50 kHz DAQs)
-        if abs(round(rate_hz) - rate_hz) <= RATE_RTOL * rate_hz:
-            rate_hz = float(round(rate_hz))
+        rate_hz = snap_rate(float(implied))   # an integer rate when the column says so (50 kHz DAQs)
     elif abs(implied - rate_hz) > RATE_RTOL * rate_hz:
         raise BagError(f'{where}: sample_rate_hz {rate_hz!r} disagrees with the time column '
                        f'({implied:.9g} Hz from {n} samples over {t[-1] - t[0]!r} s); expected '
