@@ -290,3 +290,26 @@ def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path):
         probe.destroy_node()
         node.destroy_node()
     assert bag_info(tmp_path / 'bag')['topics']['/force']['count'] == 7
+
+
+def test_a_recorder_given_no_bag_path_writes_a_dated_bag_as_ros2_bag_record(ros, tmp_path, monkeypatch):
+    """A second launch with a recorder in the same folder recorded nothing: the default bag_path was the fixed
+    'bag', which then existed (issue 41, Low). Empty (the default) is rosbag2_YYYY_MM_DD-HH_MM_SS in the working
+    directory, as `ros2 bag record` names it; a recorder started while an earlier one's bag is there records."""
+    import re
+    import time
+
+    from bag_tools.core.recording import dated_bag_path
+    from bag_tools.recorder_node import SPECS, RecorderNode
+    assert [s.default for s in SPECS if s.name == 'bag_path'] == ['']
+    at = time.mktime((2026, 11, 28, 7, 5, 9, 0, 0, -1))
+    assert dated_bag_path(at) == 'rosbag2_2026_11_28-07_05_09'
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'bag').mkdir()   # what an earlier launch with the old default left
+    node = RecorderNode(parameter_overrides=[Parameter('topics', value=['/force'])])
+    try:
+        path = node.writer.path
+    finally:
+        node.close()
+        node.destroy_node()
+    assert re.fullmatch(r'rosbag2_\d{4}_\d\d_\d\d-\d\d_\d\d_\d\d', path.name) and path.parent.resolve() == tmp_path
