@@ -154,6 +154,7 @@ class ValidatorNode(Node):
         state_file = self.params.values['state_file']
         self.log = ScoreLog(under_ros_home(state_file)) if state_file else None
         if self.log is not None:
+            self.log.check_writable()
             self._restore()
 
     def _restore(self):
