@@ -273,16 +273,20 @@ def test_extension_file_sets_the_mass_and_a_bad_one_is_refused(ros, tmp_path):
         node.destroy_node()
 
 
-def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path):
+@pytest.mark.parametrize('sim_time', (False, True), ids=('wall_clock', 'use_sim_time_without_clock'))
+def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path, sim_time):
     """The recorder publishes how many messages it has written (what `./ft demo` waits on
-    before stopping it): the count matches the blocks sent and the bag it closes."""
+    before stopping it): the count matches the blocks sent and the bag it closes. With use_sim_time:=true and
+    nothing on /clock too: the node's timers (topic discovery, flushing, the heartbeat) are on the steady clock
+    (before, none fired: the recorder recorded nothing and no heartbeat went out; issue 41, Low)."""
     from diagnostic_msgs.msg import DiagnosticArray
 
     from bag_tools.core.info import bag_info
     from bag_tools.recorder_node import RecorderNode
     from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
     node = RecorderNode(parameter_overrides=[Parameter('bag_path', value=str(tmp_path / 'bag')),
-                                             Parameter('topics', value=['/force'])])
+                                             Parameter('topics', value=['/force']),
+                                             Parameter('use_sim_time', value=sim_time)])
     probe = rclpy.create_node('probe')
     pub = probe.create_publisher(TOPICS['/force'].msg_type, '/force', BLOCK_QOS)
     counts = []

@@ -26,7 +26,7 @@ from force_tester_common.conversions import message_class
 from force_tester_common.core.channels import GRAPH_TOPICS
 from force_tester_common.core.clock import seconds_to_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, in_namespace, main_for
+from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, in_namespace, main_for, steady_timer
 
 from .core.errors import BagError
 from .core.recording import FLUSH_S, Recording, dated_bag_path
@@ -98,8 +98,8 @@ class RecorderNode(Node):
         self.subscribed = {}
         self.counts = {}  # topic -> messages written
         self._discover()
-        self.create_timer(0.1, self._discover)
-        self.create_timer(FLUSH_S, self._flush)
+        steady_timer(self, 0.1, self._discover)
+        steady_timer(self, FLUSH_S, self._flush)
         split = split_description(self.params.values['max_bag_size_mb'],
                                   self.params.values['max_bag_duration_s'])
         self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")

@@ -63,6 +63,7 @@ from force_tester_common.ros import (
     in_namespace,
     main_for,
     qos_watch,
+    steady_timer,
 )
 
 from .core.errors import CorrectionError
@@ -150,7 +151,7 @@ class ValidatorNode(Node):
                                  EVENT_QOS, event_callbacks=qos_watch(self.diag, PULL_EVENT_TOPIC))
         self.create_subscription(ParameterEvent, '/parameter_events',
                                  guarded(self.diag, '/parameter_events', self._on_parameters), EVENT_QOS)
-        self.create_timer(TICK_S, self._tick)
+        steady_timer(self, TICK_S, self._tick)
         state_file = self.params.values['state_file']
         self.log = ScoreLog(under_ros_home(state_file)) if state_file else None
         if self.log is not None:

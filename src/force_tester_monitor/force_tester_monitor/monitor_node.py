@@ -62,6 +62,7 @@ from force_tester_common.ros import (
     Diagnostics,
     in_namespace,
     main_for,
+    steady_timer,
 )
 
 from .core import params as P
@@ -182,9 +183,9 @@ class MonitorNode(Node):
         for topic in FORWARDED:
             if topic not in self.on_demand:
                 self._watch(topic)
-        self.create_timer(cfg.period_s, self._tick)
-        self.create_timer(cfg.health_period_s, self._health)
-        self.create_timer(NODES_PERIOD_S, self._publish_nodes)
+        steady_timer(self, cfg.period_s, self._tick)
+        steady_timer(self, cfg.health_period_s, self._health)
+        steady_timer(self, NODES_PERIOD_S, self._publish_nodes)
 
     # ------------------------------------------------------------------ receiving
     def _watch(self, topic: str) -> None:
