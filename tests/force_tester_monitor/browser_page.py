@@ -34,6 +34,7 @@ class Page:
         self.external = []
         self.http_errors = []
         self.ranged = []       # (Range header, status) of each request that asked for a byte range
+        self.dialogs = set()   # the text of every dialog a state showed over the app
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self):
@@ -54,6 +55,8 @@ class Page:
             self.http_errors.append((report['status'], report['url']))
         elif report['kind'] == 'ranged':
             self.ranged.append((report['range'], report['status']))
+        elif report['kind'] == 'state' and report.get('dialog'):
+            self.dialogs.add(report['dialog'])
         return report
 
     def state_until(self, condition, timeout: float, spin=lambda: None) -> dict | None:

@@ -6,7 +6,7 @@ its own origin and opens it by URL (Studio's remote-file data source), as `./ft 
 must then show: the force and acceleration plots drawn (pixels of each series' colour in the panel), the %
 plot's OK pulls, the last score and the last set summary in their tables with the validator's numbers; no data
 source problem, no page error, no request off the machine, nothing the server answered with an error, and
-every byte-range request answered 206 Partial Content.
+every byte-range request answered 206 Partial Content, no dialog over the app.
 """
 from __future__ import annotations
 
@@ -129,6 +129,8 @@ def test_a_recorded_bag_opens_in_the_viewer_by_url(tmp_path, ros_domain):
         assert page.ranged and all(status == 206 for _range, status in page.ranged), page.ranged
         assert page.problems == [] and page.errors == [], (page.problems, page.errors)
         assert page.external == [] and page.http_errors == [], (page.external, page.http_errors)
+        # and no start-up dialog with online-only links over it (the URL names the data source)
+        assert page.dialogs == set(), page.dialogs
     finally:
         if page is not None:
             page.close()

@@ -42,6 +42,10 @@ def test_the_server_serves_the_page_the_app_and_the_workspace_layout(server):
     assert _get(server, f'/studio/{wasm}')[1] == 'application/wasm'
     assert _get(server, '/vendor/react.production.min.js')[0] == 200
     assert _get(server, '/nothing-here.js')[0] == 404
+    # the page names its (empty) icon, so a browser does not ask for /favicon.ico, a 404, on every load
+    assert b'<link rel="icon" href="data:,"' in _get(server, '/')[2]
+    # and Studio starts without its "open data source" dialog, whose links are online-only
+    assert '[AppSetting.SHOW_OPEN_DIALOG_ON_STARTUP]: false' in (view.VIEWER / 'app' / 'viewer.js').read_text()
     assert _get(server, '/../../etc/passwd')[0] == 404
 
 

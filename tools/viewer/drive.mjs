@@ -9,7 +9,7 @@
 //        panel its id in the layout, its text, for plots the legend's entries, for tables the rows'
 //        cells, outside: the rows (and the pager) that lie outside the panel, box: where the panel is on the page
 //        ({x, y, width, height}, CSS px, as in a screenshot); the diagnostics panel's rows; connectionLost: the
-//        viewer's "no connection" bar's text ("" if hidden)
+//        viewer's "no connection" bar's text ("" if hidden); dialog: the text of any dialog over the app
 //   {"kind": "problem", "text": "..."}                     the app reported a data source problem
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
@@ -73,7 +73,9 @@ function readPage() {
   const okColor = filter && filter.innerText.trim() === "OK" ? getComputedStyle(filter).color : "";
   const banner = document.getElementById("connection-lost");
   const connectionLost = banner && banner.style.display !== "none" ? banner.innerText.trim() : "";
-  return { panels, diagnostics, okColor, connectionLost };
+  // a dialog over the app (Studio's start-up "open data source" dialog), its first words ("" if none)
+  const dialog = [...document.querySelectorAll("[role=dialog]")].map((d) => d.innerText.trim().slice(0, 80)).join(" | ");
+  return { panels, diagnostics, okColor, connectionLost, dialog };
 }
 
 let browser;

@@ -417,10 +417,12 @@ class MonitorNode(Node):
                                    '(reported once; later ones are only counted)')
 
     def _sdk_log(self, level: int, text: str) -> None:
+        # the SDK's server listens on a loopback port of its own behind the gate: its INFO lines ('Started server on
+        # 127.0.0.1:<that port>') would name a port no client should use, so they are debug lines here
         if level >= logging.WARNING:
             self.diag.report(WARN, f'Foxglove server: {text}', key=('sdk', text.split(':')[0]))
         else:
-            self.get_logger().info(f'Foxglove server: {text}')
+            self.get_logger().debug(f'Foxglove server: {text}')
 
     def close(self) -> None:
         self.bridge.close()

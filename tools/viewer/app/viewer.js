@@ -127,8 +127,11 @@ async function start() {
   await waitForFonts();
   const props = {
     deepLinks: [window.location.href],
+    // no telemetry, no crash reports, and no "open data source" dialog at start-up (its links are online-only;
+    // the URL names the data source)
     appConfiguration: new MemoryAppConfiguration({ [AppSetting.TELEMETRY_ENABLED]: false,
-                                                   [AppSetting.CRASH_REPORTING_ENABLED]: false }),
+                                                   [AppSetting.CRASH_REPORTING_ENABLED]: false,
+                                                   [AppSetting.SHOW_OPEN_DIALOG_ON_STARTUP]: false }),
     dataSources: [new FoxgloveWebSocketDataSourceFactory(), new McapLocalDataSourceFactory(),
                   new RemoteDataSourceFactory()],
     layoutStorage: new MemoryLayoutStorage([layout]),

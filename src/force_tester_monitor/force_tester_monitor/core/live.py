@@ -22,6 +22,9 @@ from force_tester_common.core.units import n_to_lbf
 from .errors import MonitorError
 
 SIGNALS = ('stationary', 'raw', 'corrected', 'filtered')
+#: the live trace's lbf values are rounded to this many decimals (0.01 lbf, well below the cells' noise): Studio's
+#: legend prints a value's every digit, and shows 17 of them for an unrounded float
+LBF_DECIMALS = 2
 
 
 @dataclass
@@ -109,8 +112,9 @@ class LiveTrace:
         return ForceScalars(
             stamp_ns=sample_stamp_ns(last.stamp_ns, last.stationary.size - 1, last.rate_hz),
             seq=last.seq, blocks=len(group),
-            last={s: float(n_to_lbf(getattr(last, s)[-1])) for s in SIGNALS},
-            max={s: _nanmax(n_to_lbf(np.concatenate([getattr(b, s) for b in group]))) for s in SIGNALS})
+            last={s: round(float(n_to_lbf(getattr(last, s)[-1])), LBF_DECIMALS) for s in SIGNALS},
+            max={s: round(_nanmax(n_to_lbf(np.concatenate([getattr(b, s) for b in group]))), LBF_DECIMALS)
+                 for s in SIGNALS})
 
 
 @dataclass
