@@ -190,7 +190,8 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
     assert [r['pull'] for r in rows] == [4, 3, 2]          # the newest three, newest first
     assert rows[0]['status'] == 'OK' and rows[1]['status'] == 'INCOMPLETE'
     assert rows[0]['stationary_lbf'] == round(1004.0 / LBF_N, 1)
-    assert rows[0]['corrected_lbf'] == f'{1010.0 / LBF_N:.1f} ± {26.7 / LBF_N:.1f}'
+    # each cell says what its ± is: the expanded uncertainty and its k (issue 41, Low: no table said so)
+    assert rows[0]['corrected_lbf'] == f'{1010.0 / LBF_N:.1f} ± {26.7 / LBF_N:.1f} U k=2'
     assert (rows[0]['raw_pct'], rows[0]['corrected_pct']) == (30.12, 1.01)
     assert history.newest_stamp_ns() == 4_000_000_000 and history.coverage_factor == 2.0
     history.add_score(score(3, u_n=float('nan')), stamp_ns=3_000_000_000)   # pull 3 scored again: one row, moved up
@@ -204,7 +205,7 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
     history.add_summary(SimpleNamespace(**{**vars(summary), 'test_set': 1}))
     assert [s['test_set'] for s in history.sets()] == [1, 2]
     assert history.sets()[1] == {'test_set': 2, 'pulls': 4, 'stationary_mean_lbf': round(3000.0 / LBF_N, 1),
-                                 'raw_pct': '30.00 ± 1.23', 'corrected_pct': '2.00', 'filtered_pct': '-'}
+                                 'raw_pct': '30.00 ± 1.23 sd', 'corrected_pct': '2.00', 'filtered_pct': '-'}
     with pytest.raises(MonitorError, match="history rows 0 is invalid"):
         ScoreHistory(rows=0)
 
