@@ -264,9 +264,11 @@ class MonitorNode(Node):
             self._bad(topic, problem)
         self.stats[topic].add(batch.arrival_ns, batch.stamp_ns, batch.seq, batch.nan_samples)
         if topic == FORCE_TOPIC:
-            for stamp, s in zip(batch.stamp_ns, batch.values['stationary_n']):
-                if s.size:
-                    self.join.add_force(int(stamp), s)
+            for i, s in enumerate(batch.values['stationary_n']):
+                if s.size:   # a block the correction never answered comes back alone: the live trace keeps it
+                    for alone in self.join.add_force(int(batch.stamp_ns[i]), s, float(batch.rate_hz[i]),
+                                                     batch.values['moving_n'][i]):
+                        self._publish_force(self.live.add(alone))
         elif topic == CORRECTED:
             v = batch.values
             for i in range(len(batch)):
