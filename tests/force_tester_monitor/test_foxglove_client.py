@@ -134,10 +134,12 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
     # (equal when the monitor lost no block; never above, since it makes up nothing)
     for field, key in (('stationary_max_lbf', 'stationary_peak_n'), ('raw_max_lbf', 'raw_peak_n')):
         seen, peak = max(getattr(m, field) for m in got['force']), max(s[key] for s in scores) / LBF_N
-        # the live trace is rounded to 0.01 lbf (LBF_DECIMALS)
-        assert seen <= round(peak, LBF_DECIMALS) + 1e-9
+        # the live trace is rounded to 0.01 lbf (LBF_DECIMALS): equal within half of that (N -> lbf may round a
+        # peak at x.xx5 either way)
+        half = 0.5 * 10.0 ** -LBF_DECIMALS + 1e-9
+        assert seen <= peak + half
         if health_gaps(got) == 0:
-            assert seen == round(peak, LBF_DECIMALS), field
+            assert seen == pytest.approx(peak, abs=half), field
     assert sorted(t.pull_id for t in got['trace']) == sorted(s['pull_id'] for s in scores), \
         ([(t.pull_id, len(t.time_s)) for t in got['trace']], got['health'][-1].topics)
     for trace in got['trace']:

@@ -25,8 +25,9 @@ SIGNALS = ('stationary', 'raw', 'corrected', 'filtered')
 #: the live trace's lbf values are rounded to this many decimals (0.01 lbf, well below the cells' noise): Studio's
 #: legend prints a value's every digit, and shows 17 of them for an unrounded float
 LBF_DECIMALS = 2
-#: a force block whose corrected block has not come this long (of stamps) after it is shown alone (ForceJoin)
-ALONE_AFTER_S = 2.0
+#: a force block whose corrected block has not come this long (of stamps) after it is shown alone (ForceJoin): longer
+#: than the corrected stream lags on a loaded machine (seconds), else a lagging block would miss its pull trace
+ALONE_AFTER_S = 5.0
 
 
 @dataclass
