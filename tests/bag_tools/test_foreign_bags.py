@@ -237,6 +237,16 @@ def _wait(cond, timeout, proc=None) -> bool:
     return False
 
 
+def test_play_names_the_topics_short_of_subscribers(foreign, ros_domain):
+    """--wait-for-subscribers that times out: exit 2 with one line naming each topic that fell short and its
+    subscriber count (issue 41, Low: before, 'fewer than 1 subscriber(s) after 1.0 s' named none)."""
+    bag = foreign[1]['old_names_mcap']
+    p = _bag_process('play', '--wait-for-subscribers', '1', '--wait-timeout', '1', '--topics', CHATTER_TOPIC, bag)
+    out, err = p.communicate(timeout=90)
+    assert p.returncode == 2, err
+    assert f'error: fewer than 1 subscriber(s) after 1 s on {CHATTER_TOPIC} (0)' in err, err
+
+
 def test_play_skips_what_it_cannot_import_and_plays_the_rest(foreign, ros_domain):
     """A real subscriber gets every /chatter message while the topics of types that are not
     installed are listed as skipped; then Ctrl-C in a looping play ends it with 130."""

@@ -1,4 +1,5 @@
 """The nodes themselves, in this process over real rclpy + Fast DDS: parameters, bad samples, gaps."""
+import re
 import time
 
 import numpy as np
@@ -53,6 +54,22 @@ def test_invalid_parameter_is_rejected_with_value_and_range_and_old_value_kept(r
         assert not result.successful
         for text in quoted:
             assert text in result.reason, result.reason
+        assert node.get_parameter(name).value == old
+    finally:
+        getattr(node, 'close', lambda: None)()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize('name, value', [('wait_for_subscribers', 2), ('wait_for_block_subscribers', 3),
+                                         ('wait_timeout_s', 5.0)])
+def test_the_sims_start_up_wait_cannot_be_changed_at_run_time(ros, name, value):
+    """The wait for readers happens once, before the first pull: a change at run time was accepted and did nothing
+    (issue 41, Low). The parameters are read-only: `ros2 param set` is refused and the value stays."""
+    node = sim_node()
+    try:
+        old = node.get_parameter(name).value
+        (result,) = node.set_parameters([Parameter(name, value=value)])
+        assert not result.successful and 'read-only' in result.reason, result.reason
         assert node.get_parameter(name).value == old
     finally:
         getattr(node, 'close', lambda: None)()
@@ -256,16 +273,20 @@ def test_extension_file_sets_the_mass_and_a_bad_one_is_refused(ros, tmp_path):
         node.destroy_node()
 
 
-def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path):
+@pytest.mark.parametrize('sim_time', (False, True), ids=('wall_clock', 'use_sim_time_without_clock'))
+def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path, sim_time):
     """The recorder publishes how many messages it has written (what `./ft demo` waits on
-    before stopping it): the count matches the blocks sent and the bag it closes."""
+    before stopping it): the count matches the blocks sent and the bag it closes. With use_sim_time:=true and
+    nothing on /clock too: the node's timers (topic discovery, flushing, the heartbeat) are on the steady clock
+    (before, none fired: the recorder recorded nothing and no heartbeat went out; issue 41, Low)."""
     from diagnostic_msgs.msg import DiagnosticArray
 
     from bag_tools.core.info import bag_info
     from bag_tools.recorder_node import RecorderNode
     from force_tester_common.ros import BLOCK_QOS, EVENT_QOS
     node = RecorderNode(parameter_overrides=[Parameter('bag_path', value=str(tmp_path / 'bag')),
-                                             Parameter('topics', value=['/force'])])
+                                             Parameter('topics', value=['/force']),
+                                             Parameter('use_sim_time', value=sim_time)])
     probe = rclpy.create_node('probe')
     pub = probe.create_publisher(TOPICS['/force'].msg_type, '/force', BLOCK_QOS)
     counts = []
@@ -290,3 +311,42 @@ def test_recorder_reports_its_progress_on_diagnostics(ros, tmp_path):
         probe.destroy_node()
         node.destroy_node()
     assert bag_info(tmp_path / 'bag')['topics']['/force']['count'] == 7
+
+
+def test_a_recorder_given_no_bag_path_writes_a_dated_bag_as_ros2_bag_record(ros, tmp_path, monkeypatch):
+    """A second launch with a recorder in the same folder recorded nothing: the default bag_path was the fixed
+    'bag', which then existed (issue 41, Low). Empty (the default) is rosbag2_YYYY_MM_DD-HH_MM_SS in the working
+    directory, as `ros2 bag record` names it; a recorder started while an earlier one's bag is there records."""
+
+    from bag_tools.core.recording import dated_bag_path
+    from bag_tools.recorder_node import SPECS, RecorderNode
+    assert [s.default for s in SPECS if s.name == 'bag_path'] == ['']
+    at = time.mktime((2026, 11, 28, 7, 5, 9, 0, 0, -1))
+    assert dated_bag_path(at) == 'rosbag2_2026_11_28-07_05_09'
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'bag').mkdir()   # what an earlier launch with the old default left
+    node = RecorderNode(parameter_overrides=[Parameter('topics', value=['/force'])])
+    try:
+        path = node.writer.path
+    finally:
+        node.close()
+        node.destroy_node()
+    assert re.fullmatch(r'rosbag2_\d{4}_\d\d_\d\d-\d\d_\d\d_\d\d', path.name) and path.parent.resolve() == tmp_path
+
+
+def test_a_state_file_that_cannot_be_written_stops_the_validator_at_start_up(ros, tmp_path):
+    """An unwritable state_file was accepted at start-up and failed at the first score (issue 41, Low): the
+    validator refuses it at once, in one line naming the file (a CorrectionError: exit 2 from a process)."""
+    from force_correction.core.errors import CorrectionError
+    from force_correction.validator_node import ValidatorNode
+    blocker = tmp_path / 'not_a_folder'
+    blocker.write_text('')   # a file where the state file's folder should be: even root cannot write under it
+    state = blocker / 'scores.jsonl'
+    with pytest.raises(CorrectionError, match=re.escape(f"state_file '{state}' cannot be written")):
+        ValidatorNode(parameter_overrides=[Parameter('state_file', value=str(state))])
+    ok = tmp_path / 'new' / 'scores.jsonl'   # a folder that does not exist yet is made, as before
+    node = ValidatorNode(parameter_overrides=[Parameter('state_file', value=str(ok))])
+    try:
+        assert ok.parent.is_dir()
+    finally:
+        node.destroy_node()

@@ -95,3 +95,21 @@ def test_correct_on_a_bag_without_stationary_cell_finds_them_too(tmp_path):
     assert sum('cuts its peak by' in w for w in res.warnings) == 2
     assert sum('not scored' in w for w in res.warnings) == 1            # one line, not one per pull
     assert [e['pull_id'] for e in res.short_events] == [1, 2]
+
+
+def test_noise_and_a_removed_wiggle_are_not_short_events_and_no_loss_reads_minus_zero():
+    """Between pulls (issue 41, Low): noise spikes of a quiet record were reported as short events ('cuts its peak by
+    95 % (0.38 -> 0.02 N) ... bandwidth: -0 %'), and so was a wiggle of the moving cell that the m*a correction
+    removes. An event is reported only when its corrected peak stands EVENT_SNR noise deviations clear of the
+    corrected force's noise; a loss below 0 (a window that raises a peak a little) reads 0 %."""
+    from force_correction.core.short_events import ShortEvent, percent
+    rate, n = 50_000.0, 50_000
+    t = np.arange(n) / rate
+    noise = np.random.default_rng(2).normal(0.0, 0.1, n)
+    wide = 2.3 * np.sin(2 * np.pi * t / 4e-3) * np.exp(-0.5 * ((t - 0.5) / 1e-3) ** 2)
+    found = short_events(wide + noise, wide + noise, rate, WINDOW)
+    assert [round(e.start_s, 2) for e in found] == [0.5], [e.line(rate) for e in found]   # the wiggle alone
+    inertial = 2.3 * np.exp(-0.5 * ((t - 0.5) / 0.2e-3) ** 2)   # in the moving cell only: m*a removes it
+    assert short_events(inertial + noise, noise, rate, WINDOW) == []
+    assert percent(-0.004) == '0' and percent(0.5) == '50'
+    assert '-0 %' not in ShortEvent(0.1, 1e-3, WINDOW, 2.0, 1.0, 1e3, 5, 2.01).line(rate)

@@ -126,3 +126,48 @@ def test_the_score_log_round_trips_and_skips_a_line_cut_short(tmp_path):
     with log.path.open('a') as fh:
         fh.write('{"pull_id": 3, "set_id"')          # a crash mid-write
     assert log.load() == (written, 1)
+
+
+def test_a_correction_restart_charges_each_pull_its_own_lost_blocks_and_a_lost_peak_is_not_scored():
+    """Issue 41, Low: a correction restart mid-pull charged its whole gap to every open pull and scored the pull
+    from what was left of it (stationary_peak_n 1.10, m*a 123.5 %). Here pull 2's START is in before the gap
+    (the validator lags); the gap (blocks 4-6, the corrected stream's) holds pull 1's peak (block 5). Each lost
+    /force block is charged to the pull whose window holds it, with the stationary force it carried, as the
+    validator does; pull 1 is then not scored (its peak fell in the gap), pull 2 is, with 0 lost blocks."""
+    from force_correction.core.errors import CorrectionError
+    tracker = PullTracker(add)
+    aligner = BlockAligner(('corrected', 'force'))
+    ready = []
+
+    def push(k, channels=('corrected', 'force')):
+        t = np.arange(N) + (k % 10) * N
+        force = 1000.0 * np.exp(-((t - 250) / 60.0) ** 2)   # each pull's peak at its block 5
+        for channel in channels:
+            values = 1.1 * force if channel == 'corrected' else force
+            seq = k - 7 if channel == 'corrected' and k >= 7 else k   # the restarted correction counts from 0
+            pairs, events = aligner.push(channel, T0 + k * DT, seq, RATE, N, values)
+            for e in events:
+                if e.kind == 'new_run':
+                    tracker.correction_restarted()
+                elif e.kind in ('dropped', 'unmatched'):
+                    lost = e.payload if e.channel == 'force' else None
+                    tracker.dropped(e.stamp_ns, float(np.nanmax(lost)) if lost is not None else float('nan'))
+            for p in pairs:
+                ready.extend(tracker.pair(p))
+    tracker.start(T0, 1, 3)
+    tracker.start(T0 + 10 * DT, 2, 3)
+    for k in range(4):
+        push(k)
+    for k in range(4, 7):
+        push(k, channels=('force',))          # the correction is down: these never pair
+    for k in range(7, 10):
+        push(k)
+    ready += tracker.end(T0 + 10 * DT, 1)[1]
+    for k in range(10, 20):
+        push(k)
+    ready += tracker.end(T0 + 20 * DT, 2)[1]
+    pulls = {f.pull_id: f.acc for f in ready}
+    assert (pulls[1].dropped_blocks, pulls[2].dropped_blocks) == (3, 0)
+    with pytest.raises(CorrectionError, match='the stationary peak fell in the 3 lost block'):
+        pulls[1].score(0.1)
+    assert pulls[2].score(0.1).stationary_peak_n == pytest.approx(1000.0, rel=1e-3)

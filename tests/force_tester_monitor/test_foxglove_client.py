@@ -10,11 +10,13 @@ must still lose no block (every pull scored OK, 0 dropped), and the monitor's de
 agree with the validator's scores.
 """
 import math
+import re
 import subprocess
 import time
 
 import numpy as np
 import pytest
+from force_tester_monitor.core.live import LBF_DECIMALS
 from fox_client import client_command, lines, monitor_port
 
 from force_tester_common.core.blocks import BLOCK_SAMPLES
@@ -88,6 +90,10 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
     assert codes['monitor_node'] == 0, graph.tail('monitor_node')
     assert reader.returncode == 0, (out[-2000:], err[-2000:])
     records = lines(out)
+    # the monitor's log names one port, the one clients use: not the SDK's internal one behind the gate
+    # (issue 41, Low: 'Foxglove server: Started server on 127.0.0.1:<another port>' came at INFO)
+    log = (graph.log_dir / 'monitor_node.log').read_text()
+    assert set(re.findall(r'ws://127\.0\.0\.1:(\d+)', log)) == {str(port)} and 'Started server on' not in log, log
 
     # the old client spoke foxglove.websocket.v1 and saw ROS-typed channels, as in our bags
     assert records[0] == {'kind': 'open', 'protocol': 'foxglove.websocket.v1'}
@@ -128,9 +134,12 @@ def test_foxglove_client_decodes_the_live_graph_and_a_stalled_client_costs_no_bl
     # (equal when the monitor lost no block; never above, since it makes up nothing)
     for field, key in (('stationary_max_lbf', 'stationary_peak_n'), ('raw_max_lbf', 'raw_peak_n')):
         seen, peak = max(getattr(m, field) for m in got['force']), max(s[key] for s in scores) / LBF_N
-        assert seen <= peak * (1 + 1e-12)
+        # the live trace is rounded to 0.01 lbf (LBF_DECIMALS): equal within half of that (N -> lbf may round a
+        # peak at x.xx5 either way)
+        half = 0.5 * 10.0 ** -LBF_DECIMALS + 1e-9
+        assert seen <= peak + half
         if health_gaps(got) == 0:
-            assert seen == pytest.approx(peak, rel=1e-12), field
+            assert seen == pytest.approx(peak, abs=half), field
     assert sorted(t.pull_id for t in got['trace']) == sorted(s['pull_id'] for s in scores), \
         ([(t.pull_id, len(t.time_s)) for t in got['trace']], got['health'][-1].topics)
     for trace in got['trace']:

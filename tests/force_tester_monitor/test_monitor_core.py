@@ -62,14 +62,39 @@ def test_join_pairs_by_stamp_and_forgets_force_blocks_whose_partner_is_gone():
         ForceJoin(0)
 
 
+def test_while_the_correction_is_down_the_live_trace_keeps_the_stationary_force():
+    """Issue 41, Low: with the correction down, no force block found its corrected block and the live trace
+    vanished entirely. A force block whose corrected block has not come 5 s (ALONE_AFTER_S, of stamps) after it
+    comes back alone: the stationary and raw forces, corrected and filtered NaN; with the correction up, none."""
+    from force_tester_monitor.core.live import ALONE_AFTER_S
+    rate, n, step = 50_000.0, 500, 10 * MS          # 10 ms blocks
+    up, down = ForceJoin(), ForceJoin()
+    alone = []
+    for k in range(800):                               # 8 s of blocks
+        stamp, values = k * step, np.full(n, 100.0 + k)
+        assert up.add_force(stamp, values, rate, values + 1) == []
+        assert up.add_corrected(stamp, k, rate, values + 1, values, values) is not None
+        alone += down.add_force(stamp, values, rate, values + 1)
+    assert len(alone) == 800 - 1 - int(ALONE_AFTER_S * NS_PER_S // step)   # all but the last 5 s
+    assert [b.stamp_ns for b in alone] == [k * step for k in range(len(alone))]
+    lt = LiveTrace(every=1)
+    out = lt.add(alone[-1])
+    assert out.max['stationary'] == pytest.approx((100.0 + len(alone) - 1) / LBF_N, abs=0.005)
+    assert out.max['raw'] == pytest.approx((101.0 + len(alone) - 1) / LBF_N, abs=0.005)
+    assert np.isnan(out.max['corrected']) and np.isnan(out.max['filtered'])
+
+
 def test_live_trace_gives_last_and_max_in_lbf_per_group():
     lt = LiveTrace(every=2)
     assert lt.add(block(0, [1.0, 9.0, 2.0])) is None
     out = lt.add(block(60_000, [3.0, np.nan, 4.0], seq=1))
     assert out.blocks == 2 and out.seq == 1
-    assert out.last['stationary'] == pytest.approx(4.0 / LBF_N)
-    assert out.max['stationary'] == pytest.approx(9.0 / LBF_N)
-    assert out.max['filtered'] == pytest.approx(12.0 / LBF_N)
+    assert out.last['stationary'] == pytest.approx(4.0 / LBF_N, abs=0.005)
+    assert out.max['stationary'] == pytest.approx(9.0 / LBF_N, abs=0.005)
+    assert out.max['filtered'] == pytest.approx(12.0 / LBF_N, abs=0.005)
+    # rounded to 0.01 lbf: the viewer's legend showed 17 digits (issue 41, Low)
+    assert all(repr(v) == repr(round(v, 2)) and len(repr(v).split('.')[1]) <= 2
+               for d in (out.last, out.max) for v in d.values()), (out.last, out.max)
     assert out.stamp_ns == 60_000 + 2 * 20_000          # the last sample at 50 kHz
     assert lt.flush() is None
     lt.add(block(120_000, [5.0]))
@@ -187,7 +212,8 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
     assert [r['pull'] for r in rows] == [4, 3, 2]          # the newest three, newest first
     assert rows[0]['status'] == 'OK' and rows[1]['status'] == 'INCOMPLETE'
     assert rows[0]['stationary_lbf'] == round(1004.0 / LBF_N, 1)
-    assert rows[0]['corrected_lbf'] == f'{1010.0 / LBF_N:.1f} ± {26.7 / LBF_N:.1f}'
+    # each cell says what its ± is: the expanded uncertainty and its k (issue 41, Low: no table said so)
+    assert rows[0]['corrected_lbf'] == f'{1010.0 / LBF_N:.1f} ± {26.7 / LBF_N:.1f} U k=2'
     assert (rows[0]['raw_pct'], rows[0]['corrected_pct']) == (30.12, 1.01)
     assert history.newest_stamp_ns() == 4_000_000_000 and history.coverage_factor == 2.0
     history.add_score(score(3, u_n=float('nan')), stamp_ns=3_000_000_000)   # pull 3 scored again: one row, moved up
@@ -201,7 +227,7 @@ def test_score_history_lists_the_newest_pulls_first_and_the_validators_set_stati
     history.add_summary(SimpleNamespace(**{**vars(summary), 'test_set': 1}))
     assert [s['test_set'] for s in history.sets()] == [1, 2]
     assert history.sets()[1] == {'test_set': 2, 'pulls': 4, 'stationary_mean_lbf': round(3000.0 / LBF_N, 1),
-                                 'raw_pct': '30.00 ± 1.23', 'corrected_pct': '2.00', 'filtered_pct': '-'}
+                                 'raw_pct': '30.00 ± 1.23 sd', 'corrected_pct': '2.00', 'filtered_pct': '-'}
     with pytest.raises(MonitorError, match="history rows 0 is invalid"):
         ScoreHistory(rows=0)
 

@@ -18,15 +18,10 @@ set's statistics; a second page opened at 1366x768 after the last score shows al
 """
 from __future__ import annotations
 
-import json
-import queue
-import re
-import shutil
-import subprocess
-import threading
 import time
 
 import pytest
+from browser_page import Page, chromium_binary, legend_values, table_rows
 from fox_client import monitor_port
 
 from force_tester_common.core.units import n_to_lbf
@@ -38,99 +33,10 @@ pytestmark = pytest.mark.browser
 SETS = (1, 2, 3, 4, 5)             # one pull of each (thesis Table 4): the tables' fit, a restart's completeness
 SIZES = ((1600, 1000), (1366, 768))   # the first page's, the late page's (both screenshots go to docs/images)
 PULLS = len(SETS)
-DRIVER = view.VIEWER / 'drive.mjs'
-NUMBER = re.compile(r'^-?\d+(\.\d+)?(e[-+]?\d+)?$', re.I)
 # each node's name in its /diagnostics status ("<node>: <what>"), as the diagnostics panel lists it
 NODES = ('sim', 'correction', 'validator', 'monitor')
 LIVE = 'Plot!livetrace'            # the layout's panels, by id
 HISTORY = 'Table!history'
-
-
-class Page:
-    """The driver (tools/viewer/drive.mjs) with the viewer open: its reports, read on a thread."""
-
-    def __init__(self, url: str, chromium: str, size=(1600, 1000)):
-        node = shutil.which('node')
-        assert node, 'node is not on PATH; the machine image provides Node.js 20'
-        self.proc = subprocess.Popen([node, str(DRIVER), url, '--chromium', chromium,
-                                      '--width', str(size[0]), '--height', str(size[1])], cwd=view.VIEWER,
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True)
-        self.reports = queue.Queue()
-        self.errors = []
-        self.problems = []
-        self.external = []
-        self.http_errors = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self):
-        for line in self.proc.stdout:
-            if line.startswith('{'):
-                self.reports.put(json.loads(line))
-        self.reports.put({'kind': 'exit', 'code': self.proc.wait()})
-
-    def next(self, timeout: float) -> dict:
-        report = self.reports.get(timeout=timeout)
-        if report['kind'] == 'page-error':
-            self.errors.append(report['error'])
-        elif report['kind'] == 'problem':
-            self.problems.append(report['text'])
-        elif report['kind'] == 'external-request':
-            self.external.append(report['url'])
-        elif report['kind'] == 'http-error':
-            self.http_errors.append((report['status'], report['url']))
-        return report
-
-    def state_until(self, condition, timeout: float, spin=lambda: None) -> dict | None:
-        """The first page state for which condition(state) holds, or None after timeout."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            spin()
-            try:
-                report = self.next(timeout=0.2)
-            except queue.Empty:
-                continue
-            assert report['kind'] != 'exit', f'the driver exited ({report}): {self.proc.stderr.read()[-2000:]}'
-            if report['kind'] == 'state' and condition(report):
-                return report
-        return None
-
-    def command(self, line: str, kind: str, timeout: float = 30) -> dict:
-        self.proc.stdin.write(line + '\n')
-        self.proc.stdin.flush()
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            report = self.next(timeout=max(0.1, deadline - time.monotonic()))
-            if report['kind'] == kind:
-                return report
-        raise AssertionError(f'no {kind} report within {timeout} s')
-
-    def close(self):
-        if self.proc.poll() is None:
-            try:
-                self.proc.stdin.write('quit\n')
-                self.proc.stdin.flush()
-                self.proc.wait(timeout=20)
-            except (OSError, subprocess.TimeoutExpired):
-                self.proc.kill()
-                self.proc.wait()
-
-
-def panel(state: dict, panel_id: str) -> dict:
-    found = [p for p in state['panels'] if p['id'] == panel_id]
-    assert found, (panel_id, [p['id'] for p in state['panels']])
-    return found[0]
-
-
-def legend_values(state: dict, panel_id: str) -> dict:
-    """{series label: the value the legend shows} of a plot, for the series that show a number."""
-    return {e['label']: float(e['value']) for e in panel(state, panel_id)['legend'] if NUMBER.match(e['value'])}
-
-
-def table_rows(state: dict, panel_id: str) -> list:
-    """The rows of a Table panel as {column: text}, by the header row's names."""
-    table = panel(state, panel_id)['table']
-    return [dict(zip(table[0], row)) for row in table[1:]] if table else []
 
 
 def node_rows(state: dict) -> dict:
@@ -148,13 +54,6 @@ FITTED = (HISTORY, 'Table!sets', 'DiagnosticSummary!diag')
 def cut_off(state: dict) -> dict:
     """{panel: what of it lies outside it} for the tables and the Nodes tab: nothing may (issue 41)."""
     return {p['id']: p['outside'] for p in state['panels'] if p['id'] in FITTED and p['outside']}
-
-
-def chromium_binary() -> str:
-    found = shutil.which('chromium') or shutil.which('chromium-browser')
-    if not found:
-        pytest.skip("no Chromium on PATH: the set-up installs Debian's chromium (apt-get install chromium)")
-    return found
 
 
 def test_the_viewer_shows_the_live_graph_in_headless_chromium(tmp_path, ros_domain):

@@ -122,3 +122,13 @@ def test_the_docs_say_what_a_status_s_hardware_id_is():
     rig = hardware_id_of('/rig1')
     assert f"`hardware_id` is the node's namespace without its slashes, the rig: `{rig}` for" in text
     assert "`hardware_id` names the node" not in text
+
+
+def test_a_rig_without_a_parameter_file_is_refused():
+    """rig:=rig3 (a typo) ran a default rig with three warnings (issue 41, Low): the rig argument's choices are the
+    installed parameter files config/rigs/*.yaml, so launch refuses any other value before it starts a node."""
+    root = ET.parse(SHARE / 'launch' / 'rig.launch.xml').getroot()
+    (rig,) = [a for a in root.iter('arg') if a.get('name') == 'rig']
+    choices = [c.get('value') for c in rig.iter('choice')]
+    assert choices and sorted(choices) == sorted(p.stem for p in (SHARE / 'config' / 'rigs').glob('*.yaml'))
+    assert rig.get('default') in choices

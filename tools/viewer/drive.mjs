@@ -7,12 +7,15 @@
 //   {"kind": "launch-failed", "error": "..."}             Chromium did not start (exit code 3)
 //   {"kind": "state", "panels": [...], "diagnostics": [...], "okColor": "..."}  every --every-ms: per
 //        panel its id in the layout, its text, for plots the legend's entries, for tables the rows'
-//        cells, outside: the rows (and the pager) that lie outside the panel; the diagnostics panel's rows; connectionLost: the viewer's "no connection" bar's text ("" if hidden)
+//        cells, outside: the rows (and the pager) that lie outside the panel, box: where the panel is on the page
+//        ({x, y, width, height}, CSS px, as in a screenshot); the diagnostics panel's rows; connectionLost: the
+//        viewer's "no connection" bar's text ("" if hidden); dialog: the text of any dialog over the app
 //   {"kind": "problem", "text": "..."}                     the app reported a data source problem
 //   {"kind": "screenshot", "path": "..."}                  after a `screenshot PATH` line on stdin
 //   {"kind": "page-error", "error": "..."}                 an uncaught error in the page
 //   {"kind": "external-request", "url": "..."}             the page asked for something off this machine
 //   {"kind": "http-error", "url": "...", "status": 404}     a request the server answered with an error
+//   {"kind": "ranged", "url": "...", "range": "bytes=0-99", "status": 206}  a request with a Range header, answered
 // stdin, one command a line: `screenshot PATH`, `quit`.
 import { createInterface } from "node:readline";
 
@@ -55,7 +58,8 @@ function readPage() {
       const r = el.getBoundingClientRect();
       return r.height > 0 && (r.bottom > box.bottom + 1 || r.top < box.top - 1);
     }).map((el) => el.innerText.trim().slice(0, 60));
-    panels.push({ id, text, legend, table, outside });
+    panels.push({ id, text, legend, table, outside,
+      box: { x: box.x, y: box.y, width: box.width, height: box.height } });
   }
   const diagnostics = [...document.querySelectorAll("[data-testid-diagnostic-row]")].map((row) => {
     const secondary = row.querySelector(".MuiListItemText-secondary");
@@ -69,7 +73,9 @@ function readPage() {
   const okColor = filter && filter.innerText.trim() === "OK" ? getComputedStyle(filter).color : "";
   const banner = document.getElementById("connection-lost");
   const connectionLost = banner && banner.style.display !== "none" ? banner.innerText.trim() : "";
-  return { panels, diagnostics, okColor, connectionLost };
+  // a dialog over the app (Studio's start-up "open data source" dialog), its first words ("" if none)
+  const dialog = [...document.querySelectorAll("[role=dialog]")].map((d) => d.innerText.trim().slice(0, 80)).join(" | ");
+  return { panels, diagnostics, okColor, connectionLost, dialog };
 }
 
 let browser;
@@ -97,6 +103,10 @@ page.on("request", (request) => {
 page.on("response", (response) => {
   if (response.status() >= 400) {
     say({ kind: "http-error", url: response.url(), status: response.status() });
+  }
+  const range = response.request().headers()["range"];
+  if (range) {
+    say({ kind: "ranged", url: response.url(), range, status: response.status() });
   }
 });
 // the app logs each problem of its data source ("Player problem ws:connection-failed {...}")

@@ -132,13 +132,16 @@ class PlayerNode(Node):
                      for t, cls in classes.items()}
         self.published = 0   # messages published so far, every pass (what an interrupt reports)
 
-    def wait_for_subscribers(self, n: int, timeout_s: float) -> bool:
+    def wait_for_subscribers(self, n: int, timeout_s: float) -> dict:
+        """Wait until every topic has N subscribers, at most TIMEOUT_S: {published topic: its subscribers} of
+        the topics that fell short ({} when none did)."""
         deadline = time.monotonic() + timeout_s
-        while any(p.get_subscription_count() < n for p in self.pubs.values()):
-            if time.monotonic() > deadline:
-                return False
+        while True:
+            short = {p.topic_name: p.get_subscription_count() for p in self.pubs.values()
+                     if p.get_subscription_count() < n}
+            if not short or time.monotonic() > deadline:
+                return short
             time.sleep(0.05)
-        return True
 
     def play(self, msgs, offsets_ns) -> None:
         """Publish one pass; ``published`` counts each message as it goes out."""
@@ -182,10 +185,11 @@ def run(args, ros_args=(), prog: str = 'player') -> int:
             node = PlayerNode(plan.classes, plan.remaps)
             started = True
             try:
-                if args.wait_for_subscribers and not node.wait_for_subscribers(
-                        args.wait_for_subscribers, args.wait_timeout):
+                short = node.wait_for_subscribers(args.wait_for_subscribers, args.wait_timeout) \
+                    if args.wait_for_subscribers else {}
+                if short:
                     say('error: ', f'fewer than {args.wait_for_subscribers} subscriber(s) after '
-                        f'{args.wait_timeout} s')
+                        f'{args.wait_timeout:g} s on ' + ', '.join(f'{t} ({n})' for t, n in short.items()))
                     return 2
                 while True:
                     node.play(plan.msgs, plan.offsets_ns)

@@ -26,16 +26,17 @@ from force_tester_common.conversions import message_class
 from force_tester_common.core.channels import GRAPH_TOPICS
 from force_tester_common.core.clock import seconds_to_ns
 from force_tester_common.node_params import NodeParams, ParamSpec
-from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, in_namespace, main_for
+from force_tester_common.ros import BLOCK_QOS, ERROR, OK, Diagnostics, in_namespace, main_for, steady_timer
 
 from .core.errors import BagError
-from .core.recording import FLUSH_S, Recording
+from .core.recording import FLUSH_S, Recording, dated_bag_path
 from .core.typestore import default_typestore
 
 DEFAULT_TOPICS = [in_namespace(t) for t in GRAPH_TOPICS]   # relative: in the node's namespace
 
 SPECS = [
-    ParamSpec('bag_path', 'bag', 'directory of the bag to write (must not exist yet)', read_only=True),
+    ParamSpec('bag_path', '', 'directory of the bag to write (must not exist yet; empty: rosbag2_YYYY_MM_DD-HH_MM_SS '
+                              'in the working directory, as ros2 bag record names it)', read_only=True),
     ParamSpec('topics', DEFAULT_TOPICS, 'topics to record (relative names: in the node\'s namespace; remaps '
                                         'apply)', read_only=True),
     ParamSpec('max_bag_size_mb', 0.0, 'start a new .mcap file in the bag once the current one '
@@ -48,8 +49,9 @@ SPECS = [
 
 
 def check(values: dict) -> dict:
-    if not values['bag_path']:
-        raise BagError("bag_path '' is empty; expected the directory of a new bag")
+    """The values, bag_path made a dated name when empty (a second launch in the same folder writes a new bag; a
+    fixed default name was refused as existing), else BagError (one line)."""
+    values = {**values, 'bag_path': values['bag_path'] or dated_bag_path()}
     if os.path.exists(values['bag_path']):
         raise BagError(f"bag_path {values['bag_path']!r} exists already; expected a new directory name")
     parent = os.path.dirname(os.path.abspath(values['bag_path']))
@@ -90,14 +92,14 @@ class RecorderNode(Node):
         self.diag = Diagnostics(self, 'bag recorder', counters=self._progress, period_s=PROGRESS_S)
         self.params = NodeParams(self, SPECS, check)
         self.lock = threading.Lock()
-        self.writer = Recording(self.params.values['bag_path'], default_typestore(),
+        self.writer = Recording(self.params.config['bag_path'], default_typestore(),
                                 **split_limits(self.params.values)).open()
         self.wanted = [self._resolve(t) for t in self.params.values['topics']]
         self.subscribed = {}
         self.counts = {}  # topic -> messages written
         self._discover()
-        self.create_timer(0.1, self._discover)
-        self.create_timer(FLUSH_S, self._flush)
+        steady_timer(self, 0.1, self._discover)
+        steady_timer(self, FLUSH_S, self._flush)
         split = split_description(self.params.values['max_bag_size_mb'],
                                   self.params.values['max_bag_duration_s'])
         self.diag.report(OK, f"recording {', '.join(self.wanted)} to {self.writer.path}{split}")

@@ -63,6 +63,7 @@ from force_tester_common.ros import (
     in_namespace,
     main_for,
     qos_watch,
+    steady_timer,
 )
 
 from .core.errors import CorrectionError
@@ -150,10 +151,11 @@ class ValidatorNode(Node):
                                  EVENT_QOS, event_callbacks=qos_watch(self.diag, PULL_EVENT_TOPIC))
         self.create_subscription(ParameterEvent, '/parameter_events',
                                  guarded(self.diag, '/parameter_events', self._on_parameters), EVENT_QOS)
-        self.create_timer(TICK_S, self._tick)
+        steady_timer(self, TICK_S, self._tick)
         state_file = self.params.values['state_file']
         self.log = ScoreLog(under_ros_home(state_file)) if state_file else None
         if self.log is not None:
+            self.log.check_writable()
             self._restore()
 
     def _restore(self):
@@ -233,7 +235,10 @@ class ValidatorNode(Node):
                 else:
                     self.tracker.correction_restarted()
             elif event.kind in ('dropped', 'unmatched'):
-                self.tracker.dropped()
+                # a lost /force block says how large the stationary force in it was
+                lost = getattr(event.payload, 'stationary_n', None) if event.channel == 'force' else None
+                self.tracker.dropped(event.stamp_ns, max((v for v in lost if v == v), default=math.nan)
+                                     if lost is not None else math.nan)
         for pair in pairs:
             self._finish(self.tracker.pair(pair))
 

@@ -10,6 +10,7 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -41,6 +42,13 @@ DEFAULT_EXECUTOR = 'events'
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 
+def steady_timer(node, period_s: float, callback):
+    """A housekeeping timer (heartbeat, topic discovery, flushing, ticks) on the steady clock, so it runs whatever
+    the node's clock: with use_sim_time:=true and no /clock, a timer on the node's ROS clock never fires (no
+    heartbeat went out and a recorder recorded nothing)."""
+    return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+
 class Diagnostics:
     """Publishes diagnostic_msgs/DiagnosticArray on /diagnostics and mirrors it to the node's log.
 
@@ -70,7 +78,7 @@ class Diagnostics:
         self._state = 'running'       # message of the last OK report
         self._problem = None          # (level, message, monotonic ns) of the worst recent report
         self._latched = None          # (level, message) of a lasting condition
-        node.create_timer(period_s, self.heartbeat)
+        steady_timer(node, period_s, self.heartbeat)
 
     def report(self, level: int, message: str, log: bool = True, key=None, latch: bool = False,
                **values) -> None:

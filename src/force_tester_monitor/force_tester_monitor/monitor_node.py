@@ -62,6 +62,7 @@ from force_tester_common.ros import (
     Diagnostics,
     in_namespace,
     main_for,
+    steady_timer,
 )
 
 from .core import params as P
@@ -182,9 +183,9 @@ class MonitorNode(Node):
         for topic in FORWARDED:
             if topic not in self.on_demand:
                 self._watch(topic)
-        self.create_timer(cfg.period_s, self._tick)
-        self.create_timer(cfg.health_period_s, self._health)
-        self.create_timer(NODES_PERIOD_S, self._publish_nodes)
+        steady_timer(self, cfg.period_s, self._tick)
+        steady_timer(self, cfg.health_period_s, self._health)
+        steady_timer(self, NODES_PERIOD_S, self._publish_nodes)
 
     # ------------------------------------------------------------------ receiving
     def _watch(self, topic: str) -> None:
@@ -263,9 +264,11 @@ class MonitorNode(Node):
             self._bad(topic, problem)
         self.stats[topic].add(batch.arrival_ns, batch.stamp_ns, batch.seq, batch.nan_samples)
         if topic == FORCE_TOPIC:
-            for stamp, s in zip(batch.stamp_ns, batch.values['stationary_n']):
-                if s.size:
-                    self.join.add_force(int(stamp), s)
+            for i, s in enumerate(batch.values['stationary_n']):
+                if s.size:   # a block the correction never answered comes back alone: the live trace keeps it
+                    for alone in self.join.add_force(int(batch.stamp_ns[i]), s, float(batch.rate_hz[i]),
+                                                     batch.values['moving_n'][i]):
+                        self._publish_force(self.live.add(alone))
         elif topic == CORRECTED:
             v = batch.values
             for i in range(len(batch)):
@@ -416,10 +419,12 @@ class MonitorNode(Node):
                                    '(reported once; later ones are only counted)')
 
     def _sdk_log(self, level: int, text: str) -> None:
+        # the SDK's server listens on a loopback port of its own behind the gate: its INFO lines ('Started server on
+        # 127.0.0.1:<that port>') would name a port no client should use, so they are debug lines here
         if level >= logging.WARNING:
             self.diag.report(WARN, f'Foxglove server: {text}', key=('sdk', text.split(':')[0]))
         else:
-            self.get_logger().info(f'Foxglove server: {text}')
+            self.get_logger().debug(f'Foxglove server: {text}')
 
     def close(self) -> None:
         self.bridge.close()

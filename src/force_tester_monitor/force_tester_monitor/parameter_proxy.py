@@ -19,7 +19,7 @@ from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from force_tester_common.ros import WARN
+from force_tester_common.ros import WARN, steady_timer
 
 PARAMETER_EVENTS_TOPIC = '/parameter_events'
 FETCH_PERIOD_S = 5.0       # how often nodes not seen yet are looked for
@@ -57,7 +57,7 @@ class ParameterProxy:
         self._fetched = set()
         node.create_subscription(ParameterEvent, PARAMETER_EVENTS_TOPIC, self._on_parameter_event,
                                  QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-        node.create_timer(FETCH_PERIOD_S, self._fetch)
+        steady_timer(node, FETCH_PERIOD_S, self._fetch)
 
     def values(self, names) -> list:
         """The foxglove.Parameters named (all when ``names`` is empty); safe from any thread."""

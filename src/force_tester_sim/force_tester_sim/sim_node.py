@@ -50,14 +50,14 @@ SPECS = [
                                   "measured levels, yielding first (the reference campaign's coupons)"),
     ParamSpec('wait_for_subscribers', 1, 'before publishing, wait until /force and /pull_event each have this '
                                          'many matched subscribers, and no more match for SETTLE_S (0: at once)',
-              (0, 100)),
+              (0, 100), read_only=True),
     ParamSpec('wait_for_block_subscribers', 0, 'wait_for_subscribers for /force alone, when it has more readers '
                                                'than /pull_event (the correction nodes read it too; 0: as many as '
-                                               'wait_for_subscribers)', (0, 100)),
+                                               'wait_for_subscribers)', (0, 100), read_only=True),
     ParamSpec('wait_timeout_s', WAIT_TIMEOUT_S, 'wait_for_subscribers: give up after this many seconds '
                                                 'without the readers: the node exits (code 2) with one line '
                                                 'naming the topics, their readers and what to start (0: wait '
-                                                'for good)', (0.0, 86400.0)),
+                                                'for good)', (0.0, 86400.0), read_only=True),
     ParamSpec('exit_when_done', False, 'shut the node down after the last pull (once the '
               'subscribers have acknowledged every block, at most ACK_TIMEOUT_S)'),
 ]
@@ -67,6 +67,8 @@ SPECS = [
 WORKER_PULLS = 50
 ACK_TIMEOUT_S = 30.0  # exit_when_done: how long to wait for lagging subscribers
 SETTLE_S = 1.0        # wait_for_subscribers: no new subscriber for this long, so none misses the first START
+# wait_for_subscribers, wait_for_block_subscribers and wait_timeout_s are read-only: the wait is over once the
+# first pull starts, so a change at run time would be accepted and do nothing
 CONFIG_FIELDS = ('pulls_per_set', 'seed', 'block_size', 'rate', 'rig_file', 'noise', 'coupons', 'drive')
 
 

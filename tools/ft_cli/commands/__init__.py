@@ -14,7 +14,7 @@ COMMANDS = (
     ('monitor', 'monitor', 'live terminal scoreboard of a running graph or a bag played back (per pull, per set, '
                            'health, nodes)'),
     ('view', 'view', 'serve the local web viewer (Foxglove Studio 1.48.0) with the workspace layout, connected to '
-                     'the monitor; prints the URL'),
+                     'the monitor, or on a recorded bag (--bag); prints the URL'),
     ('thesis', 'thesis', "the thesis's top-speed predictions and Tables 7-9 beside ours (--json FILE for the figures)"),
     ('discover', 'discover', 'find what the simulation gets wrong in measured data: name the cause, extend the '
                              'model, measure the gain'),

@@ -3,9 +3,11 @@
 //   - one layout, the workspace's, kept in memory and read from layout.json (so every page load starts
 //     from the layout as shipped; edits last until the page is reloaded),
 //   - settings kept in memory,
-//   - the Foxglove WebSocket data source (the live monitor) and local MCAP files (a recorded bag).
+//   - the Foxglove WebSocket data source (the live monitor), local MCAP files (a recorded bag, "Open local
+//     file") and remote files (a bag `./ft view --bag` serves from this origin, read with HTTP Range requests).
 // The URL says what to open, in Studio's own deep-link parameters, which `./ft view` prints:
 //   ?ds=foxglove-websocket&ds.url=ws://HOST:8765&layoutId=force-tester
+//   ?ds=remote-file&ds.url=http://HOST:8080/bag/NAME.mcap&layoutId=force-tester&time=<the last message, RFC 3339>
 "use strict";
 
 const LAYOUT_ID = "force-tester";
@@ -125,9 +127,13 @@ async function start() {
   await waitForFonts();
   const props = {
     deepLinks: [window.location.href],
+    // no telemetry, no crash reports, and no "open data source" dialog at start-up (its links are online-only;
+    // the URL names the data source)
     appConfiguration: new MemoryAppConfiguration({ [AppSetting.TELEMETRY_ENABLED]: false,
-                                                   [AppSetting.CRASH_REPORTING_ENABLED]: false }),
-    dataSources: [new FoxgloveWebSocketDataSourceFactory(), new McapLocalDataSourceFactory()],
+                                                   [AppSetting.CRASH_REPORTING_ENABLED]: false,
+                                                   [AppSetting.SHOW_OPEN_DIALOG_ON_STARTUP]: false }),
+    dataSources: [new FoxgloveWebSocketDataSourceFactory(), new McapLocalDataSourceFactory(),
+                  new RemoteDataSourceFactory()],
     layoutStorage: new MemoryLayoutStorage([layout]),
     extensionLoaders: [],
     enableLaunchPreferenceScreen: false,

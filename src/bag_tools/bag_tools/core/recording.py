@@ -24,6 +24,7 @@ test_recording_survives.py fails if that stops working.
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 from rosbags.typesys.store import Typestore
@@ -39,6 +40,15 @@ FLUSH_S = 0.1
 #: space kept free for the summary and metadata.yaml written when the disk is full
 RESERVE_BASE_BYTES = 256 * 1024
 RESERVE_PER_CHUNK_BYTES = 256  # a chunk index record in the summary is about 170 bytes
+
+#: the folder name `ros2 bag record` gives a bag when none is named (local time): a new one a second
+DATED_BAG_FORMAT = 'rosbag2_%Y_%m_%d-%H_%M_%S'
+
+
+def dated_bag_path(now: float | None = None) -> str:
+    """The bag folder a recorder given no bag_path writes, in the working directory, as `ros2 bag record` names
+    it: rosbag2_YYYY_MM_DD-HH_MM_SS (NOW, seconds since the epoch, default the clock's)."""
+    return time.strftime(DATED_BAG_FORMAT, time.localtime(now))
 
 
 class Recording:

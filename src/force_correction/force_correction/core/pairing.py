@@ -115,6 +115,7 @@ class AlignerEvent:
     seq: int
     stamp_ns: int
     detail: str
+    payload: object = None   # an 'unmatched' block's payload (what was lost); None for the other kinds
 
 
 @dataclass(frozen=True)
@@ -213,9 +214,9 @@ class BlockAligner:
             raise CorrectionError(
                 f"channel {channel!r} is unknown; expected one of {list(self._names)}") from None
 
-    def _event(self, events, kind, channel, seq, stamp_ns, detail):
+    def _event(self, events, kind, channel, seq, stamp_ns, detail, payload=None):
         self.event_counts[kind] += 1
-        events.append(AlignerEvent(kind, channel, int(seq), int(stamp_ns), detail))
+        events.append(AlignerEvent(kind, channel, int(seq), int(stamp_ns), detail, payload))
 
     def push(self, channel: str, stamp_ns: int, seq: int, sample_rate_hz: float,
              n_samples: int, payload: Any = None
@@ -283,7 +284,7 @@ class BlockAligner:
             _, old = ch.pending.popitem(last=False)
             self._event(events, 'unmatched', channel, old.seq, old.stamp_ns,
                         f"no partner after {self._max_pending} blocks "
-                        f"(max_pending {self._max_pending}); block discarded")
+                        f"(max_pending {self._max_pending}); block discarded", old.payload)
         return pairs, events
 
     def _discard_older(self, stamp_ns: int, events) -> None:
@@ -296,7 +297,7 @@ class BlockAligner:
                 old = pend.pop(k)
                 self._event(events, 'unmatched', c, old.seq, old.stamp_ns,
                             f"stamp {old.stamp_ns} ns has no partner; a later stamp "
-                            f"{stamp_ns} ns was paired; block discarded")
+                            f"{stamp_ns} ns was paired; block discarded", old.payload)
 
     def _check_group(self, group: Dict[str, _Block], events) -> bool:
         ref_name = self._names[0]

@@ -34,6 +34,17 @@ class ScoreLog:
     def __init__(self, path: str | Path):
         self.path = Path(path)
 
+    def check_writable(self) -> None:
+        """CorrectionError unless the file can be appended to (its folder is made if missing): a state_file that
+        cannot be written is refused when the validator starts, not found out at its first score."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with self.path.open('a', encoding='utf-8'):
+                pass
+        except OSError as exc:
+            raise CorrectionError(f'state_file {str(self.path)!r} cannot be written ({exc.strerror or exc}); '
+                                  'expected a file in a folder this user may write') from None
+
     def load(self) -> Tuple[List[LoggedScore], int]:
         """(the scores in the file, in order; the number of unreadable lines skipped)."""
         if not self.path.exists():

@@ -148,6 +148,7 @@ class PullAccumulator:
         self.set_id = set_id
         self.pull_id = pull_id
         self.dropped_blocks = 0
+        self.lost_peak_n = -math.inf      # the largest stationary force of the blocks lost (note_dropped)
         self.sample_rate_hz: Optional[float] = None
         self._parts: Dict[str, List[np.ndarray]] = {k: [] for k in _FIELDS}
         self._times: List[np.ndarray] = []
@@ -176,9 +177,12 @@ class PullAccumulator:
                     for k in _FIELDS:
                         self._parts[k][i] = self._parts[k][i][keep]
 
-    def note_dropped(self, count: int = 1) -> None:
-        """Record blocks lost during the pull (reported in the score)."""
+    def note_dropped(self, count: int = 1, lost_peak_n: float = math.nan) -> None:
+        """Record blocks lost during the pull (reported in the score), and the largest stationary force they
+        carried, when known: a pull whose stationary peak fell in them is not scored (score())."""
         self.dropped_blocks += int(count)
+        if lost_peak_n > self.lost_peak_n:   # NaN: not known, never larger
+            self.lost_peak_n = float(lost_peak_n)
 
     def add_block(self, stamp_ns: int, sample_rate_hz: float, stationary, raw, corrected,
                   filtered, inertial=None) -> int:
@@ -232,6 +236,10 @@ class PullAccumulator:
         res = score_pull(a['stationary'], a['raw'], a['corrected'], a['filtered'], loaded_fraction=loaded_fraction,
                          inertial=a['inertial'] if known else None,
                          sample_rate_hz=self.sample_rate_hz if known else None, peak_inputs=peak_inputs)
+        if self.lost_peak_n > res.stationary_peak_n:
+            raise CorrectionError(f'the stationary peak fell in the {self.dropped_blocks} lost block(s): '
+                                  f'{self.lost_peak_n:.4g} N there, {res.stationary_peak_n:.4g} N in what arrived; '
+                                  'expected the peak among the scored samples')
         return replace(res, dropped_blocks=self.dropped_blocks)
 
 

@@ -15,6 +15,7 @@ of the correction's parameters mid-pull is noted as well (reconfigured).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
@@ -130,10 +131,13 @@ class PullTracker:
         for o in self.open.values():
             o.notes.append(('reconfigured', what))
 
-    def dropped(self) -> None:
-        """Blocks were lost: every open pull notes it."""
+    def dropped(self, stamp_ns: int, lost_peak_n: float = math.nan) -> None:
+        """A block stamped STAMP_NS was lost (the sequence skipped it, or it found no partner): the open pulls
+        whose window holds that stamp note it, with the largest stationary force it carried (NaN: not known).
+        Each pull counts its own lost blocks (a correction restart's whole gap was charged to every open pull)."""
         for o in self.open.values():
-            o.acc.note_dropped()
+            if o.acc.start_ns <= stamp_ns and (o.acc.end_ns is None or stamp_ns < o.acc.end_ns):
+                o.acc.note_dropped(lost_peak_n=lost_peak_n)
 
     def pair(self, pair: AlignedPair) -> List[Finished]:
         """An aligned pair: added to the open pulls of this epoch; returns the pulls it completes."""

@@ -44,12 +44,20 @@ def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
     return code, '; '.join(texts)
 
 
-def peak_short(peak_lbf: float, u_lbf: float) -> str:
-    """The same in a table's cell, whose column names the unit and k: '750.0 ± 6.0' ('750.0' while U is not known,
-    '-' while the peak is not)."""
+def peak_short(peak_lbf: float, u_lbf: float, k: float) -> str:
+    """The same in a table's cell, whose column names the unit: '750.0 ± 6.0 U k=2' ('750.0' while U is not
+    known, '-' while the peak is not): the cell says that ± is the expanded uncertainty and its k."""
     if peak_lbf != peak_lbf:
         return '-'
-    return f'{peak_lbf:.1f}' if u_lbf != u_lbf else f'{peak_lbf:.1f} ± {u_lbf:.1f}'
+    return f'{peak_lbf:.1f}' if u_lbf != u_lbf else f'{peak_lbf:.1f} ± {u_lbf:.1f} U k={k:g}'
+
+
+def mean_sd_text(mean: float, sd: float) -> str:
+    """A set's mean and sample standard deviation in a table's cell: '2.39 ± 0.29 sd' ('2.39' for one value whose
+    sd is not known, '-' for none): the cell says that ± is a standard deviation, not an uncertainty."""
+    if mean != mean:
+        return '-'
+    return f'{mean:.2f}' if sd != sd else f'{mean:.2f} ± {sd:.2f} sd'
 
 
 def peak_text(peak_lbf: float, u_lbf: float, k: float) -> str:

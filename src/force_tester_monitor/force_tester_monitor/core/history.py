@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from types import SimpleNamespace
 
-from force_tester_common.core.scores import PULL_OK, PULL_STATUS_NAMES, mean_std, peak_short
+from force_tester_common.core.scores import PULL_OK, PULL_STATUS_NAMES, mean_sd_text, mean_std, peak_short
 from force_tester_common.core.units import n_to_lbf
 
 from .errors import MonitorError
@@ -36,18 +36,16 @@ def score_row(score) -> dict:
     return {'pull': s['pull_id'], 'test_set': s['test_set'],
             'status': PULL_STATUS_NAMES.get(s['status'], str(s['status'])),
             'stationary_lbf': round(s['stationary_peak_lbf'], 1),
-            'corrected_lbf': peak_short(s['corrected_peak_lbf'], s['corrected_peak_u_lbf']),
+            'corrected_lbf': peak_short(s['corrected_peak_lbf'], s['corrected_peak_u_lbf'], s['coverage_factor']),
             **{f'{d}_pct': _pct(s[f'{d}_diff_pct']) for d in DIFFS}}
 
 
 def set_row(summary) -> dict:
     """A SetSummary message (or anything with its fields) as a SetRow's fields."""
-    def mean_std(d):
-        mean, std = getattr(summary, f'{d}_diff_mean_pct'), getattr(summary, f'{d}_diff_std_pct')
-        return '-' if mean != mean else (f'{mean:.2f}' if std != std else f'{mean:.2f} ± {std:.2f}')
     return {'test_set': int(summary.test_set), 'pulls': int(summary.pulls),
             'stationary_mean_lbf': _lbf(summary.stationary_peak_mean_n),
-            **{f'{d}_pct': mean_std(d) for d in DIFFS}}
+            **{f'{d}_pct': mean_sd_text(getattr(summary, f'{d}_diff_mean_pct'), getattr(summary, f'{d}_diff_std_pct'))
+               for d in DIFFS}}
 
 
 class ScoreHistory:

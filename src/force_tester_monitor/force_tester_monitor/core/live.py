@@ -22,6 +22,12 @@ from force_tester_common.core.units import n_to_lbf
 from .errors import MonitorError
 
 SIGNALS = ('stationary', 'raw', 'corrected', 'filtered')
+#: the live trace's lbf values are rounded to this many decimals (0.01 lbf, well below the cells' noise): Studio's
+#: legend prints a value's every digit, and shows 17 of them for an unrounded float
+LBF_DECIMALS = 2
+#: a force block whose corrected block has not come this long (of stamps) after it is shown alone (ForceJoin): longer
+#: than the corrected stream lags on a loaded machine (seconds), else a lagging block would miss its pull trace
+ALONE_AFTER_S = 5.0
 
 
 @dataclass
@@ -41,36 +47,53 @@ class JoinedBlock:
 
 
 class ForceJoin:
-    """Stationary-cell blocks waiting for their corrected block, keyed by stamp. The corrected
-    stream lags the force stream; a force block left behind (its corrected block lost or never
-    made) is forgotten once ``max_pending`` newer ones wait."""
+    """Force blocks waiting for their corrected block, keyed by stamp. The corrected stream lags the force
+    stream; a force block whose corrected block has not come ``alone_after_s`` (of stamps) behind the newest force
+    block (the correction is down, or lost it) is given back by ``add_force`` alone: its stationary and raw moving
+    cell, corrected and filtered NaN, so the live trace keeps the stationary force while the correction is down
+    (it vanished entirely). At most ``max_pending`` blocks wait."""
 
-    def __init__(self, max_pending: int = 20_000):
+    def __init__(self, max_pending: int = 20_000, alone_after_s: float = ALONE_AFTER_S):
         if max_pending < 1:
             raise MonitorError(f'max_pending {max_pending!r} is invalid; expected >= 1')
         self.max_pending = max_pending
-        self._stationary: OrderedDict = OrderedDict()
+        self.alone_after_ns = int(alone_after_s * NS_PER_S)
+        self._waiting: OrderedDict = OrderedDict()   # stamp -> (rate, stationary, moving)
+        self._seq = 0        # the last corrected seq joined: what a block shown alone carries
         self.unmatched = 0  # corrected blocks that found no force block
 
-    def add_force(self, stamp_ns: int, stationary: np.ndarray) -> None:
-        self._stationary[int(stamp_ns)] = stationary
-        while len(self._stationary) > self.max_pending:
-            self._stationary.popitem(last=False)
+    def add_force(self, stamp_ns: int, stationary: np.ndarray, rate_hz: float = float('nan'),
+                  moving: Optional[np.ndarray] = None) -> List[JoinedBlock]:
+        """Keep a force block for its corrected block; returns the blocks that waited too long, alone."""
+        stamp_ns = int(stamp_ns)
+        self._waiting[stamp_ns] = (float(rate_hz), stationary, moving)
+        alone = []
+        while self._waiting:
+            oldest = next(iter(self._waiting))
+            if stamp_ns - oldest <= self.alone_after_ns and len(self._waiting) <= self.max_pending:
+                break
+            rate, s, m = self._waiting.popitem(last=False)[1]
+            if rate == rate:   # a rate known: the block can be placed in time
+                none = np.full(s.size, np.nan)
+                alone.append(JoinedBlock(oldest, self._seq, rate, s, none if m is None or m.size != s.size
+                                         else np.asarray(m), none, none))
+        return alone
 
     def add_corrected(self, stamp_ns: int, seq: int, rate_hz: float, raw, corrected, filtered
                       ) -> Optional[JoinedBlock]:
-        s = self._stationary.pop(int(stamp_ns), None)
-        if s is None or s.size != np.size(raw):
+        waiting = self._waiting.pop(int(stamp_ns), None)
+        if waiting is None or waiting[1].size != np.size(raw):
             self.unmatched += 1
             return None
         # force blocks older than this one will never be joined: their corrected block is gone
-        while self._stationary:
-            oldest = next(iter(self._stationary))
+        while self._waiting:
+            oldest = next(iter(self._waiting))
             if oldest >= stamp_ns:
                 break
-            self._stationary.popitem(last=False)
-        return JoinedBlock(int(stamp_ns), int(seq), float(rate_hz), s, np.asarray(raw), np.asarray(corrected),
-                           np.asarray(filtered))
+            self._waiting.popitem(last=False)
+        self._seq = int(seq)
+        return JoinedBlock(int(stamp_ns), int(seq), float(rate_hz), waiting[1], np.asarray(raw),
+                           np.asarray(corrected), np.asarray(filtered))
 
 
 @dataclass(frozen=True)
@@ -109,8 +132,9 @@ class LiveTrace:
         return ForceScalars(
             stamp_ns=sample_stamp_ns(last.stamp_ns, last.stationary.size - 1, last.rate_hz),
             seq=last.seq, blocks=len(group),
-            last={s: float(n_to_lbf(getattr(last, s)[-1])) for s in SIGNALS},
-            max={s: _nanmax(n_to_lbf(np.concatenate([getattr(b, s) for b in group]))) for s in SIGNALS})
+            last={s: round(float(n_to_lbf(getattr(last, s)[-1])), LBF_DECIMALS) for s in SIGNALS},
+            max={s: round(_nanmax(n_to_lbf(np.concatenate([getattr(b, s) for b in group]))), LBF_DECIMALS)
+                 for s in SIGNALS})
 
 
 @dataclass
