@@ -204,7 +204,7 @@ def leftover(one: OnePass, named, rig) -> Optional[dict]:
     pulls, held, hums = one.pulls, one.analysis.held, one.hums
     fm_ = ForceModel(pulls, rig.force_chain.m2, hums)
     terms = set(n for n in named if n in TERMS)
-    coef, d = fit_terms(fm_, terms, one.analysis.fit)
+    _terms, coef, d = fit_terms(fm_, terms, one.analysis.fit)
     parts = [leftover_part(pulls[j], hums[j] if hums is not None else None, fm_.resid(terms, coef, d, j), rig)
              for j in held]
     return leftover_from(parts, pulls[0].dt)
@@ -217,7 +217,7 @@ def force_errors(one: OnePass, named, rig) -> ForceErrors:
     fm0 = ForceModel(pulls, m2)
     fm1 = ForceModel(pulls, m2, one.hums if 'mains_hum' in named else None)
     terms = set(n for n in named if n in TERMS)
-    coef, d = fit_terms(fm1, terms, fit)
+    _terms, coef, d = fit_terms(fm1, terms, fit)
     out = ForceErrors()
     for k, j in enumerate(held):
         out.add(error_part(pulls[j], fm0.resid(set(), {}, 0.0, j), fm1.resid(terms, coef, d, j), keep=k == 0))

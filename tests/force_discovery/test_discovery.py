@@ -17,6 +17,7 @@ import yaml
 from conftest import SHARED_REPORTS
 from generator import OUT_OF_CATALOG, PLAUSIBLE, check_identified, draw, make_campaign, out_of_catalog, rig_with
 
+from force_discovery.core.force_model import Fit
 from force_discovery.core.pipeline import discover
 from force_tester_common.core.correction import MASS_KG
 from force_tester_sim.core.params import load_rig
@@ -143,10 +144,10 @@ class _PerPullGains:
 
     def fit(self, terms, idx, d):
         g = float(np.mean([self.gains[j] for j in idx]))
-        return {'g': g, 'M': 1.152 * g}, None
+        return Fit({'g': g, 'M': 1.152 * g}, float('nan'), d)
 
     def fit_delay(self, terms, idx):
-        return self.fit(terms, idx, 0.0)[0], None, 0.0
+        return self.fit(terms, idx, 0.0)
 
 
 def test_load_dependence_is_the_between_group_variance_a_random_effect():

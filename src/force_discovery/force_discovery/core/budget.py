@@ -194,8 +194,8 @@ def load_groups(fit: Sequence[int], peaks: Sequence[float]) -> list:
 
 def _group_table(fm_, gr: Sequence[int], m2: float, d: float) -> dict:
     """_param_table of the force model fitted on the pulls gr: the delay searched on them, the other terms at d."""
-    c, _ = fm_.fit(set(TERMS), list(gr), d)
-    _, _, dg = fm_.fit_delay(set(TERMS), list(gr))
+    c = fm_.fit(set(TERMS), list(gr), d).coefficients
+    dg = fm_.fit_delay(set(TERMS), list(gr)).delay_s
     return _param_table(c, dg, m2)
 
 

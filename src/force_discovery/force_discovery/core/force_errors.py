@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -37,6 +37,13 @@ def error_part(p: Pull, base: np.ndarray, ext: np.ndarray, keep: bool = False) -
     return ErrorPart(float(base @ base), float(ext @ ext), int((~bad).sum()), spec[0], spec[1], plot)
 
 
+class ErrorRms(NamedTuple):
+    """The held-out force error's RMS (N): with the model of record, and with the named causes."""
+
+    baseline: float
+    extended: float
+
+
 class ForceErrors:
     """The held-out force-channel errors, model of record and extended: error_part()s added up in pull order."""
 
@@ -56,9 +63,9 @@ class ForceErrors:
         if self.plot is None and part.plot is not None:
             self.plot = part.plot
 
-    def rms(self) -> tuple:
-        """(baseline, extended) RMS over the usable samples."""
-        return _rms(self.base_sse, self.samples), _rms(self.ext_sse, self.samples)
+    def rms(self) -> ErrorRms:
+        """The baseline and extended RMS over the usable samples."""
+        return ErrorRms(_rms(self.base_sse, self.samples), _rms(self.ext_sse, self.samples))
 
 
 def _rms(sses, n: int) -> float:

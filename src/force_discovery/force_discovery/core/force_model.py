@@ -13,7 +13,7 @@ every fit is one least-squares problem whatever d is, and the statistics of forc
 from __future__ import annotations
 
 import math
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -40,6 +40,30 @@ TIMING_UNIT_S = 1e-6
 
 SHIFT_MARGIN = 256   # samples either side of W a shift sees (a delay reaches 20 samples at 100 kHz; the ends' ripple
                      # stays in the margin): a 2 s record is shifted from about a fifth of it
+
+
+class Fit(NamedTuple):
+    """A force model fitted on some pulls: its coefficients by column name, the sum of squared residuals, and the
+    accelerometer delay it was fitted at (s)."""
+
+    coefficients: dict
+    sse: float
+    delay_s: float
+
+
+class TermsFit(NamedTuple):
+    """A force model of the named terms fitted on the fitted pulls (fit_terms): the terms, coefficients, delay (s)."""
+
+    terms: frozenset
+    coefficients: dict
+    delay_s: float
+
+
+class LooFit(NamedTuple):
+    """One leave-one-pull-out refit: the coefficients and the delay (s)."""
+
+    coefficients: dict
+    delay_s: float
 
 
 class WindowShift:
@@ -176,26 +200,27 @@ class ForceModel:
             Xs.append(np.vstack(XX))
         return ys, Xs, names
 
-    def fit(self, terms, idx, d=0.0):
+    def fit(self, terms, idx, d=0.0) -> Fit:
+        """The model of ``terms`` fitted on pulls idx at delay d."""
         ys, Xs, names = self.design(terms, d, idx)
         if not names:
-            return {}, float(sum(np.sum(y ** 2) for y in ys))
+            return Fit({}, float(sum(np.sum(y ** 2) for y in ys)), d)
         X = np.vstack(Xs)
         y = np.concatenate(ys)
         c, *_ = np.linalg.lstsq(X, y, rcond=None)
         r = y - X @ c
-        return dict(zip(names, c)), float(r @ r)
+        return Fit(dict(zip(names, c)), float(r @ r), d)
 
-    def fit_delay(self, terms, idx):
+    def fit_delay(self, terms, idx) -> Fit:
+        """The model of ``terms`` fitted on pulls idx, the delay too (the grid's best, refined by a parabola)."""
         grid = self.delay_grid()
-        sse = np.array([self.fit(terms, idx, d)[1] for d in grid])
+        sse = np.array([self.fit(terms, idx, d).sse for d in grid])
         k = int(np.argmin(sse))
         d = float(grid[k] + _parabolic_offset(sse, k) * (grid[1] - grid[0]))
-        coef, s = self.fit(terms, idx, d)
-        return coef, s, d
+        return self.fit(terms, idx, d)
 
-    def loo_fits(self, terms, idx) -> List[Tuple[dict, float]]:
-        """Leave-one-pull-out refits over idx: [(coef, delay)], the delay refitted on the grid when it is a term.
+    def loo_fits(self, terms, idx) -> List[LooFit]:
+        """Leave-one-pull-out refits over idx, the delay refitted on the grid when it is a term.
 
         Per-pull normal equations (X'X, X'y, y'y) at each grid delay are summed once; dropping pull k subtracts
         its share. The refined delay's coefficients interpolate linearly between the two nearest grid delays."""
@@ -215,7 +240,7 @@ class ForceModel:
             i = int(np.argmin(sse))
             off = _parabolic_offset(sse, i)
             ci = c[i] if off == 0 else c[i] + abs(off) * (c[i + (1 if off > 0 else -1)] - c[i])
-            out.append((dict(zip(names, ci)), float(grid[i] + off * (grid[1] - grid[0]))))
+            out.append(LooFit(dict(zip(names, ci)), float(grid[i] + off * (grid[1] - grid[0]))))
         return out
 
     def sse_per_pull(self, terms, coef, d, idx) -> np.ndarray:
@@ -257,7 +282,7 @@ def _solve(G: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.solve(G / np.outer(D, D), b / D) / D
 
 
-def force_params_ci(loo: Sequence[Tuple[dict, float]], coef: dict, d: float, m2: float) -> dict:
+def force_params_ci(loo: Sequence[LooFit], coef: dict, d: float, m2: float) -> dict:
     """name -> {parameter: [lo, hi]} from leave-one-pull-out refits (jackknife). The AC coupling's interval
     comes from the rate k = 1/tau that the regression fits, inverted (k <= 0 is tau = inf: DC)."""
     full = force_params(coef, d, m2)
@@ -285,8 +310,12 @@ def force_params(coef: dict, d: float, m2: float) -> dict:
     return out
 
 
-def fit_terms(fm_, terms, fit) -> Tuple[dict, float]:
-    """(coefficients, delay) of the force model with the given terms on the fitted pulls (the delay fitted when it
-    is a term, else 0)."""
-    coef, _, d = (fm_.fit_delay(terms, fit) if 'accel_delay' in terms else (*fm_.fit(terms, fit), 0.0))
-    return coef, d
+def fit_once(fm_, terms, fit) -> Fit:
+    """The force model of ``terms`` on the fitted pulls, the delay fitted when it is a term (else 0)."""
+    return fm_.fit_delay(terms, fit) if 'accel_delay' in terms else fm_.fit(terms, fit)
+
+
+def fit_terms(fm_, terms, fit) -> TermsFit:
+    """The force model with the given terms on the fitted pulls (fit_once), with its terms."""
+    f = fit_once(fm_, terms, fit)
+    return TermsFit(frozenset(terms), f.coefficients, f.delay_s)

@@ -29,7 +29,7 @@ from .cells import (
 )
 from .errors import DiscoveryError
 from .force_errors import ErrorPart, error_part
-from .force_model import ForceModel
+from .force_model import ForceModel, TermsFit
 from .force_stats import force_blocks
 from .friction import (
     friction_row,
@@ -108,8 +108,8 @@ class HeldJob:
     f_hum: float
     left_scale: Optional[float]         # hum factor for the structure check (None: no hum)
     err_scale: Optional[float]          # ... for the extended force error
-    left_fit: tuple                     # (terms, coefficients, delay) for the structure check
-    err_fit: tuple                      # ... for the extended force error
+    left_fit: TermsFit                  # the model of record's fit, for the structure check
+    err_fit: TermsFit                   # ... for the extended force error
     keep: bool                          # keep residuals and traces (plots)
     setup: Optional[ResimSetup]
 
@@ -120,7 +120,7 @@ class BeyondJob:
 
     f_hum: float
     hum_scale: Optional[float]          # the hum estimate's factor (None: the hum is not named)
-    err_fit: tuple                      # (terms, coefficients, delay) of the named force-channel causes
+    err_fit: TermsFit                   # the named force-channel causes' fit
     coulomb: Optional[float]            # the named Coulomb friction (N), or None
     settings: Optional[bey.SearchSettings]   # None: the spectrum pass (a few fitted pulls); else the statistics
     sensors: tuple = ()                 # terms found on the sensors on their own (beyond.sensor_corrected)

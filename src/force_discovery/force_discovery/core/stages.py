@@ -41,7 +41,7 @@ import numpy as np
 from force_tester_sim.core.departures import CATALOG
 
 from .candidate import Candidate, Evidence
-from .force_model import TERMS, force_params, force_params_ci
+from .force_model import TERMS, fit_once, force_params, force_params_ci
 from .friction import friction_stat, joint_ci
 from .ringing import MOUNT_MAX_FRACTION, RingPart, cell_modes, observed_mode
 from .significance import significance
@@ -117,7 +117,7 @@ def hum_candidate(f_hum: float, freqs: Sequence[float], amps: Sequence[float], a
     frequencies freqs (hum.hum_frequencies, for its interval), every pull's hum amplitude, and the full force model
     with (fm_h) and without (fm_0) the hum: a ForceModel or a ForceStats."""
     c_h, _, d_h = fm_h.fit_delay(set(TERMS), fit)
-    c_0, _ = fm_0.fit(set(TERMS), fit, d_h)
+    c_0 = fm_0.fit(set(TERMS), fit, d_h).coefficients
     sig = significance(fm_0.sse_per_pull(set(TERMS), c_0, d_h, held), fm_h.sse_per_pull(set(TERMS), c_h, d_h, held))
     alone = significance(fm_0.sse_per_pull(set(), {}, 0.0, held), fm_h.sse_per_pull(set(), {}, 0.0, held)).rms_gain
     ci = {'frequency_hz': list(bootstrap_ci(freqs, np.mean)),
@@ -139,9 +139,9 @@ def force_stage_from(fm_, fit, held, m2) -> Tuple[Dict[str, Candidate], dict]:
     evidence = {}
     for term in TERMS:
         d = 0.0 if term == 'accel_delay' else d_full
-        c, _ = fm_.fit(full - {term}, fit, d)
+        c = fm_.fit(full - {term}, fit, d).coefficients
         sig = significance(fm_.sse_per_pull(full - {term}, c, d, held), sse_full)
-        c1, _, d1 = (fm_.fit_delay({term}, fit) if term == 'accel_delay' else (*fm_.fit({term}, fit), 0.0))
+        c1, _, d1 = fit_once(fm_, {term}, fit)
         alone = significance(base_sse, fm_.sse_per_pull({term}, c1, d1, held)).rms_gain
         evidence[term] = dataclasses.replace(sig, rms_gain_alone=alone)
     # non-linearity check for the gain: would T^2 explain more than a linear gain?

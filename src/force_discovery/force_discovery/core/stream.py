@@ -277,7 +277,7 @@ class Stream:
         """(hum on for the extended force error, (terms, coefficients, delay)) of the named force-channel causes."""
         terms = set(n for n in decision.named if n in TERMS)
         err_hum = analysis.hums is not None and 'mains_hum' in decision.named
-        return err_hum, (frozenset(terms), *fit_terms(self.fm_h if err_hum else self.fm_0, terms, analysis.fit))
+        return err_hum, fit_terms(self.fm_h if err_hum else self.fm_0, terms, analysis.fit)
 
     def beyond(self, analysis: Analysis, decision: Decision) -> bey.BeyondResult:
         """Pass 5: the search beyond the catalog (core/beyond/) on the residuals the named causes leave: the residual
@@ -326,7 +326,7 @@ class Stream:
         """Pass 4: (structure check, ForceErrors, SimulationCheck or the DiscoveryError that stopped it)."""
         rig, held, fit = self.rig, analysis.held, analysis.fit
         hum_on = analysis.hums is not None
-        left_fit = (frozenset(TERMS), *fit_terms(self.fm_h if hum_on else self.fm_0, set(TERMS), fit))
+        left_fit = fit_terms(self.fm_h if hum_on else self.fm_0, set(TERMS), fit)
         err_hum, err_fit = self.err_fit(analysis, decision)
         cal = cell_damping_from(self.zetas[j] for j in held if j < len(self.zetas))
         setup = resim_setup(rig, departures_from_data(ext['departures']), cal,
