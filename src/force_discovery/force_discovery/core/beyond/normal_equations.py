@@ -54,9 +54,9 @@ def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], 
     for k, term in enumerate(names):   # each column one product of cached powers (the library has degree <= 3)
         factors = []
         for s, e in parse_term(term).items():
-            for k in range(2, e + 1):   # by products: x ** 3 is C's pow() per element, 500x slower than x * x * x
-                if (s, k) not in powers:
-                    powers[(s, k)] = powers[(s, k - 1)] * scaled[s]
+            for q in range(2, e + 1):   # by products: x ** 3 is C's pow() per element, 500x slower than x * x * x
+                if (s, q) not in powers:
+                    powers[(s, q)] = powers[(s, q - 1)] * scaled[s]
             factors.append(powers[(s, e)])
         X[:, k] = functools.reduce(np.multiply, factors)
     own = set(OWN_SIGNALS.get(channel, ()))
