@@ -78,6 +78,16 @@ class WindowShift:
     def __call__(self, d: float) -> np.ndarray:
         return self.x if d == 0.0 else self.shifter(d)[self.m:self.m + self.n]
 
+    def many(self, ds: np.ndarray) -> np.ndarray:
+        """(len(ds), W): the channel shifted by each d of ds, the same numbers as __call__ one d at a time (one
+        batched inverse transform of the Shifter's spectrum; d = 0: the channel itself)."""
+        ds = np.asarray(ds, float)
+        sh = self.shifter
+        full = np.fft.irfft(sh.X * np.exp(1j * np.multiply.outer(ds, sh.w)), sh.n, axis=-1) + sh.trend
+        out = (full + (sh.slope * ds)[:, None])[:, self.m:self.m + self.n]
+        out[np.asarray(ds) == 0.0] = self.x
+        return out
+
     def rate(self) -> np.ndarray:
         return self.shifter.rate()[self.m:self.m + self.n]
 

@@ -51,15 +51,13 @@ def force_blocks(p: Pull, hum: np.ndarray) -> np.ndarray:
     fixed = np.column_stack([p.fm[p.w0:p.w1][ok], T, (np.cumsum(p.fm) * p.dt)[p.w0:p.w1][ok], hum[p.w0:p.w1][ok],
                              (np.cumsum(hum) * p.dt)[p.w0:p.w1][ok], T * T, tension_rate(p)[ok]])
     Q, R0 = np.linalg.qr(fixed)
-    shift = WindowShift(p.a2, p)
     grid = delay_grid(p.dt)
+    A = WindowShift(p.a2, p).many(grid)[:, ok]              # a2 shifted by every grid delay, (grid, usable samples)
+    r = A @ Q                                               # each shift's projection on the fixed columns
     out = np.zeros((len(grid), len(BASE), len(BASE)))
     out[:, :-1, :-1] = R0
-    for i, g in enumerate(grid):
-        a = shift(g)[ok]
-        r = Q.T @ a
-        out[i, :-1, -1] = r
-        out[i, -1, -1] = float(np.linalg.norm(a - Q @ r))   # what the fixed columns leave of a2 (no cancellation)
+    out[:, :-1, -1] = r
+    out[:, -1, -1] = np.linalg.norm(A - r @ Q.T, axis=1)   # what the fixed columns leave of a2 (no cancellation)
     return out
 
 
@@ -76,6 +74,7 @@ class ForceStats(ForceModel):
         self.dts = dts
         self.scales = scales
         self.pulls = ()
+        self._all = None
 
     def delay_grid(self) -> np.ndarray:
         return delay_grid(self.dts[0])
@@ -118,20 +117,37 @@ class ForceStats(ForceModel):
 
     def design(self, terms, d, idx, masked=True, t2=False):
         """(ys, Xs, names) as ForceModel.design, each pull's rows being R_g M (8 rows a grid delay), not its
-        samples; t2: T^2 appended as the last column of X."""
+        samples; t2: T^2 appended as the last column of X. All pulls of idx at once: M is linear in the hum's
+        factor s (M(s) = M(0) + s (M(1) - M(0)), exactly: its entries are 0, +-1, +-m2 and +-s)."""
         if not masked:
             raise DiscoveryError('the force statistics hold no samples; expected a ForceModel for residual arrays')
         d = d if 'accel_delay' in terms else 0.0
-        ys, Xs, names = [], [], []
-        for j in idx:
-            blocks = self.blocks[j]
-            parts = grid_parts(delay_grid(self.dts[j]), d)
-            s = 0.0 if self.scales is None else self.scales[j]
-            M, names = self._combination(terms, s, t2)
-            A = np.vstack([math.sqrt(w) * (blocks[k] @ M) for k, w in parts])
-            ys.append(A[:, -1])
-            Xs.append(A[:, :-1])
+        idx = [int(j) for j in idx]
+        M0, names = self._combination(terms, 0.0, t2)
+        M1 = self._combination(terms, 1.0, t2)[0] - M0
+        s = np.zeros(len(idx)) if self.scales is None else np.array([self.scales[j] for j in idx], float)
+        Ms = M0 + s[:, None, None] * M1                    # (pulls, 8, columns + 1)
+        ys, Xs = [None] * len(idx), [None] * len(idx)
+        for dt, rows in self._by_rate(idx).items():        # one grid per sample interval (one, in practice)
+            parts = grid_parts(delay_grid(dt), d)
+            B = self._stacked()
+            A = np.concatenate([math.sqrt(w) * (B[[idx[i] for i in rows], k] @ Ms[rows]) for k, w in parts], axis=1)
+            for a, i in zip(A, rows):
+                ys[i], Xs[i] = a[:, -1], a[:, :-1]
         return ys, Xs, names
+
+    def _stacked(self) -> np.ndarray:
+        """The pulls' force_blocks as one array (pulls, grid, 8, 8), made on first use."""
+        if self._all is None:
+            self._all = np.stack(self.blocks)
+        return self._all
+
+    def _by_rate(self, idx) -> dict:
+        """{sample interval: positions in idx of the pulls with it}."""
+        out: dict = {}
+        for i, j in enumerate(idx):
+            out.setdefault(self.dts[j], []).append(i)
+        return out
 
     def resid(self, terms, coef, d, j):
         raise DiscoveryError('the force statistics hold no samples; expected a ForceModel for residual arrays')

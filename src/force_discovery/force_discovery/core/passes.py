@@ -2,7 +2,7 @@
 small settings) that the campaign engine maps over the pulls, its settings and its small result. ROS-free.
 
 - read_pass (every pull): read, check, screen and prepare it (PullRead: its data-quality verdict and window, its
-  friction offsets); the prepared pull is spilled to a scratch folder (one .npz per pull) so the later passes need
+  friction offsets); the prepared pull is spilled to a scratch folder (one pickle per pull) so the later passes need
   not parse its file again (load_pull).
 - cell_record: the cells' damping ratio from the pull's free decay.
 - hum_record (a few fitted pulls): the pre-pull residual and the free-decay mode (HumRecord).
@@ -13,6 +13,7 @@ small settings) that the campaign engine maps over the pulls, its settings and i
 - beyond_pass: the search beyond the catalog's residual spectra or library statistics (BeyondJob).
 """
 import os
+import pickle
 from dataclasses import dataclass
 from typing import Optional
 
@@ -146,17 +147,18 @@ class Source:
 
 # ------------------------------------------------------------------------------------------ loading
 def _write_spill(p: Pull, path: str) -> None:
+    """The prepared pull's arrays and scalars as one pickle (protocol 5: the arrays' bytes as they are, no zip
+    archive and no checksum to compute on the way out and back in; this process's own scratch file)."""
     arrays = {k: getattr(p, k) for k in SPILL_ARRAYS if getattr(p, k) is not None}
     with open(path, 'wb') as fh:
-        np.savez(fh, name=np.array(p.name), scalars=np.array([float(getattr(p, k)) for k in SPILL_SCALARS]),
-                 **arrays)
+        pickle.dump((p.name, [float(getattr(p, k)) for k in SPILL_SCALARS], arrays), fh, protocol=5)
 
 
 def _read_spill(path: str) -> Pull:
-    with np.load(path) as z:
-        sc = dict(zip(SPILL_SCALARS, z['scalars'].tolist()))
-        arrays = {k: (z[k] if k in z.files else None) for k in SPILL_ARRAYS}
-        name = str(z['name'])
+    with open(path, 'rb') as fh:
+        name, scalars, arrays = pickle.load(fh)
+    sc = dict(zip(SPILL_SCALARS, scalars))
+    arrays = {k: arrays.get(k) for k in SPILL_ARRAYS}
     ints = {k: int(sc[k]) for k in ('w0', 'w1', 'pre1', 'load0', 'brk')}
     return Pull(name, arrays['t'], sc['dt'], arrays['fm'], arrays['fs'], arrays['a2'], arrays['T'], arrays['x3'],
                   arrays['v3'], arrays['a3'], arrays['current'], peak=sc['peak'], ok=arrays['ok'], **ints)

@@ -16,7 +16,7 @@ pulls with the campaign engine (force_tester_common.engine.map_pulls: Dask, or i
 earlier ones found over the whole campaign:
 
 1. ``read_pass`` (every pull): read, check, screen and prepare it; its data-quality verdict and window, its friction
-   offsets. The prepared pull is spilled to a scratch folder (one .npz per pull, removed at the end) so the later
+   offsets. The prepared pull is spilled to a scratch folder (one pickle per pull, removed at the end) so the later
    passes need not parse its file again -- not with a scheduler of your own, whose workers may not share this
    machine's disk: they read the pull again.
    -> the usable pulls, fitted/held-out split, the friction force.
@@ -161,7 +161,7 @@ class Stream:
         if len(refs) < MIN_PULLS:
             raise DiscoveryError(f'campaign has {len(refs)} pulls; expected at least {MIN_PULLS} '
                                  '(half are fitted, half held out)')
-        spills = [None if self.spill_dir is None else str(Path(self.spill_dir) / f'{i:06d}.npz')
+        spills = [None if self.spill_dir is None else str(Path(self.spill_dir) / f'{i:06d}.pkl')
                   for i in range(len(refs))]
         out = self._map('read', read_pass, [(r, rig, s) for r, s in zip(refs, spills)], [r.name for r in refs])
         self.failed = list(out.failed)

@@ -57,6 +57,42 @@ def _cols(model_prod, cat: bool, n_all: int) -> List[int]:
     return list(model_prod) + ([n_all] if cat else [])
 
 
+class Stacked(NamedTuple):
+    """Pulls' statistics (augmented(st, cat) of each) as arrays, one row per pull: what sse_each reads."""
+
+    gram: np.ndarray                    # (pulls, columns, columns)
+    xy: np.ndarray                      # (pulls, columns)
+    yy: np.ndarray                      # (pulls,)
+
+
+def stacked(stats: Sequence[ChannelStats], cat: bool) -> Stacked:
+    aug = [augmented(st, cat) for st in stats]
+    return Stacked(np.stack([a.gram for a in aug]), np.stack([a.xy for a in aug]), np.array([a.yy for a in aug]))
+
+
+def sse_each(sk: Stacked, model: Model, n_prod: int) -> np.ndarray:
+    """sse() of every pull of sk (stacked with the model's catalog flag) in one pass: the same arithmetic on all
+    rows at once."""
+    idx = _cols(model.prod, model.cat, sk.xy.shape[1] - (1 if model.cat else 0))
+    c = np.array(model.coef)
+    e = sk.yy.copy()
+    if idx:
+        Gi = sk.gram[:, idx][:, :, idx]
+        e = sk.yy - 2 * (sk.xy[:, idx] @ c) + (c @ Gi) @ c
+    if model.sin is not None:
+        pr = sin_pair(n_prod, model.sin)
+        br = sk.xy[:, pr] - (sk.gram[:, pr][:, :, idx] @ c if idx else 0.0)
+        Gp = sk.gram[:, pr][:, :, pr]
+        g = 2 * model.amp * (br @ _U) - model.amp ** 2 * np.einsum('ik,pij,jk->pk', _U, Gp, _U)
+        e = e - np.maximum(0.0, g.max(axis=1))
+    return e
+
+
+def total(values: np.ndarray) -> float:
+    """The pulls' sum, added in pull order (as sum() over the pulls was)."""
+    return float(sum(values.tolist()))
+
+
 def sse(st: ChannelStats, model: Model, n_prod: int) -> float:
     """One pull's squared residual under model (the sinusoid's phase fitted on the pull)."""
     a = augmented(st, model.cat)
@@ -88,13 +124,17 @@ def _sin_amp(Gp: np.ndarray, br: np.ndarray) -> float:
 
 
 def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optional[int], cat: bool,
-              n_prod: int) -> Model:
-    """Pooled least squares of the product columns (and catalog) over stats, then the sinusoid's amplitude."""
+              n_prod: int, sk: Optional[Stacked] = None) -> Model:
+    """Pooled least squares of the product columns (and catalog) over stats, then the sinusoid's amplitude (sk: the
+    same statistics stacked with the flag cat, when the caller has them)."""
     idx = _cols(prod, cat, len(stats[0].xy))
     coef: Tuple[float, ...] = ()
     if idx:
-        Gs = sum(augmented(st, cat).gram[np.ix_(idx, idx)] for st in stats)
-        bs = sum(augmented(st, cat).xy[idx] for st in stats)
+        if sk is not None:   # summed over the pulls in order, as below
+            Gs, bs = sk.gram[:, idx][:, :, idx].sum(axis=0), sk.xy[:, idx].sum(axis=0)
+        else:
+            Gs = sum(augmented(st, cat).gram[np.ix_(idx, idx)] for st in stats)
+            bs = sum(augmented(st, cat).xy[idx] for st in stats)
         d = np.sqrt(np.maximum(np.diag(Gs), 1e-300))
         c = np.linalg.lstsq(Gs / np.outer(d, d), bs / d, rcond=1e-10)[0] / d
         coef = tuple(float(v) for v in c)
@@ -175,20 +215,31 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     n_sin = sum(1 for n in names if n.endswith(SIN))
     n_prod = len(names) - n_sin
     use_cat = catalog_named and fit[0].catalog is not None and channel == 'motor_current'
+    sf, sh = {False: stacked(fit, False)}, {False: stacked(held, False)}
+    if use_cat:
+        sf[True], sh[True] = stacked(fit, True), stacked(held, True)
+
+    def fitted(prod, sin, cat):
+        return fit_model(fit, prod, sin, cat, n_prod, sf[cat])
+
+    def sse_fit(m):
+        return sse_each(sf[m.cat], m, n_prod)
+
+    def sse_held(m):
+        return sse_each(sh[m.cat], m, n_prod)
     demoted = None
     if use_cat:   # the catalog keeps priority unless one library term (one parameter, as it) beats it
-        m_cat = fit_model(fit, (), None, True, n_prod)
+        m_cat = fitted((), None, True)
         base = np.array([st.yy for st in held])
-        r_cat = 1 - sum(sse(st, m_cat, n_prod) for st in held) / base.sum()
-        best = min(range(n_prod), key=lambda k: sum(sse(st, fit_model(fit, (k,), None, False, n_prod), n_prod)
-                                                    for st in fit))
-        m_lib = fit_model(fit, (best,), None, False, n_prod)
-        r_lib = 1 - sum(sse(st, m_lib, n_prod) for st in held) / base.sum()
+        r_cat = 1 - total(sse_held(m_cat)) / base.sum()
+        best = min(range(n_prod), key=lambda k: total(sse_fit(fitted((k,), None, False))))
+        m_lib = fitted((best,), None, False)
+        r_lib = 1 - total(sse_held(m_lib)) / base.sum()
         if r_lib > r_cat + PRIORITY_MARGIN:
             use_cat = False
             demoted = (f'{names[best]} on {channel} lowers the held-out residual by {100 * r_lib:.1f} %, the catalog '
                        f'cause by {100 * r_cat:.1f} % (one parameter each): the nearest catalog cause does not fit')
-    model = fit_model(fit, (), None, use_cat, n_prod) if use_cat else Model()
+    model = fitted((), None, use_cat) if use_cat else Model()
     found = []
     band = channel_band(channel, rig)
     for _step in range(MAX_TERMS):
@@ -197,23 +248,23 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             trials += [(None, k) for k in range(n_sin)]
         if not trials:
             break
-        now = sum(sse(st, model, n_prod) for st in fit)
+        now = total(sse_fit(model))
         tried = []
         for k, s in trials:
             prod = model.prod if k is None else tuple([*model.prod, k])
-            m = fit_model(fit, prod, model.sin if s is None else s, use_cat, n_prod)
-            tried.append((m, sum(sse(st, m, n_prod) for st in fit)))
+            m = fitted(prod, model.sin if s is None else s, use_cat)
+            tried.append((m, total(sse_fit(m))))
         least = min(e for _, e in tried)
         # parsimony: the first term in the library's order (lower degree, F_move before T and F_stat) that does
         # within TIE_SHARE of the best -- collinear signals (F_move, T, F_stat) would otherwise win by their noise
         best = next(m for m, e in tried if e <= least + TIE_SHARE * max(now - least, 0.0))
-        base = np.array([sse(st, model, n_prod) for st in held])
-        ext = np.array([sse(st, best, n_prod) for st in held])
+        base = sse_held(model)
+        ext = sse_held(best)
         ev = significance(base, ext)
         if not ev.significant:
             break
         alternatives = near_tied([(names[k] if s is None else names[n_prod + s], base.sum()
-                                   - sum(sse(st, m, n_prod) for st in held)) for (k, s), (m, _) in zip(trials, tried)
+                                   - total(sse_held(m))) for (k, s), (m, _) in zip(trials, tried)
                                   if m is not best], base.sum() - ext.sum())
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
