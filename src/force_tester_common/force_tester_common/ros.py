@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 import time
+from typing import NamedTuple
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -217,8 +218,15 @@ def release(executor, nodes) -> None:
         node.destroy_node()
 
 
-def startup_failure(exc: BaseException) -> tuple:
-    """(exit code, one line) for an error raised while a node process starts: 2 for bad input
+class StartupFailure(NamedTuple):
+    """How a node process that failed to start ends: its exit code and its one line."""
+
+    code: int
+    line: str
+
+
+def startup_failure(exc: BaseException) -> StartupFailure:
+    """The exit code and one line for an error raised while a node process starts: 2 for bad input
     (ParameterError, and the packages' own error types, which are ValueErrors), 1 for anything
     else (an I/O failure, rclpy refusing its --ros-args). The line quotes the error's message,
     on one line, with its type when that is not one of ours."""
@@ -227,7 +235,7 @@ def startup_failure(exc: BaseException) -> tuple:
         line = text
     else:
         line = f'{type(exc).__name__}: {text}' if text else type(exc).__name__
-    return (2 if isinstance(exc, ValueError) else 1), line
+    return StartupFailure(2 if isinstance(exc, ValueError) else 1, line)
 
 
 def _close(node) -> None:

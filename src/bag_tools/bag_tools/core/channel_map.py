@@ -360,7 +360,7 @@ def skeleton_map(path: str | Path) -> str:
     names = list(rec.channels)
     if not names:
         raise BagError(f'DAQ file {str(path)!r} has no channels; expected at least a force and an acceleration')
-    dims = {c: (unit(rec.units.get(c)) or (None,))[0] for c in names}
+    dims = {c: getattr(unit(rec.units.get(c)), 'dimension', None) for c in names}
     n = len(rec.channels[names[0]])
     rate = rec.rate_hz
     if rate is None and rec.time is not None and len(rec.time) > 1 and rec.time[-1] > rec.time[0]:

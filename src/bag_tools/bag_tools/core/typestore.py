@@ -9,6 +9,7 @@ import functools
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import NamedTuple
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
@@ -167,12 +168,19 @@ def shared_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
     return _shared(_msg_dirs(env.get('AMENT_PREFIX_PATH', '')))
 
 
+class TypeDefinition(NamedTuple):
+    """A message type's ros2msg definition text and its RIHS01 hash."""
+
+    text: str
+    rihs01: str
+
+
 @functools.lru_cache(maxsize=32)
-def _definition(type_name: str, dirs: tuple) -> tuple:
+def _definition(type_name: str, dirs: tuple) -> TypeDefinition:
     store = _shared(dirs)
-    return store.generate_msgdef(type_name, ros_version=2)[0], store.hash_rihs01(type_name)
+    return TypeDefinition(store.generate_msgdef(type_name, ros_version=2)[0], store.hash_rihs01(type_name))
 
 
-def type_definition(type_name: str, env: Mapping[str, str] = os.environ) -> tuple:
-    """(ros2msg definition, RIHS01 hash) of a type in shared_typestore(), computed once."""
+def type_definition(type_name: str, env: Mapping[str, str] = os.environ) -> TypeDefinition:
+    """A type's definition in shared_typestore(), computed once."""
     return _definition(type_name, _msg_dirs(env.get('AMENT_PREFIX_PATH', '')))

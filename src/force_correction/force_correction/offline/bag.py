@@ -102,7 +102,7 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     if force_topic is None or accel_topic is None or not event_t:
         raise FastPathError('missing topics')
     wanted = [force_topic, accel_topic, *event_t]
-    if any(bag.hashes.get(t) != type_definition(topics[t])[1] for t in wanted):
+    if any(bag.hashes.get(t) != type_definition(topics[t]).rihs01 for t in wanted):
         raise FastPathError('message definitions differ from force_tester_msgs')
     raw, _ = read_topics_raw(bag.mcap, wanted, bag.summary, bag.mm)
     for i, t in enumerate(wanted):

@@ -7,6 +7,8 @@ a braking load. Stretches closer than ``EVENT_GAP_S`` are one event. Pure numpy.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 #: Fraction of the record's largest excursion above which a sample is in an event.
@@ -22,16 +24,23 @@ WIDTH_LEVEL = 0.5
 
 def event_spans(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> list:
     """[(first, end)] sample index ranges of the events in ``force`` (NaN samples are never in one)."""
-    return find_events(force, rate_hz, level, gap_s)[0]
+    return find_events(force, rate_hz, level, gap_s).spans
 
 
-def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> tuple:
-    """(event_spans, baseline): the spans and the record's median of its finite samples (NaN when there is
-    none), for a caller that needs both (event_width_s takes it) without a second median of the record."""
+class Events(NamedTuple):
+    """The events of a record: [(first, end)] sample spans, and the record's median of its finite samples (NaN when
+    there is none), for a caller that needs both (event_width_s takes it) without a second median of the record."""
+
+    spans: list
+    baseline: float
+
+
+def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> Events:
+    """The events of ``force`` (``Events``)."""
     x = np.asarray(force, dtype=np.float64)
     ok = np.isfinite(x)
     if x.size < 2 or not ok.any():
-        return [], float('nan')
+        return Events([], float('nan'))
     whole = bool(ok.all())   # the usual record: no copies of it without its non-finite samples
     base = np.median(x if whole else x[ok])
     dev = np.abs(x - base)
@@ -39,13 +48,13 @@ def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float 
         dev[~ok] = 0.0
     peak = dev.max()
     if not peak > 0 or _below_snr(dev if whole else dev[ok], peak):
-        return [], float(base)
+        return Events([], float(base))
     idx = np.flatnonzero(dev > level * peak)
     gap = max(1, int(round(gap_s * rate_hz)))
     cut = np.flatnonzero(np.diff(idx) > gap)
     starts = np.concatenate([[idx[0]], idx[cut + 1]])
     ends = np.concatenate([idx[cut], [idx[-1]]]) + 1
-    return [(int(a), int(b)) for a, b in zip(starts, ends)], float(base)
+    return Events([(int(a), int(b)) for a, b in zip(starts, ends)], float(base))
 
 
 #: relative margin around the noise threshold within which below_snr takes the exact median

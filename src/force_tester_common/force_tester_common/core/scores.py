@@ -5,6 +5,7 @@ PullScore carries the core's PullScoreResult fields under the same names; SetSum
 core's SetSummary fields (``SET_SUMMARY_FIELDS``: message field -> core attribute).
 """
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -26,8 +27,15 @@ PULL_STATUS_NAMES = {PULL_OK: 'OK', PULL_INCOMPLETE: 'INCOMPLETE', PULL_RECONFIG
                      PULL_ABORTED: 'ABORTED'}
 
 
-def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
-    """(status code, detail) of a pull: ABORTED over INCOMPLETE over RECONFIGURED over OK.
+class PullStatus(NamedTuple):
+    """A pull's status code (PULL_*) and its detail ('' when there is none)."""
+
+    code: int
+    detail: str
+
+
+def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> PullStatus:
+    """The status of a pull: ABORTED over INCOMPLETE over RECONFIGURED over OK.
     notes: (kind, text) pairs with kind 'incomplete' or 'reconfigured'."""
     kinds = {k for k, _ in notes}
     texts = [t for _, t in notes]
@@ -41,7 +49,7 @@ def pull_status(dropped_blocks: int, notes=(), aborted: bool = False) -> tuple:
         code = PULL_RECONFIGURED
     else:
         code = PULL_OK
-    return code, '; '.join(texts)
+    return PullStatus(code, '; '.join(texts))
 
 
 def peak_short(peak_lbf: float, u_lbf: float, k: float) -> str:

@@ -7,6 +7,7 @@ dimension). ``SYMBOLS`` and ``WORDS`` give the other ways labs write them (``New
 ranges and a file's own unit labels accept the same spellings. ``CHANNEL_DIMENSION`` gives each workspace
 channel's dimension (its SI unit is ``SI_UNIT[dimension]``).
 """
+from typing import NamedTuple
 
 LBF_N = 4.4482216152605      # 1 lbf in newtons
 FT_M = 0.3048                # 1 ft in metres
@@ -85,10 +86,17 @@ def unit_name(name) -> str | None:
     return text if text in UNITS else SYMBOLS.get(text)
 
 
-def unit(name) -> tuple | None:
-    """(dimension, factor to SI) of a unit as a lab writes it (see unit_name), or None when it is not known."""
+class Unit(NamedTuple):
+    """A unit's dimension ('force', 'acceleration', ...) and its factor to SI."""
+
+    dimension: str
+    factor: float
+
+
+def unit(name) -> Unit | None:
+    """A unit as a lab writes it (see unit_name), or None when it is not known."""
     canon = unit_name(name)
-    return None if canon is None else UNITS[canon]
+    return None if canon is None else Unit(*UNITS[canon])
 
 
 def known_units() -> str:

@@ -10,6 +10,7 @@ as ``./ft monitor`` shows it; a node's level is the worst of its reports of the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from force_tester_common.core.health import LEVEL_STALE
 
@@ -20,17 +21,24 @@ SHORT_MESSAGE_CHARS = 64
 DETAIL_KEY = 'detail'
 
 
-def short_message(text: str) -> tuple:
-    """(one line of at most SHORT_MESSAGE_CHARS, cut at a word with an ellipsis; the whole text when it was cut,
-    else '')."""
+class ShortMessage(NamedTuple):
+    """A status message as a row shows it: one line of at most SHORT_MESSAGE_CHARS, cut at a word with an ellipsis,
+    and the whole text when it was cut (else '')."""
+
+    line: str
+    whole: str
+
+
+def short_message(text: str) -> ShortMessage:
+    """``text`` as a row shows it (``ShortMessage``)."""
     one = ' '.join(str(text).split())
     if len(one) <= SHORT_MESSAGE_CHARS:
-        return one, ''
+        return ShortMessage(one, '')
     cut = one[:SHORT_MESSAGE_CHARS - 1]
     space = cut.rfind(' ')
     if space >= SHORT_MESSAGE_CHARS // 2:
         cut = cut[:space]
-    return cut.rstrip(' ,;:(') + '\u2026', one
+    return ShortMessage(cut.rstrip(' ,;:(') + '\u2026', one)
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from typing import NamedTuple
 
 from .errors import MonitorError
 
@@ -50,12 +51,20 @@ def replace_protocol(head: bytes, name: str) -> bytes:
     return b'\r\n'.join(out)
 
 
-def translate_request(head: bytes) -> tuple:
-    """(the request head for the SDK, the name to answer with or None to pass the answer unchanged)."""
+class Translated(NamedTuple):
+    """A WebSocket request as the SDK gets it: the request head, and the subprotocol to answer the client with (None:
+    the SDK's answer passes unchanged)."""
+
+    head: bytes
+    answer_with: str | None
+
+
+def translate_request(head: bytes) -> Translated:
+    """The request head for the SDK, and the name to answer with (``Translated``)."""
     names = offered(head)
     if SDK_SUBPROTOCOL in names or LEGACY_SUBPROTOCOL not in names:
-        return head, None          # the SDK's own name, or one neither knows: the SDK decides
-    return replace_protocol(head, SDK_SUBPROTOCOL), LEGACY_SUBPROTOCOL
+        return Translated(head, None)          # the SDK's own name, or one neither knows: the SDK decides
+    return Translated(replace_protocol(head, SDK_SUBPROTOCOL), LEGACY_SUBPROTOCOL)
 
 
 async def _read_head(reader: asyncio.StreamReader) -> tuple:
