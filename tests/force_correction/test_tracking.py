@@ -1,4 +1,6 @@
 """The validator's pull bookkeeping across restarts and replays (core/tracking.py, no ROS)."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -132,10 +134,15 @@ def test_a_correction_restart_charges_each_pull_its_own_lost_blocks_and_a_lost_p
     """Issue 41, Low: a correction restart mid-pull charged its whole gap to every open pull and scored the pull
     from what was left of it (stationary_peak_n 1.10, m*a 123.5 %). Here pull 2's START is in before the gap
     (the validator lags); the gap (blocks 4-6, the corrected stream's) holds pull 1's peak (block 5). Each lost
-    /force block is charged to the pull whose window holds it, with the stationary force it carried, as the
-    validator does; pull 1 is then not scored (its peak fell in the gap), pull 2 is, with 0 lost blocks."""
+    /force block is charged to the pull whose window holds it, with the stationary force it carried
+    (tracker.block_lost, as the validator calls it); pull 1 is then not scored (its peak fell in the gap), pull 2
+    is, with 0 lost blocks."""
     from force_correction.core.errors import CorrectionError
-    tracker = PullTracker(add)
+
+    def add_messages(acc, pair):   # the payloads are the block messages, as the validator's
+        stat, moving = pair['force'].stationary_n, pair['corrected'].stationary_n
+        acc.add_block(pair.stamp_ns, pair.sample_rate_hz, stat, moving, moving, moving)
+    tracker = PullTracker(add_messages)
     aligner = BlockAligner(('corrected', 'force'))
     ready = []
 
@@ -143,15 +150,15 @@ def test_a_correction_restart_charges_each_pull_its_own_lost_blocks_and_a_lost_p
         t = np.arange(N) + (k % 10) * N
         force = 1000.0 * np.exp(-((t - 250) / 60.0) ** 2)   # each pull's peak at its block 5
         for channel in channels:
-            values = 1.1 * force if channel == 'corrected' else force
+            # the payload as the validator's: the block message, whose stationary_n a lost /force block carries
+            values = SimpleNamespace(stationary_n=1.1 * force if channel == 'corrected' else force)
             seq = k - 7 if channel == 'corrected' and k >= 7 else k   # the restarted correction counts from 0
             pairs, events = aligner.push(channel, T0 + k * DT, seq, RATE, N, values)
             for e in events:
                 if e.kind == 'new_run':
                     tracker.correction_restarted()
                 elif e.kind in ('dropped', 'unmatched'):
-                    lost = e.payload if e.channel == 'force' else None
-                    tracker.dropped(e.stamp_ns, float(np.nanmax(lost)) if lost is not None else float('nan'))
+                    tracker.block_lost(e)
             for p in pairs:
                 ready.extend(tracker.pair(p))
     tracker.start(T0, 1, 3)

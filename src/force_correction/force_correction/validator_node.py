@@ -235,10 +235,7 @@ class ValidatorNode(Node):
                 else:
                     self.tracker.correction_restarted()
             elif event.kind in ('dropped', 'unmatched'):
-                # a lost /force block says how large the stationary force in it was
-                lost = getattr(event.payload, 'stationary_n', None) if event.channel == 'force' else None
-                self.tracker.dropped(event.stamp_ns, max((v for v in lost if v == v), default=math.nan)
-                                     if lost is not None else math.nan)
+                self.tracker.block_lost(event)
         for pair in pairs:
             self._finish(self.tracker.pair(pair))
 

@@ -20,9 +20,11 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
+import numpy as np
+
 from force_tester_common.core.correction import ABORT_TIMEOUT_S
 
-from .pairing import AlignedPair
+from .pairing import AlignedPair, AlignerEvent
 from .scoring import PullAccumulator
 
 RECENT_PAIRS = 4000      # pairs kept to replay into a pull whose START arrives late (4 s of 1 ms blocks)
@@ -130,6 +132,15 @@ class PullTracker:
         """The correction's parameters changed: every open pull notes it."""
         for o in self.open.values():
             o.notes.append(('reconfigured', what))
+
+    def block_lost(self, event: AlignerEvent) -> None:
+        """The aligner's 'dropped' or 'unmatched' event: a lost /force block (unmatched: its payload is known)
+        carries the stationary force it held, which dropped() charges with the block."""
+        lost = getattr(event.payload, 'stationary_n', None) if event.channel == 'force' else None
+        peak = math.nan
+        if lost is not None and np.size(lost) and not np.isnan(lost).all():
+            peak = float(np.nanmax(lost))
+        self.dropped(event.stamp_ns, peak)
 
     def dropped(self, stamp_ns: int, lost_peak_n: float = math.nan) -> None:
         """A block stamped STAMP_NS was lost (the sequence skipped it, or it found no partner): the open pulls

@@ -16,7 +16,7 @@ largest excursion, and the force's impact has its counterpart.
 """
 from __future__ import annotations
 
-from typing import Dict, List, Sequence, Tuple
+from typing import Dict, List, NamedTuple, Sequence, Tuple
 
 import numpy as np
 
@@ -32,10 +32,29 @@ OVERLOAD_EDGE = 0.25             # the burst's samples: above this share of its 
 OVERLOAD_MAX_COUNT = 3           # bursts looked for per channel
 
 
-def bursts(dev: np.ndarray, sigma: float, dt: float) -> List[Tuple[int, int, int, float]]:
-    """A channel's bursts, largest first (dev: |x - median|; sigma: its noise): [(i0, i1, peak sample, ratio to
-    the rest)]. The largest excursion is one when it lasts <= OVERLOAD_MAX_S and stands OVERLOAD_RATIO x above the
-    rest of the record and OVERLOAD_SNR x above the noise; then the next, on the rest, up to OVERLOAD_MAX_COUNT."""
+class Burst(NamedTuple):
+    """A channel's burst: its samples [i0, i1), its peak's sample and how many times the rest of the record it is."""
+
+    i0: int
+    i1: int
+    at: int
+    ratio: float
+
+
+class Overload(NamedTuple):
+    """A burst blamed on its channel: samples [i0, i1), its signed peak (from the record's median), its ratio."""
+
+    channel: str
+    i0: int
+    i1: int
+    peak: float
+    ratio: float
+
+
+def bursts(dev: np.ndarray, sigma: float, dt: float) -> List[Burst]:
+    """A channel's bursts, largest first (dev: |x - median|; sigma: its noise). The largest excursion is one when it
+    lasts <= OVERLOAD_MAX_S and stands OVERLOAD_RATIO x above the rest of the record and OVERLOAD_SNR x above the
+    noise; then the next, on the rest, up to OVERLOAD_MAX_COUNT."""
     n = len(dev)
     w = max(1, int(round(OVERLOAD_MAX_S / dt)))
     g = max(1, int(round(OVERLOAD_CONTEXT_S / dt)))
@@ -52,14 +71,14 @@ def bursts(dev: np.ndarray, sigma: float, dt: float) -> List[Tuple[int, int, int
         top_rest = float(np.max(rest)) if len(rest) else 0.0
         if i1 - i0 > w or peak < OVERLOAD_RATIO * top_rest:
             break
-        out.append((i0, i1, k, peak / max(top_rest, 1e-12)))
+        out.append(Burst(i0, i1, k, peak / max(top_rest, 1e-12)))
         d[max(0, i0 - g):min(n, i1 + g)] = 0.0
     return out
 
 
 def overloads(channels: Dict[str, Tuple[np.ndarray, float]], left: Dict[str, list], dt: float,
-              coincidence: Sequence[str]) -> List[Tuple[str, int, int, float, float]]:
-    """The overloads of one record (the module docstring): [(channel, i0, i1, signed peak, ratio to the rest)].
+              coincidence: Sequence[str]) -> List[Overload]:
+    """The overloads of one record (the module docstring).
     channels: channel -> (its samples, finite; its noise); left: channel -> the spans (i0, i1) where it already
     left its physics (beyond its rated range, clipped); coincidence: the channels that all see the rig's events.
     A channel with no other coincidence channel to compare is not judged. Of the bursts that have no
@@ -69,7 +88,7 @@ def overloads(channels: Dict[str, Tuple[np.ndarray, float]], left: Dict[str, lis
     devs = {c: np.abs(x - np.median(x)) for c, (x, _s) in channels.items()}
     others = {c: [o for o in coincidence if o != c and o in devs] for c in devs}
     left = {c: list(left.get(c, ())) for c in devs}
-    todo = {c: [b for b in bursts(devs[c], s, dt) if not any(b[0] < e and s0 < b[1] for s0, e in left[c])]
+    todo = {c: [b for b in bursts(devs[c], s, dt) if not any(b.i0 < e and s0 < b.i1 for s0, e in left[c])]
             for c, (_x, s) in channels.items() if others[c]}
     out = []
 
@@ -87,14 +106,14 @@ def overloads(channels: Dict[str, Tuple[np.ndarray, float]], left: Dict[str, lis
         return best
 
     while True:
-        now = sorted((counterpart(c, *bs[0][:2]), c) for c, bs in todo.items() if bs)
+        now = sorted((counterpart(c, bs[0].i0, bs[0].i1), c) for c, bs in todo.items() if bs)
         for r, c in now:
             if r >= OVERLOAD_COINCIDENCE:
                 todo[c] = []
         if not now or now[0][0] >= OVERLOAD_COINCIDENCE:
             return out
         c = now[0][1]
-        i0, i1, k, ratio = todo[c].pop(0)
+        b = todo[c].pop(0)
         x = channels[c][0]
-        out.append((c, i0, i1, float(x[k] - np.median(x)), ratio))
-        left[c].append((i0, i1))
+        out.append(Overload(c, b.i0, b.i1, float(x[b.at] - np.median(x)), b.ratio))
+        left[c].append((b.i0, b.i1))

@@ -62,6 +62,7 @@ from force_tester_common.core.channels import (
     FORCE_TYPE,
     REQUIRED_CHANNELS,
 )
+from force_tester_common.core.events import MAD_SD
 from force_tester_sim.core.pull import ACCEL_NOISE_M_S2, LOAD_CELL_NOISE_N
 
 from .overload import OVERLOAD_MAX_S, overloads
@@ -269,8 +270,8 @@ NOISE_STRIDE = 7
 
 
 def _robust_sd(r: np.ndarray) -> float:
-    """1.4826 x median |r|: the standard deviation of zero-mean noise, blind to a few % of events."""
-    return float(1.4826 * np.median(np.abs(r))) if len(r) else 0.0
+    """MAD_SD x median |r|: the standard deviation of zero-mean noise, blind to a few % of events."""
+    return float(MAD_SD * np.median(np.abs(r))) if len(r) else 0.0
 
 
 _STENCIL = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / 6.0

@@ -15,7 +15,10 @@ import numpy as np
 EVENT_LEVEL = 0.2
 #: Stretches closer than this are one event, s.
 EVENT_GAP_S = 0.005
-#: An event's peak excursion must exceed this many robust standard deviations (1.4826 MAD) of the record:
+#: A normal distribution's standard deviation over its median absolute deviation (MAD): 1.4826 MAD is a robust
+#: standard deviation, blind to a few % of events.
+MAD_SD = 1.4826
+#: An event's peak excursion must exceed this many robust standard deviations (MAD_SD x MAD) of the record:
 #: a record of noise alone has no event.
 EVENT_SNR = 8.0
 #: Level at which an event's duration is measured (full width at half of its peak excursion).
@@ -62,17 +65,25 @@ _MARGIN = 1e-6
 
 
 def _below_snr(dev: np.ndarray, peak: float) -> bool:
-    """peak < EVENT_SNR * 1.4826 * median(dev), exactly, without the median's partial sort where two counts
+    """peak < EVENT_SNR * MAD_SD * median(dev), exactly, without the median's partial sort where two counts
     decide it: the median (the mean of the sorted middle pair) lies clearly above the threshold when at most
     (n - 1) // 2 samples are at or below it, clearly below when more than n // 2 are below it; only a median
     within _MARGIN of the threshold is computed (a record whose peak is ~EVENT_SNR noise deviations)."""
-    thr = peak / (EVENT_SNR * 1.4826)
+    thr = peak / (EVENT_SNR * MAD_SD)
     n = dev.size
     if np.count_nonzero(dev <= thr * (1 + _MARGIN)) <= (n - 1) // 2:
         return True
     if np.count_nonzero(dev < thr * (1 - _MARGIN)) > n // 2:
         return False
-    return bool(peak < EVENT_SNR * (1.4826 * np.median(dev)))
+    return bool(peak < EVENT_SNR * (MAD_SD * np.median(dev)))
+
+
+def robust_sd(x) -> float:
+    """MAD_SD x the median absolute deviation of x's finite samples (0 when it has none): its noise, robust to
+    events."""
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    return MAD_SD * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
 
 
 def event_width_s(force, rate_hz: float, span: tuple, baseline: float | None = None) -> float:

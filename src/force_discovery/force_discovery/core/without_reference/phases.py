@@ -9,7 +9,7 @@ from typing import Optional
 
 import numpy as np
 
-from force_tester_common.core.events import event_spans
+from force_tester_common.core.events import MAD_SD, event_spans
 
 from .. import quality as Q
 from ..errors import DiscoveryError
@@ -109,7 +109,7 @@ def free_pull(name: str, ch: dict, screen: Q.PullScreen) -> FreePull:
     # second pass: the event is where the force departs from what the accelerometer explains
     r = fm - g * A(d)
     base = np.median(r[free])
-    sd = 1.4826 * float(np.median(np.abs(r[free] - base)))
+    sd = MAD_SD * float(np.median(np.abs(r[free] - base)))
     out = np.abs(r - base) > EVENT_Z * max(sd, 1e-12)
     out &= near | grow(near, int(round(0.05 * n)))     # only around the events found (not a stray noise sample)
     gap = int(round(EVENT_GAP_S / dt))
@@ -146,7 +146,7 @@ def free_pull(name: str, ch: dict, screen: Q.PullScreen) -> FreePull:
     x = np.asarray(ch[ACCEL], float)
     fin = np.isfinite(x)
     r4 = (x[:-4] + x[4:] - 4.0 * (x[1:-3] + x[3:-1]) + 6.0 * x[2:-2])[fin[2:-2]] / 6.0
-    noise = float(1.4826 * np.median(np.abs(r4)) / math.sqrt(70.0) * 6.0) if len(r4) else 0.0
+    noise = float(MAD_SD * np.median(np.abs(r4)) / math.sqrt(70.0) * 6.0) if len(r4) else 0.0
     return FreePull(name, dt, n, tuple(events), float(free.mean()), int(free.sum()), g, d, ring, modes,
                     t[hum_i], r[hum_i] - np.mean(r[hum_i]), noise)
 
