@@ -12,6 +12,7 @@ import json
 import math
 import time
 import tracemalloc
+import weakref
 
 import numpy as np
 import pytest
@@ -120,12 +121,12 @@ def test_streamed_report_is_the_one_pass_report(tmp_path):
     assert (tmp_path / 'streamed' / 'ringing.png').is_file() and (tmp_path / 'streamed' / 'residuals.png').is_file()
 
 
-def _traced_peak(camp, tmp, live: list) -> int:
+def _traced_peak(camp, tmp, live: list, made: list) -> int:
     """tracemalloc's peak (bytes allocated by discover itself: the campaign's channels exist before) of a streamed
-    discovery in this process; live: the number of prepared pulls alive each time a pull finishes a stage."""
+    discovery in this process; live: the number of prepared pulls alive each time a pull finishes a stage (made
+    holds a weak reference to every Pull made: a pull still referenced, even from a cycle, counts as alive)."""
     def progress(stage, done, total):
-        gc.collect()
-        live.append(sum(isinstance(o, Pull) for o in gc.get_objects()))
+        live.append(sum(ref() is not None for ref in made))
     gc.collect()
     tracemalloc.start()
     try:
@@ -136,15 +137,21 @@ def _traced_peak(camp, tmp, live: list) -> int:
 
 
 @pytest.mark.slow
-def test_memory_is_flat_in_the_number_of_pulls(tmp_path):
+def test_memory_is_flat_in_the_number_of_pulls(tmp_path, monkeypatch):
     """The streamed discovery of 16 pulls allocates at its peak no more than that of 8 pulls (plus 10 %): the pulls
     pass through one at a time and only small results stay. Not timed: tracemalloc counts every numpy allocation
     exactly, the same on every run. And no prepared pull outlives its stage (counted when each pull finishes)."""
     small = make_campaign(None, seed=62, sets=(2, 3), pulls=4)
     large = make_campaign(None, seed=62, sets=(2, 3), pulls=8)
-    live_small, live_large = [], []
-    peak_small = _traced_peak(small, tmp_path / 'small', live_small)
-    peak_large = _traced_peak(large, tmp_path / 'large', live_large)
+    live_small, live_large, made = [], [], []
+    init = Pull.__init__
+
+    def counted(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(weakref.ref(self))
+    monkeypatch.setattr(Pull, '__init__', counted)
+    peak_small = _traced_peak(small, tmp_path / 'small', live_small, made)
+    peak_large = _traced_peak(large, tmp_path / 'large', live_large, made)
     one_pull = sum(np.asarray(v).nbytes for v in large[0][1].values())   # one pull's channels
     # the measure sees the work (a pull is prepared, filtered and re-simulated) ...
     assert peak_small > one_pull, (peak_small, one_pull)
