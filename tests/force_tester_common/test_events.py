@@ -8,7 +8,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from force_tester_common.core.events import EVENT_SNR, event_spans, event_width_s, find_events
+from force_tester_common.core.events import (
+    EVENT_SNR,
+    MAD_SD,
+    below_snr,
+    deviations,
+    event_spans,
+    event_width_s,
+    find_events,
+    robust_sd,
+)
 
 RATE = 50_000.0
 
@@ -89,3 +98,22 @@ def test_width_with_the_baseline_given_equals_its_own():
     assert spans
     for span in spans:
         assert event_width_s(x, RATE, span, base) == event_width_s(x, RATE, span) > 0
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=1, max_size=40),
+       st.sampled_from([0.5, 1.0, 1.0 - 1e-9, 1.0 + 1e-9, 2.0]), st.booleans())
+def test_below_snr_is_the_median_comparison(values, scale, or_equal):
+    """below_snr decides peak < (<=) EVENT_SNR MAD_SD median(dev) as the formula does, at the threshold too (the
+    peak set at the exact threshold times scale), from the deviations that robust_sd takes."""
+    dev = deviations(np.array(values))
+    exact = EVENT_SNR * (MAD_SD * np.median(dev))
+    peak = exact * scale
+    assert below_snr(dev, peak, or_equal) == bool(peak <= exact if or_equal else peak < exact), (peak, exact)
+    assert robust_sd(np.array(values)) == MAD_SD * float(np.median(dev))
+
+
+def test_deviations_leave_out_non_finite_samples():
+    x = np.array([1.0, np.nan, 3.0, np.inf, 5.0])
+    assert deviations(x).tolist() == [2.0, 0.0, 2.0] and deviations(np.array([np.nan])).size == 0
+    assert robust_sd(np.array([np.nan])) == 0.0

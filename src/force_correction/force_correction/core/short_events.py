@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from force_tester_common.core.correction import EVENT_BANDWIDTH_ENERGY, MA_HALF_POWER, SHORT_EVENT_WINDOWS
-from force_tester_common.core.events import EVENT_SNR, event_width_s, find_events, robust_sd
+from force_tester_common.core.events import below_snr, deviations, event_width_s, find_events
 
 
 @dataclass(frozen=True)
@@ -93,12 +93,13 @@ def window_for_bandwidth(bw_hz: float, rate_hz: float) -> int:
 def short_events(force_moving_n, corrected_n, rate_hz: float, window: int) -> list:
     """The ShortEvents of one record: events of the moving cell narrower than SHORT_EVENT_WINDOWS windows,
     with the peak loss measured on the m*a-corrected force ``corrected_n``. An event whose corrected peak is within
-    EVENT_SNR noise deviations (events.robust_sd of ``corrected_n``) is noise, or inertia the correction removed: not
+    EVENT_SNR noise deviations (events.robust_sd of ``corrected_n``; events.below_snr decides it) is noise, or
+    inertia the correction removed: not
     reported (a wiggle between pulls was reported, 'cuts its peak by 95 % (0.38 -> 0.02 N)')."""
     f = np.asarray(force_moving_n, dtype=np.float64)
     corr = np.asarray(corrected_n, dtype=np.float64)
     out = []
-    noise = None    # corrected_n's, measured once a short event is found (a record has none most of the time)
+    dev = None    # corrected_n's deviations, taken once a short event is found (a record has none most of the time)
     spans, median = find_events(f, rate_hz)
     # event_width_s's baseline is the nanmedian, which is find_events' median unless a sample is infinite
     baseline = median if spans and not np.isinf(f).any() else None
@@ -113,8 +114,8 @@ def short_events(force_moving_n, corrected_n, rate_hz: float, window: int) -> li
         seg = corr[lo:hi] - base
         sign = 1.0 if np.nanmax(seg) >= -np.nanmin(seg) else -1.0
         peak = float(np.nanmax(sign * seg))
-        noise = robust_sd(corr) if noise is None else noise
-        if not peak > EVENT_SNR * noise:
+        dev = deviations(corr) if dev is None else dev
+        if not peak > 0 if not dev.size else below_snr(dev, peak, or_equal=True):    # peak <= EVENT_SNR robust sd
             continue
         filt = float(np.nanmax(sign * (trailing_mean(corr[max(0, lo - window):hi], window)[lo - max(0, lo - window):]
                                        - base)))

@@ -50,7 +50,7 @@ def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float 
     if not whole:
         dev[~ok] = 0.0
     peak = dev.max()
-    if not peak > 0 or _below_snr(dev if whole else dev[ok], peak):
+    if not peak > 0 or below_snr(dev if whole else dev[ok], peak):
         return Events([], float(base))
     idx = np.flatnonzero(dev > level * peak)
     gap = max(1, int(round(gap_s * rate_hz)))
@@ -64,26 +64,35 @@ def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float 
 _MARGIN = 1e-6
 
 
-def _below_snr(dev: np.ndarray, peak: float) -> bool:
-    """peak < EVENT_SNR * MAD_SD * median(dev), exactly, without the median's partial sort where two counts
-    decide it: the median (the mean of the sorted middle pair) lies clearly above the threshold when at most
-    (n - 1) // 2 samples are at or below it, clearly below when more than n // 2 are below it; only a median
-    within _MARGIN of the threshold is computed (a record whose peak is ~EVENT_SNR noise deviations)."""
+def below_snr(dev: np.ndarray, peak: float, or_equal: bool = False) -> bool:
+    """peak < EVENT_SNR * MAD_SD * median(dev) (<= with ``or_equal``), exactly, without the median's partial sort
+    where two counts decide it: the median (the mean of the sorted middle pair) lies clearly above the threshold
+    when at most (n - 1) // 2 samples are at or below it, clearly below when more than n // 2 are below it; only a
+    median within _MARGIN of the threshold is computed (a record whose peak is ~EVENT_SNR noise deviations).
+    dev: absolute deviations from the median, finite, at least one."""
     thr = peak / (EVENT_SNR * MAD_SD)
     n = dev.size
     if np.count_nonzero(dev <= thr * (1 + _MARGIN)) <= (n - 1) // 2:
         return True
     if np.count_nonzero(dev < thr * (1 - _MARGIN)) > n // 2:
         return False
-    return bool(peak < EVENT_SNR * (MAD_SD * np.median(dev)))
+    exact = EVENT_SNR * (MAD_SD * np.median(dev))
+    return bool(peak <= exact if or_equal else peak < exact)
+
+
+def deviations(x) -> np.ndarray:
+    """|x - median(x)| over x's finite samples (empty when it has none): what robust_sd and below_snr take."""
+    x = np.asarray(x, dtype=np.float64)
+    ok = np.isfinite(x)
+    x = x if ok.all() else x[ok]     # the usual record: no copy of it
+    return np.abs(x - np.median(x)) if x.size else x
 
 
 def robust_sd(x) -> float:
     """MAD_SD x the median absolute deviation of x's finite samples (0 when it has none): its noise, robust to
     events."""
-    x = np.asarray(x, dtype=np.float64)
-    x = x[np.isfinite(x)]
-    return MAD_SD * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+    dev = deviations(x)
+    return MAD_SD * float(np.median(dev)) if dev.size else 0.0
 
 
 def event_width_s(force, rate_hz: float, span: tuple, baseline: float | None = None) -> float:
