@@ -13,7 +13,9 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
   Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
   later, 50 ms earlier). And, on every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
   the model of record has the two cells simultaneous; a DAQ that samples its channels in turn, or a stationary cell
-  that lags, makes them not): what the data say about an assumption the model cannot test on its own.
+  that lags, makes them not): what the data say about an assumption the model cannot test on its own. The
+  free-decay mode (the mount's frequency and damping) under the analysis's defensible variants: the matrix pencil's
+  model order, the window's start and length, the accelerometer alone (free_decay_analysis, mode_form_parts).
 - DAQ: the sample clock's relative uncertainty (rig daq.sample_rate_hz) on every time or frequency parameter.
   The samples' resolution and noise act pull to pull: they are in the statistical part.
 - definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
@@ -59,7 +61,7 @@ KIND = {STATISTICAL: 'statistical',
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
         'cell_damping': 'model form', 'anti_alias_filter': 'model form', 'analysis_window': 'model form',
-        'tension_timing': 'model form',
+        'tension_timing': 'model form', 'free_decay_analysis': 'model form',
         'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
 FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window')
 DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
@@ -237,10 +239,12 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     return {name: abs(stat(np.array([r[name] for r in rows_v])) - f0) for name in DRIVE_VARIANTS}
 
 
-def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float]) -> dict:
-    """{cause: {parameter: {'pull_to_pull': u}}} of the quantities measured pull by pull whose definition moves with
-    the pull: the free-decay mode's frequency and damping (modes: (f, zeta) or None per pull) and the hum's frequency
-    (hum_freqs: the pulls' own), each their pull-to-pull standard deviation (at least 2 pulls)."""
+def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float],
+                       mode_variants: Sequence[Optional[Mapping]] = ()) -> dict:
+    """{cause: {parameter: {component: u}}} of the quantities measured pull by pull: whose definition moves with the
+    pull: the free-decay mode's frequency and damping (modes: (f, zeta) or None per pull) and the hum's frequency
+    (hum_freqs: the pulls' own), each their pull-to-pull standard deviation (at least 2 pulls, 'pull_to_pull'); and
+    the mode's model-form part from its analysis variants (mode_variants, mode_form_parts())."""
     out: dict = {}
     found = [m for m in modes if m is not None]
     if 'mount_resonance' in cand and len(found) >= 2:
@@ -248,7 +252,36 @@ def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float
                                   'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
     if 'mains_hum' in cand and len(hum_freqs) >= 2:
         out['mains_hum'] = {'frequency_hz': {'pull_to_pull': float(np.std(hum_freqs, ddof=1))}}
+    for cause, params in mode_form_parts(cand, modes, mode_variants).items():
+        for par, comps in params.items():
+            out.setdefault(cause, {}).setdefault(par, {}).update(comps)
     return out
+
+
+MODE_PARAMETERS = ('frequency_hz', 'damping_ratio')   # the mount's, in a free-decay mode's (f, zeta) order
+
+
+def mode_form_parts(cand: Mapping, modes: Sequence, variants: Sequence[Optional[Mapping]]) -> dict:
+    """{'mount_resonance': {parameter: {'free_decay_analysis': u}}}: the model-form part of the free-decay mode. The
+    mode is the median over the few pulls (ringing.observed_mode) of one analysis (the matrix pencil's order, its
+    window, the signal); each defensible variant (ringing.MODE_VARIANTS; variants: free_decay_variants() per pull,
+    None where the pull had no mode) gives its own median over the pulls that found the mode under it, and u is
+    the root mean square of the variants' departures from the nominal median (empty without a mode or variants)."""
+    found = [m for m in modes if m is not None]
+    rows = [v for v in variants if v is not None]
+    if 'mount_resonance' not in cand or not found or not rows:
+        return {}
+    out: dict = {}
+    for k, par in enumerate(MODE_PARAMETERS):
+        nominal = float(np.median([m[k] for m in found]))
+        dev = []
+        for name in rows[0]:
+            vals = [v[name][k] for v in rows if v.get(name) is not None]
+            if vals:
+                dev.append(float(np.median(vals)) - nominal)
+        if dev:
+            out[par] = {'free_decay_analysis': math.sqrt(float(np.mean(np.square(dev))))}
+    return {'mount_resonance': out} if out else {}
 
 
 def statistical_u(name: str, c: Candidate, par: str) -> float:
@@ -363,10 +396,11 @@ def clock_relative(rig) -> float:
 
 
 def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float,
-                         joint: bool = False, hum_freqs: Sequence[float] = ()) -> dict:
+                         joint: bool = False, hum_freqs: Sequence[float] = (), mode_variants: Sequence = ()) -> dict:
     """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (module doc) from pass 3's variant
-    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount), the few
-    pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the viscous damping fitted)."""
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes and their analysis
+    variants (the mount), the few pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the
+    viscous damping fitted)."""
     out: dict = {}
     vidx = [j for j in fit if stats[j].variants is not None]
     if vidx:
@@ -385,7 +419,7 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
         for t, params in fs.items():
             for p, comps in params.items():
                 out.setdefault(t, {})[p] = {**comps, **mf[t][p], **({'load_dependence': ld[t][p]} if t in ld else {})}
-    out.update(pull_to_pull_parts(cand, modes, hum_freqs))
+    out.update(pull_to_pull_parts(cand, modes, hum_freqs, mode_variants))
     if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
         out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint))}
     return out
@@ -393,5 +427,6 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
 
 __all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
            'clock_relative', 'extra_systematics', 'force_systematics', 'force_variants', 'friction_systematics',
-           'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups', 'pull_to_pull_parts',
+           'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups', 'mode_form_parts',
+           'pull_to_pull_parts',
            'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget', 'variant_pulls']

@@ -1,0 +1,89 @@
+"""Issue 38: the model-form lines of the budgets that are estimated from the data (budget.py), on synthetic records
+whose answer is known: the free-decay mode's analysis variants (ringing.free_decay_variants, budget.mode_form_parts)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from force_discovery.core import budget as B
+from force_discovery.core.prep import Pull
+from force_discovery.core.ringing import MODE_VARIANTS, free_decay_mode, free_decay_variants
+
+DT = 1e-4
+
+
+def _pull(ring: np.ndarray) -> Pull:
+    """A pull whose a2 after the break (sample 1000) is ring and whose carriage is at rest (a3 = 0)."""
+    n = 1000 + len(ring) + 100
+    a2 = np.zeros(n)
+    a2[1002:1002 + len(ring)] = ring
+    z = np.zeros(n)
+    return Pull('p', np.arange(n) * DT, DT, z, z, a2, z, z, z, z, None, 0, n, 100, 200, 1000, 1.0)
+
+
+def _decay(modes, n: int = 400, seed: int = 0) -> np.ndarray:
+    """Damped cosines [(f, zeta, amplitude)] sampled at DT, with a little noise."""
+    t = np.arange(n) * DT
+    y = sum(a * np.exp(-z * 2 * math.pi * f * t) * np.cos(2 * math.pi * f * math.sqrt(1 - z * z) * t)
+            for f, z, a in modes)
+    return y + 1e-4 * np.random.default_rng(seed).standard_normal(n)
+
+
+def test_one_clean_mode_gives_every_variant_the_same_mode():
+    p = _pull(_decay([(800.0, 0.012, 1.0)]))
+    nominal = free_decay_mode(p)
+    assert nominal is not None and abs(nominal[0] - 800.0) < 0.5 and abs(nominal[1] / 0.012 - 1) < 0.01
+    variants = free_decay_variants(p, nominal)
+    assert set(variants) == set(MODE_VARIANTS)
+    for name, v in variants.items():
+        assert v is not None, name
+        assert abs(v[0] / nominal[0] - 1) < 1e-3 and abs(v[1] / nominal[1] - 1) < 0.02, (name, v, nominal)
+    assert free_decay_variants(p, None) is None
+
+
+def test_a_decay_that_is_not_one_linear_mode_spreads_the_variants():
+    """An amplitude-dependent damping (the envelope decays faster once the ring is small, as a joint that slips
+    at large amplitude would not): no single damped mode is the decay, and the later and shorter windows say so.
+    The spread is the model-form line, far above a clean record's."""
+    t = np.arange(400) * DT
+    zeta = np.where(t < 0.01, 0.008, 0.02)
+    env = np.exp(-np.cumsum(zeta * 2 * math.pi * 800.0 * DT))
+    ring = env * np.cos(2 * math.pi * 800.0 * t) + 1e-4 * np.random.default_rng(1).standard_normal(len(t))
+
+    def spread(p):
+        m = free_decay_mode(p)
+        parts = B.mode_form_parts({'mount_resonance': None}, [m, m], [free_decay_variants(p, m)] * 2)
+        return parts['mount_resonance']['damping_ratio']['free_decay_analysis'] / m[1]
+    clean, bent = spread(_pull(_decay([(800.0, 0.012, 1.0)]))), spread(_pull(ring))
+    assert bent > 20 * clean and bent > 0.05, (bent, clean)
+
+
+def test_mode_form_parts_is_the_rms_of_the_variants_medians_about_the_nominal():
+    modes = [(500.0, 0.010, 1.0), (502.0, 0.012, 1.0), (501.0, 0.011, 1.0)]    # nominal medians 501, 0.011
+    variants = [{'a': (503.0, 0.013), 'b': (500.0, 0.011)},
+                {'a': (505.0, 0.015), 'b': None},                             # b found no mode on this pull
+                {'a': (504.0, 0.014), 'b': (498.0, 0.009)}]                   # medians a: 504, 0.014; b: 499, 0.010
+    parts = B.mode_form_parts({'mount_resonance': None}, modes, variants)['mount_resonance']
+    assert parts['frequency_hz']['free_decay_analysis'] == pytest.approx(math.sqrt((3.0 ** 2 + 2.0 ** 2) / 2))
+    assert parts['damping_ratio']['free_decay_analysis'] == pytest.approx(math.sqrt((0.003 ** 2 + 0.001 ** 2) / 2))
+    assert B.mode_form_parts({}, modes, variants) == {}                              # no mount candidate
+    assert B.mode_form_parts({'mount_resonance': None}, [None], [None]) == {}        # no mode
+
+
+def test_the_mount_budget_names_the_line_and_widens_the_interval():
+    """pull_to_pull_parts carries the line into the mount's budget beside the pull-to-pull one; honest() widens the
+    interval by it (k = 2) and lists it by name, a model-form component (report.md groups it so)."""
+    from force_discovery.core.candidate import Candidate, Evidence
+    modes = [(500.0, 0.010, 1.0), (500.0, 0.010, 1.0)]
+    variants = [{'a': (500.0, 0.011)}] * 2
+    sys_ = B.pull_to_pull_parts({'mount_resonance': None}, modes, [], variants)['mount_resonance']
+    assert sys_['damping_ratio'] == {'pull_to_pull': 0.0, 'free_decay_analysis': pytest.approx(0.001)}
+    assert B.KIND['free_decay_analysis'] == 'model form'
+    c = Candidate({'frequency_hz': 500.0, 'damping_ratio': 0.010}, {'frequency_hz': [499.9, 500.1],
+                  'damping_ratio': [0.00999, 0.01001]}, 2, Evidence(0.5, 3.0, True, 0.5), 'ring')
+    h = B.honest('mount_resonance', c, sys_, 0.0)
+    assert h.uncertainty_budget['damping_ratio']['free_decay_analysis'] == pytest.approx(0.001)
+    lo, hi = h.parameters_ci95['damping_ratio']
+    assert hi - 0.010 >= 2 * 0.001 and lo <= 0.010 - 2 * 0.001
