@@ -87,3 +87,39 @@ def test_the_mount_budget_names_the_line_and_widens_the_interval():
     assert h.uncertainty_budget['damping_ratio']['free_decay_analysis'] == pytest.approx(0.001)
     lo, hi = h.parameters_ci95['damping_ratio']
     assert hi - 0.010 >= 2 * 0.001 and lo <= 0.010 - 2 * 0.001
+
+
+def _bessel(x: np.ndarray, tau: float) -> np.ndarray:
+    from scipy.signal import bessel, bilinear, lfilter
+    b, a = bessel(2, 1.0 / tau, analog=True, norm='delay')
+    return lfilter(*bilinear(b, a, fs=1.0 / DT), x)
+
+
+def _loaded_pull(tau: float, m2: float = 1.2) -> Pull:
+    """A pull whose moving cell reads T + m2 a2 exactly, its accelerometer a2 through a 2-pole Bessel of group delay
+    tau: a smooth load with a 1.2 kHz ring on it (the ringing the mass is fitted on)."""
+    n = 4000
+    t = np.arange(n) * DT
+    T = 5000.0 * np.exp(-((t - 0.2) / 0.05) ** 2)
+    a2 = 200.0 * np.exp(-((t - 0.2) / 0.05) ** 2) * (1 + np.sin(2 * math.pi * 1200.0 * t))
+    fm = T + m2 * a2
+    z = np.zeros(n)
+    return Pull('p', t, DT, fm, T, _bessel(a2, tau), T, z, z, z, None, 600, 3400, 100, 800, 3000, float(T.max()))
+
+
+def test_the_delay_form_variant_gives_the_mass_a_filter_leaves():
+    """The accelerometer's delay is a 2-pole Bessel (50 us of group delay): fitted as a shift, the mass takes up the
+    filter's attenuation of the ring; the delay_form variant (the same filter on F_move and T) gives it back, so
+    the budget's delay_form line spans the truth. A shift-shaped delay, or a lead, leaves the variant near the
+    nominal fit."""
+    from force_discovery.core.force_model import TERMS, ForceModel, force_params
+
+    def mass(pull):
+        f = ForceModel([pull], 1.2).fit_delay(set(TERMS), [0])
+        return force_params(f.coefficients, f.delay_s, 1.2)['effective_mass']['mass_kg'], f
+    p = _loaded_pull(50e-6)
+    m_shift, d = mass(p)
+    m_form, _ = mass(B.delay_form(p, d.delay_s))
+    assert d.delay_s > 30e-6 and abs(m_shift / 1.2 - 1) > 0.01, (d.delay_s, m_shift)
+    assert abs(m_form / 1.2 - 1) < 0.25 * abs(m_shift / 1.2 - 1), (m_form, m_shift)
+    assert B.delay_form(p, -3e-6) is p and B.delay_form(p, 0.0) is p

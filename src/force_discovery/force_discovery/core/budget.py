@@ -11,7 +11,8 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
 - model form: the same refits under plausible variants of the model of record: the cells' damping one standard
   uncertainty off (the rig's, or when the free decay measured it, the measurement's: cell_damping_u), a 4th-order
   Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
-  later, 50 ms earlier). And, on every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
+  later, 50 ms earlier), and the accelerometer's delay a 2-pole Bessel filter, not a shift (delay_form). And, on
+  every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
   the model of record has the two cells simultaneous; a DAQ that samples its channels in turn, or a stationary cell
   that lags, makes them not): what the data say about an assumption the model cannot test on its own. The
   free-decay mode (the mount's frequency and damping) under the analysis's defensible variants: the matrix pencil's
@@ -42,7 +43,7 @@ import numpy as np
 from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 
 from .candidate import Candidate
-from .force_model import EXTRA, TERMS, force_params
+from .force_model import EXTRA, TERMS, ForceModel, force_params
 from .force_stats import ForceStats
 from .friction import friction_row, friction_stat
 from .prep import Pull, tension_from_stationary
@@ -61,9 +62,9 @@ KIND = {STATISTICAL: 'statistical',
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
         'cell_damping': 'model form', 'anti_alias_filter': 'model form', 'analysis_window': 'model form',
-        'tension_timing': 'model form', 'free_decay_analysis': 'model form',
+        'tension_timing': 'model form', 'free_decay_analysis': 'model form', 'delay_form': 'model form',
         'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
-FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window')
+FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window', 'delay_form')
 DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
                   'actuator_inertia': 'actuator_inertia_kg_m2', 'motor_inertia': 'motor_inertia_kg_m2',
                   'viscous_damping_motor': 'viscous_damping_motor_n_s_per_m',
@@ -137,7 +138,22 @@ def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = N
     w0 = min(p.w0 + int(round(WINDOW_LATER_S / p.dt)), p.load0)
     w1 = max(p.w1 - int(round(WINDOW_EARLIER_S / p.dt)), p.brk + 1)
     out['analysis_window'] = dataclasses.replace(p, w0=w0, w1=w1)
+    out['delay_form'] = delay_form(p, ForceModel([p], fc.m2).fit_delay(set(TERMS), [0]).delay_s)
     return out
+
+
+def delay_form(p: Pull, d: float) -> Pull:
+    """The pull as the delay_form variant sees it: the accelerometer's delay d (the pull's own fitted one) a 2-pole
+    Bessel low-pass of that low-frequency group delay, not a shift. A filter on a2 attenuates the ringing the mass
+    is fitted on, which a shift does not; the same filter on F_move and T makes the three channels alike again, and
+    the refit (its delay searched) then gives the mass a filter-shaped delay leaves. A lead (d <= 0) is a DAQ's
+    sampling skew, a shift: the pull as it is."""
+    if not d > 0:
+        return p
+    from scipy.signal import bessel, bilinear, tf2sos
+    b, a = bessel(2, 1.0 / d, analog=True, norm='delay')
+    sos = tf2sos(*bilinear(b, a, fs=1.0 / p.dt))
+    return dataclasses.replace(p, fm=_butter(p.fm, sos), T=_butter(p.T, sos))
 
 
 def friction_variants(p: Pull, rig) -> Optional[Dict[str, tuple]]:
@@ -426,7 +442,7 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
 
 
 __all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
-           'clock_relative', 'extra_systematics', 'force_systematics', 'force_variants', 'friction_systematics',
-           'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups', 'mode_form_parts',
-           'pull_to_pull_parts',
-           'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget', 'variant_pulls']
+           'clock_relative', 'delay_form', 'extra_systematics', 'force_systematics', 'force_variants',
+           'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups',
+           'mode_form_parts', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget',
+           'variant_pulls']
