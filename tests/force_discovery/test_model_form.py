@@ -123,3 +123,19 @@ def test_the_delay_form_variant_gives_the_mass_a_filter_leaves():
     assert d.delay_s > 30e-6 and abs(m_shift / 1.2 - 1) > 0.01, (d.delay_s, m_shift)
     assert abs(m_form / 1.2 - 1) < 0.25 * abs(m_shift / 1.2 - 1), (m_form, m_shift)
     assert B.delay_form(p, -3e-6) is p and B.delay_form(p, 0.0) is p
+
+
+def test_report_md_names_every_model_form_line():
+    """report.md's budget table groups the components by kind; below it each model-form line is named with its u."""
+    from force_discovery.core.markdown import budget_lines
+    r = {'uncertainty_budget': {'mount_resonance': {'damping_ratio': {
+            'statistical': 1e-5, 'pull_to_pull': 2e-5, 'free_decay_analysis': 3e-5, 'combined': 3.7e-5}},
+         'effective_mass': {'mass_kg': {'statistical': 1e-3, 'delay_form': 4e-3, 'tension_timing': 5e-4,
+                                        'combined': 4.2e-3}}},
+         'candidates': {'mount_resonance': {'parameters': {'damping_ratio': 0.012},
+                                            'parameters_ci95': {'damping_ratio': [0.0119, 0.0121]}},
+                        'effective_mass': {'parameters': {'mass_kg': 1.2},
+                                           'parameters_ci95': {'mass_kg': [1.19, 1.21]}}}}
+    text = '\n'.join(budget_lines(r))
+    assert '- mount_resonance.damping_ratio: free_decay_analysis 3e-05' in text
+    assert '- effective_mass.mass_kg: delay_form 0.004, tension_timing 0.0005' in text

@@ -54,15 +54,15 @@ GROUPS = 3               # load groups of the fitted pulls for the definition co
 ANTI_ALIAS_FRACTION = 0.4   # the variant's anti-alias corner, as a fraction of the sample rate
 WINDOW_LATER_S, WINDOW_EARLIER_S = 0.025, 0.05   # the shorter analysis window's start and end moved in
 
-STATISTICAL, COMBINED = 'statistical', 'combined'
+STATISTICAL, COMBINED, MODEL_FORM = 'statistical', 'combined', 'model form'
 #: component -> its kind (report.md groups the budget table by kind)
 KIND = {STATISTICAL: 'statistical',
         'm1': 'nominal constant', 'cell_stiffness': 'nominal constant',
         'torque_constant': 'nominal constant', 'pulley_radius': 'nominal constant',
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
-        'cell_damping': 'model form', 'anti_alias_filter': 'model form', 'analysis_window': 'model form',
-        'tension_timing': 'model form', 'free_decay_analysis': 'model form', 'delay_form': 'model form',
+        'cell_damping': MODEL_FORM, 'anti_alias_filter': MODEL_FORM, 'analysis_window': MODEL_FORM,
+        'tension_timing': MODEL_FORM, 'free_decay_analysis': MODEL_FORM, 'delay_form': MODEL_FORM,
         'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
 FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window', 'delay_form')
 DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
@@ -441,8 +441,8 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
     return out
 
 
-__all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
-           'clock_relative', 'delay_form', 'extra_systematics', 'force_systematics', 'force_variants',
-           'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups',
-           'mode_form_parts', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget',
-           'variant_pulls']
+__all__ = ['COMBINED', 'KIND', 'MODEL_FORM', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u',
+           'cell_stiffness_u', 'clock_relative', 'delay_form', 'extra_systematics', 'force_systematics',
+           'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence',
+           'load_groups', 'mode_form_parts', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
+           'term_budget', 'variant_pulls']
