@@ -11,7 +11,8 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
 - model form: the same refits under plausible variants of the model of record: the cells' damping one standard
   uncertainty off (the rig's, or when the free decay measured it, the measurement's: cell_damping_u), a 4th-order
   Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
-  later, 50 ms earlier), and the accelerometer's delay a 2-pole Bessel filter, not a shift (delay_form). And, on
+  later, 50 ms earlier), and the accelerometer's delay a 2-pole Bessel filter, not a shift (delay_form: counted
+  where the data fit it better than a shift seen through the same filter). And, on
   every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
   the model of record has the two cells simultaneous; a DAQ that samples its channels in turn, or a stationary cell
   that lags, makes them not): what the data say about an assumption the model cannot test on its own. The
@@ -64,7 +65,10 @@ KIND = {STATISTICAL: 'statistical',
         'cell_damping': MODEL_FORM, 'anti_alias_filter': MODEL_FORM, 'analysis_window': MODEL_FORM,
         'tension_timing': MODEL_FORM, 'free_decay_analysis': MODEL_FORM, 'delay_form': MODEL_FORM,
         'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
-FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window', 'delay_form')
+#: the pull under the delay_form variant's filter on every channel: what that variant's fit is compared with
+DELAY_FORM_REFERENCE = 'delay_form_reference'
+FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window', 'delay_form',
+                  DELAY_FORM_REFERENCE)
 DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
                   'actuator_inertia': 'actuator_inertia_kg_m2', 'motor_inertia': 'motor_inertia_kg_m2',
                   'viscous_damping_motor': 'viscous_damping_motor_n_s_per_m',
@@ -138,22 +142,31 @@ def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = N
     w0 = min(p.w0 + int(round(WINDOW_LATER_S / p.dt)), p.load0)
     w1 = max(p.w1 - int(round(WINDOW_EARLIER_S / p.dt)), p.brk + 1)
     out['analysis_window'] = dataclasses.replace(p, w0=w0, w1=w1)
-    out['delay_form'] = delay_form(p, ForceModel([p], fc.m2).fit_delay(set(TERMS), [0]).delay_s)
+    d = ForceModel([p], fc.m2).fit_delay(set(TERMS), [0]).delay_s
+    out['delay_form'], out[DELAY_FORM_REFERENCE] = delay_form(p, d), delay_form(p, d, reference=True)
     return out
 
 
-def delay_form(p: Pull, d: float) -> Pull:
-    """The pull as the delay_form variant sees it: the accelerometer's delay d (the pull's own fitted one) a 2-pole
-    Bessel low-pass of that low-frequency group delay, not a shift. A filter on a2 attenuates the ringing the mass
-    is fitted on, which a shift does not; the same filter on F_move and T makes the three channels alike again, and
-    the refit (its delay searched) then gives the mass a filter-shaped delay leaves. A lead (d <= 0) is a DAQ's
-    sampling skew, a shift: the pull as it is."""
+def bessel_attenuation(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """x through a 2-pole Bessel low-pass of low-frequency group delay tau, 3 / (3 + 3 s tau + (s tau)^2), with that
+    delay taken back out (times e^(s tau)): the filter's attenuation and phase beyond a shift (in the frequency
+    domain, the end trend removed first and put back)."""
+    trend = np.linspace(x[0], x[-1], len(x))
+    s = 2j * np.pi * np.fft.rfftfreq(len(x), dt) * tau
+    return np.fft.irfft(np.fft.rfft(x - trend) * 3.0 / (3.0 + 3.0 * s + s * s) * np.exp(s), len(x)) + trend
+
+
+def delay_form(p: Pull, d: float, reference: bool = False) -> Pull:
+    """The pull as the delay_form variant sees it: the accelerometer's delay d (the pull's own fitted lag) a 2-pole
+    Bessel low-pass of that group delay, not a shift. A filter on a2 attenuates the ringing the mass is fitted on,
+    which a shift does not; the filter's attenuation (bessel_attenuation) on F_move and T makes the channels alike
+    again, and the refit gives the mass a filter-shaped delay leaves. reference: the attenuation on a2 too, the
+    shift-shaped delay seen through the same filter (what the variant's misfit is compared with:
+    force_systematics). A lead (d <= 0) is a DAQ's sampling skew, a shift: the pull as it is."""
     if not d > 0:
         return p
-    from scipy.signal import bessel, bilinear, tf2sos
-    b, a = bessel(2, 1.0 / d, analog=True, norm='delay')
-    sos = tf2sos(*bilinear(b, a, fs=1.0 / p.dt))
-    return dataclasses.replace(p, fm=_butter(p.fm, sos), T=_butter(p.T, sos))
+    out = dataclasses.replace(p, fm=bessel_attenuation(p.fm, p.dt, d), T=bessel_attenuation(p.T, p.dt, d))
+    return dataclasses.replace(out, a2=bessel_attenuation(p.a2, p.dt, d)) if reference else out
 
 
 def friction_variants(p: Pull, rig) -> Optional[Dict[str, tuple]]:
@@ -179,18 +192,26 @@ def _param_table(coef: dict, d: float, m2: float) -> Dict[str, Dict[str, float]]
 def force_systematics(fm_nominal, fm_variants: Mapping[str, object], idx: Sequence[int], m2: float) -> dict:
     """{term: {parameter: {component: change}}} of the full force model refitted (delay searched) on the pulls idx
     of each variant ForceStats against the nominal one's; for ac_coupling the change in the rate 1/tau over the
-    rate_scale of the nominal fit's tau (its unit)."""
+    rate_scale of the nominal fit's tau (its unit). The delay_form variant is compared with its reference (the
+    same filter on every channel: DELAY_FORM_REFERENCE): it counts (its change from the nominal fit) only where the
+    data prefer it, its fit's squared residual below the reference's (a filter-shaped delay; a shift-shaped one
+    leaves it 0)."""
     full = set(TERMS)
     c0, _, d0 = fm_nominal.fit_delay(full, idx)
     p0 = _param_table(c0, d0, m2)
+    ref = fm_variants.get(DELAY_FORM_REFERENCE)
+    fr = None if ref is None else ref.fit_delay(full, idx)
     out: dict = {}
     for name, fm_v in fm_variants.items():
-        c, _, d = fm_v.fit_delay(full, idx)
+        if name == DELAY_FORM_REFERENCE:
+            continue
+        c, sse, d = fm_v.fit_delay(full, idx)
         pv = _param_table(c, d, m2)
+        base = pv if (name == 'delay_form' and fr is not None and sse >= fr.sse) else p0
         for term, params in p0.items():
             for par, v in params.items():
                 scale = rate_scale(1.0 / v if v > 0 else math.inf) if term == 'ac_coupling' else 1.0
-                out.setdefault(term, {}).setdefault(par, {})[name] = abs(pv[term][par] - v) / scale
+                out.setdefault(term, {}).setdefault(par, {})[name] = abs(pv[term][par] - base[term][par]) / scale
     return out
 
 
@@ -441,8 +462,8 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
     return out
 
 
-__all__ = ['COMBINED', 'KIND', 'MODEL_FORM', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u',
-           'cell_stiffness_u', 'clock_relative', 'delay_form', 'extra_systematics', 'force_systematics',
-           'force_variants', 'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence',
-           'load_groups', 'mode_form_parts', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
-           'term_budget', 'variant_pulls']
+__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'KIND', 'MODEL_FORM', 'STATISTICAL', 'bessel_attenuation',
+           'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative', 'delay_form',
+           'extra_systematics', 'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants',
+           'honest', 'honest_all', 'load_dependence', 'load_groups', 'mode_form_parts', 'pull_to_pull_parts',
+           'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget', 'variant_pulls']
