@@ -60,7 +60,7 @@ from force_discovery.core.report import (
     unusable_report,
 )
 from force_discovery.core.resim import simulation_check
-from force_discovery.core.ringing import cell_modes, free_decay_mode, observed_mode, ring_part
+from force_discovery.core.ringing import cell_modes, free_decay_mode, free_decay_variants, observed_mode, ring_part
 from force_discovery.core.source import campaign_absent, memory_refs
 from force_tester_sim.core.departures import departures_from_data
 
@@ -108,7 +108,9 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
             out.setdefault(t, {})[p] = {**comps, **mf[t][p], **({'load_dependence': ld[t][p]} if t in ld else {})}
     few = few_pulls(fit)
     hum_freqs = hum_frequencies([pre_residual(pulls[j], m2) for j in few], cand['mains_hum'].parameters['frequency_hz'])
-    out.update(B.pull_to_pull_parts(cand, [free_decay_mode(pulls[j]) for j in few], hum_freqs))
+    modes = [free_decay_mode(pulls[j]) for j in few]
+    variants = [free_decay_variants(pulls[j], m) for j, m in zip(few, modes)]
+    out.update(B.pull_to_pull_parts(cand, modes, hum_freqs, variants))
     if 'coulomb_friction' in cand:
         rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
         joint = viscous_separable(rows, viscous_u(rig))

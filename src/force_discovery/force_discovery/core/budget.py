@@ -11,9 +11,13 @@ Components (standard uncertainties, k = 1, in the parameter's unit), by kind (KI
 - model form: the same refits under plausible variants of the model of record: the cells' damping one standard
   uncertainty off (the rig's, or when the free decay measured it, the measurement's: cell_damping_u), a 4th-order
   Butterworth anti-alias filter at 0.4 x the sample rate on every channel, and a shorter analysis window (25 ms
-  later, 50 ms earlier). And, on every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
+  later, 50 ms earlier), and the accelerometer's delay a 2-pole Bessel filter, not a shift (delay_form: counted
+  where the data fit it better than a shift seen through the same filter). And, on
+  every fitted pull, the refit with the tension's own timing free (force_model.EXTRA:
   the model of record has the two cells simultaneous; a DAQ that samples its channels in turn, or a stationary cell
-  that lags, makes them not): what the data say about an assumption the model cannot test on its own.
+  that lags, makes them not): what the data say about an assumption the model cannot test on its own. The
+  free-decay mode (the mount's frequency and damping) under the analysis's defensible variants: the matrix pencil's
+  model order, the window's start and length, the accelerometer alone (free_decay_analysis, mode_form_parts).
 - DAQ: the sample clock's relative uncertainty (rig daq.sample_rate_hz) on every time or frequency parameter.
   The samples' resolution and noise act pull to pull: they are in the statistical part.
 - definition: what the parameter is depends on the operating point. The force model is refitted on the fitted
@@ -40,7 +44,7 @@ import numpy as np
 from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 
 from .candidate import Candidate
-from .force_model import EXTRA, TERMS, force_params
+from .force_model import EXTRA, TERMS, ForceModel, force_params
 from .force_stats import ForceStats
 from .friction import friction_row, friction_stat
 from .prep import Pull, tension_from_stationary
@@ -51,17 +55,20 @@ GROUPS = 3               # load groups of the fitted pulls for the definition co
 ANTI_ALIAS_FRACTION = 0.4   # the variant's anti-alias corner, as a fraction of the sample rate
 WINDOW_LATER_S, WINDOW_EARLIER_S = 0.025, 0.05   # the shorter analysis window's start and end moved in
 
-STATISTICAL, COMBINED = 'statistical', 'combined'
+STATISTICAL, COMBINED, MODEL_FORM = 'statistical', 'combined', 'model form'
 #: component -> its kind (report.md groups the budget table by kind)
 KIND = {STATISTICAL: 'statistical',
         'm1': 'nominal constant', 'cell_stiffness': 'nominal constant',
         'torque_constant': 'nominal constant', 'pulley_radius': 'nominal constant',
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
-        'cell_damping': 'model form', 'anti_alias_filter': 'model form', 'analysis_window': 'model form',
-        'tension_timing': 'model form',
+        'cell_damping': MODEL_FORM, 'anti_alias_filter': MODEL_FORM, 'analysis_window': MODEL_FORM,
+        'tension_timing': MODEL_FORM, 'free_decay_analysis': MODEL_FORM, 'delay_form': MODEL_FORM,
         'sample_clock': 'DAQ', 'load_dependence': 'definition', 'pull_to_pull': 'definition'}
-FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window')
+#: the pull under the delay_form variant's filter on every channel: what that variant's fit is compared with
+DELAY_FORM_REFERENCE = 'delay_form_reference'
+FORCE_VARIANTS = ('m1', 'cell_stiffness', 'cell_damping', 'anti_alias_filter', 'analysis_window', 'delay_form',
+                  DELAY_FORM_REFERENCE)
 DRIVE_VARIANTS = {'torque_constant': 'torque_constant_nm_per_a', 'pulley_radius': 'pulley_radius_m',
                   'actuator_inertia': 'actuator_inertia_kg_m2', 'motor_inertia': 'motor_inertia_kg_m2',
                   'viscous_damping_motor': 'viscous_damping_motor_n_s_per_m',
@@ -135,7 +142,31 @@ def force_variants(p: Pull, rig, cal: Optional[tuple], fcal: Optional[tuple] = N
     w0 = min(p.w0 + int(round(WINDOW_LATER_S / p.dt)), p.load0)
     w1 = max(p.w1 - int(round(WINDOW_EARLIER_S / p.dt)), p.brk + 1)
     out['analysis_window'] = dataclasses.replace(p, w0=w0, w1=w1)
+    d = ForceModel([p], fc.m2).fit_delay(set(TERMS), [0]).delay_s
+    out['delay_form'], out[DELAY_FORM_REFERENCE] = delay_form(p, d), delay_form(p, d, reference=True)
     return out
+
+
+def bessel_attenuation(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """x through a 2-pole Bessel low-pass of low-frequency group delay tau, 3 / (3 + 3 s tau + (s tau)^2), with that
+    delay taken back out (times e^(s tau)): the filter's attenuation and phase beyond a shift (in the frequency
+    domain, the end trend removed first and put back)."""
+    trend = np.linspace(x[0], x[-1], len(x))
+    s = 2j * np.pi * np.fft.rfftfreq(len(x), dt) * tau
+    return np.fft.irfft(np.fft.rfft(x - trend) * 3.0 / (3.0 + 3.0 * s + s * s) * np.exp(s), len(x)) + trend
+
+
+def delay_form(p: Pull, d: float, reference: bool = False) -> Pull:
+    """The pull as the delay_form variant sees it: the accelerometer's delay d (the pull's own fitted lag) a 2-pole
+    Bessel low-pass of that group delay, not a shift. A filter on a2 attenuates the ringing the mass is fitted on,
+    which a shift does not; the filter's attenuation (bessel_attenuation) on F_move and T makes the channels alike
+    again, and the refit gives the mass a filter-shaped delay leaves. reference: the attenuation on a2 too, the
+    shift-shaped delay seen through the same filter (what the variant's misfit is compared with:
+    force_systematics). A lead (d <= 0) is a DAQ's sampling skew, a shift: the pull as it is."""
+    if not d > 0:
+        return p
+    out = dataclasses.replace(p, fm=bessel_attenuation(p.fm, p.dt, d), T=bessel_attenuation(p.T, p.dt, d))
+    return dataclasses.replace(out, a2=bessel_attenuation(p.a2, p.dt, d)) if reference else out
 
 
 def friction_variants(p: Pull, rig) -> Optional[Dict[str, tuple]]:
@@ -161,18 +192,26 @@ def _param_table(coef: dict, d: float, m2: float) -> Dict[str, Dict[str, float]]
 def force_systematics(fm_nominal, fm_variants: Mapping[str, object], idx: Sequence[int], m2: float) -> dict:
     """{term: {parameter: {component: change}}} of the full force model refitted (delay searched) on the pulls idx
     of each variant ForceStats against the nominal one's; for ac_coupling the change in the rate 1/tau over the
-    rate_scale of the nominal fit's tau (its unit)."""
+    rate_scale of the nominal fit's tau (its unit). The delay_form variant is compared with its reference (the
+    same filter on every channel: DELAY_FORM_REFERENCE): it counts (its change from the nominal fit) only where the
+    data prefer it, its fit's squared residual below the reference's (a filter-shaped delay; a shift-shaped one
+    leaves it 0)."""
     full = set(TERMS)
     c0, _, d0 = fm_nominal.fit_delay(full, idx)
     p0 = _param_table(c0, d0, m2)
+    ref = fm_variants.get(DELAY_FORM_REFERENCE)
+    fr = None if ref is None else ref.fit_delay(full, idx)
     out: dict = {}
     for name, fm_v in fm_variants.items():
-        c, _, d = fm_v.fit_delay(full, idx)
+        if name == DELAY_FORM_REFERENCE:
+            continue
+        c, sse, d = fm_v.fit_delay(full, idx)
         pv = _param_table(c, d, m2)
+        base = pv if (name == 'delay_form' and fr is not None and sse >= fr.sse) else p0
         for term, params in p0.items():
             for par, v in params.items():
                 scale = rate_scale(1.0 / v if v > 0 else math.inf) if term == 'ac_coupling' else 1.0
-                out.setdefault(term, {}).setdefault(par, {})[name] = abs(pv[term][par] - v) / scale
+                out.setdefault(term, {}).setdefault(par, {})[name] = abs(pv[term][par] - base[term][par]) / scale
     return out
 
 
@@ -237,10 +276,12 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     return {name: abs(stat(np.array([r[name] for r in rows_v])) - f0) for name in DRIVE_VARIANTS}
 
 
-def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float]) -> dict:
-    """{cause: {parameter: {'pull_to_pull': u}}} of the quantities measured pull by pull whose definition moves with
-    the pull: the free-decay mode's frequency and damping (modes: (f, zeta) or None per pull) and the hum's frequency
-    (hum_freqs: the pulls' own), each their pull-to-pull standard deviation (at least 2 pulls)."""
+def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float],
+                       mode_variants: Sequence[Optional[Mapping]] = ()) -> dict:
+    """{cause: {parameter: {component: u}}} of the quantities measured pull by pull: whose definition moves with the
+    pull: the free-decay mode's frequency and damping (modes: (f, zeta) or None per pull) and the hum's frequency
+    (hum_freqs: the pulls' own), each their pull-to-pull standard deviation (at least 2 pulls, 'pull_to_pull'); and
+    the mode's model-form part from its analysis variants (mode_variants, mode_form_parts())."""
     out: dict = {}
     found = [m for m in modes if m is not None]
     if 'mount_resonance' in cand and len(found) >= 2:
@@ -248,7 +289,36 @@ def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float
                                   'damping_ratio': {'pull_to_pull': float(np.std([m[1] for m in found], ddof=1))}}
     if 'mains_hum' in cand and len(hum_freqs) >= 2:
         out['mains_hum'] = {'frequency_hz': {'pull_to_pull': float(np.std(hum_freqs, ddof=1))}}
+    for cause, params in mode_form_parts(cand, modes, mode_variants).items():
+        for par, comps in params.items():
+            out.setdefault(cause, {}).setdefault(par, {}).update(comps)
     return out
+
+
+MODE_PARAMETERS = ('frequency_hz', 'damping_ratio')   # the mount's, in a free-decay mode's (f, zeta) order
+
+
+def mode_form_parts(cand: Mapping, modes: Sequence, variants: Sequence[Optional[Mapping]]) -> dict:
+    """{'mount_resonance': {parameter: {'free_decay_analysis': u}}}: the model-form part of the free-decay mode. The
+    mode is the median over the few pulls (ringing.observed_mode) of one analysis (the matrix pencil's order, its
+    window, the signal); each defensible variant (ringing.MODE_VARIANTS; variants: free_decay_variants() per pull,
+    None where the pull had no mode) gives its own median over the pulls that found the mode under it, and u is
+    the root mean square of the variants' departures from the nominal median (empty without a mode or variants)."""
+    found = [m for m in modes if m is not None]
+    rows = [v for v in variants if v is not None]
+    if 'mount_resonance' not in cand or not found or not rows:
+        return {}
+    out: dict = {}
+    for k, par in enumerate(MODE_PARAMETERS):
+        nominal = float(np.median([m[k] for m in found]))
+        dev = []
+        for name in rows[0]:
+            vals = [v[name][k] for v in rows if v.get(name) is not None]
+            if vals:
+                dev.append(float(np.median(vals)) - nominal)
+        if dev:
+            out[par] = {'free_decay_analysis': math.sqrt(float(np.mean(np.square(dev))))}
+    return {'mount_resonance': out} if out else {}
 
 
 def statistical_u(name: str, c: Candidate, par: str) -> float:
@@ -363,10 +433,11 @@ def clock_relative(rig) -> float:
 
 
 def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float,
-                         joint: bool = False, hum_freqs: Sequence[float] = ()) -> dict:
+                         joint: bool = False, hum_freqs: Sequence[float] = (), mode_variants: Sequence = ()) -> dict:
     """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (module doc) from pass 3's variant
-    statistics and load groups (the force model, at the campaign's delay), the free-decay modes (the mount), the few
-    pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the viscous damping fitted)."""
+    statistics and load groups (the force model, at the campaign's delay), the free-decay modes and their analysis
+    variants (the mount), the few pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the
+    viscous damping fitted)."""
     out: dict = {}
     vidx = [j for j in fit if stats[j].variants is not None]
     if vidx:
@@ -385,13 +456,14 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
         for t, params in fs.items():
             for p, comps in params.items():
                 out.setdefault(t, {})[p] = {**comps, **mf[t][p], **({'load_dependence': ld[t][p]} if t in ld else {})}
-    out.update(pull_to_pull_parts(cand, modes, hum_freqs))
+    out.update(pull_to_pull_parts(cand, modes, hum_freqs, mode_variants))
     if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
         out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint))}
     return out
 
 
-__all__ = ['COMBINED', 'KIND', 'STATISTICAL', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
-           'clock_relative', 'extra_systematics', 'force_systematics', 'force_variants', 'friction_systematics',
-           'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups', 'pull_to_pull_parts',
+__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'KIND', 'MODEL_FORM', 'STATISTICAL', 'bessel_attenuation',
+           'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u', 'clock_relative', 'delay_form',
+           'extra_systematics', 'force_systematics', 'force_variants', 'friction_systematics', 'friction_variants',
+           'honest', 'honest_all', 'load_dependence', 'load_groups', 'mode_form_parts', 'pull_to_pull_parts',
            'rate_scale', 'rate_stat_u', 'statistical_u', 'term_budget', 'variant_pulls']

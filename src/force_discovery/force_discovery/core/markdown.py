@@ -7,7 +7,7 @@ from pathlib import Path
 from . import quality as Q
 from . import stages
 from .beyond.selection import NEAR_TIE
-from .budget import COMBINED, KIND
+from .budget import COMBINED, KIND, MODEL_FORM
 from .report import available
 
 
@@ -154,6 +154,13 @@ def budget_lines(r) -> list:
             L.append(f'| {n} | {par} | {_num(c["parameters"][par])} | '
                      + ' | '.join(f'{v ** 0.5:.3g}' for v in per.values())
                      + f' | {_num(comps.get(COMBINED))} | {big} | [{_num(lo)}, {_num(hi)}] |')
+    form = [f'- {n}.{par}: ' + ', '.join(f'{k} {_num(u)}' for k, u in comps.items()
+                                           if KIND.get(k) == MODEL_FORM and u is not None)
+            for n, params in r.get('uncertainty_budget', {}).items() for par, comps in params.items()
+            if any(KIND.get(k) == MODEL_FORM for k in comps)]
+    if form:
+        L += ['', 'The model-form lines, each by name (the analysis variants the estimate moves under; '
+              'discovery-uncertainty.md):', ''] + form
     return L + ['']
 
 

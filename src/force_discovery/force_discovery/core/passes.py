@@ -41,7 +41,7 @@ from .leftover import LeftoverPart, leftover_part
 from .prep import Pull, PullQuality, check_quality, prepare
 from .quality import PullScreen, screen_pull
 from .resim import ResimPart, ResimSetup, resim_pull
-from .ringing import RingPart, cell_modes, free_decay_mode, ring_part
+from .ringing import RingPart, cell_modes, free_decay_mode, free_decay_variants, ring_part
 from .source import PullRef, load_channels, rated_ranges
 from .stages import (
     PullInfo,
@@ -69,11 +69,13 @@ class PullRead:
 
 @dataclass(frozen=True)
 class HumRecord:
-    """Pass 2, one of the few fitted pulls: its pre-pull residual (t, r) and its free-decay mode."""
+    """Pass 2, one of the few fitted pulls: its pre-pull residual (t, r), its free-decay mode and that mode under the
+    analysis's variants (ringing.free_decay_variants)."""
 
     t: np.ndarray
     r: np.ndarray
     mode: Optional[tuple]
+    mode_variants: Optional[dict] = None
 
 
 @dataclass(frozen=True)
@@ -207,7 +209,8 @@ def hum_record(item) -> HumRecord:
     src, rig, c1 = item
     p = load_pull(src, rig, c1)
     t, r = pre_residual(p, rig.force_chain.m2)
-    return HumRecord(t, r, free_decay_mode(p))
+    mode = free_decay_mode(p)
+    return HumRecord(t, r, mode, free_decay_variants(p, mode))
 
 
 def pull_stats(item) -> PullStats:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -12,6 +12,8 @@ from .prep import Pull
 from .uncertainty import mean_ci
 
 MOUNT_MAX_FRACTION = 0.7      # a free-decay mode below 0.7 x the cell mode is not the cell
+RING_START_S = 2e-4            # the free decay is analysed from 0.2 ms after the break
+MODE_CLUSTER_REL = 0.05        # modes of different pulls (or analyses) within 5 % are one mode
 
 
 def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float, float, float]]:
@@ -51,7 +53,9 @@ def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float,
 
 
 def ring_segment(p: Pull, length_s: float = 0.03) -> Optional[np.ndarray]:
-    i0 = p.brk + int(2e-4 / p.dt)
+    """a2 - a3 (the carriage frame) from RING_START_S after the break, length_s long, its mean removed (None: too
+    short, or not all usable)."""
+    i0 = p.brk + int(RING_START_S / p.dt)
     i1 = min(len(p.t), i0 + int(length_s / p.dt))
     if i1 - i0 < 200 or not p.usable(i0, i1).all():
         return None
@@ -114,13 +118,44 @@ def mount_from_observed(f_obs: float, zeta_obs: float, m2: float, k_cell: float,
     return float(sol[0][0]), float(sol[0][1])
 
 
+PENCIL_ORDER, PENCIL_SAMPLES = 8, 800     # the free decay's matrix pencil: its model order, its longest window
+#: the defensible variants of the free-decay analysis (budget.mode_form_parts): name -> (pencil order, the window's
+#: start as a fraction of the segment, its length as a fraction of the nominal window, the signal: 'a2 - a3' or 'a2')
+MODE_VARIANTS = {'pencil_order_6': (6, 0.0, 1.0, 'a2 - a3'), 'pencil_order_12': (12, 0.0, 1.0, 'a2 - a3'),
+                 'window_later': (PENCIL_ORDER, 0.25, 0.75, 'a2 - a3'),
+                 'window_shorter': (PENCIL_ORDER, 0.0, 0.5, 'a2 - a3'),
+                 'accelerometer_alone': (PENCIL_ORDER, 0.0, 1.0, 'a2')}
+
+
+def band_modes(y: np.ndarray, dt: float, order: int = PENCIL_ORDER) -> List[Tuple[float, float, float]]:
+    """matrix_pencil() of a free decay y, the decaying modes between 100 Hz and 10 kHz only, strongest first."""
+    return [m for m in matrix_pencil(y, dt, order) if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
+
+
 def free_decay_mode(p: Pull) -> Optional[Tuple[float, float, float]]:
     """The strongest mode (frequency, damping ratio, energy) of the pull's free decay after the break, or None."""
     seg = ring_segment(p)
+    mm = [] if seg is None else band_modes(seg[:PENCIL_SAMPLES], p.dt)
+    return mm[0] if mm else None
+
+
+def free_decay_variants(p: Pull, nominal: Optional[tuple]) -> Optional[Dict[str, Optional[Tuple[float, float]]]]:
+    """{variant: (frequency, damping ratio) or None} of the pull's free decay under each MODE_VARIANTS analysis: the
+    mode nearest (within MODE_CLUSTER_REL) the one free_decay_mode() found, nominal (None: none, and no variants)."""
+    seg = None if nominal is None else ring_segment(p)
     if seg is None:
         return None
-    mm = [m for m in matrix_pencil(seg[:800], p.dt) if 100.0 < m[0] < 10000.0 and 0 < m[1] < 0.5]
-    return mm[0] if mm else None
+    n = min(len(seg), PENCIL_SAMPLES)
+    i0 = p.brk + int(RING_START_S / p.dt)
+    alone = p.a2[i0:i0 + len(seg)] - np.mean(p.a2[i0:i0 + len(seg)])
+    out: Dict[str, Optional[Tuple[float, float]]] = {}
+    for name, (order, start, length, signal) in MODE_VARIANTS.items():
+        y = (seg if signal == 'a2 - a3' else alone)[int(start * n):int(start * n) + int(length * n)]
+        mm = band_modes(y, p.dt, order) if len(y) > 2 * order + 2 else []
+        near = min(mm, key=lambda m: abs(m[0] - nominal[0]), default=None)
+        out[name] = (near[0], near[1]) if near is not None and abs(near[0] / nominal[0] - 1.0) < MODE_CLUSTER_REL \
+            else None
+    return out
 
 
 def cell_modes(fc) -> list:
@@ -158,9 +193,6 @@ def ring_part(p: Pull, dt: float, cell: list, mode: Tuple[float, float], keep: b
     b, e = ring_sse(seg, dt, cell), ring_sse(seg, dt, cell + [mode])
     ob, oe = (b, e) if p.dt == dt else (ring_sse(seg, p.dt, cell), ring_sse(seg, p.dt, cell + [mode]))
     return RingPart(b, e, ring_to_noise(p, seg, cell, mode), len(seg), ob, oe, seg if keep else None)
-
-
-MODE_CLUSTER_REL = 0.05        # modes of different pulls within 5 % are one mode
 
 
 def cluster_modes(pulls: Sequence) -> list:

@@ -211,6 +211,7 @@ class Stream:
         f_hum, _power = hum_frequency_from(pres, usable[few[0]].info.dt)
         hum_freqs = hum_frequencies(pres, f_hum)
         modes = [r.mode for r in recs]
+        mode_variants = [r.mode_variants for r in recs]
         mode = observed_mode(modes)
         del recs
         # pass 3: every usable pull's statistics
@@ -250,7 +251,8 @@ class Stream:
         notes += more
         sys_ = campaign_systematics(cand, stats, fit, [s.quality.peak_n for s in usable],
                                     scales if significant else None, m2, modes, rows,
-                                    [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs)
+                                    [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
+                                    mode_variants)
         cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None

@@ -1,0 +1,170 @@
+"""Issue 38: the model-form lines of the budgets that are estimated from the data (budget.py), on synthetic records
+whose answer is known: the free-decay mode's analysis variants (ringing.free_decay_variants, budget.mode_form_parts)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from force_discovery.core import budget as B
+from force_discovery.core.prep import Pull
+from force_discovery.core.ringing import MODE_VARIANTS, free_decay_mode, free_decay_variants
+
+DT = 1e-4
+
+
+def _pull(ring: np.ndarray) -> Pull:
+    """A pull whose a2 after the break (sample 1000) is ring and whose carriage is at rest (a3 = 0)."""
+    n = 1000 + len(ring) + 100
+    a2 = np.zeros(n)
+    a2[1002:1002 + len(ring)] = ring
+    z = np.zeros(n)
+    return Pull('p', np.arange(n) * DT, DT, z, z, a2, z, z, z, z, None, 0, n, 100, 200, 1000, 1.0)
+
+
+def _decay(modes, n: int = 400, seed: int = 0) -> np.ndarray:
+    """Damped cosines [(f, zeta, amplitude)] sampled at DT, with a little noise."""
+    t = np.arange(n) * DT
+    y = sum(a * np.exp(-z * 2 * math.pi * f * t) * np.cos(2 * math.pi * f * math.sqrt(1 - z * z) * t)
+            for f, z, a in modes)
+    return y + 1e-4 * np.random.default_rng(seed).standard_normal(n)
+
+
+def test_one_clean_mode_gives_every_variant_the_same_mode():
+    p = _pull(_decay([(800.0, 0.012, 1.0)]))
+    nominal = free_decay_mode(p)
+    assert nominal is not None and abs(nominal[0] - 800.0) < 0.5 and abs(nominal[1] / 0.012 - 1) < 0.01
+    variants = free_decay_variants(p, nominal)
+    assert set(variants) == set(MODE_VARIANTS)
+    for name, v in variants.items():
+        assert v is not None, name
+        assert abs(v[0] / nominal[0] - 1) < 1e-3 and abs(v[1] / nominal[1] - 1) < 0.02, (name, v, nominal)
+    assert free_decay_variants(p, None) is None
+
+
+def test_a_decay_that_is_not_one_linear_mode_spreads_the_variants():
+    """An amplitude-dependent damping (the envelope decays faster once the ring is small, as a joint that slips
+    at large amplitude would not): no single damped mode is the decay, and the later and shorter windows say so.
+    The spread is the model-form line, far above a clean record's."""
+    t = np.arange(400) * DT
+    zeta = np.where(t < 0.01, 0.008, 0.02)
+    env = np.exp(-np.cumsum(zeta * 2 * math.pi * 800.0 * DT))
+    ring = env * np.cos(2 * math.pi * 800.0 * t) + 1e-4 * np.random.default_rng(1).standard_normal(len(t))
+
+    def spread(p):
+        m = free_decay_mode(p)
+        parts = B.mode_form_parts({'mount_resonance': None}, [m, m], [free_decay_variants(p, m)] * 2)
+        return parts['mount_resonance']['damping_ratio']['free_decay_analysis'] / m[1]
+    clean, bent = spread(_pull(_decay([(800.0, 0.012, 1.0)]))), spread(_pull(ring))
+    assert bent > 20 * clean and bent > 0.05, (bent, clean)
+
+
+def test_mode_form_parts_is_the_rms_of_the_variants_medians_about_the_nominal():
+    modes = [(500.0, 0.010, 1.0), (502.0, 0.012, 1.0), (501.0, 0.011, 1.0)]    # nominal medians 501, 0.011
+    variants = [{'a': (503.0, 0.013), 'b': (500.0, 0.011)},
+                {'a': (505.0, 0.015), 'b': None},                             # b found no mode on this pull
+                {'a': (504.0, 0.014), 'b': (498.0, 0.009)}]                   # medians a: 504, 0.014; b: 499, 0.010
+    parts = B.mode_form_parts({'mount_resonance': None}, modes, variants)['mount_resonance']
+    assert parts['frequency_hz']['free_decay_analysis'] == pytest.approx(math.sqrt((3.0 ** 2 + 2.0 ** 2) / 2))
+    assert parts['damping_ratio']['free_decay_analysis'] == pytest.approx(math.sqrt((0.003 ** 2 + 0.001 ** 2) / 2))
+    assert B.mode_form_parts({}, modes, variants) == {}                              # no mount candidate
+    assert B.mode_form_parts({'mount_resonance': None}, [None], [None]) == {}        # no mode
+
+
+def test_the_mount_budget_names_the_line_and_widens_the_interval():
+    """pull_to_pull_parts carries the line into the mount's budget beside the pull-to-pull one; honest() widens the
+    interval by it (k = 2) and lists it by name, a model-form component (report.md groups it so)."""
+    from force_discovery.core.candidate import Candidate, Evidence
+    modes = [(500.0, 0.010, 1.0), (500.0, 0.010, 1.0)]
+    variants = [{'a': (500.0, 0.011)}] * 2
+    sys_ = B.pull_to_pull_parts({'mount_resonance': None}, modes, [], variants)['mount_resonance']
+    assert sys_['damping_ratio'] == {'pull_to_pull': 0.0, 'free_decay_analysis': pytest.approx(0.001)}
+    assert B.KIND['free_decay_analysis'] == 'model form'
+    c = Candidate({'frequency_hz': 500.0, 'damping_ratio': 0.010}, {'frequency_hz': [499.9, 500.1],
+                  'damping_ratio': [0.00999, 0.01001]}, 2, Evidence(0.5, 3.0, True, 0.5), 'ring')
+    h = B.honest('mount_resonance', c, sys_, 0.0)
+    assert h.uncertainty_budget['damping_ratio']['free_decay_analysis'] == pytest.approx(0.001)
+    lo, hi = h.parameters_ci95['damping_ratio']
+    assert hi - 0.010 >= 2 * 0.001 and lo <= 0.010 - 2 * 0.001
+
+
+def _bessel(x: np.ndarray, tau: float) -> np.ndarray:
+    from scipy.signal import bessel, bilinear, lfilter
+    b, a = bessel(2, 1.0 / tau, analog=True, norm='delay')
+    return lfilter(*bilinear(b, a, fs=1.0 / DT), x)
+
+
+def _loaded_pull(tau: float, form: str = 'bessel', m2: float = 1.2) -> Pull:
+    """A pull whose moving cell reads T + m2 a2 exactly, its accelerometer a2 delayed by tau: through a 2-pole
+    Bessel of that group delay (form 'bessel') or shifted ('shift'); a smooth load with a 1.2 kHz ring on it (the
+    ringing the mass is fitted on)."""
+    from force_tester_sim.core.shift import Shifter
+    n = 4000
+    t = np.arange(n) * DT
+    T = 5000.0 * np.exp(-((t - 0.2) / 0.05) ** 2)
+    a2 = 200.0 * np.exp(-((t - 0.2) / 0.05) ** 2) * (1 + np.sin(2 * math.pi * 1200.0 * t))
+    fm = T + m2 * a2
+    a2m = _bessel(a2, tau) if form == 'bessel' else Shifter(a2, DT)(-tau)
+    z = np.zeros(n)
+    return Pull('p', t, DT, fm, T, a2m, T, z, z, z, None, 600, 3400, 100, 800, 3000, float(T.max()))
+
+
+def _mass_lines(p: Pull) -> tuple:
+    """(the nominal fit's m2, the delay_form line of m2, of the delay) of one pull."""
+    from force_discovery.core.force_model import TERMS, ForceModel, force_params
+    f = ForceModel([p], 1.2).fit_delay(set(TERMS), [0])
+    variants = {n: ForceModel([B.delay_form(p, f.delay_s, reference=n == B.DELAY_FORM_REFERENCE)], 1.2)
+                for n in ('delay_form', B.DELAY_FORM_REFERENCE)}
+    sys_ = B.force_systematics(ForceModel([p], 1.2), variants, [0], 1.2)
+    return (force_params(f.coefficients, f.delay_s, 1.2)['effective_mass']['mass_kg'],
+            sys_['effective_mass']['mass_kg']['delay_form'], sys_['accel_delay']['delay_s']['delay_form'])
+
+
+def test_the_delay_form_line_spans_a_filter_shaped_delay():
+    """The accelerometer's delay is a 2-pole Bessel (50 us of group delay): fitted as a shift, the mass takes up the
+    filter's attenuation of the ring (2.8 % high here); the delay_form variant (the filter's attenuation on F_move
+    and T) fits better than the shift seen through the same filter, so the line counts, and it spans the truth."""
+    m_shift, line, line_d = _mass_lines(_loaded_pull(50e-6))
+    assert abs(m_shift / 1.2 - 1) > 0.01, m_shift
+    assert 0.7 * abs(m_shift - 1.2) < line < 1.5 * abs(m_shift - 1.2), (line, m_shift)
+    assert line_d < 5e-6                          # the delay stays the delay: the filter's is taken back out
+
+
+def test_the_delay_form_line_is_zero_for_a_shift_or_a_lead():
+    """A shift-shaped delay fits better as a shift: the line is 0, the mass's interval as it was; a lead (a DAQ's
+    skew) is a shift, and the variant is the pull itself."""
+    m_shift, line, _ = _mass_lines(_loaded_pull(50e-6, 'shift'))
+    assert abs(m_shift / 1.2 - 1) < 1e-3 and line == 0.0, (m_shift, line)
+    p = _loaded_pull(50e-6)
+    assert B.delay_form(p, -3e-6) is p and B.delay_form(p, 0.0, reference=True) is p
+
+
+def test_bessel_attenuation_takes_the_delay_back_out():
+    """Below the filter's corner the attenuated channel is the channel (no delay left); at 4 kHz with 50 us it is
+    attenuated as the 2-pole Bessel is (|H| = 3 / |3 + 3 s tau + (s tau)^2|)."""
+    t = np.arange(20000) * 1e-5
+    for f, tol in ((50.0, 1e-3), (4000.0, None)):
+        x = np.sin(2 * math.pi * f * t)
+        y = B.bessel_attenuation(x, 1e-5, 50e-6)[5000:15000]
+        if tol is not None:
+            assert np.max(np.abs(y - x[5000:15000])) < tol
+        else:
+            s = 2j * math.pi * f * 50e-6
+            assert np.std(y) / np.std(x[5000:15000]) == pytest.approx(abs(3 / (3 + 3 * s + s * s)), rel=1e-2)
+
+
+def test_report_md_names_every_model_form_line():
+    """report.md's budget table groups the components by kind; below it each model-form line is named with its u."""
+    from force_discovery.core.markdown import budget_lines
+    r = {'uncertainty_budget': {'mount_resonance': {'damping_ratio': {
+            'statistical': 1e-5, 'pull_to_pull': 2e-5, 'free_decay_analysis': 3e-5, 'combined': 3.7e-5}},
+         'effective_mass': {'mass_kg': {'statistical': 1e-3, 'delay_form': 4e-3, 'tension_timing': 5e-4,
+                                        'combined': 4.2e-3}}},
+         'candidates': {'mount_resonance': {'parameters': {'damping_ratio': 0.012},
+                                            'parameters_ci95': {'damping_ratio': [0.0119, 0.0121]}},
+                        'effective_mass': {'parameters': {'mass_kg': 1.2},
+                                           'parameters_ci95': {'mass_kg': [1.19, 1.21]}}}}
+    text = '\n'.join(budget_lines(r))
+    assert '- mount_resonance.damping_ratio: free_decay_analysis 3e-05' in text
+    assert '- effective_mass.mass_kg: delay_form 0.004, tension_timing 0.0005' in text
