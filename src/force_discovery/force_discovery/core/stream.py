@@ -300,7 +300,8 @@ class Stream:
         settings = bey.settings_from(specs, dt * bey.decimation(dt))
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, settings) for j in range(len(names))], names))
-        res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named)
+        factors = bey.reading_factors(fit_.coefficients, self.rig.force_chain.m2)
+        res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named, factors=factors)
         sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS)
         if sensors:   # the moving cell and the current again, against what the sensors read without their terms
             parts = self._strict('beyond', self._map('beyond', beyond_pass,

@@ -47,14 +47,17 @@ The modules, in the order a search runs:
 - spectrum.py         the spectrum pass on a few fitted pulls: the signals' scales, each channel's line (SearchSettings)
 - normal_equations.py per pull: the library's normal equations per channel (ChannelStats, BeyondPart)
 - selection.py        one channel's forward selection, its jackknife intervals (Model, Term, ChannelResult)
+- own.py              a sensor's own non-linearity seen on the moving cell, read as the sensor's (own_reading)
+- identify.py         the pairs of the grammar a campaign cannot identify, and why (report: identifiability)
 - priority.py         the catalog's priority on the moving cell (cause_check)
 - search.py           every channel (search, BeyondResult)
 - interpretation.py   what a term usually means, in plain words
 - traces.py           the plots' before/after traces (TermTrace)
 """
-from .grammar import COULOMB, SEARCHED, SENSORS, channel_band, channel_library, library
+from .grammar import COULOMB, SEARCHED, SENSORS, channel_band, channel_library, library, pairs
 from .interpretation import interpretation
 from .normal_equations import BeyondPart, ChannelStats, beyond_part
+from .own import carrier, reading_factors
 from .priority import CAUSE_PARAMS
 from .search import BeyondResult, search
 from .selection import NEAR_TIE, Term, near_tied, search_channel
@@ -64,6 +67,6 @@ from .traces import TermTrace, term_traces
 
 __all__ = ['CAUSE_PARAMS', 'COULOMB', 'NEAR_TIE', 'REFINE_PULLS', 'SEARCHED', 'SENSORS', 'BeyondPart', 'BeyondResult',
            'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'beyond_part',
-           'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
-           'near_tied', 'search', 'search_channel', 'sensor_corrected', 'spectrum_part', 'settings_from',
-           'term_traces']
+           'carrier', 'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
+           'near_tied', 'pairs', 'reading_factors', 'search', 'search_channel', 'sensor_corrected',
+           'spectrum_part', 'settings_from', 'term_traces']
