@@ -132,6 +132,10 @@ def beyond_lines(r) -> list:
                  + (f'; near-tied: {", ".join(t["near_tied"])}' if t.get('near_tied') else ''))
     for n, why in b['catalog_not_fitting'].items():
         L.append(f'- catalog cause {n} withheld: {why}')
+    for n, c in (b.get('catalog_checked') or {}).items():
+        L.append(f'- catalog cause {n} kept: the library in its place ({c["library_instead"]}, '
+                 f'{c["library_parameters"]} parameter(s) against {c["model_parameters"]}) leaves '
+                 f'{100 * c["held_out_margin"]:.1f} % more of the held-out SSE')
     if b.get('identifiability'):
         L.append(f'- {len(b["identifiability"])} (channel, term) pairs of the grammar cannot be identified here '
                  '(report.json beyond_search.identifiability lists each with its reason)')

@@ -312,7 +312,7 @@ class Stream:
             res = dataclasses.replace(
                 res, terms=tuple(sorted(keep + list(rest.terms), key=lambda t: -t.rel_sse_reduction)),
                 within_tolerance=tuple(t for t in res.within_tolerance if t.channel in bey.SENSORS)
-                + rest.within_tolerance, demoted=rest.demoted)
+                + rest.within_tolerance, demoted=rest.demoted, checked=rest.checked)
         traces = ()
         if res.terms:   # one held-out pull's residuals before and after each term (the plots)
             j = analysis.held[0]
