@@ -7,7 +7,10 @@ in the free phases (lanyard slack, T = 0: the stationary cell's model is 0, the 
 acceleration), the moving cell over the analysis window after the named force-channel causes, and the motor
 current's force balance after the model of record. The sensors come first: their product terms are taken out of
 F_stat (and T) and a2 (series.sensor_corrected) before the moving cell and the current are searched, so a drifting
-stationary cell is named on its own channel. A term is either a product of SIGNALS with integer powers (every
+stationary cell is named on its own channel. A sensor's own terms are in the quantity it should read: the
+accelerometer's a2 is the encoder's acceleration in its free phases, and a term in one sensor's signals alone found on
+the moving cell (T^2, a2^3) is that sensor's own non-linearity (own.py); every pair of the grammar not identified is
+listed with its reason (identify.py). A term is either a product of SIGNALS with integer powers (every
 product of total degree <= 2 and every single signal cubed; written in the SIGNALS order, joined by ``*``, ``^k``
 for k > 1), or a sinusoid ``sin`` at the frequency where the channel's residual spectrum peaks, optionally times a
 signal (``v*sin``). A sinusoid's amplitude is one coefficient for the campaign; its phase is each pull's own (a mode
@@ -36,7 +39,8 @@ significant AND its contribution's rms on the held-out pulls, over that interval
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
 PRIORITY_MARGIN more than it does (the same number of parameters: one). On the moving cell each named force-model
-cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the cause undone. A cause a library term
+cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the cause undone, on every campaign; a cause
+kept says what the library in its place left (BeyondResult.checked). A cause a library term
 explains better is withheld: the report names the term and says the nearest catalog cause does not fit
 (BeyondResult.demoted).
 
