@@ -7,7 +7,8 @@ For every departure of the generator outside the catalog (generator.BEYOND, or t
 search was built on, quadratic cell, air drag, zero drift of the moving cell, the stationary cell and the
 accelerometer, carriage-excited vibration, viscous friction, cable drag; and the six it was not tuned on,
 generator.UNTUNED: cubic cell, rail friction along the track, quadratic zero drift, stationary-cell pickup off the
-mains, rate-dependent cell, the accelerometer misreading the speed), N campaigns (3 sets x 4 pulls) with it hidden
+mains, rate-dependent cell, the accelerometer misreading the speed; and, since issue 39, generator.SENSOR_OWN: the
+stationary cell's and the accelerometer's own quadratic non-linearity), N campaigns (3 sets x 4 pulls) with it hidden
 at a random strength, every other one through the model-form nuisances. Counted: the right term first on the right
 channel of beyond_catalog; its coefficient within 30 % of the truth; no catalog cause named (the truth is outside
 the catalog); whether its ci95 (statistical and systematic parts, core/beyond/) holds the true coefficient; and, when

@@ -230,11 +230,18 @@ BEYOND = {
     'rate_cell': ('force_moving', 'F_move*v', (0.01, 0.04)),          # the cell reads this share high at V_REF
     'accel_whip': ('accel_axial', 'v', (1.5, 5.0)),                   # m/s^2 the accelerometer misreads at V_REF:
                                                                       # its cable whipping, a mount flexing with speed
+    # a sensor's own non-linearity (issue 39: the sensors' own terms were not in their libraries)
+    'stationary_quadratic': ('force_stationary', 'F_stat^2', (0.02, 0.05)),   # the stationary cell reads 2-5 % high
+                                                                              # at F_REF
+    'accel_quadratic': ('accel_axial', 'a2^2', (0.01, 0.04)),         # the accelerometer reads 1-4 % high at A_REF
 }
 # the departures added after the search was built and benchmarked on the ones above (its generality: docs/discovery.md)
 UNTUNED = ('cubic_cell', 'rail_friction', 'quadratic_drift', 'stationary_pickup', 'rate_cell', 'accel_whip')
+# the sensors' own non-linearity, searched since issue 39 (test_beyond_own.py)
+SENSOR_OWN = ('stationary_quadratic', 'accel_quadratic')
 X_REF = 1.5         # m: about the usable track's length
 T_REF = 1.0         # s: about when a pull loads the cells (the record is 2 s)
+A_REF = 250.0       # m/s^2: about the largest carriage acceleration of a pull (its break)
 MAINS_CLEAR_HZ = 5.0   # a pickup's frequency stays this far from every multiple of 50 Hz and 60 Hz
 
 
@@ -257,7 +264,8 @@ def draw_beyond(kind: str, seed: int) -> dict:
             'carriage_vibration': size / V_REF, 'viscous_friction': size / V_REF / kf,
             'cable_drag': size / V_REF, 'stationary_drift': size, 'accel_drift': size,
             'cubic_cell': size / F_REF ** 2, 'rail_friction': size / X_REF / kf, 'quadratic_drift': size / T_REF ** 2,
-            'stationary_pickup': size, 'rate_cell': size / V_REF, 'accel_whip': size / V_REF}[kind]
+            'stationary_pickup': size, 'rate_cell': size / V_REF, 'accel_whip': size / V_REF,
+            'stationary_quadratic': size / F_REF, 'accel_quadratic': size / A_REF}[kind]
     f = None
     if kind == 'carriage_vibration':
         f = float(r.uniform(150.0, 1500.0))
@@ -311,6 +319,12 @@ def beyond_post(truth: dict):
             ch['force_moving_n'] = fm + c * fm * v
         elif kind == 'accel_whip':           # the force model's m2 a2 carries it too
             ch['accel_axial_m_s2'] = np.asarray(ch['accel_axial_m_s2'], float) + c * v
+        elif kind == 'stationary_quadratic':   # the cell's own sensitivity grows with load: T, from it, carries it
+            fs = np.asarray(ch['force_stationary_n'], float)
+            ch['force_stationary_n'] = fs + c * fs ** 2
+        elif kind == 'accel_quadratic':      # the accelerometer's own: the force model's m2 a2 carries it too
+            a = np.asarray(ch['accel_axial_m_s2'], float)
+            ch['accel_axial_m_s2'] = a + c * a ** 2
         return ch
     return post
 

@@ -114,6 +114,10 @@ def beyond_lines(r) -> list:
                  f'-{100 * ev["rel_sse_reduction"]:.2f} %, t = {ev["t"]:.1f}, gain {t["gain"]:.3g}x; contribution rms '
                  f'{_num(ev["contribution_rms"])} against the band {_num(ev["band"])}. Usually: '
                  f'{t["interpretation"]}.{plot}')
+        if t.get('best_alternative'):
+            alt = t['best_alternative']
+            L.append(f'  It beat {alt["term"]}, the best other term in its place, by '
+                     f'{100 * alt["held_out_margin"]:.2f} % of the held-out SSE.')
         if t.get('near_tied'):
             L.append(f'  The held-out pulls cannot tell it from {", ".join(t["near_tied"])} (within '
                      f'{100 * NEAR_TIE:g} % of its held-out reduction): read the term as one of these.')
@@ -128,6 +132,13 @@ def beyond_lines(r) -> list:
                  + (f'; near-tied: {", ".join(t["near_tied"])}' if t.get('near_tied') else ''))
     for n, why in b['catalog_not_fitting'].items():
         L.append(f'- catalog cause {n} withheld: {why}')
+    for n, c in (b.get('catalog_checked') or {}).items():
+        L.append(f'- catalog cause {n} kept: the library in its place ({c["library_instead"]}, '
+                 f'{c["library_parameters"]} parameter(s) against {c["model_parameters"]}) leaves '
+                 f'{100 * c["held_out_margin"]:.1f} % more of the held-out SSE')
+    if b.get('identifiability'):
+        L.append(f'- {len(b["identifiability"])} (channel, term) pairs of the grammar cannot be identified here '
+                 '(report.json beyond_search.identifiability lists each with its reason)')
     return L + ['']
 
 

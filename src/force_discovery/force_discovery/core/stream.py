@@ -302,7 +302,8 @@ class Stream:
         settings = bey.settings_from(specs, dt * bey.decimation(dt))
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, settings) for j in range(len(names))], names))
-        res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named)
+        factors = bey.reading_factors(fit_.coefficients, self.rig.force_chain.m2)
+        res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named, factors=factors)
         sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS)
         if sensors:   # the moving cell and the current again, against what the sensors read without their terms
             parts = self._strict('beyond', self._map('beyond', beyond_pass,
@@ -313,7 +314,7 @@ class Stream:
             res = dataclasses.replace(
                 res, terms=tuple(sorted(keep + list(rest.terms), key=lambda t: -t.rel_sse_reduction)),
                 within_tolerance=tuple(t for t in res.within_tolerance if t.channel in bey.SENSORS)
-                + rest.within_tolerance, demoted=rest.demoted)
+                + rest.within_tolerance, demoted=rest.demoted, checked=rest.checked)
         traces = ()
         if res.terms:   # one held-out pull's residuals before and after each term (the plots)
             j = analysis.held[0]

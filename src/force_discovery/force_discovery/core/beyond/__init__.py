@@ -7,7 +7,10 @@ in the free phases (lanyard slack, T = 0: the stationary cell's model is 0, the 
 acceleration), the moving cell over the analysis window after the named force-channel causes, and the motor
 current's force balance after the model of record. The sensors come first: their product terms are taken out of
 F_stat (and T) and a2 (series.sensor_corrected) before the moving cell and the current are searched, so a drifting
-stationary cell is named on its own channel. A term is either a product of SIGNALS with integer powers (every
+stationary cell is named on its own channel. A sensor's own terms are in the quantity it should read: the
+accelerometer's a2 is the encoder's acceleration in its free phases, and a term in one sensor's signals alone found on
+the moving cell (T^2, a2^3) is that sensor's own non-linearity (own.py); every pair of the grammar not identified is
+listed with its reason (identify.py). A term is either a product of SIGNALS with integer powers (every
 product of total degree <= 2 and every single signal cubed; written in the SIGNALS order, joined by ``*``, ``^k``
 for k > 1), or a sinusoid ``sin`` at the frequency where the channel's residual spectrum peaks, optionally times a
 signal (``v*sin``). A sinusoid's amplitude is one coefficient for the campaign; its phase is each pull's own (a mode
@@ -36,7 +39,8 @@ significant AND its contribution's rms on the held-out pulls, over that interval
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
 PRIORITY_MARGIN more than it does (the same number of parameters: one). On the moving cell each named force-model
-cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the cause undone. A cause a library term
+cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the cause undone, on every campaign; a cause
+kept says what the library in its place left (BeyondResult.checked). A cause a library term
 explains better is withheld: the report names the term and says the nearest catalog cause does not fit
 (BeyondResult.demoted).
 
@@ -47,14 +51,17 @@ The modules, in the order a search runs:
 - spectrum.py         the spectrum pass on a few fitted pulls: the signals' scales, each channel's line (SearchSettings)
 - normal_equations.py per pull: the library's normal equations per channel (ChannelStats, BeyondPart)
 - selection.py        one channel's forward selection, its jackknife intervals (Model, Term, ChannelResult)
+- own.py              a sensor's own non-linearity seen on the moving cell, read as the sensor's (own_reading)
+- identify.py         the pairs of the grammar a campaign cannot identify, and why (report: identifiability)
 - priority.py         the catalog's priority on the moving cell (cause_check)
 - search.py           every channel (search, BeyondResult)
 - interpretation.py   what a term usually means, in plain words
 - traces.py           the plots' before/after traces (TermTrace)
 """
-from .grammar import COULOMB, SEARCHED, SENSORS, channel_band, channel_library, library
+from .grammar import COULOMB, SEARCHED, SENSORS, channel_band, channel_library, library, pairs
 from .interpretation import interpretation
 from .normal_equations import BeyondPart, ChannelStats, beyond_part
+from .own import carrier, reading_factors
 from .priority import CAUSE_PARAMS
 from .search import BeyondResult, search
 from .selection import NEAR_TIE, Term, near_tied, search_channel
@@ -64,6 +71,6 @@ from .traces import TermTrace, term_traces
 
 __all__ = ['CAUSE_PARAMS', 'COULOMB', 'NEAR_TIE', 'REFINE_PULLS', 'SEARCHED', 'SENSORS', 'BeyondPart', 'BeyondResult',
            'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'beyond_part',
-           'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
-           'near_tied', 'search', 'search_channel', 'sensor_corrected', 'spectrum_part', 'settings_from',
-           'term_traces']
+           'carrier', 'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
+           'near_tied', 'pairs', 'reading_factors', 'search', 'search_channel', 'sensor_corrected',
+           'spectrum_part', 'settings_from', 'term_traces']

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 import itertools
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 from force_tester_sim.core.extra_terms import MAX_POWER, SIGNALS, SIN, parse_term, term_name
 
@@ -17,8 +17,22 @@ SENSORS = ('force_stationary', 'accel_axial')
 SIN_FACTORS = ('', 'v', 'F_move')              # sin, v*sin, F_move*sin
 # terms on a channel that are catalog entries in another form (the force model's gain and mass): not searched
 CATALOG_FORMS = {'force_moving': ('F_move', 'F_stat', 'T', 'a2')}
-# signals a channel's residual is made of (in the free phases F_move is m2 a2): no term of its library uses them
-OWN_SIGNALS = {'force_stationary': ('F_stat', 'T'), 'accel_axial': ('a2', 'F_move')}
+# a sensor's own terms are written in the quantity it should read (its reference, in its free phases): the
+# accelerometer's a2 takes the encoder's acceleration there (series.channel_series), so its own non-linearity
+# (a2^2, a2^3) is searched against it; signals a sensor's free-phase library cannot use, and why (identifiability)
+FREE_PHASE_BLIND = {
+    'force_stationary': {s: 'in the free phases the lanyard is slack: the tension from the moving side is 0, and so '
+                            f'is every term in {s} there; a term of degree >= 2 in F_stat and T alone is searched '
+                            'on the moving cell, which reads the same tension (beyond.own), and read as the '
+                            "stationary cell's own; a linear one is the moving cell's gain (the catalog); a product "
+                            "with another signal is the moving cell's term of the same name: two cells that read "
+                            'one tension cannot tell whose it is' for s in ('F_stat', 'T')},
+    'accel_axial': {'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
+                              "there, collinear with the accelerometer's own a2 terms"},
+}
+# the signals through which a sensor's reading enters the moving cell's model (T from the stationary cell, m2 a2 from
+# the accelerometer): a term of degree >= 2 in these alone on the moving cell is the sensor's own (beyond.own)
+CARRIED = {'force_stationary': ('F_stat', 'T'), 'accel_axial': ('a2',)}
 # each channel's scale factor (its sensor's calibration, rig sensors.*): a relative component of every coefficient
 RELATIVE = {'force_moving': ('cell_sensitivity', 'sensors.load_cell_sensitivity_mv_per_lbf',
                              'load_cell_sensitivity_mv_per_lbf'),
@@ -26,6 +40,7 @@ RELATIVE = {'force_moving': ('cell_sensitivity', 'sensors.load_cell_sensitivity_
                                  'load_cell_sensitivity_mv_per_lbf'),
             'accel_axial': ('accelerometer_sensitivity', 'sensors.accelerometer_sensitivity_mv_per_g',
                             'accelerometer_sensitivity_mv_per_g')}
+FORCES = ('F_move', 'F_stat', 'T')     # the cells' forces: the moving cell's, the stationary cell's, the tension
 COULOMB = 'coulomb_friction'   # the catalog cause that is a library column on the motor current
 
 
@@ -42,10 +57,59 @@ def library() -> List[str]:
 
 @functools.lru_cache(maxsize=None)
 def channel_library(channel: str) -> Tuple[str, ...]:
-    """The product terms searched on a channel: the library less the catalog's forms and the channel's own
-    signals (CATALOG_FORMS, OWN_SIGNALS)."""
-    skip, own = CATALOG_FORMS.get(channel, ()), set(OWN_SIGNALS.get(channel, ()))
-    return tuple(t for t in library() if t not in skip and not own & set(parse_term(t)))
+    """The product terms searched on a channel: the library less the catalog's forms and the signals its free
+    phases cannot use (CATALOG_FORMS, FREE_PHASE_BLIND)."""
+    skip, blind = CATALOG_FORMS.get(channel, ()), set(FREE_PHASE_BLIND.get(channel, ()))
+    return tuple(t for t in library() if t not in skip and not blind & set(parse_term(t)))
+
+
+def reads_own(channel: str, term: str) -> bool:
+    """Whether a sensor's term is in its own reading (a2 on the accelerometer: CARRIED): it acts where the sensor
+    reads the force, so its size is judged over the analysis window (selection.search_channel), not the free
+    phases it was found in."""
+    return bool(set(CARRIED.get(channel, ())) & set(parse_term(term)))
+
+
+def via_moving(channel: str, term: str) -> bool:
+    """Whether a sensor's term is its own non-linearity (degree >= 2 in its CARRIED signals' first), which the moving
+    cell's search reads too (beyond.own)."""
+    p = parse_term(term)
+    return channel in CARRIED and SIN not in p and sum(p.values()) >= 2 and set(p) == {CARRIED[channel][0]}
+
+
+def mixed_forces(term: str) -> bool:
+    """Whether a term is a product of two cells' forces (F_move*T, F_move*F_stat, F_stat*T): no one sensor reads it,
+    so a tie goes to a term in one force alone (selection.search_channel)."""
+    p = parse_term(term)
+    return len(p) > 1 and set(p) <= set(FORCES)
+
+
+def pairs() -> List[Tuple[str, str]]:
+    """Every (channel, term) pair of the grammar: each searched channel's product terms and sinusoids."""
+    sins = [term_name({f: 1, SIN: 1}) if f else SIN for f in SIN_FACTORS]
+    return [(ch, t) for ch in SEARCHED for t in library() + sins]
+
+
+def structural_reason(channel: str, term: str) -> Optional[str]:
+    """Why a pair of the grammar is not searched as it stands on its channel (None: it is), from the grammar alone:
+    a catalog form, or a signal the channel's free phases cannot use."""
+    if term in CATALOG_FORMS.get(channel, ()):
+        return ('the catalog\'s form: the force model fits it (F_move = g (T + m2 a2): the gain, the effective mass); '
+                'named as that catalog cause, never as a term')
+    p = parse_term(term)
+    sensor = next((s for s, sig in CARRIED.items() if set(p) <= set(sig) and SIN not in p
+                   and channel in ('force_moving', s)), None)
+    own = None if sensor is None else term_name({CARRIED[sensor][0]: sum(p.values())})
+    if sensor is not None and sum(p.values()) >= 2 and (term != own or channel != sensor):
+        where = 'moving cell' if channel == 'force_moving' else 'sensor'
+        return (f"read as {own} on {sensor}: {', '.join(CARRIED[sensor])} alone on the {where} are that sensor's own "
+                'reading (beyond.own), and these channels cannot tell the two apart')
+    if sensor == channel and term == own:
+        return None   # the sensor's own non-linearity: searched (on the moving cell for the stationary cell)
+    blind = FREE_PHASE_BLIND.get(channel, {})
+    hit = [s for s in p if s in blind]
+    return blind[hit[0]] if hit else None
+
 
 
 def channel_band(channel: str, rig) -> float:

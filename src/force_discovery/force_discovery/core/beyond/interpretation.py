@@ -18,6 +18,16 @@ INTERPRETATION = {
                                'charge-amplifier leakage); the tension T it gives drifts with it',
     ('force_stationary', 'x'): 'the stationary cell reads a force that follows the carriage: crosstalk or a '
                                'cable pulling on the fixture',
+    ('force_stationary', 'F_stat^2'): 'a non-linear stationary cell: its sensitivity changes with load (seen under '
+                                      "load, against the moving side's tension)",
+    ('force_stationary', 'F_stat^3'): 'a non-linear stationary cell: its sensitivity changes with load (seen under '
+                                      "load, against the moving side's tension)",
+    ('accel_axial', 'a2'): "the accelerometer's sensitivity is off against the encoder's acceleration (its "
+                           'calibration)',
+    ('accel_axial', 'a2^2'): 'a non-linear accelerometer: its sensitivity changes with the acceleration (even: it '
+                             'reads a push and a pull of one size differently)',
+    ('accel_axial', 'a2^3'): 'a non-linear accelerometer: its sensitivity changes with the acceleration (odd: it '
+                             'compresses or stiffens at large accelerations)',
     ('accel_axial', 't'): "the accelerometer's zero drifts through the record (thermal drift, a conditioner's "
                           'offset creeping)',
     ('accel_axial', 'v'): 'the accelerometer reads a share of the speed: a cable whipping or a mounting that '
@@ -32,6 +42,7 @@ INTERPRETATION = {
     ('motor_current', 'F_move'): "the drive's force constant or the moving cell's gain is off (force per amp)",
     ('motor_current', 'a2'): 'a mass the drive moves that the model of record does not have',
 }
+NO_READING = 'no usual physical reading: a term the catalog has no entry for; look at where it acts (report.md)'
 SIN_INTERPRETATION = {'': 'a structural (frame) mode ringing at {f:.1f} Hz',
                       'v': 'a structural (frame) mode at {f:.1f} Hz excited by the carriage: it grows with speed',
                       'F_move': 'a structural mode at {f:.1f} Hz excited by the load'}
@@ -43,9 +54,9 @@ def interpretation(channel: str, term: str, f_hz: Optional[float] = None) -> str
         factor = next((s for s in p if s != SIN), '')
         return SIN_INTERPRETATION.get(factor, 'a structural mode at {f:.1f} Hz, modulated by ' + factor).format(
             f=f_hz or 0.0)
-    if channel in ('force_moving', 'force_stationary') and set(p) <= {'F_move', 'F_stat', 'T'} \
-            and sum(p.values()) > 1:
+    if (channel, term) in INTERPRETATION:
+        return INTERPRETATION[(channel, term)]
+    if channel == 'force_moving' and set(p) <= {'F_move', 'F_stat', 'T'} and sum(p.values()) > 1:
         return INTERPRETATION[('force_moving', 'F_move^2')]
-    return INTERPRETATION.get((channel, term), 'a term the catalog has no entry for; no usual physical reading: '
-                                                'look at where it acts (report.md)')
+    return NO_READING
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from force_tester_sim.core.extra_terms import SIGNALS, SIN, parse_term, term_name
 
-from .grammar import OWN_SIGNALS, SIN_FACTORS, channel_library
+from .grammar import FREE_PHASE_BLIND, SIN_FACTORS, channel_library
 from .series import ChannelSeries
 from .spectrum import SearchSettings
 
@@ -36,6 +36,8 @@ class ChannelStats(NamedTuple):
     catalog: Optional[Column]           # the catalog column (the Coulomb step on the current), or None
     causes: Dict[str, Column]           # each named force-model cause's contribution (priority.cause_check)
     systematic: Dict[str, np.ndarray]   # X'z of the residual's change z with each rig constant one u off
+    window_ss: Optional[np.ndarray] = None   # a sensor's product columns' sums of squares over the analysis window
+    n_window: int = 0                         # and its samples (selection: a sensor's own term is judged there)
 
 
 @dataclass(frozen=True)
@@ -59,12 +61,12 @@ def columns(channel: str, sig: Dict[str, np.ndarray], scales: Dict[str, float], 
                     powers[(s, q)] = powers[(s, q - 1)] * scaled[s]
             factors.append(powers[(s, e)])
         X[:, k] = functools.reduce(np.multiply, factors)
-    own = set(OWN_SIGNALS.get(channel, ()))
+    blind = set(FREE_PHASE_BLIND.get(channel, ()))
     sins = []
     if f_hz is not None:
         ph = 2 * np.pi * f_hz * sig['t']
         for fac in SIN_FACTORS:
-            if fac in own:
+            if fac in blind:
                 continue
             m = scaled[fac] if fac else np.ones_like(ph)
             sins.append((term_name({fac: 1, SIN: 1}) if fac else SIN, m * np.cos(ph), m * np.sin(ph)))
@@ -86,6 +88,9 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
         cat = cs.catalog
         catalog = None if cat is None else Column(float(cat @ cat), full.T @ cat, float(cat @ y))
         causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in cs.causes.items()}
+        on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
         out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
-                               len(y), catalog, causes, {c: full.T @ z for c, z in cs.systematic.items()})
+                               len(y), catalog, causes, {c: full.T @ z for c, z in cs.systematic.items()},
+                               None if on_w is None else np.einsum('ij,ij->j', on_w, on_w),
+                               0 if on_w is None else len(on_w))
     return BeyondPart(out)

@@ -19,6 +19,7 @@ class CauseCheck(NamedTuple):
 
     demoted: Optional[str]          # why the named cause does not fit, or None: it keeps priority
     terms: Sequence[Term]           # the terms the library finds with the cause undone
+    beat: Optional[dict] = None     # a cause that keeps priority: the library's best in its place, and by how much
 
 
 def undone(st: ChannelStats, cause: str) -> ChannelStats:
@@ -41,10 +42,12 @@ def cause_check(fit: Sequence[ChannelStats], held: Sequence[ChannelStats], model
     k_lib = len(model0.prod) + (model0.sin is not None)
     sse_cat = sum(sse(st, model, n_prod) for st in held)
     sse_lib = sum(sse(st, model0, n_prod) for st in held0)
+    what = ', '.join(t.term for t in found0) or 'no term at all'
     if k_lib <= k_cat and sse_lib <= sse_cat * (1.0 + (PRIORITY_MARGIN if k_lib < k_cat else 0.0)):
-        what = ', '.join(t.term for t in found0) or 'no term at all'
         return CauseCheck(
             f'without {cause} the library explains the moving cell with {k_lib} parameter(s) ({what}) as well '
             f'as the model with it does with {k_cat} ({n_cause} of them its own; held-out SSE {sse_lib:.4g} '
             f'against {sse_cat:.4g}): the nearest catalog cause does not fit', found0)
-    return CauseCheck(None, found0)
+    return CauseCheck(None, found0, {'library_instead': what, 'library_parameters': k_lib, 'model_parameters': k_cat,
+                                     'held_out_sse_library': sse_lib, 'held_out_sse_with_cause': sse_cat,
+                                     'held_out_margin': (sse_lib - sse_cat) / sse_lib if sse_lib > 0 else 0.0})

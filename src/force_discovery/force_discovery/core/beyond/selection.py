@@ -16,7 +16,7 @@ from force_tester_sim.core.extra_terms import CHANNEL_UNITS, SIN, term_unit
 from ..budget import term_budget
 from ..significance import significance
 from ..uncertainty import jackknife_se, t_quantile
-from .grammar import RELATIVE, channel_band, si_factor
+from .grammar import RELATIVE, channel_band, mixed_forces, reads_own, si_factor
 from .interpretation import interpretation
 from .normal_equations import ChannelStats
 from .spectrum import SearchSettings
@@ -169,6 +169,7 @@ class Term:
     named: bool
     budget: Dict[str, float] = field(default_factory=dict)   # standard uncertainties: statistical, systematic parts
     alternatives: Tuple[str, ...] = ()   # terms the held-out pulls cannot tell from it (near_tied), best first
+    beat: Tuple = ()            # (the best other term in its place, its held-out margin over it: a share of the SSE)
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -180,7 +181,9 @@ class Term:
                 'evidence': {'rel_sse_reduction': self.rel_sse_reduction, 't': self.t,
                              'contribution_rms': self.rms, 'contribution_rms_ci95': list(self.rms_ci95),
                              'band': self.band},
-                'uncertainty_budget': dict(self.budget), 'near_tied': list(self.alternatives)}
+                'uncertainty_budget': dict(self.budget), 'near_tied': list(self.alternatives),
+                'best_alternative': None if not self.beat else {'term': self.beat[0],
+                                                                'held_out_margin': self.beat[1]}}
 
 
 class ChannelResult(NamedTuple):
@@ -256,16 +259,21 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             tried.append((m, total(sse_fit(m))))
         least = min(e for _, e in tried)
         # parsimony: the first term in the library's order (lower degree, F_move before T and F_stat) that does
-        # within TIE_SHARE of the best -- collinear signals (F_move, T, F_stat) would otherwise win by their noise
-        best = next(m for m, e in tried if e <= least + TIE_SHARE * max(now - least, 0.0))
+        # within TIE_SHARE of the best -- collinear signals (F_move, T, F_stat) would otherwise win by their noise --
+        # and of those, one that is not a product of two cells' forces (F_move*T: no one sensor reads it) if any is
+        tied = [(m, (k, s)) for (k, s), (m, e) in zip(trials, tried) if e <= least + TIE_SHARE * max(now - least, 0.0)]
+        best = next((m for m, (k, s) in tied if s is not None or not mixed_forces(names[k])), tied[0][0])
         base = sse_held(model)
         ext = sse_held(best)
         ev = significance(base, ext)
         if not ev.significant:
             break
-        alternatives = near_tied([(names[k] if s is None else names[n_prod + s], base.sum()
-                                   - total(sse_held(m))) for (k, s), (m, _) in zip(trials, tried)
-                                  if m is not best], base.sum() - ext.sum())
+        others = [(names[k] if s is None else names[n_prod + s], base.sum() - total(sse_held(m)))
+                  for (k, s), (m, _) in zip(trials, tried) if m is not best]
+        alternatives = near_tied(others, base.sum() - ext.sum())
+        runner = max(others, key=lambda o: o[1], default=None)   # the best term it beat, and by how much
+        beat = () if runner is None or base.sum() <= 0 else (
+            runner[0], float((base.sum() - ext.sum() - runner[1]) / base.sum()))
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
         model = best
@@ -281,6 +289,9 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         if col is None:
             pr = sin_pair(n_prod, model.sin)
             norm = sum(0.5 * (st.gram[pr[0], pr[0]] + st.gram[pr[1], pr[1]]) for st in held)
+        elif reads_own(channel, name) and all(st.window_ss is not None for st in held):
+            # a sensor's own term (a2^2 on the accelerometer) acts where the sensor reads the force: its size there
+            norm, n_held = sum(st.window_ss[col] for st in held), sum(st.n_window for st in held)
         else:
             norm = sum(st.gram[col, col] for st in held)
         rms_unit = math.sqrt(norm / max(n_held, 1))
@@ -291,7 +302,8 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
-                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives))
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives,
+                          beat))
     return ChannelResult(found, demoted, model)
 
 

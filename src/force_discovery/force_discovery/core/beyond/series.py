@@ -28,6 +28,8 @@ class ChannelSeries(NamedTuple):
     catalog: Optional[np.ndarray]       # the catalog column that competes with the library (the Coulomb step)
     causes: Dict[str, np.ndarray]       # each named force-model cause's contribution (priority.cause_check)
     systematic: Dict[str, np.ndarray]   # the residual's change with each rig constant one standard u off
+    window: Optional[Dict[str, np.ndarray]] = None   # a sensor's signals over the analysis window, as measured: its
+                                                     # own terms are judged there, where it reads the force
 
 
 def decimation(dt: float) -> int:
@@ -79,12 +81,15 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
                                         {'m2': (u_m2 * p.a2)[w][::q][ok], 'gain': (u_g * fm_pred)[w][::q][ok]})
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
     # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
-    # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is)
+    # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is), and the
+    # accelerometer's own terms (a2^2: its non-linearity) are written in that acceleration
     sel = free_samples(p)
     if len(sel):
         sig = {k: v[sel] for k, v in full.items()}
-        out['force_stationary'] = ChannelSeries(p.fs[sel], sig, None, {}, {})
-        out['accel_axial'] = ChannelSeries((smoothed_a2(p) - p.a3)[sel], sig, None, {}, {})
+        on_w = {k: v[w][::q][ok] for k, v in full.items()}
+        out['force_stationary'] = ChannelSeries(p.fs[sel], sig, None, {}, {}, on_w)
+        # the accelerometer's own terms in the quantity it should read: a2 there is the encoder's acceleration
+        out['accel_axial'] = ChannelSeries((smoothed_a2(p) - p.a3)[sel], {**sig, 'a2': p.a3[sel]}, None, {}, {}, on_w)
     if p.current is not None:
         d = rig.drive
         kf = d.force_per_amp_n_per_a

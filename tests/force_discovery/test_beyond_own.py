@@ -1,0 +1,127 @@
+"""Issue 39, section 1: no blind spots. A sensor's own terms are searched, written in the quantity it should read (the
+accelerometer against the encoder's acceleration; the stationary cell against the tension the moving side reads),
+every (channel, term) pair of the grammar is either searched or listed under beyond_search.identifiability with its
+reason, and every pair has a reading or says plainly that it has none. The code under test sees only the data (and
+the nominal rig); the truth is used only to score."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from generator import beyond_campaign, check_beyond
+
+from force_discovery.core.beyond import (
+    ChannelSeries,
+    SearchSettings,
+    beyond_part,
+    channel_library,
+    interpretation,
+    pairs,
+    search,
+)
+from force_discovery.core.beyond.grammar import structural_reason
+from force_discovery.core.beyond.interpretation import INTERPRETATION, NO_READING
+from force_discovery.core.pipeline import discover
+from force_tester_sim.core.extra_terms import SIN, parse_term
+from force_tester_sim.core.params import load_rig
+
+FIT, HELD = [0, 2, 4, 6], [1, 3, 5, 7]
+
+
+def _signals(k: int, n: int, rng):
+    """A made-up pull's signals: a load pulse, a carriage motion, a ringing acceleration (its size grows with k)."""
+    t = np.linspace(0.0, 0.4, n)
+    v = 3.0 * np.sin(np.pi * t / 0.4) * (1 + 0.1 * k)
+    a2 = np.gradient(v, t) + (150.0 + 20 * k) * np.sin(2 * np.pi * 45.0 * t + k) * np.exp(-((t - 0.2) / 0.08) ** 2)
+    T = 2000.0 * (1 + 0.05 * k) * np.exp(-((t - 0.2) / 0.03) ** 2)
+    m2 = load_rig().force_chain.m2
+    return {'F_move': T + m2 * a2, 'F_stat': T + rng.normal(0, 1, n), 'T': T, 'a2': a2, 'v': v,
+            'x': np.cumsum(v) * (t[1] - t[0]), 't': t + 0.6}
+
+
+def _search(channel: str, residual, pulls: int = 8, n: int = 4000, window: bool = False):
+    """search() over one made-up channel: residual(sig, rng) is what the channel's residual holds beside noise."""
+    rng = np.random.default_rng(3939)
+    parts = []
+    for k in range(pulls):
+        sig = _signals(k, n, rng)
+        y = residual(sig) + rng.normal(0.0, 0.3, n)
+        parts.append({channel: ChannelSeries(y, sig, None, {}, {}, sig if window else None)})
+    sig0 = parts[0][channel].signals
+    settings = SearchSettings({s: float(np.sqrt(np.mean(sig0[s] ** 2))) for s in sig0}, {})
+    return search([beyond_part(p, settings) for p in parts], FIT, HELD, settings, load_rig(), (), channels=(channel,))
+
+
+def test_a_stationary_cells_own_non_linearity_seen_on_the_moving_cell_is_named_on_the_stationary_cell():
+    # the stationary cell reads T + c T^2: T from it carries c T^2, so the moving cell reads c T^2 less than the model
+    c = 4e-6
+    res = _search('force_moving', lambda s: -c * s['T'] ** 2)
+    got = [(t.channel, t.term, t.coefficient) for t in res.terms]
+    assert got[:1] and got[0][:2] == ('force_stationary', 'F_stat^2'), got
+    assert abs(got[0][2] - c) < 0.1 * c, got
+    assert not [g for g in got if g[0] == 'force_moving'], got
+    # the data cannot tell it from the moving cell's own T^2: said beside it
+    assert 'T^2 on force_moving' in res.terms[0].alternatives
+
+
+def test_an_accelerometers_own_non_linearity_is_searched_against_the_encoders_acceleration():
+    # in the free phases the accelerometer's residual against the encoder is its own c a^2, a written in the encoder's
+    # acceleration; it matters where the accelerometer reads the force (the window, its a2 large): named there
+    c = 2e-4
+    res = _search('accel_axial', lambda s: c * s['a2'] ** 2, window=True)
+    got = [(t.channel, t.term, t.coefficient, t.named) for t in res.terms + res.within_tolerance]
+    assert got[:1] and got[0][:2] == ('accel_axial', 'a2^2') and got[0][3], got
+    assert abs(got[0][2] - c) < 0.1 * c, got
+
+
+def test_every_pair_of_the_grammar_is_searched_or_listed_with_its_reason():
+    res = _search('force_moving', lambda s: 0.0 * s['t'])
+    listed = {(i['channel'], i['term']): i['reason'] for i in res.identifiability}
+    searched_on_moving = set(channel_library('force_moving'))
+    own = {('force_stationary', 'F_stat^2'), ('force_stationary', 'F_stat^3'), ('accel_axial', 'a2^2'),
+           ('accel_axial', 'a2^3')}
+    for ch, term in pairs():
+        why = listed.get((ch, term))
+        if (ch, term) in own:              # a sensor's own non-linearity: searched through the moving cell too
+            assert why is None, (ch, term, why)
+        elif ch != 'force_moving':         # absent from this campaign (or kept off its channel by the grammar)
+            assert why, (ch, term)
+            assert 'absent' in why or structural_reason(ch, term) == why, (ch, term, why)
+        elif SIN in parse_term(term):
+            assert why and 'no line' in why, (ch, term, why)
+        elif term not in searched_on_moving:
+            assert why and 'catalog' in why, (ch, term, why)
+        else:   # searched; a sensor's own read as the sensor's, or this campaign cannot tell it from another term
+            assert why is None or any(w in why for w in ('read as', 'collinear', 'zero')), (ch, term, why)
+    # the accelerometer's and the stationary cell's own terms are no longer out of their libraries
+    assert {'a2', 'a2^2', 'a2^3'} <= set(channel_library('accel_axial'))
+    assert 'collinear with the accelerometer' in listed[('accel_axial', 'F_move')]
+    assert 'read as F_stat^2 on force_stationary' in listed[('force_moving', 'T^2')]
+
+
+def test_every_pair_has_a_reading_or_says_plainly_it_has_none():
+    grammar = set(pairs())
+    for ch, term in pairs():
+        text = interpretation(ch, term, 500.0)
+        assert text and isinstance(text, str), (ch, term)
+        if (ch, term) in INTERPRETATION:
+            assert text == INTERPRETATION[(ch, term)], (ch, term)
+    # every entry of the table is a pair of the grammar and is what that pair reads
+    assert set(INTERPRETATION) <= grammar, set(INTERPRETATION) - grammar
+    assert 'stationary cell' in interpretation('force_stationary', 'F_stat^2')
+    assert 'accelerometer' in interpretation('accel_axial', 'a2^2')
+    assert interpretation('accel_axial', 'x^3') == NO_READING
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('kind,seed,nuisance', [('stationary_quadratic', 3902, False),
+                                                ('accel_quadratic', 3903, False)])
+def test_a_sensors_own_non_linearity_hidden_in_a_campaign_is_named_on_that_sensor(kind, seed, nuisance, tmp_path):
+    camp, truth = beyond_campaign(kind, seed, nuisance)
+    report = discover(camp, load_rig(), tmp_path, scheduler='inline')
+    got = check_beyond(report, truth)
+    assert got['right_term'] and got['coefficient_30pct'], (truth['channel'], truth['term'], truth['coefficient'],
+                                                            got['found'])
+    assert report['cause'] == 'beyond_catalog', (report['cause'], got['catalog_named'])
+    assert not [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving'], got['found']
+    ident = report['beyond_search']['identifiability']
+    assert ident and all(set(i) == {'channel', 'term', 'reason'} for i in ident)
