@@ -147,6 +147,16 @@ def run_cell(base: IG.Case, channel: str, term: str, strength: float, sign: floa
     return outcome(report, channel, term, coef), f'true {coef:.4g}; named {named or "nothing"}'
 
 
+def what_is_named(case: IG.Case, out: Path) -> str:
+    """What discover names on a campaign as it is: its beyond-catalog terms and catalog causes."""
+    try:
+        report = discover(case.campaign, case.rig, out, scheduler='inline')
+    except DiscoveryError as exc:
+        return f'error {exc}'
+    terms = [f'{b["channel"]}:{b["term"]}' for b in beyond_terms(report)]
+    return f'beyond {terms or "nothing"}, catalog {named_catalog(report) or "nothing"}'
+
+
 def base_case(rig: str, seed: int, pulls: int) -> IG.Case:
     return IG.case(seed, [], pulls=pulls, overrides=RIGS[rig], keep_signals=True)
 
@@ -211,10 +221,13 @@ def main(argv=None) -> int:
           file=sys.stderr, flush=True)
     counts: dict = {}
     t_all = time.perf_counter()
-    bases = {}
+    bases, said_of_base = {}, []
     for k, (rig, (channel, term), strength, sign) in enumerate(cells):
         if rig not in bases:
             bases[rig] = base_case(rig, a.seed, a.pulls)
+            said_of_base.append(f'{rig} (seed {bases[rig].seed}, {a.pulls} pulls): ' +
+                                what_is_named(bases[rig], tmp / f'base_{rig}'))
+            print(f'[base] {said_of_base[-1]}', file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         got, said = run_cell(bases[rig], channel, term, strength, SIGNS[sign], tmp / f'cell{k}')
         row = counts.setdefault((channel, term, strength), dict.fromkeys(('n', *OUTCOMES), 0))
@@ -241,6 +254,8 @@ def main(argv=None) -> int:
         print(f'[clean {k + 1}/{a.clean}] {rig} seed {c.seed}, {n} pulls: beyond {terms or "nothing"}, catalog '
               f'{named_catalog(report) or "nothing"}', file=sys.stderr, flush=True)
     print_matrix(counts, a.strengths)
+    if said_of_base:
+        print('\nthe base campaigns, nothing injected (what every cell starts from): ' + '; '.join(said_of_base))
     if a.clean:
         print(f'\nclean campaigns ({a.clean_pulls[0]}-{a.clean_pulls[1]} pulls): false alarms {false}/{a.clean}; '
               f'catalog causes named on them: {sorted(set(catalog_clean)) or "none"}')
