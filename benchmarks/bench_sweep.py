@@ -19,9 +19,11 @@ free-form body force, so the motion does not answer it (a real drag would slow t
 
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
 95 % interval holding the truth), a catalog cause named instead (the term not found), another term named, nothing
-named, or an error. Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per seed; --clean-pulls), on
-the rigs in turn: a false alarm is any entry in beyond_catalog; the catalog causes named on them are listed too (on
-this generator the catalog's own figures are another benchmark's: ./ft bench discovery --generator independent).
+named, or an error; in_band counts the cells whose true term was significant but inside the band (listed under
+beyond_search.within_tolerance, not named). Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
+seed; --clean-pulls), on the rigs in turn: a false alarm is any entry in beyond_catalog; the catalog causes named
+on them are listed too (on this generator the catalog's own figures are another benchmark's: ./ft bench discovery
+--generator independent).
 The whole sweep (every pair, 3 strengths, 2 signs, 3 rigs, >= 20 clean campaigns) is thousands of discover runs:
 run a subset with the options. Progress goes to stderr, the matrix to stdout.
 """
@@ -50,7 +52,8 @@ STRENGTHS = (1.0, 3.0, 10.0)
 SIGNS = {'+': 1.0, '-': -1.0}
 BEFORE_S, AFTER_S = 0.05, 0.15        # the loaded window the strength is measured on (about discover's own)
 COEF_SHARE = 0.3
-OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error')
+OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error', 'in_band')
+FLAGS = ('coef30', 'ci95', 'in_band')   # beside the one outcome a cell has
 
 
 def all_pairs() -> list:
@@ -118,7 +121,9 @@ def beyond_terms(report: dict) -> list:
 
 
 def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
-    """The cell's outcome: {outcome: bool} over OUTCOMES (right, coef30 and ci95 together; else one of the rest)."""
+    """The cell's outcome: {outcome: bool} over OUTCOMES: one of right, catalog, other, nothing (error: run_cell),
+    with the FLAGS: coef30 and ci95 of a right term; in_band, the true term listed as significant but inside the
+    channel's band (beyond_search.within_tolerance), so not named."""
     terms = beyond_terms(report)
     mine = [b for b in terms if b['channel'] == channel]
     right = bool(mine) and mine[0]['term'] == term
@@ -131,6 +136,9 @@ def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
         got['catalog'] = True
     else:
         got['other' if terms else 'nothing'] = True
+    search = report.get('beyond_search')
+    band = search.get('within_tolerance', []) if isinstance(search, dict) else []
+    got['in_band'] = any(b['channel'] == channel and b['term'] == term for b in band)
     return got
 
 
@@ -234,7 +242,7 @@ def main(argv=None) -> int:
         row['n'] += 1
         for key, hit in got.items():
             row[key] += bool(hit)
-        what = next((o for o in OUTCOMES if got[o] and o not in ('coef30', 'ci95')), '?')
+        what = next((o for o in OUTCOMES if got[o] and o not in FLAGS), '?') + (' (in band)' if got['in_band'] else '')
         print(f'[{k + 1}/{len(cells)}] {rig} {channel} {term} x{strength:g}{sign}: {what} ({said}; '
               f'{time.perf_counter() - t0:.0f} s)', file=sys.stderr, flush=True)
     false, catalog_clean = 0, []
@@ -264,11 +272,11 @@ def main(argv=None) -> int:
 
 
 def print_matrix(counts: dict, strengths) -> None:
-    head = f'{"channel":<17} {"term":<12} {"x band":>6} {"n":>3} ' + ' '.join(f'{o:>7}' for o in OUTCOMES)
+    head = f'{"channel":<17} {"term":<14} {"x band":>6} {"n":>3} ' + ' '.join(f'{o:>7}' for o in OUTCOMES)
     print(head)
     print('-' * len(head))
     for (channel, term, strength), row in counts.items():
-        print(f'{channel:<17} {term:<12} {strength:>6g} {row["n"]:>3} ' + ' '.join(f'{row[o]:>7}' for o in OUTCOMES))
+        print(f'{channel:<17} {term:<14} {strength:>6g} {row["n"]:>3} ' + ' '.join(f'{row[o]:>7}' for o in OUTCOMES))
     print()
     for s in strengths:
         rows = [r for (_c, _t, x), r in counts.items() if x == s]

@@ -73,6 +73,9 @@ def test_the_outcomes_are_told_apart():
     assert S.outcome(report([right]), 'motor_current', 'x', 1.0)['other']
     assert S.outcome(report([], ['effective_mass']), 'motor_current', 'x', 1.0)['catalog']
     assert S.outcome(report([], ['unexplained']), 'motor_current', 'x', 1.0)['nothing']
+    inside = {**report([]), 'beyond_search': {'within_tolerance': [{'channel': 'motor_current', 'term': 'x'}]}}
+    got = S.outcome(inside, 'motor_current', 'x', 1.0)
+    assert got['nothing'] and got['in_band'] and not S.outcome(inside, 'motor_current', 'v', 1.0)['in_band']
     assert S.outcome({'beyond_catalog': {'not_available': 'too few'}, 'causes': []}, 'force_moving', 'v',
                      1.0)['nothing']
 
