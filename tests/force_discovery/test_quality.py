@@ -177,6 +177,20 @@ def test_a_conditioner_that_clips_is_a_saturation_named_with_its_channel_and_lev
     assert f'{channel} saturates at {d.level:+.6g}' in md
 
 
+def test_a_quantised_channel_without_noise_to_dither_it_has_no_spikes(clean):
+    # an ADC step 10 x the cells' noise: the record flickers by one step now and then and repeats values between; its
+    # fourth difference is mostly 0, so each one-step flicker stood out of a noise of 0 as a 'spike' (252 a channel
+    # on an independent campaign at 20 kHz). The noise is at least the step's, step / sqrt(12).
+    ch = by_set(clean, 2)
+    step = 10 * 0.3
+    coarse = {**ch, **{c: np.round(np.asarray(ch[c], float) / step) * step for c in Q.FORCE_CHANNELS}}
+    screen = Q.screen_pull('p', coarse)
+    assert [d.as_dict() for d in screen.defects if d.kind == Q.SPIKE] == []
+    bad, inj = add_spikes(coarse, np.random.default_rng(31), n=2, amplitude=(300.0, 400.0), where='elsewhere')
+    found = [d for d in Q.screen_pull('p', bad).defects if d.kind == Q.SPIKE]
+    assert len(found) == len(inj) == 2
+
+
 @pytest.mark.parametrize('value', [np.nan, np.inf])
 def test_non_finite_samples(clean, value):
     ch = by_set(clean, 5)

@@ -285,6 +285,16 @@ R_PER_SIGMA = float(np.sqrt(70.0) / 6.0)   # std of r for white noise of std 1
 NOISE_STRIDE = 7
 
 
+def _quantum(x: np.ndarray) -> float:
+    """The smallest step between two samples of x: its ADC's step when the noise is below it (a quantised channel
+    with no noise to dither it repeats values, its fourth difference is mostly 0 and each one-step change would
+    stand out of a noise of 0: 252 'spikes' a channel on a 20 kHz independent campaign). Its noise is then taken
+    as at least the step's, quantum / sqrt(12). On a noisy float channel the step is tiny and changes nothing."""
+    d = np.abs(np.diff(x))
+    d = d[d > 0]
+    return float(np.min(d)) if len(d) else 0.0
+
+
 def _robust_sd(r: np.ndarray) -> float:
     """MAD_SD x median |r|: the standard deviation of zero-mean noise, blind to a few % of events."""
     return float(MAD_SD * np.median(np.abs(r))) if len(r) else 0.0
@@ -477,7 +487,7 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
             held[c] = list(zip(s[k].tolist(), e[k].tolist()))
         xw = _filled(x, fin)
         r = _fourth_difference(xw)
-        rough[c] = (xw, r, _robust_sd(r[::NOISE_STRIDE]))
+        rough[c] = (xw, r, max(_robust_sd(r[::NOISE_STRIDE]), R_PER_SIGMA * _quantum(xw) / np.sqrt(12.0)))
     events = {c: _Events(r, sr) for c, (_x, r, sr) in rough.items() if c in COINCIDENCE_CHANNELS}
     for c, (xw, r, sigma_r) in rough.items():
         others = [e for o, e in events.items() if o != c]
