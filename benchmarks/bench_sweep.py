@@ -9,7 +9,8 @@ channel_library, channel_band), so a change to the grammar changes the sweep. Fo
 generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage; 25khz: the
 nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept (F_move, F_stat,
 T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep adds one term to one
-recorded channel of that campaign: coefficient x the term's value from the clean signals. The coefficient is chosen
+recorded channel of that campaign: coefficient x the term's value from the clean signals (on the channel's ADC
+steps again: the term acts before the DAQ). The coefficient is chosen
 so that the term's rms over the pulls' loaded windows (50 ms before the lanyard goes taut to 150 ms after the break)
 is the strength x the channel's band (channel_band: the smallest contribution the tolerances care about), with the
 sign asked for. On the force and accelerometer channels that is a sensor-side term, as the grammar means it. On the
@@ -102,12 +103,16 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
 
 
 def inject(base: IG.Case, channel: str, term: str, coef: float) -> list:
-    """The campaign with coef x term added to the channel's record (new arrays; the base is not changed)."""
+    """The campaign with coef x term added to the channel's record, on the channel's ADC steps again (the term acts
+    before the DAQ: a recorded channel plus a smooth term would be a quantised channel off its grid, whose one-step
+    flickers the quality screen rightly takes for spikes). New arrays; the base is not changed."""
     col = CHANNEL_COLUMNS[channel]
+    lsb = base.truth.get('daq', {}).get('channels', {}).get(col, {}).get('lsb_si')
     out = []
     for (meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        out.append((meta, {**ch, col: np.asarray(ch[col], float) + coef * term_values(term, pull_signals(entry, t))}))
+        y = np.asarray(ch[col], float) + coef * term_values(term, pull_signals(entry, t))
+        out.append((meta, {**ch, col: np.round(y / lsb) * lsb if lsb else y}))
     return out
 
 

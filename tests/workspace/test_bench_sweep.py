@@ -62,6 +62,18 @@ def test_an_injected_term_has_the_asked_strength_on_the_loaded_window(channel, t
     assert S.coefficient(zero, channel, 'x', 1.0, 1.0) is None          # nothing to scale: not a cell
 
 
+def test_an_injected_term_lands_on_the_channels_adc_steps():
+    # the term acts before the DAQ: the record it makes is quantised as the channel is (a quantised record plus a
+    # smooth term would flicker off its grid, and the quality screen would take each flicker for a spike)
+    base = made_up_case()
+    base.truth['daq'] = {'channels': {'force_moving_n': {'lsb_si': 0.25}}}
+    coef = S.coefficient(base, 'force_moving', 't', 3.0, 1.0)
+    (_meta, ch), = S.inject(base, 'force_moving', 't', coef)
+    steps = ch['force_moving_n'] / 0.25
+    assert np.allclose(steps, np.round(steps)) and np.ptp(steps) > 10
+    assert np.abs(ch['force_moving_n'] - coef * np.arange(1000) / 1000.0).max() <= 0.125 + 1e-12
+
+
 def test_the_outcomes_are_told_apart():
     def report(terms, causes=()):
         return {'beyond_catalog': terms, 'causes': [{'name': c} for c in causes]}
