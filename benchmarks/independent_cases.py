@@ -69,25 +69,30 @@ class Case:
 CACHE_ENV = 'FT_BENCH_CACHE'
 
 
-def _cache_path(seed: int, departures, pulls: int, sets, all_channels: bool) -> Path:
+def _cache_path(seed: int, departures, pulls: int, sets, all_channels: bool, overrides=None,
+                keep_signals: bool = False) -> Path:
     src = hashlib.sha256()
     for f in sorted(Path(R.__file__).parent.glob('*.py')):
         src.update(f.read_bytes())
-    key = repr((src.hexdigest(), seed, departures, pulls, tuple(sets), all_channels)).encode()
+    extra = () if not overrides and not keep_signals else (sorted((overrides or {}).items()), keep_signals)
+    key = repr((src.hexdigest(), seed, departures, pulls, tuple(sets), all_channels, *extra)).encode()
     root = Path(os.environ.get(CACHE_ENV) or ROOT / 'runs' / 'cache' / 'independent')
     return root / f'{hashlib.sha256(key).hexdigest()[:24]}.pickle'
 
 
-def case(seed: int, departures, *, pulls: int = PULLS, sets=SETS, all_channels: bool = True) -> Case:
+def case(seed: int, departures, *, pulls: int = PULLS, sets=SETS, all_channels: bool = True, overrides=None,
+         keep_signals: bool = False) -> Case:
     """An independent campaign with these departures (a list of {'name': ...}, [] for none, or 'catalog' /
     'beyond' / 'draw' for the generator's own draw), from the cache when it was made before. A drawn rig that
     cannot make an admissible pull of one of the sets (the generator's rejection rules give up on it) is drawn
-    again with the next seed, said on stderr."""
-    path = _cache_path(seed, departures, pulls, sets, all_channels)
+    again with the next seed, said on stderr. overrides: dotted rig constants the generator takes
+    (``{'daq.sample_rate_hz': 25e3}``); keep_signals: each pull's truth entry keeps its clean signals
+    (truth['pulls'][k]['signals']: F_move, F_stat, T, a2, v, x, i on the sample times)."""
+    path = _cache_path(seed, departures, pulls, sets, all_channels, overrides, keep_signals)
     if path.is_file():
         with path.open('rb') as f:
             return pickle.load(f)  # noqa: S301 - this benchmark's own files
-    made = _make(seed, departures, pulls, sets, all_channels)
+    made = _make(seed, departures, pulls, sets, all_channels, overrides, keep_signals)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f'.{os.getpid()}.tmp')
     with tmp.open('wb') as f:
@@ -96,12 +101,14 @@ def case(seed: int, departures, *, pulls: int = PULLS, sets=SETS, all_channels: 
     return made
 
 
-def _make(seed: int, departures, pulls: int, sets, all_channels: bool) -> Case:
+def _make(seed: int, departures, pulls: int, sets, all_channels: bool, overrides=None,
+          keep_signals: bool = False) -> Case:
+    rig = {**(ALL_CHANNELS if all_channels else {}), **(overrides or {})}
     for k in range(REDRAWS):
         s = seed + k * REDRAW_STEP
         try:
             camp, truth = R.generate_campaign(s, n_pulls=pulls, sets=list(sets), departures=departures,
-                                              rig=ALL_CHANNELS if all_channels else None)
+                                              rig=rig or None, keep_signals=keep_signals)
         except RuntimeError as exc:
             if 'no admissible' not in str(exc):
                 raise

@@ -132,20 +132,63 @@ def test_one_sensor_channel_held_alone(clean):
     assert screen.usable('force_moving_n').all()
 
 
-@pytest.mark.parametrize('channel, share', [('force_moving_n', 0.8), ('accel_axial_m_s2', 0.5)])
-def test_clipping(clean, channel, share):
+@pytest.mark.parametrize('channel, share, kind', [('force_moving_n', 0.8, Q.SATURATION),
+                                                  ('accel_axial_m_s2', 0.5, Q.CLIPPING)])
+def test_clipping(clean, channel, share, kind):
+    # a load cell clipped while the other cell keeps rising is a saturation (it replaces the clipping record);
+    # the accelerometer has no twin to rise past it: clipping
     ch = by_set(clean, 4)
     level = share * float(np.max(np.abs(ch[channel])))
     bad, runs = add_clipping(ch, level, channel)
     # the saturated stretches (noise dithers in and out at their edges: runs closer than MERGE_GAP_S are one)
     gap = int(round(Q.MERGE_GAP_S / 2e-5))
     spans = Q._merge(np.array([r.i0 for r in runs]), np.array([r.i1 for r in runs]), gap)
-    inj = [Injected(channel, Q.CLIPPING, a, b) for a, b in spans if b - a >= Q.CLIP_MIN_RUN]
+    inj = [Injected(channel, kind, a, b) for a, b in spans if b - a >= Q.CLIP_MIN_RUN]
     assert inj
     screen = Q.screen_pull('p', bad)
     assert_found(screen, bad, inj, tol_s=Q.MERGE_GAP_S)
     for r in runs:
         assert not screen.usable(channel)[r.i0:r.i1].any()
+
+
+@pytest.mark.parametrize('channel, other', [('force_moving_n', 'force_stationary_n'),
+                                            ('force_stationary_n', 'force_moving_n')])
+def test_a_conditioner_that_clips_is_a_saturation_named_with_its_channel_and_level(clean, channel, other):
+    # a conditioner clipping before the DAQ's noise: a noisy flat top with no two samples equal, at a level that
+    # is no rated range. The clipping test (equal samples) cannot see it; the other cell rising past it can.
+    ch = by_set(clean, 3)
+    x = np.asarray(ch[channel], float)
+    level = 0.6 * float(np.max(x))
+    bad = dict(ch)
+    bad[channel] = np.minimum(x, level) + np.random.default_rng(21).normal(0.0, 0.3, len(x))
+    screen = Q.screen_pull('p', bad)
+    sat = [d for d in screen.defects if d.kind == Q.SATURATION]
+    assert [d.channel for d in sat] == [channel], [d.as_dict() for d in screen.defects]
+    (d,) = sat
+    assert d.level == pytest.approx(level, abs=1.0) and d.as_dict()['level'] == d.level
+    assert f'{level:+.6g}'[:5] in d.detail and other in d.detail
+    assert not [e for e in screen.defects if e.kind == Q.CLIPPING]
+    over = np.flatnonzero(x > level)
+    assert not screen.usable(channel)[over[0] + 5:over[-1] - 5].any()
+    # inside the analysis window the pull is excluded: the load in the flat top is lost
+    why = screen.exclusion(int(over[0]) - 1000, int(over[-1]) + 1000)
+    assert why and channel in why and 'saturates' in why
+    md = '\n'.join(Q.markdown_lines([screen]))
+    assert f'{channel} saturates at {d.level:+.6g}' in md
+
+
+def test_a_quantised_channel_without_noise_to_dither_it_has_no_spikes(clean):
+    # an ADC step 10 x the cells' noise: the record flickers by one step now and then and repeats values between; its
+    # fourth difference is mostly 0, so each one-step flicker stood out of a noise of 0 as a 'spike' (252 a channel
+    # on an independent campaign at 20 kHz). The noise is at least the step's, step / sqrt(12).
+    ch = by_set(clean, 2)
+    step = 10 * 0.3
+    coarse = {**ch, **{c: np.round(np.asarray(ch[c], float) / step) * step for c in Q.FORCE_CHANNELS}}
+    screen = Q.screen_pull('p', coarse)
+    assert [d.as_dict() for d in screen.defects if d.kind == Q.SPIKE] == []
+    bad, inj = add_spikes(coarse, np.random.default_rng(31), n=2, amplitude=(300.0, 400.0), where='elsewhere')
+    found = [d for d in Q.screen_pull('p', bad).defects if d.kind == Q.SPIKE]
+    assert len(found) == len(inj) == 2
 
 
 @pytest.mark.parametrize('value', [np.nan, np.inf])

@@ -29,6 +29,11 @@ checks apply to them):
   channel is masked there. The encoder alone may stay constant for seconds while the carriage is at rest;
   it is held (a defect) only when it moved by more than ``ENCODER_JUMP_QUANTA`` counts in the one sample
   before or after the constant run, i.e. it was moving while it reported no motion.
+- ``saturation``: the load cells; see ``saturation.py``: a flat top (within a few noise sigma of the record's
+  extreme for >= 0.3 ms, equal samples or not) while the other cell keeps rising: the cell stopped at a level
+  (the ADC's, a conditioner's, its rated range) and the load there is lost. It replaces the ``clipping`` record
+  of the same span, and a pull with one inside its analysis window is excluded (a flat top cannot be masked
+  away: the filters carry it into the samples around it, and the load's peak is in it).
 - ``overload``: sensor channels; samples beyond the rated range a channel map gives; and, see ``overload.py``, a
   burst of up to 5 ms far above the rest of the channel's record (1.5 x its largest other excursion, 50 x its
   noise) that no other channel shows (a sensor or amplifier driven past its range, e.g. +/-9000 m/s^2 on an
@@ -66,6 +71,7 @@ from force_tester_common.core.events import MAD_SD
 from force_tester_sim.core.pull import ACCEL_NOISE_M_S2, LOAD_CELL_NOISE_N
 
 from .overload import OVERLOAD_MAX_S, overloads
+from .saturation import saturations
 
 # ------------------------------------------------------------------------------------------ names
 SPIKE = 'spike'
@@ -76,12 +82,15 @@ TIME_GAP = 'time_gap'
 TIME_NONMONOTONIC = 'time_nonmonotonic'
 STUCK = 'stuck'
 OVERLOAD = 'overload'
-KINDS = (SPIKE, OVERLOAD, CLIPPING, HELD, NONFINITE, TIME_GAP, TIME_NONMONOTONIC, STUCK)
+SATURATION = 'saturation'
+KINDS = (SPIKE, OVERLOAD, SATURATION, CLIPPING, HELD, NONFINITE, TIME_GAP, TIME_NONMONOTONIC, STUCK)
 TIME_KINDS = (TIME_GAP, TIME_NONMONOTONIC)
 
 ALL = 'all'                      # the channel of a defect that masks every channel (under-run, time axis)
 TIME_CHANNEL = 'time_s'
 FORCE_CHANNELS = tuple(BLOCK_TYPES[FORCE_TYPE][1].values())
+#: the two cells read the same load: one that stops while the other keeps rising saturated (saturation.py)
+CELL_PAIRS = tuple((c, o) for c in FORCE_CHANNELS for o in FORCE_CHANNELS if c != o)
 ACCEL_CHANNELS = tuple(BLOCK_TYPES[ACCEL_TYPE][1].values())
 SENSOR_CHANNELS = FORCE_CHANNELS + ACCEL_CHANNELS
 (ENCODER_CHANNEL,) = BLOCK_TYPES[ENCODER_TYPE][1].values()
@@ -162,7 +171,8 @@ MAX_LISTED = 20
 # ------------------------------------------------------------------------------------------ results
 @dataclass(frozen=True)
 class Defect:
-    """One data defect: where (pull, channel, first and last affected sample's time) and what."""
+    """One data defect: where (pull, channel, first and last affected sample's time) and what; a saturation's
+    level (the channel's unit) too."""
 
     pull: str
     channel: str
@@ -170,10 +180,12 @@ class Defect:
     t_start_s: float
     t_end_s: float
     detail: str
+    level: Optional[float] = None
 
     def as_dict(self) -> dict:
-        return {'pull': self.pull, 'channel': self.channel, 'kind': self.kind, 't_start_s': self.t_start_s,
-                't_end_s': self.t_end_s, 'detail': self.detail}
+        out = {'pull': self.pull, 'channel': self.channel, 'kind': self.kind, 't_start_s': self.t_start_s,
+               't_end_s': self.t_end_s, 'detail': self.detail}
+        return out if self.level is None else {**out, 'level': self.level}
 
 
 @dataclass(frozen=True)
@@ -224,13 +236,17 @@ class PullScreen:
     def exclusion(self, i0: int, i1: int, channels: Sequence[str] = ANALYSIS_CHANNELS) -> Optional[str]:
         """Why the pull must be left out of fits on the window i0 <= i < i1, or None to keep it: a stuck
         channel among ``channels``, a broken time axis inside the window (the regressions assume the
-        uniform sample grid), or defects masking more than EXCLUDE_SHARE of the window."""
+        uniform sample grid), a saturated cell among ``channels`` inside the window, or defects masking more than
+        EXCLUDE_SHARE of the window."""
         for c, kind, j0, j1 in self.spans:
             j0, j1 = j0 - self.pad, j1 + self.pad
             if kind == STUCK and c in channels:
                 return f'channel {c!r} is stuck at a constant over the whole record'
             if kind in TIME_KINDS and j0 < i1 and j1 > i0:
                 return f'the time axis is broken ({kind}) inside the analysis window'
+            if kind == SATURATION and c in channels and j0 < i1 and j1 > i0:
+                return (f'channel {c!r} saturates inside the analysis window (a flat top while the other cell '
+                        'kept rising: the load there is unknown); expected no saturation')
         share = self.window_share(i0, i1, channels)
         if share > EXCLUDE_SHARE:
             return (f'defects mask {100 * share:.1f} % of the analysis window; '
@@ -267,6 +283,16 @@ def _fourth_difference(x: np.ndarray) -> np.ndarray:
 R_PER_SIGMA = float(np.sqrt(70.0) / 6.0)   # std of r for white noise of std 1
 # every 7th sample of r is enough for the noise level (14,000 of a 100,000-sample record: ~1 % error)
 NOISE_STRIDE = 7
+
+
+def _quantum(x: np.ndarray) -> float:
+    """The smallest step between two samples of x: its ADC's step when the noise is below it (a quantised channel
+    with no noise to dither it repeats values, its fourth difference is mostly 0 and each one-step change would
+    stand out of a noise of 0: 252 'spikes' a channel on a 20 kHz independent campaign). Its noise is then taken
+    as at least the step's, quantum / sqrt(12). On a noisy float channel the step is tiny and changes nothing."""
+    d = np.abs(np.diff(x))
+    d = d[d > 0]
+    return float(np.min(d)) if len(d) else 0.0
 
 
 def _robust_sd(r: np.ndarray) -> float:
@@ -461,14 +487,23 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
             held[c] = list(zip(s[k].tolist(), e[k].tolist()))
         xw = _filled(x, fin)
         r = _fourth_difference(xw)
-        rough[c] = (xw, r, _robust_sd(r[::NOISE_STRIDE]))
+        rough[c] = (xw, r, max(_robust_sd(r[::NOISE_STRIDE]), R_PER_SIGMA * _quantum(xw) / np.sqrt(12.0)))
     events = {c: _Events(r, sr) for c, (_x, r, sr) in rough.items() if c in COINCIDENCE_CHANNELS}
     for c, (xw, r, sigma_r) in rough.items():
         others = [e for o, e in events.items() if o != c]
         for i0, i1, peak, detail in _spikes(xw, r, max(sigma_r, 1e-12), others, dt):
             found.append((c, c, SPIKE, i0, i1, f'{peak:+.4g} from the signal interpolated across it, over '
                           f'{_ms(i1 - i0, dt)} {detail}'))
-    left = {c: [(f[3], f[4]) for f in found + pending if f[0] == c and f[2] in (OVERLOAD, CLIPPING)] for c in rough}
+    cells = {c: (xw, sigma_r / R_PER_SIGMA) for c, (xw, _r, sigma_r) in rough.items() if c in FORCE_CHANNELS}
+    for s in saturations(cells, dt, CELL_PAIRS):
+        pending = [r for r in pending if not (r[0] == s.channel and r[2] == CLIPPING and r[3] < s.i1 and r[4] > s.i0)]
+        where = (f'its rated range +/-{rated[s.channel]:.6g}' if rated and s.channel in rated
+                 else 'no rated range given')
+        pending.append((s.channel, s.channel, SATURATION, s.i0, s.i1,
+                      f'saturated at {s.level:+.6g} for {_ms(s.i1 - s.i0, dt)} while {s.other} moved {s.rise:+.4g} '
+                      f'({where}): a flat top, the load there lost', s.level))
+    left = {c: [(f[3], f[4]) for f in found + pending if f[0] == c and f[2] in (OVERLOAD, CLIPPING, SATURATION)]
+            for c in rough}
     sensed = {c: (xw, sigma_r / R_PER_SIGMA) for c, (xw, _r, sigma_r) in rough.items()}
     for c, i0, i1, peak, ratio in overloads(sensed, left, dt, COINCIDENCE_CHANNELS):
         found.append((c, c, OVERLOAD, i0, i1, f'a burst of {peak:+.4g} over {_ms(i1 - i0, dt)}, {ratio:.3g} x the '
@@ -480,7 +515,8 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
 def _held_records(held: Dict[str, List[Tuple[int, int]]], pending: list, n: int, dt: float) -> list:
     """Held records: one on ALL where every checked sensor channel holds at once (a DAQ buffer under-run;
     the clipping and encoder records inside it are part of it: an under-run that hides the peak holds the
-    record's maximum), else one per channel, unless the run is at the channel's extreme (then it is clipping).
+    record's maximum), else one per channel, unless the run is at the channel's extreme (then it is clipping or
+    saturation).
     ``pending``: the clipping and encoder-held records found before."""
     out = []
     count = np.zeros(n + 1, int)
@@ -504,7 +540,7 @@ def _held_records(held: Dict[str, List[Tuple[int, int]]], pending: list, n: int,
     kept = [r for r in pending if not overlaps(r[3], r[4], spans)]
     out += kept
     for c, runs in held.items():
-        clips = [(r[3], r[4]) for r in kept if r[0] == c and r[2] == CLIPPING]
+        clips = [(r[3], r[4]) for r in kept if r[0] == c and r[2] in (CLIPPING, SATURATION)]
         for i0, i1 in runs:
             if not overlaps(i0, i1, spans) and not overlaps(i0, i1, clips):
                 out.append((c, c, HELD, i0, i1, f'repeats its last value for {_ms(i1 - i0, dt)} ({i1 - i0} '
@@ -544,13 +580,13 @@ def _build(name: str, t: np.ndarray, dt: float, channels: tuple, found: list) ->
     tg = np.where(fin, t, t[k0] + (np.arange(n) - k0) * dt)   # the nominal grid where a stamp is missing
     pad = int(round(MASK_PAD_S / dt))
     found.sort(key=lambda r: (r[3], r[0], r[2]))
-    spans = tuple((m, kind, 0, n) if kind == STUCK else (m, kind, i0, i1) for _c, m, kind, i0, i1, _d in found)
+    spans = tuple((m, kind, 0, n) if kind == STUCK else (m, kind, i0, i1) for _c, m, kind, i0, i1, *_d in found)
     defects, listed, rest = [], {}, {}
-    for c, _m, kind, i0, i1, detail in found:
+    for c, _m, kind, i0, i1, detail, *level in found:      # a saturation's record carries its level last
         key = (c, kind)
         listed[key] = listed.get(key, 0) + 1
         if listed[key] <= MAX_LISTED:
-            defects.append(Defect(name, c, kind, float(tg[i0]), float(tg[i1 - 1]), detail))
+            defects.append(Defect(name, c, kind, float(tg[i0]), float(tg[i1 - 1]), detail, *level))
         else:
             r = rest.setdefault(key, [i0, i1, 0])
             r[1] = i1
@@ -641,6 +677,14 @@ def markdown_lines(screens: Sequence[PullScreen], excluded: Optional[Dict[str, s
         lines += [f'| {d.pull} | {d.channel} | {d.kind} | {d.t_start_s:.5f} | {d.t_end_s:.5f} | {d.detail} |'
                   for d in defects]
         lines.append('')
+    saturated: Dict[Tuple[str, float], set] = {}
+    for d in defects:
+        if d.kind == SATURATION:
+            saturated.setdefault((d.channel, round(d.level, 6)), set()).add(d.pull)
+    for (c, level), pulls in sorted(saturated.items()):
+        lines += [f'**{c} saturates at {level:+.6g}** in {len(pulls)} pull(s): a flat top while the other cell kept '
+                  'rising. The load there is unknown: no term is fitted to it, and a pull with it inside its analysis '
+                  'window is excluded.', '']
     if excluded:
         lines += ['Excluded pulls:', ''] + [f'- {p}: {why}' for p, why in sorted(excluded.items())] + ['']
     return lines

@@ -1,0 +1,102 @@
+"""`./ft bench sweep` (benchmarks/bench_sweep.py): the sweep over the grammar's (channel, term) pairs on the
+independent generator. Its core on made-up pulls and reports (fast), and one cell end to end (slow), so the bench
+cannot rot."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / 'benchmarks'))
+
+import bench_sweep as S  # noqa: E402
+import independent_cases as IG  # noqa: E402
+
+from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library  # noqa: E402
+from force_tester_sim.core.params import load_rig  # noqa: E402
+
+
+def test_the_sweep_reads_every_pair_of_the_grammar_and_refuses_a_bad_one():
+    assert S.all_pairs() == [(c, t) for c in SEARCHED for t in channel_library(c)]
+    assert S.chosen_pairs('motor_current:v') == [('motor_current', 'v')]
+    assert S.chosen_pairs('force_moving') == [('force_moving', t) for t in channel_library('force_moving')]
+    with pytest.raises(ValueError, match="--pairs 'force_moving:sin'"):
+        S.chosen_pairs('force_moving:sin')
+    for bad in (['--strengths', '0'], ['--signs', '*'], ['--rigs', 'lighter'], ['--clean-pulls', '2-3'],
+                ['--pulls', '3']):
+        with pytest.raises(SystemExit) as exc:
+            S.parse_args(bad)
+        assert exc.value.code == 2
+
+
+def made_up_case():
+    """One pull at 1 kHz: loaded from 0.40 s (taut) to 0.60 s (break); the signals made up, the rig the nominal."""
+    t = np.arange(1000) / 1000.0
+    x = np.clip(t - 0.3, 0, None)
+    sig = {'F_move': 1000 * np.exp(-((t - 0.5) / 0.05) ** 2), 'F_stat': 900 * np.exp(-((t - 0.5) / 0.05) ** 2),
+           'T': 950 * np.exp(-((t - 0.5) / 0.05) ** 2), 'a2': np.sin(40 * t), 'v': np.gradient(x, t), 'x': x,
+           'i': np.zeros_like(t)}
+    ch = {'time_s': t, 'force_moving_n': np.zeros_like(t), 'motor_current_a': np.ones_like(t)}
+    entry = {'t_taut_s': 0.45, 't_break_s': 0.55, 'signals': {k: v.tolist() for k, v in sig.items()}}
+    return IG.Case([({'file': 'p.csv'}, ch)], load_rig(), {'pulls': [entry]}, 1)
+
+
+@pytest.mark.parametrize('channel, term, strength, sign', [('force_moving', 'v^2', 3.0, 1.0),
+                                                           ('motor_current', 'x*t', 10.0, -1.0)])
+def test_an_injected_term_has_the_asked_strength_on_the_loaded_window(channel, term, strength, sign):
+    base = made_up_case()
+    col = {'force_moving': 'force_moving_n', 'motor_current': 'motor_current_a'}[channel]
+    before = base.campaign[0][1][col].copy()
+    coef = S.coefficient(base, channel, term, strength, sign)
+    assert np.sign(coef) == sign
+    (_meta, ch), = S.inject(base, channel, term, coef)
+    added = ch[col] - before
+    t = ch['time_s']
+    window = (t >= 0.45 - S.BEFORE_S) & (t <= 0.55 + S.AFTER_S)
+    assert np.sqrt(np.mean(added[window] ** 2)) == pytest.approx(strength * channel_band(channel, base.rig))
+    assert np.array_equal(base.campaign[0][1][col], before)                    # the base is not changed
+    assert S.coefficient(base, channel, 'F_move', 1.0, 1.0) is not None
+    zero = made_up_case()
+    zero.truth['pulls'][0]['signals']['x'] = [0.0] * 1000
+    assert S.coefficient(zero, channel, 'x', 1.0, 1.0) is None          # nothing to scale: not a cell
+
+
+def test_an_injected_term_lands_on_the_channels_adc_steps():
+    # the term acts before the DAQ: the record it makes is quantised as the channel is (a quantised record plus a
+    # smooth term would flicker off its grid, and the quality screen would take each flicker for a spike)
+    base = made_up_case()
+    base.truth['daq'] = {'channels': {'force_moving_n': {'lsb_si': 0.25}}}
+    coef = S.coefficient(base, 'force_moving', 't', 3.0, 1.0)
+    (_meta, ch), = S.inject(base, 'force_moving', 't', coef)
+    steps = ch['force_moving_n'] / 0.25
+    assert np.allclose(steps, np.round(steps)) and np.ptp(steps) > 10
+    assert np.abs(ch['force_moving_n'] - coef * np.arange(1000) / 1000.0).max() <= 0.125 + 1e-12
+
+
+def test_the_outcomes_are_told_apart():
+    def report(terms, causes=()):
+        return {'beyond_catalog': terms, 'causes': [{'name': c} for c in causes]}
+    right = {'channel': 'motor_current', 'term': 'v', 'coefficient': 1.1, 'ci95': [0.9, 1.3]}
+    got = S.outcome(report([right]), 'motor_current', 'v', 1.0)
+    assert got['right'] and got['coef30'] and got['ci95'] and not got['catalog']
+    got = S.outcome(report([{**right, 'coefficient': 1.5, 'ci95': [1.4, 1.6]}]), 'motor_current', 'v', 1.0)
+    assert got['right'] and not got['coef30'] and not got['ci95']
+    assert S.outcome(report([right]), 'motor_current', 'x', 1.0)['other']
+    assert S.outcome(report([], ['effective_mass']), 'motor_current', 'x', 1.0)['catalog']
+    assert S.outcome(report([], ['unexplained']), 'motor_current', 'x', 1.0)['nothing']
+    inside = {**report([]), 'beyond_search': {'within_tolerance': [{'channel': 'motor_current', 'term': 'x'}]}}
+    got = S.outcome(inside, 'motor_current', 'x', 1.0)
+    assert got['nothing'] and got['in_band'] and not S.outcome(inside, 'motor_current', 'v', 1.0)['in_band']
+    assert S.outcome({'beyond_catalog': {'not_available': 'too few'}, 'causes': []}, 'force_moving', 'v',
+                     1.0)['nothing']
+
+
+@pytest.mark.slow
+def test_one_cell_of_the_sweep_end_to_end(tmp_path, monkeypatch):
+    # a viscous force seen in the motor current at 10x its band, on a 4-pull independent campaign made afresh
+    monkeypatch.setenv(IG.CACHE_ENV, str(tmp_path / 'cache'))
+    base = S.base_case('nominal', 3900, 4)
+    assert len(base.campaign) == 4 and 'signals' in base.truth['pulls'][0]
+    got, said = S.run_cell(base, 'motor_current', 'v', 10.0, 1.0, tmp_path / 'out')
+    assert got['right'] and got['coef30'], said
