@@ -11,12 +11,11 @@ import pytest
 import yaml
 from conftest import SHARED_REPORTS
 from generator import BEYOND, SENSOR_OWN, UNTUNED, beyond_campaign, check_beyond
+from made_up import made_up_signals, search_statistics
 
 from force_correction.core.extension import Extension
 from force_discovery.core.beyond import (
     ChannelSeries,
-    SearchSettings,
-    beyond_part,
     interpretation,
     library,
     near_tied,
@@ -164,23 +163,15 @@ def _cause_campaign(real_mass: bool, pulls: int = 8, n: int = 4000):
     rng = np.random.default_rng(2727)
     parts = []
     for k in range(pulls):
-        t = np.linspace(0.0, 0.2, n)
-        v = 3.0 * np.sin(np.pi * t / 0.2) * (1 + 0.1 * k)
-        a2 = np.gradient(v, t) + 40.0 * np.sin(2 * np.pi * 35.0 * t + k)
-        sig = {'F_move': 2000.0 * np.exp(-((t - 0.1) / 0.01) ** 2), 'F_stat': rng.normal(0, 1, n),
-               'T': 2000.0 * np.exp(-((t - 0.1) / 0.01) ** 2), 'a2': a2, 'v': v, 'x': np.cumsum(v) * (t[1] - t[0]),
-               't': t + 0.6}
-        noise = rng.normal(0.0, 0.3, n)
+        sig = made_up_signals(k, n, rng)
+        noise, v, a2 = rng.normal(0.0, 0.3, n), sig['v'], sig['a2']
         if real_mass:    # the residual after the (real) mass is v^2; undone, the mass's a2 comes back
             y, col = 4.0 * v ** 2 + noise, 0.05 * a2
         else:            # the "mass" fitted part of the v^2 structure: undone, the library explains it all
             col = 0.05 * a2
             y = 4.0 * v ** 2 - col + noise
         parts.append({'force_moving': ChannelSeries(y, sig, None, {'effective_mass': col}, {})})
-    sig0 = parts[0]['force_moving'].signals
-    scales = {s: float(np.sqrt(np.mean(sig0[s] ** 2))) for s in sig0}
-    settings = SearchSettings(scales, {})
-    return [beyond_part(p, settings) for p in parts], settings
+    return search_statistics(parts)
 
 
 @pytest.mark.parametrize('real_mass', [False, True])

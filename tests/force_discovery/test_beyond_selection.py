@@ -6,8 +6,9 @@ only the residuals and the causes' contributions."""
 from __future__ import annotations
 
 import numpy as np
+from made_up import made_up_signals, search_statistics
 
-from force_discovery.core.beyond import ChannelSeries, SearchSettings, beyond_part, search
+from force_discovery.core.beyond import ChannelSeries, search
 from force_tester_sim.core.params import load_rig
 
 FIT, HELD = [0, 2, 4, 6], [1, 3, 5, 7]
@@ -19,17 +20,11 @@ def _campaign(cause_share: float, v2: float = 0.0, pulls: int = 8, n: int = 4000
     rng = np.random.default_rng(3939)
     parts = []
     for k in range(pulls):
-        t = np.linspace(0.0, 0.2, n)
-        v = 3.0 * np.sin(np.pi * t / 0.2) * (1 + 0.1 * k)
-        a2 = np.gradient(v, t) + 40.0 * np.sin(2 * np.pi * 35.0 * t + k)
-        pulse = 2000.0 * np.exp(-((t - 0.1) / 0.01) ** 2)
-        sig = {'F_move': pulse, 'F_stat': rng.normal(0, 1, n), 'T': pulse, 'a2': a2, 'v': v,
-               'x': np.cumsum(v) * (t[1] - t[0]), 't': t + 0.6}
-        y = v2 * v ** 2 + rng.normal(0.0, 0.3, n)
-        parts.append({'force_moving': ChannelSeries(y, sig, None, {'effective_mass': cause_share * 0.05 * a2}, {})})
-    sig0 = parts[0]['force_moving'].signals
-    settings = SearchSettings({s: float(np.sqrt(np.mean(sig0[s] ** 2))) for s in sig0}, {})
-    return [beyond_part(p, settings) for p in parts], settings
+        sig = made_up_signals(k, n, rng)
+        y = v2 * sig['v'] ** 2 + rng.normal(0.0, 0.3, n)
+        parts.append({'force_moving': ChannelSeries(y, sig, None, {'effective_mass': cause_share * 0.05 * sig['a2']},
+                                                    {})})
+    return search_statistics(parts)
 
 
 def test_a_real_cause_with_no_term_beside_it_is_checked_and_says_what_it_beat():
