@@ -16,6 +16,7 @@ LOWPASS_HZ = (7000.0, 9000.0)   # every force/accel channel is low-passed alike 
 # ... scaled to the rate below 25 kHz: the raised cosine runs from 0.28 to 0.36 x the sample rate (7-9 kHz at 25 kHz),
 # so a 10 kHz record is low-passed at 2.8-3.6 kHz (below Nyquist), a 5 kHz one at 1.4-1.8 kHz
 LOWPASS_RATE_SHARE = (0.28, 0.36)
+ENCODER_SPAN_S = 2e-3   # the carriage's motion (x3, v3, a3) is a cubic Savitzky-Golay fit to the encoder over this span
 
 
 def lowpass_band(dt: float) -> tuple:
@@ -48,6 +49,48 @@ def filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
 def lowpassed(x: np.ndarray, dt: float) -> np.ndarray:
     """The zero-phase low-pass every force and accelerometer channel gets (lowpass_band) of x."""
     return filtered(np.asarray(x, float), dt)
+
+
+def encoder_window(dt: float) -> int:
+    """The samples of the encoder's Savitzky-Golay fit (ENCODER_SPAN_S, odd, at least 5)."""
+    return max(5, int(round(ENCODER_SPAN_S / dt)) | 1)
+
+
+def as_encoder(x: np.ndarray, dt: float, deriv: int = 0) -> np.ndarray:
+    """x smoothed as the encoder's carriage motion is (its deriv-th derivative): the cubic Savitzky-Golay fit over
+    ENCODER_SPAN_S."""
+    from scipy.signal import savgol_filter
+    return savgol_filter(np.asarray(x, float), encoder_window(dt), 3, deriv=deriv, delta=dt)
+
+
+def a3_response(omega: np.ndarray, dt: float) -> np.ndarray:
+    """How a3 answers the carriage's true acceleration at omega (rad/s): the encoder's second-derivative
+    Savitzky-Golay kernel over -omega^2 (1 at 0; its sines written as -2 sin^2 so low frequencies keep their
+    digits). Real: the kernel is symmetric."""
+    from scipy.signal import savgol_coeffs
+    win = encoder_window(dt)
+    c = savgol_coeffs(win, 3, deriv=2, delta=dt, use='dot')
+    omega = np.asarray(omega, float)
+    d = np.zeros_like(omega)
+    for j, cj in enumerate(c):
+        d -= 2.0 * cj * np.sin(0.5 * omega * (j - win // 2) * dt) ** 2
+    out = np.ones_like(omega)
+    nz = omega > 0
+    out[nz] = d[nz] / -(omega[nz] ** 2)
+    return out
+
+
+def like_a3(x: np.ndarray, dt: float, lead: float = 0.0) -> np.ndarray:
+    """x through the filter that makes the encoder's a3 of the carriage's acceleration (a3_response), read lead s
+    later (x(t + lead): an analog channel lags the encoder by its anti-alias filter's delay; the encoder's latched
+    counter has none). A force balance with a3 in it holds only so: what rings faster than a3 follows (m2 a2 in
+    F_move, at the cells' and the lanyard's modes) the carriage's own acceleration answers, not the current."""
+    x = np.asarray(x, float)
+    n = len(x)
+    trend = np.linspace(x[0], x[-1], n)
+    w = 2 * np.pi * np.fft.rfftfreq(n, dt)
+    y = np.fft.irfft(np.fft.rfft(x - trend) * a3_response(w, dt) * np.exp(1j * w * lead), n)
+    return y + trend + lead * (x[-1] - x[0]) / max((n - 1) * dt, dt)
 
 
 def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:
@@ -131,7 +174,6 @@ def check_quality(meta: dict, ch: dict) -> PullQuality:
 def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None, screen=None) -> Pull:
     """The prepare stage: derived signals and windows of one pull that passed check_quality(); with a data-quality
     screen (quality.screen_pull), its defects are repaired (interpolated) first and masked out of every fit."""
-    from scipy.signal import savgol_filter
     q = check_quality(meta, ch) if q is None else q
     ok = None
     if screen is not None and screen.spans:
@@ -145,10 +187,7 @@ def prepare(meta: dict, ch: dict, rig, q: Optional[PullQuality] = None, screen=N
     T = tension_from_stationary(fs, dt, fc.m1, fc.load_cell_stiffness_n_per_m, fc.c1)
     fm = filtered(np.asarray(ch['force_moving_n'], float), dt)
     a2 = filtered(np.asarray(ch['accel_axial_m_s2'], float), dt)
-    win = max(5, int(round(2e-3 / dt)) | 1)
-    x3 = savgol_filter(x, win, 3)
-    v3 = savgol_filter(x, win, 3, deriv=1, delta=dt)
-    a3 = savgol_filter(x, win, 3, deriv=2, delta=dt)
+    x3, v3, a3 = (as_encoder(x, dt, k) for k in range(3))
     cur = ch.get('motor_current_a')
     cur = None if cur is None else np.asarray(cur, float)
     peak = q.peak_n

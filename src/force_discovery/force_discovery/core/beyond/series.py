@@ -11,13 +11,16 @@ import numpy as np
 from force_tester_sim.core.extra_terms import SIN, parse_term, signals, term_values
 
 from ..budget import DRIVE_VARIANTS
-from ..friction import MOVING_M_S, STILL_M_S
-from ..prep import Pull, tension_from_stationary
+from ..friction import MOVING_M_S, STILL_M_S, drive_force_balance
+from ..prep import Pull, as_encoder, like_a3, tension_from_stationary
 from .grammar import RELATIVE, SENSORS
 
 FREE_SPAN_S = 0.5              # the sensors' free phases: at most this long before the pull and after its ringing
 EDGE_S = 0.02                  # the free phases leave the record's first and last 20 ms out (the filters' edges)
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
+ANALOG = ('F_move', 'F_stat', 'T', 'a2')   # the signals from analog channels: the current's balance filters them as
+                                          # a3 is made, at the current's fitted lead (balance_lead); v, x: encoder's
+LEAD_MAX_S = 1e-3              # the analog channels' lag behind the encoder that balance_lead fits, at most
 
 
 class ChannelSeries(NamedTuple):
@@ -48,8 +51,27 @@ def free_samples(p: Pull) -> np.ndarray:
 
 def smoothed_a2(p: Pull) -> np.ndarray:
     """a2 smoothed as the encoder's a3 is (the accelerometer's free-phase model is a3)."""
-    from scipy.signal import savgol_filter
-    return savgol_filter(p.a2, max(5, int(round(2e-3 / p.dt)) | 1), 3)
+    return as_encoder(p.a2, p.dt)
+
+
+def balance_lead(p: Pull, d, fm: np.ndarray, use: np.ndarray) -> float:
+    """The analog channels' lag behind the encoder (s; its latched counter has no anti-alias filter, the current
+    and the cells have): the lead that makes the drive's force balance, k_F i - F_move through prep.like_a3 against
+    m_c a3 + b v3, least squares on the samples use (Gauss-Newton from 0, two steps; within +/-LEAD_MAX_S). One
+    nuisance parameter a pull, like the hum's phase: its information is in the load's rise and the break."""
+    kf = d.force_per_amp_n_per_a
+    motion = d.reflected_mass_kg * p.a3 + d.viscous_damping_n_s_per_m * p.v3
+    lead = 0.0
+    for _ in range(2):
+        g = kf * like_a3(p.current, p.dt, lead) - like_a3(fm, p.dt, lead)
+        dg = np.gradient(g, p.dt)[use]
+        r = (g - motion)[use]
+        r = r - np.median(r)
+        den = float(dg @ dg)
+        if not den > 0:
+            return 0.0
+        lead = float(np.clip(lead - (dg @ r) / den, -LEAD_MAX_S, LEAD_MAX_S))
+    return lead
 
 
 def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
@@ -96,12 +118,18 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
         moving = p.v3 > MOVING_M_S
         still = np.abs(p.v3) < STILL_M_S
         use = (moving | still) & p.usable()
-
-        def balance(d):   # the current's force balance in A with the drive constants d
-            rho = p.current * d.force_per_amp_n_per_a - (d.reflected_mass_kg * p.a3
-                                                         + d.viscous_damping_n_s_per_m * p.v3 + fm_pred)
-            return (rho - np.median(rho[still & p.usable()])) / d.force_per_amp_n_per_a
+        # the balance as a3 sees the motion (prep.like_a3), at the analog channels' lag behind the encoder
+        # (balance_lead): with F_move and the current as they are, the cells' ringing (m2 a2, which the carriage's
+        # own acceleration answers, and a3 does not carry) and the lag stayed in the residual, and on the
+        # independent generator's clean campaigns an `a2` term on the current (about -m2 / k_F) was named (issue 39)
         if still.any() and moving.any():
+            lead = balance_lead(p, d, fm_pred, use)
+            cur, fm_b = like_a3(p.current, p.dt, lead), like_a3(fm_pred, p.dt, lead)
+            slow = {k: (like_a3(v, p.dt, lead) if k in ANALOG else v) for k, v in full.items()}
+
+            def balance(d):   # the current's force balance in A with the drive constants d
+                rho = cur * d.force_per_amp_n_per_a - drive_force_balance(p, d, fm_b)
+                return (rho - np.median(rho[still & p.usable()])) / d.force_per_amp_n_per_a
             y = balance(d)
             col = None if coulomb_n is None else (moving.astype(float) / kf)
             sel = np.flatnonzero(use)[::q]
@@ -110,7 +138,7 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
                 u = rig.uncertainty.u(f'drive.{key}')
                 if u > 0:
                     sys_[name] = (balance(dataclasses.replace(d, **{key: getattr(d, key) + u})) - y)[sel]
-            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in full.items()},
+            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in slow.items()},
                                                  None if col is None else col[sel], {}, sys_)
     return out
 
