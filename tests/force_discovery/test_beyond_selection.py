@@ -53,3 +53,34 @@ def test_a_term_reports_the_best_other_term_it_beat():
     assert first['term'] == 'v^2', first['term']
     alt = first['best_alternative']
     assert alt['term'] != 'v^2' and alt['held_out_margin'] > 0, alt
+
+
+def _current_campaign(step: float, v2: float = 0.0, pulls: int = 8, n: int = 4000):
+    """Motor-current series (A) with a Coulomb step of `step` while moving (the catalog's column: 1 while moving)
+    and v2 * v^2 beside it."""
+    rng = np.random.default_rng(3940)
+    parts = []
+    for k in range(pulls):
+        sig = made_up_signals(k, n, rng)
+        moving = (sig['v'] > 0.05).astype(float)
+        y = step * moving + v2 * sig['v'] ** 2 + rng.normal(0.0, 0.05, n)
+        parts.append({'force_moving': ChannelSeries(rng.normal(0.0, 0.3, n), sig, None, {}, {}),
+                      'motor_current': ChannelSeries(y, sig, moving, {}, {})})
+    return search_statistics(parts)
+
+
+def test_a_coulomb_step_that_keeps_priority_says_what_it_beat():
+    # the catalog's Coulomb step on the current against the library's best single term in its place (one parameter
+    # each); kept, it says that term and by how much the held-out SSE is lower with it (before: nothing was said)
+    parts, settings = _current_campaign(0.5)
+    res = search(parts, FIT, HELD, settings, load_rig(), ('coulomb_friction',), channels=('motor_current',))
+    assert 'coulomb_friction' not in res.demoted, res.demoted
+    beat = res.checked['coulomb_friction']
+    assert beat['held_out_margin'] > 0.0 and beat['held_out_sse_library'] > beat['held_out_sse_with_cause'], beat
+    assert beat['library_instead'] and beat['library_parameters'] == beat['model_parameters'] == 1, beat
+    # and a drag the step only looks like: the step is withheld, the term named says what it beat
+    parts, settings = _current_campaign(0.0, v2=0.05)
+    res = search(parts, FIT, HELD, settings, load_rig(), ('coulomb_friction',), channels=('motor_current',))
+    assert 'coulomb_friction' in res.demoted and 'coulomb_friction' not in res.checked, (res.demoted, res.checked)
+    first = res.terms[0].as_dict()
+    assert first['term'] == 'v^2' and first['best_alternative']['held_out_margin'] > 0, first

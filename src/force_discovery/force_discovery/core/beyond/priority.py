@@ -36,7 +36,7 @@ def cause_check(fit: Sequence[ChannelStats], held: Sequence[ChannelStats], model
     (CAUSE_PARAMS: the cause's), the cause is withheld."""
     n_prod = sum(1 for nm in fit[0].names if not nm.endswith(SIN))
     fit0, held0 = [undone(st, cause) for st in fit], [undone(st, cause) for st in held]
-    found0, _, model0 = search_channel('force_moving', fit0, held0, settings, rig, False)
+    found0, _, model0, _ = search_channel('force_moving', fit0, held0, settings, rig, False)
     n_cause = CAUSE_PARAMS.get(cause, 1)
     k_cat = len(model.prod) + (model.sin is not None) + n_cause
     k_lib = len(model0.prod) + (model0.sin is not None)

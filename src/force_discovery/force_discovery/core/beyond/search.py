@@ -41,10 +41,12 @@ def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int],
         if not all(ch in parts[j].stats for j in (*fit, *held)):
             continue
         fit_st, held_st = [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held]
-        found, why, model = search_channel(ch, fit_st, held_st, settings, rig,
-                                           COULOMB in named and ch == 'motor_current')
+        found, why, model, kept = search_channel(ch, fit_st, held_st, settings, rig,
+                                                 COULOMB in named and ch == 'motor_current')
         if why is not None:
             demoted[COULOMB] = why
+        if kept is not None:   # the Coulomb step kept its priority on the current: what the library did in its place
+            checked[COULOMB] = kept
         if ch == 'force_moving' and not sensors:   # a sensor's own non-linearity, carried by T or m2 a2 (own.py)
             have = {(t.channel, t.term) for t in terms + within}
             found = [t for t in (own_reading(t, factors, rig) for t in found) if t.channel == ch

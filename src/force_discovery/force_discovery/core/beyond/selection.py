@@ -192,6 +192,7 @@ class ChannelResult(NamedTuple):
     terms: List[Term]           # named and within tolerance, in the order they joined
     demoted: Optional[str]      # why the catalog's Coulomb step does not fit, or None
     model: Model                # the final model
+    beat: Optional[dict] = None  # the Coulomb step kept: the library's best in its place, and by how much
 
 
 def jackknife(stats: Sequence[ChannelStats], model: Model, n_prod: int) -> np.ndarray:
@@ -230,7 +231,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
 
     def sse_held(m):
         return sse_each(sh[m.cat], m, n_prod)
-    demoted = None
+    demoted = kept = None
     if use_cat:   # the catalog keeps priority unless one library term (one parameter, as it) beats it
         m_cat = fitted((), None, True)
         base = np.array([st.yy for st in held])
@@ -242,6 +243,11 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             use_cat = False
             demoted = (f'{names[best]} on {channel} lowers the held-out residual by {100 * r_lib:.1f} %, the catalog '
                        f'cause by {100 * r_cat:.1f} % (one parameter each): the nearest catalog cause does not fit')
+        else:   # kept: what it beat, as priority.cause_check says of a force-model cause
+            lib, cat = total(sse_held(m_lib)), total(sse_held(m_cat))
+            kept = {'library_instead': names[best], 'library_parameters': 1, 'model_parameters': 1,
+                    'held_out_sse_library': lib, 'held_out_sse_with_cause': cat,
+                    'held_out_margin': (lib - cat) / lib if lib > 0 else 0.0}
     model = fitted((), None, use_cat) if use_cat else Model()
     found = []
     band = channel_band(channel, rig)
@@ -304,7 +310,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
                           abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives,
                           beat))
-    return ChannelResult(found, demoted, model)
+    return ChannelResult(found, demoted, model, kept)
 
 
 def relative_part(channel: str, rig) -> Optional[Tuple[str, float]]:
