@@ -55,7 +55,7 @@ def test_a_term_reports_the_best_other_term_it_beat():
     assert alt['term'] != 'v^2' and alt['held_out_margin'] > 0, alt
 
 
-def _current_campaign(step: float, v2: float = 0.0, pulls: int = 8, n: int = 4000):
+def _current_campaign(step: float, v2: float = 0.0, pulls: int = 8, n: int = 1500):
     """Motor-current series (A) with a Coulomb step of `step` while moving (the catalog's column: 1 while moving)
     and v2 * v^2 beside it."""
     rng = np.random.default_rng(3940)
