@@ -2,6 +2,7 @@
 stages fit (T, the low-passed channels, the carriage motion from the encoder, the analysis window). ROS-free."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Optional
 
@@ -65,19 +66,26 @@ def as_encoder(x: np.ndarray, dt: float, deriv: int = 0) -> np.ndarray:
 
 def a3_response(omega: np.ndarray, dt: float) -> np.ndarray:
     """How a3 answers the carriage's true acceleration at omega (rad/s): the encoder's second-derivative
-    Savitzky-Golay kernel over -omega^2 (1 at 0; its sines written as -2 sin^2 so low frequencies keep their
-    digits). Real: the kernel is symmetric."""
+    Savitzky-Golay kernel over -omega^2 (1 at 0; the kernel is symmetric, so its response is real, written with
+    -2 sin^2 so low frequencies keep their digits)."""
     from scipy.signal import savgol_coeffs
     win = encoder_window(dt)
     c = savgol_coeffs(win, 3, deriv=2, delta=dt, use='dot')
     omega = np.asarray(omega, float)
     d = np.zeros_like(omega)
-    for j, cj in enumerate(c):
-        d -= 2.0 * cj * np.sin(0.5 * omega * (j - win // 2) * dt) ** 2
+    for k in range(1, win // 2 + 1):   # taps +k and -k alike; the centre tap adds nothing (sin 0)
+        d -= 2.0 * (c[win // 2 + k] + c[win // 2 - k]) * np.sin(0.5 * omega * k * dt) ** 2
     out = np.ones_like(omega)
     nz = omega > 0
     out[nz] = d[nz] / -(omega[nz] ** 2)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def a3_filter(n: int, dt: float) -> tuple:
+    """(omega, a3_response) on the rfft grid of n samples at dt: the same for every pull of a campaign."""
+    w = 2 * np.pi * np.fft.rfftfreq(n, dt)
+    return w, a3_response(w, dt)
 
 
 def like_a3(x: np.ndarray, dt: float, lead: float = 0.0) -> np.ndarray:
@@ -87,9 +95,11 @@ def like_a3(x: np.ndarray, dt: float, lead: float = 0.0) -> np.ndarray:
     F_move, at the cells' and the lanyard's modes) the carriage's own acceleration answers, not the current."""
     x = np.asarray(x, float)
     n = len(x)
+    from scipy.fft import next_fast_len
     trend = np.linspace(x[0], x[-1], n)
-    w = 2 * np.pi * np.fft.rfftfreq(n, dt)
-    y = np.fft.irfft(np.fft.rfft(x - trend) * a3_response(w, dt) * np.exp(1j * w * lead), n)
+    m = next_fast_len(n, real=True)   # zero-padded (x - trend ends at 0) to a length the FFT factors fast
+    w, h = a3_filter(m, float(dt))
+    y = np.fft.irfft(np.fft.rfft(x - trend, m) * (h * np.exp(1j * w * lead) if lead else h), m)[:n]
     return y + trend + lead * (x[-1] - x[0]) / max((n - 1) * dt, dt)
 
 

@@ -63,7 +63,7 @@ def balance_lead(p: Pull, d, fm: np.ndarray, use: np.ndarray) -> float:
     motion = d.reflected_mass_kg * p.a3 + d.viscous_damping_n_s_per_m * p.v3
     lead = 0.0
     for _ in range(2):
-        g = kf * like_a3(p.current, p.dt, lead) - like_a3(fm, p.dt, lead)
+        g = like_a3(kf * p.current - fm, p.dt, lead)
         dg = np.gradient(g, p.dt)[use]
         r = (g - motion)[use]
         r = r - np.median(r)
@@ -125,7 +125,8 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
         if still.any() and moving.any():
             lead = balance_lead(p, d, fm_pred, use)
             cur, fm_b = like_a3(p.current, p.dt, lead), like_a3(fm_pred, p.dt, lead)
-            slow = {k: (like_a3(v, p.dt, lead) if k in ANALOG else v) for k, v in full.items()}
+            slow = {k: (fm_b if k == 'F_move' else like_a3(v, p.dt, lead) if k in ANALOG else v)
+                    for k, v in full.items()}   # F_move is the prediction fm_pred (signals above)
 
             def balance(d):   # the current's force balance in A with the drive constants d
                 rho = cur * d.force_per_amp_n_per_a - drive_force_balance(p, d, fm_b)
