@@ -6,14 +6,15 @@ import sys
 
 NOT_LOADED = ('rosbags.rosbag2', 'sqlite3', 'apsw', 'socket', 'uuid', 'rclpy', 'scipy', 'matplotlib', 'dask')
 
+CODE = """import json, sys
+import ft_cli.main, ft_cli.commands.bag, force_correction.offline.cli, force_correction.offline.pipeline
+import force_correction.offline.bag
+print(json.dumps(sorted(sys.modules)))
+"""
+
 
 def test_bag_correct_imports_nothing_it_does_not_use():
-    code = ('import json, sys\n'
-            'import ft_cli.main, ft_cli.commands.bag, force_correction.offline.cli, force_correction.offline.pipeline\n'
-            'import force_correction.offline.bag\n'
-            f'print(json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in {[m.split(".")[0] for m in NOT_LOADED]!r}'
-            '                        or m in sys.modules and m.startswith("rosbags.rosbag2"))))')
-    out = subprocess.run([sys.executable, '-c', code], check=True, capture_output=True, text=True).stdout
-    loaded = json.loads(out)
+    loaded = json.loads(subprocess.run([sys.executable, '-c', CODE], check=True, capture_output=True,
+                                       text=True).stdout)
     bad = [m for m in loaded if any(m == n or m.startswith(n + '.') for n in NOT_LOADED)]
     assert not bad, f'loaded by the bag correct command at start-up: {bad}'

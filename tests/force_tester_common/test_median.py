@@ -1,4 +1,5 @@
-"""events.median: np.median's value bit for bit (a zero's sign aside), on the records it is given and on orders that defeat its bracket."""
+"""events.median: np.median's value bit for bit (a zero's sign aside), on the records it is given and on orders
+that defeat its bracket."""
 import numpy as np
 import pytest
 

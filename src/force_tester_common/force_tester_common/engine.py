@@ -113,7 +113,7 @@ def _probe(address: str, timeout: float) -> None:
     host, _, port = rest.rpartition(':')
     if scheme != 'tcp' or not port.isdigit():
         return   # another transport, or no port: Dask's own connect judges it
-    import socket   # here: a command that never probes a scheduler (./ft bag correct) does not pay for it
+    import socket  # here: a command that never probes a scheduler (./ft bag correct) does not pay for it
     try:
         socket.create_connection((host.strip('[]') or '127.0.0.1', int(port)), timeout=timeout).close()
     except OSError as exc:

@@ -123,6 +123,6 @@ def tell(lines: list, warnings: list | None = None) -> None:
     if warnings is not None:
         warnings.extend(lines)
     elif lines:
-        import logging   # here: most commands pass a list, and logging costs a command's start-up ~10 ms
+        import logging  # here: most commands pass a list, and logging costs a command's start-up ~10 ms
         for line in lines:
             logging.getLogger('force_tester.partial').warning(line)
