@@ -45,13 +45,14 @@ _BRACKET = 48
 
 
 def median(x: np.ndarray) -> np.float64:
-    """np.median of a 1-D array of finite floats, the same value bit for bit (of a median of zeros, the sign may
-    differ: -0.0 == 0.0), in a fifth of its time on a pull:
-    the median's rank is bracketed by two values of an evenly spaced sample of x, the samples below the bracket are
-    counted, and only those within it are partially sorted (np.median partially sorts all of x, 2-3 ms on 100,000
-    samples). When the bracket misses the rank (x in an odd order), np.median itself."""
+    """np.median of a 1-D float64 array, the same value bit for bit (of a median of zeros, the sign may differ:
+    -0.0 == 0.0), in a fifth of its time on a pull: the median's rank is bracketed by two values of an evenly spaced
+    sample of x, the samples below the bracket are counted, and only those within it are partially sorted
+    (np.median partially sorts all of x, 2-3 ms on 100,000 samples). np.median itself for anything else: a short
+    or other array, one with a NaN (its median is NaN), or when the bracket misses the rank (x in an odd order)."""
+    x = np.asarray(x)
     n = x.size
-    if n < _SELECT_MIN:
+    if n < _SELECT_MIN or x.ndim != 1 or x.dtype != np.float64 or np.isnan(x).any():
         return np.median(x)
     s = np.sort(x[::n // 1024])
     m = s.size // 2
