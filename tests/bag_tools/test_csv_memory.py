@@ -12,7 +12,7 @@ from bag_tools.core.daqfiles import read_csv
 def test_csv_columns_without_pandas_and_nulls_as_nan(tmp_path):
     path = tmp_path / 'pull.csv'
     rows = ['time_s,force_moving_n,force_stationary_n'] + [
-        f'{i * 2e-5!r},{float(np.sin(i / 7.0))!r},{i if i % 5 else ""}' for i in range(300_000)]
+        f'{i * 2e-5!r},{float(np.sin(i / 7.0))!r},{i if i % 5 else ""}' for i in range(120_000)]
     path.write_text('\n'.join(rows) + '\n')
     code = ('import json, sys\n'
             'from pathlib import Path\n'
@@ -24,7 +24,7 @@ def test_csv_columns_without_pandas_and_nulls_as_nan(tmp_path):
     assert not pandas_loaded, 'reading a CSV imported pandas'
     assert owned, "the columns still point into pyarrow's buffers"
     cols = read_csv(path)
-    i = np.arange(300_000)
+    i = np.arange(120_000)
     assert np.array_equal(cols['force_moving_n'], np.sin(i / 7.0))
     want = np.where(i % 5 == 0, np.nan, i.astype(float))
     assert np.array_equal(cols['force_stationary_n'], want, equal_nan=True)
