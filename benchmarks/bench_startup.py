@@ -6,7 +6,8 @@ corrected by `./ft bag correct BAG OUT` in a new process, --reps times. Printed:
 time and how many times faster than real time; `./ft env` (the script's up-to-date checks and an
 interpreter, nothing imported); the same correction in this process after a first call (the
 arithmetic and the I/O alone); and the start-up share, 1 - in process / whole process.
-Target: >= 150x real time as a whole process.
+Target: >= 150x real time as a whole process. Each run's CPU (user + system of ./ft and what it ran) is printed
+too: on a shared machine it moves less with the load than the wall time.
 
 --baseline REV also checks REV out into a git worktree under /tmp (sharing .venv, with its own colcon build)
 and runs its `./ft bag correct` alternately with this one's, so both are measured side by side in one run on the
@@ -24,6 +25,7 @@ import argparse
 import hashlib
 import os
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -134,11 +136,13 @@ def bench_setup(revs: dict, runs: int) -> None:
               f'{ratio(lambda r: r[1]):.1f}x, all {ratio(sum):.1f}x')
 
 
-def whole(ft: Path, bag: Path, out: Path) -> float:
+def whole(ft: Path, bag: Path, out: Path) -> tuple:
+    """(wall, CPU: user + system of ./ft and everything it ran) of one `./ft bag correct`, s."""
     shutil.rmtree(out, ignore_errors=True)
-    t0 = time.perf_counter()
+    r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     subprocess.run([str(ft), 'bag', 'correct', str(bag), str(out)], check=True, capture_output=True)
-    return time.perf_counter() - t0
+    wall, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime
 
 
 def main() -> int:
@@ -158,12 +162,15 @@ def main() -> int:
     if args.baseline:
         trees[args.baseline] = baseline_tree(args.baseline)
     times = {name: [] for name in trees}
+    cpu = {name: [] for name in trees}
     env_times = {name: [] for name in trees}
     with tempfile.TemporaryDirectory() as tmp:
         for rep in range(args.reps):
             print(f'run {rep + 1} of {args.reps}', file=sys.stderr)
             for name, tree in trees.items():   # alternately: both see the same machine state
-                times[name].append(whole(tree / 'ft', bag, Path(tmp) / 'out'))
+                wall, used = whole(tree / 'ft', bag, Path(tmp) / 'out')
+                times[name].append(wall)
+                cpu[name].append(used)
                 t0 = time.perf_counter()
                 subprocess.run([str(tree / 'ft'), 'env'], check=True, capture_output=True)
                 env_times[name].append(time.perf_counter() - t0)
@@ -184,11 +191,14 @@ def main() -> int:
         t_env = statistics.median(env_times[name])
         print(f'  {name:<12} {t:6.2f} s  {seconds / t:5.0f}x real time   `./ft env` {t_env:.2f} s'
               f'   start-up share {1 - t_in / t:4.0%}   (runs: {", ".join(f"{x:.2f}" for x in times[name])})')
+        print(f'  {"":<12} CPU (user + system, the whole process) median {statistics.median(cpu[name]):.3f} s, '
+              f'min {min(cpu[name]):.3f} s')
     print(f'  in this process, after a first call: {t_in:.2f} s, {seconds / t_in:.0f}x real time '
           '(the arithmetic and the I/O alone)')
     if args.baseline:
         ratio = statistics.median(times[args.baseline]) / statistics.median(times['this tree'])
-        print(f'  {args.baseline} / this tree: {ratio:.2f}x')
+        print(f'  {args.baseline} / this tree: {ratio:.2f}x wall, '
+              f'{statistics.median(cpu[args.baseline]) / statistics.median(cpu["this tree"]):.2f}x CPU (medians)')
     return 0
 
 

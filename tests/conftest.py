@@ -26,6 +26,9 @@ from pathlib import Path
 import pytest
 from kinds import FAST_S, MARKED_KINDS, kind_of, take, timed
 
+from force_tester_common.core.mapping import INLINE
+from force_tester_common.engine import SCHEDULER_ENV
+
 HERE = Path(__file__).resolve().parent
 SKIPS_ALLOWED = HERE / 'skips_allowed.txt'
 SOLO = 'solo'         # the xdist group of the tests that cannot share the machine with each other
@@ -66,6 +69,11 @@ def pytest_configure(config):
     # a worker's ROS domain for the tests that start a graph without a domain fixture: never another worker's
     os.environ['ROS_DOMAIN_ID'] = str(_domain_range()[-1])
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    # the per-pull work of every campaign command a test runs (in this process or a CLI it starts) inline unless
+    # the test asks for a scheduler: the embedded cluster's two worker processes cost a CLI call 7 s of CPU more
+    # (27 s instead of 5 s for `bag import` of 3 pulls on a loaded machine). Inline is the same function on the same
+    # item; the tests of the default path (`embedded_cluster`) and of Dask clusters give their own.
+    os.environ.setdefault(SCHEDULER_ENV, INLINE)
     # the expensive steps, timed where they are defined (test modules import the timed names)
     import force_discovery.core.pipeline as pipeline
     import force_tester_sim.core.campaign as campaign
@@ -205,6 +213,13 @@ def isolated_ros_env(mp: pytest.MonkeyPatch) -> int:
     mp.setenv('ROS_DOMAIN_ID', str(domain))
     mp.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     return domain
+
+
+@pytest.fixture
+def embedded_cluster(monkeypatch):
+    """The default path of the campaign engine: no scheduler named, so the embedded LocalCluster (the suite runs
+    the per-pull work inline otherwise, pytest_configure)."""
+    monkeypatch.delenv(SCHEDULER_ENV, raising=False)
 
 
 @pytest.fixture

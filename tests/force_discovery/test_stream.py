@@ -160,51 +160,13 @@ def test_memory_is_flat_in_the_number_of_pulls(tmp_path, monkeypatch):
     assert len(live_large) >= 2 * 16 and max(live_small + live_large) == 0, (live_small, live_large)
 
 
-@pytest.mark.slow
-def test_a_corrupt_pull_is_named_and_dask_workers_give_the_same_report(tmp_path, capsys):
-    """A campaign folder with one unreadable pull file: discover leaves it out, names it in report.json, report.md
-    and on stderr, and finishes. Run on a distributed.LocalCluster of 2 worker processes (real workers: they import
-    the workspace's packages from this venv) it gives the report it gives inline, number for number."""
-    from distributed import LocalCluster
-
-    from bag_tools.core.daq import write_campaign
-    camp = make_campaign({'effective_mass': {'mass_kg': 1.4}}, seed=63, sets=(3,), pulls=7)
-    write_campaign(tmp_path / 'camp', camp)
-    bad = camp[2][0]['file']
-    (tmp_path / 'camp' / bad).write_text('time_s,force_moving_n\n0.0,1.0\nnot a number,oops\n')
-    assert discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'inline', '--scheduler', 'inline')) == 0
-    err = capsys.readouterr().err
-    assert f'pull {bad} left out' in err, err
-    inline = json.loads((tmp_path / 'inline' / 'report.json').read_text())
-    assert [f['pull'] for f in inline['failed_pulls']] == [bad] and 'line 3' in inline['failed_pulls'][0]['error']
-    assert inline['cause'] == 'effective_mass' and bad not in inline['fitted_pulls'] + inline['held_out_pulls']
-    assert len(inline['fitted_pulls'] + inline['held_out_pulls']) == 6
-    assert bad in (tmp_path / 'inline' / 'report.md').read_text()
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        assert discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'dask', '--scheduler',
-                                       cluster.scheduler_address)) == 0
-    on_dask = json.loads((tmp_path / 'dask' / 'report.json').read_text())
-    assert '2 workers' in on_dask['scheduler'] and inline['scheduler'] == 'inline'
-    assert _differences(inline, on_dask, rtol=1e-12, skip={'scheduler', 'plots'}) == []
-
-
-@pytest.mark.slow
-def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
-    from bag_tools.core.daq import write_campaign
-    write_campaign(tmp_path / 'camp', make_campaign(None, seed=64, sets=(2,), pulls=4))
-    t0 = time.monotonic()
-    code = discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'o', '--scheduler', 'tcp://127.0.0.1:9'))
-    assert code == 2 and time.monotonic() - t0 < 10
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and 'tcp://127.0.0.1:9' in err[0] and err[0].startswith('./ft discover: error: '), err
-    assert not (tmp_path / 'o' / 'report.json').exists()
-
-
-@pytest.mark.slow
-def test_a_worker_killed_mid_discovery_is_rerun_and_the_report_says_so(tmp_path):
-    """discover on a LocalCluster of 2 worker processes; one worker is SIGKILLed while it runs a pull. Dask reruns
-    that worker's pulls; the report lists them as rerun (retried_pulls, report.md) and is otherwise the inline
-    report, number for number."""
+@pytest.fixture(scope='module')
+def on_dask(tmp_path_factory):
+    """One campaign folder with one unreadable pull file, discovered inline and then on a distributed.LocalCluster of
+    2 worker processes (real workers: they import the workspace's packages from this venv), one of which is
+    SIGKILLed while it runs a pull: the two tests below assert on these two reports (one cluster, one inline run)."""
+    import contextlib
+    import io
     import os
     import signal
     import threading
@@ -212,10 +174,15 @@ def test_a_worker_killed_mid_discovery_is_rerun_and_the_report_says_so(tmp_path)
     from distributed import Client, LocalCluster
 
     from bag_tools.core.daq import write_campaign
-    write_campaign(tmp_path / 'camp', make_campaign({'effective_mass': {'mass_kg': 1.4}}, seed=65, sets=(3,), pulls=6))
-    assert discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'inline', '--scheduler', 'inline')) == 0
-    inline = json.loads((tmp_path / 'inline' / 'report.json').read_text())
-    killed = []
+    tmp = tmp_path_factory.mktemp('on_dask')
+    camp = make_campaign({'effective_mass': {'mass_kg': 1.4}}, seed=63, sets=(3,), pulls=7)
+    write_campaign(tmp / 'camp', camp)
+    bad = camp[2][0]['file']
+    (tmp / 'camp' / bad).write_text('time_s,force_moving_n\n0.0,1.0\nnot a number,oops\n')
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        inline_rc = discover_cmd.main(_args(tmp / 'camp', '--out', tmp / 'inline', '--scheduler', 'inline'))
+    killed, dask_err = [], io.StringIO()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client:
         pids = client.run(os.getpid)
@@ -231,14 +198,57 @@ def test_a_worker_killed_mid_discovery_is_rerun_and_the_report_says_so(tmp_path)
         watcher = threading.Thread(target=kill_a_busy_worker, daemon=True)
         watcher.start()
         try:
-            assert discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'dask', '--scheduler',
-                                           cluster.scheduler_address)) == 0
+            with contextlib.redirect_stderr(dask_err):
+                dask_rc = discover_cmd.main(_args(tmp / 'camp', '--out', tmp / 'dask', '--scheduler',
+                                                  cluster.scheduler_address))
         finally:
             done.set()
             watcher.join()
-    assert killed, 'no worker was busy long enough to be killed'
-    on_dask = json.loads((tmp_path / 'dask' / 'report.json').read_text())
-    assert on_dask['retried_pulls'] and inline['retried_pulls'] == []
-    assert set(on_dask['retried_pulls']) <= set(on_dask['fitted_pulls'] + on_dask['held_out_pulls'])
-    assert 'Rerun because the worker running them died' in (tmp_path / 'dask' / 'report.md').read_text()
-    assert _differences(inline, on_dask, rtol=1e-12, skip={'scheduler', 'plots', 'retried_pulls'}) == []
+    return {'tmp': tmp, 'bad': bad, 'inline_rc': inline_rc, 'inline_err': err.getvalue(), 'dask_rc': dask_rc,
+            'dask_err': dask_err.getvalue(), 'killed': killed,
+            'inline': json.loads((tmp / 'inline' / 'report.json').read_text()),
+            'on_dask': json.loads((tmp / 'dask' / 'report.json').read_text())}
+
+
+@pytest.mark.slow
+def test_a_corrupt_pull_is_named_and_dask_workers_give_the_same_report(on_dask):
+    """A campaign folder with one unreadable pull file: discover leaves it out, names it in report.json, report.md
+    and on stderr, and finishes. Run on a distributed.LocalCluster of 2 worker processes it gives the report it
+    gives inline, number for number (but for the pulls rerun after the kill of test_a_worker_killed_...)."""
+    tmp, bad, inline, dask = on_dask['tmp'], on_dask['bad'], on_dask['inline'], on_dask['on_dask']
+    assert on_dask['inline_rc'] == 0 and on_dask['dask_rc'] == 0, (on_dask['inline_err'], on_dask['dask_err'])
+    assert f'pull {bad} left out' in on_dask['inline_err'], on_dask['inline_err']
+    assert f'pull {bad} left out' in on_dask['dask_err'], on_dask['dask_err']
+    assert [f['pull'] for f in inline['failed_pulls']] == [bad] and 'line 3' in inline['failed_pulls'][0]['error']
+    assert inline['cause'] == 'effective_mass' and bad not in inline['fitted_pulls'] + inline['held_out_pulls']
+    assert len(inline['fitted_pulls'] + inline['held_out_pulls']) == 6
+    assert bad in (tmp / 'inline' / 'report.md').read_text()
+    assert '2 workers' in dask['scheduler'] and inline['scheduler'] == 'inline'
+    assert _differences(inline, dask, rtol=1e-12, skip={'scheduler', 'plots', 'retried_pulls'}) == []
+
+
+@pytest.mark.slow
+def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path, capsys):
+    from bag_tools.core.daq import write_campaign
+    write_campaign(tmp_path / 'camp', make_campaign(None, seed=64, sets=(2,), pulls=4))
+    t0 = time.monotonic()
+    code = discover_cmd.main(_args(tmp_path / 'camp', '--out', tmp_path / 'o', '--scheduler', 'tcp://127.0.0.1:9'))
+    assert code == 2 and time.monotonic() - t0 < 10
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'tcp://127.0.0.1:9' in err[0] and err[0].startswith('./ft discover: error: '), err
+    assert not (tmp_path / 'o' / 'report.json').exists()
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_discovery_is_rerun_and_the_report_says_so(on_dask):
+    """discover on a LocalCluster of 2 worker processes; one worker is SIGKILLed while it runs a pull (on_dask).
+    Dask reruns that worker's pulls; the report lists them as rerun (retried_pulls, report.md, stderr) and is
+    otherwise the inline report, number for number."""
+    inline, dask = on_dask['inline'], on_dask['on_dask']
+    assert on_dask['dask_rc'] == 0, on_dask['dask_err']
+    assert on_dask['killed'], 'no worker was busy long enough to be killed'
+    assert dask['retried_pulls'] and inline['retried_pulls'] == []
+    assert set(dask['retried_pulls']) <= set(dask['fitted_pulls'] + dask['held_out_pulls'] + [on_dask['bad']])
+    assert f'rerun after a worker died: {", ".join(dask["retried_pulls"])}' in on_dask['dask_err']
+    assert 'Rerun because the worker running them died' in (on_dask['tmp'] / 'dask' / 'report.md').read_text()
+    assert _differences(inline, dask, rtol=1e-12, skip={'scheduler', 'plots', 'retried_pulls'}) == []

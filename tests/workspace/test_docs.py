@@ -6,9 +6,11 @@ it; the CLI reference is what tools/cli_reference.py writes; docs/tests.md names
 the rig YAML and the channel map, and the catalog page, name every key, cause and band the code defines."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
+import sys
 from functools import lru_cache
 
 import cli_reference
@@ -196,10 +198,22 @@ def test_the_readme_demo_table_is_laid_out_as_the_demo_prints_it():
 # ----------------------------------------------------------------------------- the CLI reference
 @pytest.mark.slow
 def test_the_cli_reference_is_current():
-    """docs/reference-cli*.md are what `python3 tools/cli_reference.py` writes from today's --help texts."""
-    pages = cli_reference.render(help_text)
+    """docs/reference-cli*.md are what `python3 tools/cli_reference.py` writes from today's --help texts, each a
+    help text (it starts with its usage line), not the command's work. The texts are taken in one interpreter
+    (`--here`: the benchmarks' imports once, not one `./ft` per command); `./ft WORDS --help` itself is run for
+    every command line the docs show (test_a_documented_command_line_parses)."""
+    res = subprocess.run([sys.executable, str(ROOT / 'tools' / 'cli_reference.py'), '--here', '--json'],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300,
+                         env=dict(os.environ, COLUMNS=cli_reference.COLUMNS))
+    assert res.returncode == 0, res.stderr[-2000:]
+    pages = json.loads(res.stdout)
     assert {'reference-cli.md', 'reference-cli-bag.md', 'reference-cli-bench.md'} <= set(pages)
     assert len(pages['reference-cli.md'].split('```')) > 2 * len(NAMES)
+    block = re.compile(r'^## (\./ft[^\n]*)\n\n```\n(.*?)```', re.M | re.S)
+    sections = [m for page in pages.values() for m in block.finditer(page)]
+    assert len(sections) > 40
+    for m in sections:
+        assert m.group(2).startswith('usage: '), (m.group(1), m.group(2)[:300])
     stale = cli_reference.stale(pages)
     assert not stale, f'not current: {stale}; run python3 tools/cli_reference.py'
 

@@ -39,39 +39,6 @@ def test_marked_slow():
 '''
 
 
-def run_sample(tmp_path: Path, *args: str, ci: bool) -> subprocess.CompletedProcess:
-    """pytest on SAMPLE in its own folder with this suite's conftest.py as a plugin."""
-    (tmp_path / 'test_sample.py').write_text(SAMPLE)
-    env = {**os.environ, 'PYTHONPATH': f"{ROOT / 'tests'}:{os.environ.get('PYTHONPATH', '')}"}
-    env.pop('PYTEST_XDIST_WORKER', None)
-    env.pop('PYTEST_XDIST_WORKER_COUNT', None)
-    env['CI'] = 'true' if ci else 'false'
-    return subprocess.run([sys.executable, '-m', 'pytest', '-p', 'conftest', '-p', 'no:cacheprovider',
-                           '--rootdir', str(tmp_path), str(tmp_path / 'test_sample.py'), *args],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
-
-
-@pytest.mark.slow
-def test_a_skip_fails_the_run_under_ci_unless_allowed(tmp_path):
-    out = tmp_path / 'durations.json'
-    quiet = run_sample(tmp_path, '--record-durations', str(out), ci=False)
-    assert quiet.returncode == 0, quiet.stdout[-2000:]
-    ci = run_sample(tmp_path, ci=True)
-    assert ci.returncode == 1, ci.stdout[-2000:]
-    assert 'not in tests/skips_allowed.txt' in ci.stdout and 'test_skips: nothing to run here' in ci.stdout
-    # the durations record: every test, its kind and tier, the seconds spent making its campaign
-    rec = {r['nodeid'].split('::')[-1]: r for r in json.loads(out.read_text())}
-    assert set(rec) == {'test_passes', 'test_skips', 'test_talks_over_dds', 'test_makes_a_campaign',
-                        'test_marked_slow'}
-    assert rec['test_talks_over_dds']['kind'] == 'ros' and rec['test_talks_over_dds']['slow']
-    assert rec['test_passes']['kind'] == 'rest' and not rec['test_passes']['slow']
-    assert rec['test_marked_slow']['slow'] and rec['test_skips']['outcome'] == 'skipped'
-    assert 0 < rec['test_makes_a_campaign']['campaign'] <= rec['test_makes_a_campaign']['seconds']
-    # the fast tier leaves out the slow and the ros test
-    fast = run_sample(tmp_path, '-m', 'not slow', '-q', ci=False)
-    assert '2 passed, 1 skipped, 2 deselected' in fast.stdout, fast.stdout
-
-
 GROUPED = '''
 import os
 import pytest
@@ -94,20 +61,56 @@ def test_on_its_own(i):
 '''
 
 
-@pytest.mark.slow
-def test_a_module_fixture_keeps_its_tests_on_one_worker(tmp_path):
-    """Under ./ft test's --dist loadgroup the tests that share a module's fixture run on one worker (it is made
-    once), while both workers run tests (the grouped ones come first: spread, both workers would have some)."""
-    (tmp_path / 'test_grouped.py').write_text(GROUPED)
+def run_inner(folder: Path, *args: str, ci: bool) -> subprocess.CompletedProcess:
+    """pytest in FOLDER (SAMPLE and GROUPED written there) with this suite's conftest.py as a plugin."""
+    (folder / 'test_sample.py').write_text(SAMPLE)
+    (folder / 'test_grouped.py').write_text(GROUPED)
     env = {**os.environ, 'PYTHONPATH': f"{ROOT / 'tests'}:{os.environ.get('PYTHONPATH', '')}",
-           'WORKERS_DIR': str(tmp_path)}
+           'WORKERS_DIR': str(folder), 'CI': 'true' if ci else 'false'}
     for k in ('PYTEST_XDIST_WORKER', 'PYTEST_XDIST_WORKER_COUNT'):
         env.pop(k, None)
-    r = subprocess.run([sys.executable, '-m', 'pytest', '-p', 'conftest', '-p', 'no:cacheprovider', '-n', '2',
-                        '--dist', 'loadgroup', '--rootdir', str(tmp_path), str(tmp_path / 'test_grouped.py')],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stdout[-2000:]
-    grouped, alone = ((tmp_path / n).read_text().split() for n in ('grouped', 'alone'))
+    return subprocess.run([sys.executable, '-m', 'pytest', '-p', 'conftest', '-p', 'no:cacheprovider',
+                           '--rootdir', str(folder), *args], cwd=folder, env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.fixture(scope='module')
+def inner_runs(tmp_path_factory):
+    """Two inner runs, each paying pytest's and conftest's start-up once: SAMPLE and GROUPED as ./ft test runs
+    them (`-n 2 --dist loadgroup`, CI unset, the durations recorded), and SAMPLE's fast tier under CI=true."""
+    folder = tmp_path_factory.mktemp('inner')
+    out = folder / 'durations.json'
+    quiet = run_inner(folder, '-n', '2', '--dist', 'loadgroup', '--record-durations', str(out), 'test_sample.py',
+                      'test_grouped.py', ci=False)
+    ci_fast = run_inner(folder, '-m', 'not slow', 'test_sample.py', ci=True)
+    return {'folder': folder, 'quiet': quiet, 'ci_fast': ci_fast, 'durations': out}
+
+
+@pytest.mark.slow
+def test_a_skip_fails_the_run_under_ci_unless_allowed(inner_runs):
+    quiet, ci = inner_runs['quiet'], inner_runs['ci_fast']
+    assert quiet.returncode == 0, quiet.stdout[-2000:]
+    assert ci.returncode == 1, ci.stdout[-2000:]
+    assert 'not in tests/skips_allowed.txt' in ci.stdout and 'test_skips: nothing to run here' in ci.stdout
+    # the durations record: every test, its kind and tier, the seconds spent making its campaign
+    rec = {r['nodeid'].split('::')[-1]: r for r in json.loads(inner_runs['durations'].read_text())
+           if r['nodeid'].startswith('test_sample.py::')}
+    assert set(rec) == {'test_passes', 'test_skips', 'test_talks_over_dds', 'test_makes_a_campaign',
+                        'test_marked_slow'}
+    assert rec['test_talks_over_dds']['kind'] == 'ros' and rec['test_talks_over_dds']['slow']
+    assert rec['test_passes']['kind'] == 'rest' and not rec['test_passes']['slow']
+    assert rec['test_marked_slow']['slow'] and rec['test_skips']['outcome'] == 'skipped'
+    assert 0 < rec['test_makes_a_campaign']['campaign'] <= rec['test_makes_a_campaign']['seconds']
+    # the fast tier leaves out the slow and the ros test
+    assert '2 passed, 1 skipped, 2 deselected' in ci.stdout, ci.stdout
+
+
+@pytest.mark.slow
+def test_a_module_fixture_keeps_its_tests_on_one_worker(inner_runs):
+    """Under ./ft test's --dist loadgroup the tests that share a module's fixture run on one worker (it is made
+    once), while both workers run tests (the grouped ones come first: spread, both workers would have some)."""
+    assert inner_runs['quiet'].returncode == 0, inner_runs['quiet'].stdout[-2000:]
+    grouped, alone = ((inner_runs['folder'] / n).read_text().split() for n in ('grouped', 'alone'))
     assert len(grouped) == 6 and len(set(grouped)) == 1, grouped
     assert len(alone) == 6 and set(grouped + alone) == {'gw0', 'gw1'}, (grouped, alone)   # both workers had work
 

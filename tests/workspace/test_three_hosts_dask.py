@@ -49,6 +49,14 @@ def bench(*args, work: Path) -> list:
             '--json', str(work / 'bench.json'), *args]
 
 
+def lab_env() -> dict:
+    """The processes' environment: this test's, with no scheduler named in it (the suite sets the per-pull work
+    inline, conftest.py): the reference run takes the default path, the embedded cluster."""
+    env = {**os.environ, 'FT_ROOT': str(ROOT)}
+    env.pop('DASK_SCHEDULER_ADDRESS', None)
+    return env
+
+
 def files(folder: Path) -> dict:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob('*')) if p.is_file()}
 
@@ -61,8 +69,7 @@ def runs(tmp_path_factory):
     if not support.bpf or not (support.netem or support.delay_line):
         pytest.skip('this kernel can neither drop nor delay packets on a veth (no cls_bpf, no netem or tap+mirred)')
     ref, out = tmp_path_factory.mktemp('embedded'), tmp_path_factory.mktemp('three_hosts')
-    env = {**os.environ, 'FT_ROOT': str(ROOT)}
-    env.pop('DASK_SCHEDULER_ADDRESS', None)
+    env = lab_env()
     embedded = subprocess.run(bench(work=ref), cwd=ROOT, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert embedded.returncode == 0, embedded.stderr[-2000:]
     # C is lost once one of its workers runs a pull of each stage of LOSE_IN, and brought back after each loss
@@ -172,7 +179,7 @@ def test_losing_the_schedulers_host_is_one_line_and_exit_2_and_no_output(runs, t
     out = tmp_path / 'out'
     where = {'campaign': runs['ref'] / 'campaign', 'bag': runs['ref'] / 'bag', 'out': out}
     cmd = [sys.executable, '-m', 'ft_cli', *(a.format(**where) for a in args)]
-    env = {**os.environ, 'FT_ROOT': str(ROOT)}
+    env = lab_env()
     res = run_campaign(tmp_path / 'net', env, cmd, LINK, lose='a', lose_on=key, client='d',
                        timeout=TIMEOUT_S, say=lambda _m: None)
     assert res['removed'], 'no process was killed in host A'
@@ -191,7 +198,7 @@ def test_losing_the_clients_host_leaves_a_marked_partial_that_the_next_export_re
     naming it, and writes the campaign whole, the same bytes as the embedded cluster's export."""
     out = tmp_path / 'exp'
     cmd = [sys.executable, '-m', 'ft_cli', 'bag', 'export', str(runs['ref'] / 'bag'), str(out)]
-    env = {**os.environ, 'FT_ROOT': str(ROOT)}
+    env = lab_env()
     res = run_campaign(tmp_path / 'net', env, cmd, LINK, lose='d', lose_on='pull-write_pull-', client='d',
                        timeout=TIMEOUT_S, say=lambda _m: None)
     assert res['removed'] and res['rc'] == -9, (res['rc'], res['stderr'][-2000:])

@@ -41,9 +41,7 @@ from __future__ import annotations
 
 import atexit
 import os
-import socket
 import threading
-import uuid
 from typing import Any, Callable, Iterable, List, Optional, Sequence, Tuple
 
 # the in-process map (``scheduler='inline'``), its result type and failure line live in core.mapping
@@ -115,6 +113,7 @@ def _probe(address: str, timeout: float) -> None:
     host, _, port = rest.rpartition(':')
     if scheme != 'tcp' or not port.isdigit():
         return   # another transport, or no port: Dask's own connect judges it
+    import socket  # here: a command that never probes a scheduler (./ft bag correct) does not pay for it
     try:
         socket.create_connection((host.strip('[]') or '127.0.0.1', int(port)), timeout=timeout).close()
     except OSError as exc:
@@ -284,7 +283,7 @@ def _settle(out: PullMap, i: int, status: str, value, names, keep, on_result) ->
 def _map_dask(client, where, fn, items, names, progress, total, keep, on_result) -> PullMap:
     import dask
     from distributed import as_completed
-    token = uuid.uuid4().hex[:12]
+    token = os.urandom(6).hex()
     prefix = f'pull-{getattr(fn, "__name__", "fn")}-{token}'
     out = PullMap(scheduler=where)
     it = iter(enumerate(items))

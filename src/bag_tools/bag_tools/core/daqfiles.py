@@ -349,12 +349,29 @@ def _read_csv_arrow(path: Path, names: list, body_at: int) -> dict | None:
         return None
     if table.num_rows == 0:
         return None
-    out = {}
-    for name in names:
-        col = table.column(name)
-        a = col.to_numpy() if col.null_count == 0 else col.fill_null(np.nan).to_numpy()
-        out[name] = np.ascontiguousarray(a, dtype=np.float64)
+    out = {name: _float_column(table.column(name)) for name in names}
+    del table
+    # pyarrow's allocator (mimalloc) keeps the pages of the parse (the file's bytes, its parsed blocks: ~40 MB for a
+    # 17 MB pull) for its next allocation; a process reading one pull at a time (a discover worker) held them to the
+    # end. The columns are numpy's own copies, so all of it is returned here (about 1.5 ms).
+    pa.default_memory_pool().release_unused()
     return out
+
+
+def _float_column(col) -> np.ndarray:
+    """A float64 column of pyarrow's as numpy's own array (nulls NaN), read from its buffers: pyarrow's to_numpy
+    imports pandas (~60 MB of a process's memory, ~0.5 s) for nothing here."""
+    parts = []
+    for c in col.chunks:
+        if not len(c):
+            continue
+        valid, data = c.buffers()
+        x = np.frombuffer(data, dtype=np.float64, count=len(c), offset=c.offset * 8)
+        if c.null_count:
+            bits = np.unpackbits(np.frombuffer(valid, dtype=np.uint8), count=c.offset + len(c), bitorder='little')
+            x = np.where(bits[c.offset:].astype(bool), x, np.nan)
+        parts.append(x)
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _read_csv_slow(path: Path, body: str, ncol: int) -> np.ndarray:

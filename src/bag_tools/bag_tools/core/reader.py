@@ -13,17 +13,18 @@ import heapq
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from rosbags.interfaces import MessageDefinitionFormat, Nodetype
-from rosbags.rosbag2 import Reader
-from rosbags.rosbag2.storage_mcap import DECOMPRESSORS  # name -> f(data, size): rosbags' zstd
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from .errors import BagError, one_line
 from .metadata import load_metadata
 from .typestore import normalize_type, types_from_definition
+
+if TYPE_CHECKING:   # imported where a bag is opened: rosbags.rosbag2 loads sqlite3, apsw, lz4 (tens of ms)
+    from rosbags.rosbag2 import Reader
 
 #: rosbag2's file/message compressors (MCAP chunks may also be lz4: the storage reads those).
 COMPRESSORS = ('zstd',)
@@ -225,6 +226,8 @@ class BagReaderHandle:
         if not conns:  # an empty list would mean every connection to some readers
             return
         types = {c.id: self._topics[c.topic].type_name for c in conns}
+        if self._message_compressed:
+            from rosbags.rosbag2.storage_mcap import DECOMPRESSORS  # name -> f(data, size): rosbags' zstd
         for conn, stamp, data in storage.messages(conns, start_ns, end_ns):
             if self._message_compressed:
                 data = DECOMPRESSORS['zstd'](data, 0)
@@ -297,6 +300,7 @@ def open_bag(path: str | Path, typestore: Typestore | None = None,
     if mode and str(mode).lower() != 'none' and fmt not in COMPRESSORS:
         raise BagError(f'bag {str(path)!r} uses {fmt!r} {mode} compression; expected one of '
                        f'{sorted(COMPRESSORS)!r} (the compressors rosbag2 ships)')
+    from rosbags.rosbag2 import Reader
     try:
         reader = Reader(path)
         reader.open()

@@ -7,15 +7,18 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
+from typing import TYPE_CHECKING
 
 from rosbags.interfaces import Connection, Qos
-from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys.store import Typestore
 
 from force_tester_common.core.partial import Marked, clear_stale, tell
 
 from .errors import BagError, one_line
 from .metadata import METADATA_VERSION, ROS_DISTRO, load_metadata, write_metadata
+
+if TYPE_CHECKING:   # imported where a bag is opened: rosbags.rosbag2 loads sqlite3, apsw, lz4 (tens of ms)
+    from rosbags.rosbag2 import Writer
 
 STORAGE_ID = 'mcap'
 _MAX_STAMP = 2**63 - 1
@@ -74,6 +77,7 @@ class BagWriter:
         if self._writer is not None or self._closed:
             raise BagError(f'bag writer for {str(self.path)!r} was already opened')
         check_new_bag_path(self.path)  # again: it may have appeared since __init__
+        from rosbags.rosbag2 import StoragePlugin, Writer
         try:
             writer = Writer(self.path, version=METADATA_VERSION,
                             storage_plugin=StoragePlugin.MCAP)

@@ -100,11 +100,13 @@ def quiet_noise(corrected: np.ndarray, sample_rate_hz: float) -> float:
     neighbouring samples over sqrt(2), so a slow drift does not count as noise."""
     c = np.asarray(corrected, dtype=float)
     fin = np.isfinite(c)
-    if not fin.any():
+    whole = bool(fin.all())       # the usual pull: no copy of it without its NaN samples, no index arrays
+    if not whole and not fin.any():
         return math.nan
-    pk = float(np.max(np.abs(c[fin])))
-    loud = np.flatnonzero(fin & (np.abs(c) > QUIET_FRACTION * pk))
-    end = int(loud[0]) if len(loud) else len(c)
+    mag = np.abs(c)
+    pk = float(np.max(mag if whole else mag[fin]))
+    loud = mag > QUIET_FRACTION * pk if whole else fin & (mag > QUIET_FRACTION * pk)
+    end = int(np.argmax(loud)) if loud.any() else len(c)     # the first loud sample
     q = c[max(0, end - int(QUIET_MAX_S * sample_rate_hz)):end]   # just before the load: not where the pull began
     d = np.diff(q[np.isfinite(q)])
     return float(np.std(d) / math.sqrt(2.0)) if len(d) >= 8 else math.nan
@@ -143,9 +145,12 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
         raise CorrectionError(f'corrected, inertial and filtered have shapes {c.shape}, {ma.shape}, {fl.shape}; '
                               'expected 1-D arrays of equal length')
     fin = np.isfinite(c) & np.isfinite(ma)
-    if not fin.any():
+    if fin.all():                 # the usual pull: the first largest sample without index arrays
+        i = int(np.argmax(c))
+    elif not fin.any():
         raise CorrectionError('the pull has no finite corrected sample; expected at least one')
-    i = int(np.flatnonzero(fin)[np.argmax(c[fin])])
+    else:
+        i = int(np.flatnonzero(fin)[np.argmax(c[fin])])
     peak = float(c[i])
     noise = quiet_noise(c, rate)
     sigma = 0.0 if math.isnan(noise) else noise

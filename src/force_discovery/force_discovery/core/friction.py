@@ -14,6 +14,8 @@ from typing import Iterable, Optional, Tuple
 
 import numpy as np
 
+from force_tester_common.core.events import median
+
 from .prep import Pull
 
 STILL_M_S = 1e-4     # |v3| below this: the carriage is at rest (no dry friction)
@@ -101,7 +103,7 @@ def friction_row(p: Pull, rig) -> Optional[tuple]:
     if cr is None:
         return None
     rho, sg = cr
-    return np.median(rho[sg == 1.0]), np.median(rho[sg == 0.0]), np.median(p.v3[sg == 1.0])
+    return median(rho[sg == 1.0]), median(rho[sg == 0.0]), median(p.v3[sg == 1.0])
 
 
 def friction_rows(rows: Iterable[Optional[tuple]]) -> Optional[np.ndarray]:
@@ -121,6 +123,6 @@ def friction_sse(p: Pull, rig, fc: float, db: float = 0.0) -> float:
     rho = rho - db * p.v3
     ok = ~np.isnan(sg)
     r = rho[ok] - fc * sg[ok]
-    r = r - np.median(rho[sg == 0.0])
+    r = r - median(rho[sg == 0.0])
     r = np.clip(r, -np.percentile(np.abs(r), 95) * 3 - 1e-9, np.percentile(np.abs(r), 95) * 3 + 1e-9)
     return float(np.sum((r / rig.drive.force_per_amp_n_per_a) ** 2))   # in A^2

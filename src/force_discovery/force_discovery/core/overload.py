@@ -20,6 +20,8 @@ from typing import Dict, List, NamedTuple, Sequence, Tuple
 
 import numpy as np
 
+from force_tester_common.core.events import median
+
 # A burst: <= 5 ms, > 1.5 x above everything else of its channel, > 50 x its noise; no other coincidence channel
 # has an event within 2 ms of it (above 30 % of that channel's largest excursion): a sensor or amplifier driven
 # past its range (an accelerometer's +/-9000 m/s^2 burst in a free phase).
@@ -85,7 +87,7 @@ def overloads(channels: Dict[str, Tuple[np.ndarray, float]], left: Dict[str, lis
     counterpart, the one with the weakest is blamed, and the others are judged again without it; a burst with
     a counterpart is an event, and so are its channel's smaller ones."""
     g = max(1, int(round(OVERLOAD_CONTEXT_S / dt)))
-    devs = {c: np.abs(x - np.median(x)) for c, (x, _s) in channels.items()}
+    devs = {c: np.abs(x - median(x)) for c, (x, _s) in channels.items()}
     others = {c: [o for o in coincidence if o != c and o in devs] for c in devs}
     left = {c: list(left.get(c, ())) for c in devs}
     todo = {c: [b for b in bursts(devs[c], s, dt) if not any(b.i0 < e and s0 < b.i1 for s0, e in left[c])]
@@ -115,5 +117,5 @@ def overloads(channels: Dict[str, Tuple[np.ndarray, float]], left: Dict[str, lis
         c = now[0][1]
         b = todo[c].pop(0)
         x = channels[c][0]
-        out.append(Overload(c, b.i0, b.i1, float(x[b.at] - np.median(x)), b.ratio))
+        out.append(Overload(c, b.i0, b.i1, float(x[b.at] - median(x)), b.ratio))
         left[c].append((b.i0, b.i1))

@@ -38,6 +38,35 @@ class Events(NamedTuple):
     baseline: float
 
 
+#: records shorter than this take np.median itself
+_SELECT_MIN = 4096
+#: the sample's ranks either side of its middle that bracket the median (of about 1024 sampled values)
+_BRACKET = 48
+
+
+def median(x: np.ndarray) -> np.float64:
+    """np.median of a 1-D float64 array, the same value bit for bit (of a median of zeros, the sign may differ:
+    -0.0 == 0.0), in a fifth of its time on a pull: the median's rank is bracketed by two values of an evenly spaced
+    sample of x, the samples below the bracket are counted, and only those within it are partially sorted
+    (np.median partially sorts all of x, 2-3 ms on 100,000 samples). np.median itself for anything else: a short
+    or other array, one with a NaN (its median is NaN), or when the bracket misses the rank (x in an odd order)."""
+    x = np.asarray(x)
+    n = x.size
+    if n < _SELECT_MIN or x.ndim != 1 or x.dtype != np.float64 or np.isnan(x).any():
+        return np.median(x)
+    s = np.sort(x[::n // 1024])
+    m = s.size // 2
+    lo, hi = s[m - _BRACKET], s[m + _BRACKET]
+    below = int(np.count_nonzero(x < lo))
+    inside = x[(x >= lo) & (x <= hi)]
+    k = n // 2 - below             # the upper middle rank within ``inside``; the lower one too for odd n
+    first = k - 1 if n % 2 == 0 else k
+    if first < 0 or k >= inside.size:
+        return np.median(x)
+    part = np.partition(inside, [first, k])
+    return (part[first] + part[k]) / 2 if n % 2 == 0 else part[k]   # np.median's mean of the middle pair
+
+
 def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> Events:
     """The events of ``force`` (``Events``)."""
     x = np.asarray(force, dtype=np.float64)
@@ -45,7 +74,7 @@ def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float 
     if x.size < 2 or not ok.any():
         return Events([], float('nan'))
     whole = bool(ok.all())   # the usual record: no copies of it without its non-finite samples
-    base = np.median(x if whole else x[ok])
+    base = median(x if whole else x[ok])
     dev = np.abs(x - base)
     if not whole:
         dev[~ok] = 0.0
@@ -76,7 +105,7 @@ def below_snr(dev: np.ndarray, peak: float, or_equal: bool = False) -> bool:
         return True
     if np.count_nonzero(dev < thr * (1 - _MARGIN)) > n // 2:
         return False
-    exact = EVENT_SNR * (MAD_SD * np.median(dev))
+    exact = EVENT_SNR * (MAD_SD * median(dev))
     return bool(peak <= exact if or_equal else peak < exact)
 
 
@@ -85,14 +114,14 @@ def deviations(x) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     ok = np.isfinite(x)
     x = x if ok.all() else x[ok]     # the usual record: no copy of it
-    return np.abs(x - np.median(x)) if x.size else x
+    return np.abs(x - median(x)) if x.size else x
 
 
 def robust_sd(x) -> float:
     """MAD_SD x the median absolute deviation of x's finite samples (0 when it has none): its noise, robust to
     events."""
     dev = deviations(x)
-    return MAD_SD * float(np.median(dev)) if dev.size else 0.0
+    return MAD_SD * float(median(dev)) if dev.size else 0.0
 
 
 def event_width_s(force, rate_hz: float, span: tuple, baseline: float | None = None) -> float:

@@ -21,10 +21,8 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import logging
 import os
 import shutil
-import socket
 import tempfile
 import time
 from pathlib import Path
@@ -43,7 +41,7 @@ class Marked:
     def __enter__(self) -> 'Marked':
         self.fd = os.open(self.folder / WRITING, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
         fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        os.write(self.fd, f'pid {os.getpid()} on {socket.gethostname()} since '
+        os.write(self.fd, f'pid {os.getpid()} on {os.uname().nodename} since '
                           f'{time.strftime("%Y-%m-%d %H:%M:%S")}\n'.encode())
         return self
 
@@ -124,6 +122,7 @@ def tell(lines: list, warnings: list | None = None) -> None:
     when nothing else is configured)."""
     if warnings is not None:
         warnings.extend(lines)
-    else:
+    elif lines:
+        import logging  # here: most commands pass a list, and logging costs a command's start-up ~10 ms
         for line in lines:
             logging.getLogger('force_tester.partial').warning(line)
