@@ -168,3 +168,39 @@ def test_report_md_names_every_model_form_line():
     text = '\n'.join(budget_lines(r))
     assert '- mount_resonance.damping_ratio: free_decay_analysis 3e-05' in text
     assert '- effective_mass.mass_kg: delay_form 0.004, tension_timing 0.0005' in text
+
+
+def _driven_pull(hold_after_stop: float, f_c: float = 200.0) -> tuple:
+    """(pull, rig): the nominal rig's carriage at rest, moving at 2 m/s with dry friction f_c, then at rest again
+    while the drive still pushes hold_after_stop against the stuck contact (a dry contact at rest holds any force up
+    to f_c); the current is the force balance's exactly."""
+    import yaml
+
+    from force_tester_sim.core.params import NOMINAL_YAML, rig_from_dict
+    rig = rig_from_dict(yaml.safe_load(NOMINAL_YAML.read_text()))
+    d = rig.drive
+    n = 6000
+    t = np.arange(n) * DT
+    v = np.interp(t, [0.0, 0.1, 0.15, 0.4, 0.45, 0.6], [0.0, 0.0, 2.0, 2.0, 0.0, 0.0])
+    a = np.gradient(v, DT)
+    fm = 50.0 * (v > 0)
+    drive = d.reflected_mass_kg * a + d.viscous_damping_n_s_per_m * v + fm + f_c * (v > 0.01) \
+        + hold_after_stop * (t > 0.45)
+    z = np.zeros(n)
+    return Pull('p', t, DT, fm, z, z, z, np.cumsum(v) * DT, v, a, drive / d.force_per_amp_n_per_a,
+                0, n, 900, 1500, 4000, 1.0), rig
+
+
+def test_the_current_zero_is_the_rest_before_the_carriage_first_moves():
+    """After a stop a dry contact holds whatever force the drive still applies (the velocity loop's integrator keeps
+    a current against it): that rest is not the current's zero. The friction is the moving residual less the rest
+    before the launch; with no rest before the launch, every rest sample is the zero (as before)."""
+    from force_discovery.core.friction import friction_row, rest_level
+    p, rig = _driven_pull(-30.0)
+    moving, rest, _v = friction_row(p, rig)
+    assert moving - rest == pytest.approx(200.0, abs=1.0), (moving, rest)
+    p0, _ = _driven_pull(0.0)
+    assert np.subtract(*friction_row(p0, rig)[:2]) == pytest.approx(200.0, abs=1.0)
+    rho = np.r_[np.full(50, 5.0), np.full(10, 9.0), np.full(200, -30.0)]
+    sg = np.r_[np.zeros(50), np.ones(10), np.zeros(200)]
+    assert rest_level(rho, sg) == -30.0                          # fewer than MIN_REST_SAMPLES before: every rest sample
