@@ -15,6 +15,11 @@ def square_slowly(item):
     return i * i
 
 
+def allocator_env(item):
+    """The glibc allocator settings this worker process started with."""
+    return tuple(os.environ.get(v) for v in ('MALLOC_MMAP_THRESHOLD_', 'MALLOC_TRIM_THRESHOLD_'))
+
+
 def die_once(item):
     """(marker folder, i): the first attempt at i == 1 kills its worker process (no exception, no cleanup)."""
     folder, i = item

@@ -53,6 +53,20 @@ def test_results_come_in_item_order_on_any_scheduler(cluster, monkeypatch):
     assert seen[-1] == (6, 6) and [d for d, _ in seen] == list(range(1, 7))
 
 
+@pytest.mark.slow
+def test_the_embedded_workers_keep_the_allocator_settings_of_ft(monkeypatch):
+    """./ft exports glibc's MALLOC_MMAP_THRESHOLD_ and MALLOC_TRIM_THRESHOLD_; Dask's nanny would give its workers
+    a trim threshold of 64 KiB (which cost a 100-pull discover a third of its CPU in fresh pages) unless the
+    environment sets one: the embedded cluster's workers run with ./ft's."""
+    monkeypatch.delenv(engine.SCHEDULER_ENV, raising=False)
+    wanted = engine_jobs.allocator_env(None)
+    assert None not in wanted, f'./ft test exports no allocator settings: {wanted}'
+    engine.shutdown(None)   # a new embedded cluster, started with this environment
+    got = map_pulls(engine_jobs.allocator_env, range(4))
+    assert got.scheduler.startswith('embedded LocalCluster') and set(got.results) == {wanted}
+    engine.shutdown(None)
+
+
 def test_streaming_in_item_order_without_keeping_results(cluster):
     got = []
     r = map_pulls(engine_jobs.square_slowly, iter(ITEMS), scheduler=cluster.scheduler_address, keep=False,
