@@ -48,7 +48,14 @@ from force_tester_sim.core.departures import departures_from_data
 from force_tester_sim.core.extra_terms import extra_terms_from_data
 
 from . import beyond as bey
-from .budget import campaign_systematics, clock_relative, filter_form_preferred, honest_all, variant_pulls
+from .budget import (
+    campaign_systematics,
+    clock_relative,
+    filter_form_parts,
+    filter_form_preferred,
+    honest_all,
+    variant_pulls,
+)
 from .cells import (
     CAL_PULLS,
     calibration_note,
@@ -259,6 +266,7 @@ class Stream:
                                                                                                         jobs)], names))
             form_cand, _ = force_stage_from(ForceStats([s.blocks for s in fstats], dts_, m2,
                                                        scales if significant else None), fit, held, m2)
+            form_line = filter_form_parts(stats, fstats, fit, m2, scales if significant else None)
             # the budget's force-model lines from the filter form's statistics too
             stats = [dataclasses.replace(st, blocks=f.blocks, variants=f.variants) for st, f in zip(stats, fstats)]
             cand = {**cand, **{t: dataclasses.replace(cand[t], parameters=form_cand[t].parameters,
@@ -270,10 +278,10 @@ class Stream:
                                     scales if significant else None, m2, modes, rows,
                                     [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
                                     mode_variants, hum_form)
-        if form:   # the shift is the alternative the data rejected: its line is not counted (budget.force_systematics)
+        if form:   # the shift is the alternative the data rejected; the line is the filter's own (filter_form_parts)
             for t in TERMS:
-                for comps in sys_.get(t, {}).values():
-                    comps['delay_form'] = 0.0
+                for par, comps in sys_.get(t, {}).items():
+                    comps['delay_form'] = form_line.get(t, {}).get(par, 0.0)
         cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None
