@@ -156,6 +156,8 @@ def own_delay(p: Pull, m2: float) -> float:
     return ForceModel([p], m2).fit_delay(set(TERMS), [0]).delay_s
 
 
+FORM_MARGIN = 0.5     # filter_form_preferred: the filter form's squared residual below this share of the shift's (seed
+#                       5101's Bessel: 0.105; own-generator campaigns with a shift: 1.0 or a hair either side of it)
 FORM_ITERATIONS = 5   # filter_delay's refits (each step closes about 2/3 of what is left: see filter_delay)
 
 
@@ -172,8 +174,9 @@ def filter_delay(p: Pull, m2: float) -> float:
 
 def filter_form_preferred(stats: Sequence, fit: Sequence[int], m2: float, scales) -> bool:
     """Whether the data prefer the accelerometer's delay as a 2-pole Bessel filter to a shift: on the fitted pulls
-    that carry the variants (pass 3's stats[j].variants), the delay_form variant's squared residual is below its
-    reference's (the shift seen through the same filter), the rule force_systematics counts the line by. Then the
+    that carry the variants (pass 3's stats[j].variants), the delay_form variant's squared residual is below
+    FORM_MARGIN of its reference's (the shift seen through the same filter; force_systematics counts the line where
+    it is below it at all: a near tie is no ground to change the estimate). Then the
     estimate is the filter form's fit (stream: every pull under delay_form) and the shift is the rejected
     alternative (its delay_form line 0)."""
     vidx = [j for j in fit if stats[j].variants is not None and 'delay_form' in stats[j].variants]
@@ -184,7 +187,8 @@ def filter_form_preferred(stats: Sequence, fit: Sequence[int], m2: float, scales
         return ForceStats([stats[j].variants[name] for j in vidx], [stats[j].dt for j in vidx], m2,
                           None if scales is None else [scales[j] for j in vidx])
     idx = range(len(vidx))
-    return sub('delay_form').fit_delay(set(TERMS), idx).sse < sub(DELAY_FORM_REFERENCE).fit_delay(set(TERMS), idx).sse
+    return sub('delay_form').fit_delay(set(TERMS), idx).sse < FORM_MARGIN * sub(DELAY_FORM_REFERENCE).fit_delay(
+        set(TERMS), idx).sse
 
 
 def bessel_attenuation(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
