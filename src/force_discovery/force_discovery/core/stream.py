@@ -272,8 +272,8 @@ class Stream:
             cand = {**cand, **{t: dataclasses.replace(cand[t], parameters=form_cand[t].parameters,
                                                       parameters_ci95=form_cand[t].parameters_ci95) for t in TERMS}}
             notes.append('the accelerometer\'s delay is fitted as a 2-pole Bessel filter, not a shift: the data prefer '
-                         'it (its squared residual below a shift\'s seen through the same filter); the gain, m2, delay '
-                         'and AC coupling are that fit\'s')
+                         'it (its squared residual below half a shift\'s seen through the same filter); the gain, m2, '
+                         'delay and AC coupling are that fit\'s')
         sys_ = campaign_systematics(cand, stats, fit, [s.quality.peak_n for s in usable],
                                     scales if significant else None, m2, modes, rows,
                                     [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
