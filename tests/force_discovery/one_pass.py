@@ -39,6 +39,7 @@ from force_discovery.core.friction import (
 )
 from force_discovery.core.hum import (
     few_pulls,
+    hum_form_parts,
     hum_frequencies,
     hum_frequency_from,
     hum_per_pull,
@@ -111,11 +112,14 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
     modes = [free_decay_mode(pulls[j]) for j in few]
     variants = [free_decay_variants(pulls[j], m) for j, m in zip(few, modes)]
     out.update(B.pull_to_pull_parts(cand, modes, hum_freqs, variants))
+    for par, comps in hum_form_parts([pre_residual(pulls[j], m2) for j in few],
+                                     cand['mains_hum'].parameters['frequency_hz']).items():
+        out.setdefault('mains_hum', {}).setdefault(par, {}).update(comps)
     if 'coulomb_friction' in cand:
         rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
         joint = viscous_separable(rows, viscous_u(rig))
         out['coulomb_friction'] = {'force_n': B.friction_systematics(
-            rows, [B.friction_variants(pulls[j], rig) for j in fit], partial(friction_stat, joint=joint))}
+            rows, [B.friction_variants(pulls[j], rig) for j in fit], partial(friction_stat, joint=joint), joint)}
     return out
 
 

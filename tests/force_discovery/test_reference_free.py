@@ -40,6 +40,10 @@ def test_drop_impactor_lvm_campaign_names_the_hidden_mount_and_delay(tmp_path):
     lo, hi = c['gain_mass_product']['parameters_ci95']['gain_mass_kg']
     assert lo <= 0.33 * 1.02 <= hi and hi - lo < 0.01          # g m2, not g or m2
     assert all(e['sign'] == 'compression' for p in rep['per_pull'] for e in p['events'])
+    # every reference-free budget names its model-form line beside the statistical one (issue 38 section 1)
+    for name in ('gain_mass_product', 'accel_delay', 'mains_hum'):
+        for par, comps in rep['uncertainty_budget'][name].items():
+            assert {'statistical', 'operating_range', 'combined'} <= set(comps), (name, par, comps)
     # what needs an absent channel is said, with the channel
     missing = {q['quantity']: q['missing'] for q in rep['not_identifiable']}
     assert missing['moving_cell_gain'] == ['force_stationary_n'] and 'effective_mass' in missing

@@ -6,7 +6,13 @@ median force-balance residual while moving (minus at rest) is F_c + db v, v its 
 viscous damping's departure from the rig YAML's b. A straight line through the pulls' (v, residual) gives F_c as
 its intercept and db as its slope, so the drive's viscous damping is measured rather than taken from the rig YAML
 with its wide stated uncertainty (viscous_separable says when the speeds allow it; otherwise F_c is the median
-residual with the YAML's b)."""
+residual with the YAML's b).
+
+The current's zero is the residual at rest BEFORE the carriage first moves (rest_level): after a stop a dry
+contact holds whatever force the drive still applies, anywhere within +/- F_c (the velocity loop's integrator
+keeps a current against it), so the rest after the pull is not the current's zero. On the independent generator's
+tanh friction (seed 5102, F_c 218 N) the rest after the stop read -25 to -35 N and the friction came out 252 N;
+the rest before the launch reads 0.01 N."""
 from __future__ import annotations
 
 import math
@@ -21,6 +27,7 @@ from .prep import Pull
 STILL_M_S = 1e-4     # |v3| below this: the carriage is at rest (no dry friction)
 MOVING_M_S = 0.05    # v3 above this: moving forward (dry friction at its full value)
 MIN_SPEED_SPREAD = 0.2   # the pulls' speeds must span this fraction of their mean to separate dry from viscous
+MIN_REST_SAMPLES = 100   # rest samples before the first motion for the current's zero (else every rest sample)
 
 
 def drive_force_balance(p: Pull, drive, fm: np.ndarray) -> np.ndarray:
@@ -36,6 +43,18 @@ def current_resid(p: Pull, rig) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     moving = p.v3 > MOVING_M_S
     still = np.abs(p.v3) < STILL_M_S
     return rho, np.where(p.usable(), np.where(moving, 1.0, np.where(still, 0.0, np.nan)), np.nan)
+
+
+def rest_level(rho: np.ndarray, sg: np.ndarray) -> float:
+    """The current residual's zero (current_resid's (rho, sg)): its median at rest before the carriage first moves
+    (module doc: after a stop, dry friction holds the drive's leftover force), or over every rest sample when the
+    record has fewer than MIN_REST_SAMPLES of those."""
+    still = sg == 0.0
+    moving = np.flatnonzero(sg == 1.0)
+    before = still[:moving[0]] if len(moving) else still
+    if np.count_nonzero(before) >= MIN_REST_SAMPLES:
+        return float(median(rho[:len(before)][before]))
+    return float(median(rho[still]))
 
 
 def viscous_fit(rows: np.ndarray) -> Optional[Tuple[float, float, float, float]]:
@@ -97,13 +116,13 @@ def viscous_departure(rows: Optional[np.ndarray], joint: bool) -> float:
 
 
 def friction_row(p: Pull, rig) -> Optional[tuple]:
-    """The pull's median force-balance residual while moving and at rest, and its median speed while moving (None
-    without a current channel)."""
+    """The pull's median force-balance residual while moving and at rest (rest_level), and its median speed while
+    moving (None without a current channel)."""
     cr = current_resid(p, rig)
     if cr is None:
         return None
     rho, sg = cr
-    return median(rho[sg == 1.0]), median(rho[sg == 0.0]), median(p.v3[sg == 1.0])
+    return median(rho[sg == 1.0]), rest_level(rho, sg), median(p.v3[sg == 1.0])
 
 
 def friction_rows(rows: Iterable[Optional[tuple]]) -> Optional[np.ndarray]:
@@ -123,6 +142,6 @@ def friction_sse(p: Pull, rig, fc: float, db: float = 0.0) -> float:
     rho = rho - db * p.v3
     ok = ~np.isnan(sg)
     r = rho[ok] - fc * sg[ok]
-    r = r - median(rho[sg == 0.0])
+    r = r - rest_level(rho, sg)
     r = np.clip(r, -np.percentile(np.abs(r), 95) * 3 - 1e-9, np.percentile(np.abs(r), 95) * 3 + 1e-9)
     return float(np.sum((r / rig.drive.force_per_amp_n_per_a) ** 2))   # in A^2

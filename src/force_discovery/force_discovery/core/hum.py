@@ -112,3 +112,33 @@ def hum_frequency_free(pres: Sequence[Tuple[np.ndarray, np.ndarray]]) -> float:
     f0 = float(grid[int(np.argmax(np.concatenate([power_many(grid[k:k + 50]) for k in range(0, len(grid), 50)])))])
     return float(minimize_scalar(lambda f: -power(f), bounds=(f0 - HUM_STEP_HZ, f0 + HUM_STEP_HZ), method='bounded',
                                  options={'xatol': 1e-3}).x)
+
+
+HUM_WINDOWS = ('first half', 'second half')   # the pre-pull record's halves: hum_form_parts' analysis variants
+
+
+def _amplitude(t: np.ndarray, r: np.ndarray, f: float) -> float:
+    c, *_ = np.linalg.lstsq(_hum_design(t, f), r, rcond=None)
+    return float(math.hypot(c[0], c[1]))
+
+
+def hum_form_parts(pres: Sequence[Tuple[np.ndarray, np.ndarray]], f: float) -> dict:
+    """{parameter: {'pre_pull_window': u}}: the model-form line of the hum's frequency and amplitude. The hum is
+    fitted as one steady sinusoid over each pull's whole pre-pull record (pres = [(t, r)], pre_residual of the few
+    pulls; f the campaign's frequency); each half of the record (HUM_WINDOWS) is a defensible window too, and a hum
+    that is not one steady line (a drifting amplitude or frequency, a second line near it, a trend the constant
+    does not take) gives each half another answer. u is the RMS over the halves of their median's departure (over
+    the pulls) from the whole records' median (empty with fewer than 2 records)."""
+    pres = [(t, r) for t, r in pres if len(t) >= 8]
+    if len(pres) < 2:
+        return {}
+    amp0 = float(np.median([_amplitude(t, r, f) for t, r in pres]))
+    f0 = float(np.median(hum_frequencies(pres, f)))
+    da, df = [], []
+    for k in range(len(HUM_WINDOWS)):
+        halves = [(t[:len(t) // 2], r[:len(r) // 2]) if k == 0 else (t[len(t) // 2:], r[len(r) // 2:])
+                  for t, r in pres]
+        da.append(float(np.median([_amplitude(t, r, f) for t, r in halves])) - amp0)
+        df.append(float(np.median(hum_frequencies(halves, f))) - f0)
+    return {'frequency_hz': {'pre_pull_window': math.sqrt(float(np.mean(np.square(df))))},
+            'amplitude_n': {'pre_pull_window': math.sqrt(float(np.mean(np.square(da))))}}

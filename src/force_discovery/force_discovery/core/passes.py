@@ -21,6 +21,9 @@ import numpy as np
 
 from . import beyond as bey
 from .budget import (
+    DELAY_FORMS,
+    delay_form,
+    filter_delay,
     force_variants,
     friction_variants,
 )
@@ -227,6 +230,23 @@ def pull_stats(item) -> PullStats:
     if job.variants:
         variants = {name: force_blocks(v, hum) for name, v in force_variants(p, rig, c1, job.fcal).items()}
     return PullStats(amp, p.dt, force_blocks(p, hum), friction, ring, variants)
+
+
+def form_stats(item) -> PullStats:
+    """Pass 3b, only where the data prefer a filter-shaped accelerometer delay (budget.filter_form_preferred):
+    item = (Source, rig, c1, StatsJob); the pull's force statistics under budget.delay_form at its filter_delay,
+    and on the variant pulls those of the budget's variants of that pull (the delay's own form variants left out:
+    the shift is the alternative the data rejected)."""
+    src, rig, c1, job = item
+    p = load_pull(src, rig, c1)
+    m2 = rig.force_chain.m2
+    hum = hum_per_pull(p, job.f_hum, m2)[1]
+    d = filter_delay(p, m2)
+    variants = None
+    if job.variants:   # each variant of the pull, then the filter form (a variant's T is made from the cells again)
+        variants = {name: force_blocks(delay_form(v, d), hum)
+                    for name, v in force_variants(p, rig, c1, job.fcal).items() if name not in DELAY_FORMS}
+    return PullStats(0.0, p.dt, force_blocks(delay_form(p, d), hum), None, None, variants)
 
 
 def held_out(item) -> HeldOut:

@@ -48,7 +48,14 @@ from force_tester_sim.core.departures import departures_from_data
 from force_tester_sim.core.extra_terms import extra_terms_from_data
 
 from . import beyond as bey
-from .budget import campaign_systematics, clock_relative, honest_all, variant_pulls
+from .budget import (
+    campaign_systematics,
+    clock_relative,
+    filter_form_parts,
+    filter_form_preferred,
+    honest_all,
+    variant_pulls,
+)
 from .cells import (
     CAL_PULLS,
     calibration_note,
@@ -68,7 +75,7 @@ from .friction import (
     viscous_separable,
     viscous_u,
 )
-from .hum import few_pulls, hum_frequencies, hum_frequency_from, hum_scale
+from .hum import few_pulls, hum_form_parts, hum_frequencies, hum_frequency_from, hum_scale
 from .leftover import LeftoverSum
 from .passes import (
     BeyondJob,
@@ -77,6 +84,7 @@ from .passes import (
     StatsJob,
     beyond_pass,
     cell_record,
+    form_stats,
     held_out,
     hum_record,
     load_pull,
@@ -210,6 +218,7 @@ class Stream:
         pres = [(r.t, r.r) for r in recs]
         f_hum, _power = hum_frequency_from(pres, usable[few[0]].info.dt)
         hum_freqs = hum_frequencies(pres, f_hum)
+        hum_form = hum_form_parts(pres, f_hum)
         modes = [r.mode for r in recs]
         mode_variants = [r.mode_variants for r in recs]
         mode = observed_mode(modes)
@@ -249,10 +258,30 @@ class Stream:
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
+        # the accelerometer's delay filter-shaped (the data prefer it to a shift): the filter form's fit is the estimate
+        form = filter_form_preferred(stats, fit, m2, scales if significant else None)
+        if form:
+            fstats = self._strict('statistics', self._map('statistics', form_stats,
+                                                          [(src, rig, self.c1, job) for src, job in zip(self.sources,
+                                                                                                        jobs)], names))
+            form_cand, _ = force_stage_from(ForceStats([s.blocks for s in fstats], dts_, m2,
+                                                       scales if significant else None), fit, held, m2)
+            form_line = filter_form_parts(stats, fstats, fit, m2, scales if significant else None)
+            # the budget's force-model lines from the filter form's statistics too
+            stats = [dataclasses.replace(st, blocks=f.blocks, variants=f.variants) for st, f in zip(stats, fstats)]
+            cand = {**cand, **{t: dataclasses.replace(cand[t], parameters=form_cand[t].parameters,
+                                                      parameters_ci95=form_cand[t].parameters_ci95) for t in TERMS}}
+            notes.append('the accelerometer\'s delay is fitted as a 2-pole Bessel filter, not a shift: the data prefer '
+                         'it (its squared residual below half a shift\'s seen through the same filter); the gain, m2, '
+                         'delay and AC coupling are that fit\'s')
         sys_ = campaign_systematics(cand, stats, fit, [s.quality.peak_n for s in usable],
                                     scales if significant else None, m2, modes, rows,
                                     [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
-                                    mode_variants)
+                                    mode_variants, hum_form)
+        if form:   # the shift is the alternative the data rejected; the line is the filter's own (filter_form_parts)
+            for t in TERMS:
+                for par, comps in sys_.get(t, {}).items():
+                    comps['delay_form'] = form_line.get(t, {}).get(par, 0.0)
         cand = honest_all(cand, sys_, clock_relative(rig))
         infos = tuple(s.info for s in usable)
         hums = HumScales(f_hum, tuple(scales)) if significant else None

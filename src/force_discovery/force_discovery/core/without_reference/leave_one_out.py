@@ -4,25 +4,43 @@ ROS-free."""
 from __future__ import annotations
 
 import math
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from force_tester_sim.core.tolerances import Band
 
+from ..budget import COMBINED, HALF_PULLS, OPERATING_RANGE, STATISTICAL, expanded
 from ..candidate import Candidate, Evidence
 from ..ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
 from ..significance import MIN_REL_REDUCTION, MIN_T, significance
-from ..uncertainty import NAMED, NOT_JUDGED, jackknife_ci, mean_ci, verdict_rule
+from ..uncertainty import NAMED, NOT_JUDGED, jackknife_ci, mean_ci, t_quantile, verdict_rule
 from .phase_stats import FreeStats, gain_at, pooled, sse_at
 from .phases import FreePull
-from .stationary_cell import fit, gram_at, models, reference_fits
+from .stationary_cell import fit, gram_at, models, pooled_gram, reference_fits
 
 MIN_NAMED_PULLS = 4            # held-out pulls needed before a cause can meet t >= MIN_T
 
 
 def _jackknife(est: float, loo: Sequence[float]) -> Optional[List[float]]:
     return list(jackknife_ci(est, loo)) if len(loo) >= 2 else None
+
+
+def _budget(est: float, ci: Optional[List[float]], halves: Optional[Tuple[float, float]], n: int) -> tuple:
+    """(interval, budget) of one reference-free parameter: the statistical part (the interval's half-width over
+    Student's t) and the model-form line OPERATING_RANGE, as a term beyond the catalog has it (budget.operating_range):
+    halves, the parameter fitted on the first and on the second half of the pulls (a model whose form is the
+    physics' gives both the same), u^2 = (h1 - h2)^2 / 4 less u_stat^2, at least 0; the interval widened to
+    estimate +/- budget.expanded (k = 2 on the line). Fewer than 2 HALF_PULLS pulls, or no interval: as it was."""
+    if ci is None or halves is None or n < 2 * HALF_PULLS or not all(math.isfinite(v) for v in ci):
+        return ci, {}
+    q = t_quantile(n)
+    u_stat = 0.5 * (ci[1] - ci[0]) / q
+    u_op = math.sqrt(max(0.0, (halves[0] - halves[1]) ** 2 / 4.0 - u_stat ** 2))
+    U = max(expanded(q, u_stat, u_op), 0.5 * (ci[1] - ci[0]))
+    center = 0.5 * (ci[0] + ci[1])     # the jackknife's interval is about the estimate; mean_ci's about the mean
+    return [float(center - U), float(center + U)], {STATISTICAL: u_stat, OPERATING_RANGE: u_op,
+                                                    COMBINED: math.hypot(u_stat, u_op)}
 
 
 def _evidence(ev, base, ext, where: str = 'free-phase', **more) -> Evidence:
@@ -64,19 +82,24 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
     g_nom_d = np.array([sse_at(stats[j], g0, loo[j][1] if n >= 2 else d, 'hum') for j in allj])
     causes, tolerance = {}, {}
     band_g = (tol.moving_cell_gain_rel + tol.effective_mass_rel) * g0 if tol is not None else 0.0
-    ci_g = _jackknife(G, [x[0] for x in loo])
-    ci_d = _jackknife(d, [x[1] for x in loo])
+    h = n // 2
+    halves = [pooled(stats, allj[:h]), pooled(stats, allj[h:])] if h >= HALF_PULLS else None
+    ci_g, b_g = _budget(G, _jackknife(G, [x[0] for x in loo]), halves and (halves[0][0], halves[1][0]), n)
+    ci_d, b_d = _budget(d, _jackknife(d, [x[1] for x in loo]), halves and (halves[0][1], halves[1][1]), n)
     amp = float(np.mean(hum_amps))
-    ci_h = mean_ci(hum_amps)
+    ci_h, b_h = _budget(amp, mean_ci(hum_amps), (float(np.mean(hum_amps[:h])), float(np.mean(hum_amps[h:]))) if h
+                        else None, n)
 
-    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, band, where='free-phase', **more):
-        """The cause as a Candidate (its interval the jackknife's: no systematic parts here) and its tolerance
-        verdict (uncertainty.verdict_rule, as with a reference); band: (parameter, lo, hi, estimate)."""
+    def entry(name, params, ci, ev_base, ev_ext, inside, outside, channel, band, where='free-phase', budget=None,
+              **more):
+        """The cause as a Candidate (its interval the jackknife's, widened by its model-form line: _budget) and its
+        tolerance verdict (uncertainty.verdict_rule, as with a reference); band: (parameter, lo, hi, estimate)."""
         ev = significance(ev_base, ev_ext)
         departs = ev.rel_sse_reduction >= MIN_REL_REDUCTION and bool(np.all(ev_ext < ev_base)) and bool(outside)
         v = verdict_rule(bool(inside), bool(outside), ev.significant, can_name=n >= MIN_NAMED_PULLS,
                          departs=departs, one_pull=n < 2) if rig is not None else NOT_JUDGED
-        causes[name] = Candidate(params, ci, n, _evidence(ev, ev_base, ev_ext, where, **more), channel)
+        causes[name] = Candidate(params, ci, n, _evidence(ev, ev_base, ev_ext, where, **more), channel,
+                                 uncertainty_budget=budget or {})
         par, lo_, hi_, est = band
         pci = ci.get(par)
         tolerance[name] = {'band': Band(name, par, lo_, hi_).as_dict() if rig is not None else None,
@@ -88,15 +111,17 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
 
     ins, outs = band_test(ci_g, G, g0 - band_g, g0 + band_g)
     entry('gain_mass_product', {'gain_mass_kg': G}, {'gain_mass_kg': ci_g}, g_nom_d, full, ins if n >= 2 else None,
-          outs, 'force_moving_n = g m2 a2(t + d), free phases', ('gain_mass_kg', g0 - band_g, g0 + band_g, G))
+          outs, 'force_moving_n = g m2 a2(t + d), free phases', ('gain_mass_kg', g0 - band_g, g0 + band_g, G),
+          budget={'gain_mass_kg': b_g} if b_g else None)
     tol_d, tol_h = (tol.accel_delay_s, tol.mains_hum_amplitude_n) if tol is not None else (0.0, 0.0)
     ins, outs = band_test(ci_d, d, -tol_d, tol_d)
     entry('accel_delay', {'delay_s': d}, {'delay_s': ci_d}, no_delay, full, ins if n >= 2 else None, outs,
-          'force_moving_n = g m2 a2(t + d), free phases', ('delay_s', -tol_d, tol_d, d))
+          'force_moving_n = g m2 a2(t + d), free phases', ('delay_s', -tol_d, tol_d, d),
+          budget={'delay_s': b_d} if b_d else None)
     ins, outs = band_test(ci_h, amp, 0.0, tol_h)
     entry('mains_hum', {'frequency_hz': f_hum, 'amplitude_n': amp}, {'amplitude_n': ci_h}, full_nohum, full,
           ins if n >= 2 else None, outs, 'force_moving_n - g m2 a2(t + d), free phases',
-          ('amplitude_n', 0.0, tol_h, amp))
+          ('amplitude_n', 0.0, tol_h, amp), budget={'amplitude_n': b_h} if b_h else None)
     ref = [s.ref for s in stats]
     reference = None
     if all(r is not None for r in ref):      # the stationary cell: g and m2 apart (stationary_cell.py)
@@ -105,17 +130,23 @@ def campaign_analysis(pulls: Sequence[FreePull], stats: Sequence[FreeStats], f_h
         where = 'whole-record (F_move = g T + M a2(t + d) - k C)'
         chan = 'force_moving_n = g T + g m2 a2(t + d) - k C, T from force_stationary_n, the whole record'
         rg, rm = reference['g'], reference['m2']
-        ci_rg = _jackknife(rg, [x[0] for x in reference['loo']])
-        ci_rm = _jackknife(rm, [x[1] for x in reference['loo']])
+        rh = None
+        if h >= HALF_PULLS:
+            rh = [fit(pooled_gram(ref, idx, d), models(g0)['full']) for idx in (allj[:h], allj[h:])]
+        ci_rg, b_rg = _budget(rg, _jackknife(rg, [x[0] for x in reference['loo']]),
+                              rh and (float(rh[0][0]), float(rh[1][0])), n)
+        ci_rm, b_rm = _budget(rm, _jackknife(rm, [x[1] for x in reference['loo']]),
+                              rh and (float(rh[0][1] / rh[0][0]), float(rh[1][1] / rh[1][0])), n)
         bg = tol.moving_cell_gain_rel if tol is not None else 0.0
         ins, outs = band_test(ci_rg, rg, 1.0 - bg, 1.0 + bg)
         entry('moving_cell_gain', {'gain': rg}, {'gain': ci_rg}, held['unit_gain'], held['full'],
-              ins if n >= 2 else None, outs, chan, ('gain', 1.0 - bg, 1.0 + bg, rg), where)
+              ins if n >= 2 else None, outs, chan, ('gain', 1.0 - bg, 1.0 + bg, rg), where,
+              budget={'gain': b_rg} if b_rg else None)
         bm = tol.effective_mass_rel * g0 if tol is not None else 0.0
         ins, outs = band_test(ci_rm, rm, g0 - bm, g0 + bm)
         entry('effective_mass', {'mass_kg': rm}, {'mass_kg': ci_rm}, held['record_mass'], held['full'],
               ins if n >= 2 else None, outs, chan, ('mass_kg', g0 - bm, g0 + bm, rm), where,
-              ac_coupling_per_s=reference['k'])
+              budget={'mass_kg': b_rm} if b_rm else None, ac_coupling_per_s=reference['k'])
     modes = cluster_modes(pulls)
     f_cell = math.sqrt(fc.load_cell_stiffness_n_per_m / fc.m2) / (2 * np.pi) if fc is not None else None
     noise = float(np.median([p.accel_noise for p in pulls]))
