@@ -348,6 +348,13 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     return out
 
 
+def halves_line(first: float, second: float, u_stat: float) -> float:
+    """The OPERATING_RANGE line from one parameter fitted on each half of the pulls: u^2 = (first - second)^2 / 4
+    less u_stat^2 (what the halves' difference has under noise alone), at least 0 (a random effect, as
+    load_dependence takes it)."""
+    return math.sqrt(max(0.0, (first - second) ** 2 / 4.0 - u_stat ** 2))
+
+
 def friction_range(rows: np.ndarray, joint: bool) -> float:
     """The friction's model-form line, OPERATING_RANGE as a term's (operating_range): each fitted pull's friction
     (its moving less its rest residual, less the viscous departure the joint fit measured times its speed) on the
@@ -360,8 +367,7 @@ def friction_range(rows: np.ndarray, joint: bool) -> float:
     fit = viscous_fit(rows) if joint else None
     y = rows[:, 0] - rows[:, 1] - (0.0 if fit is None else fit[1] * rows[:, 2])
     h = len(y) // 2
-    return math.sqrt(max(0.0, (float(np.mean(y[:h])) - float(np.mean(y[h:]))) ** 2 / 4.0
-                         - float(np.var(y, ddof=1)) / len(y)))
+    return halves_line(float(np.mean(y[:h])), float(np.mean(y[h:])), math.sqrt(float(np.var(y, ddof=1)) / len(y)))
 
 
 def pull_to_pull_parts(cand: Mapping, modes: Sequence, hum_freqs: Sequence[float],
@@ -500,7 +506,7 @@ def operating_range(fit: Sequence, idx: Sequence[int], col: int, u_stat: float) 
         G = sum(st.gram[np.ix_(idx, idx)] for st in part)
         b = sum(st.xy[idx] for st in part)
         c.append(float(np.linalg.lstsq(G, b, rcond=1e-12)[0][pos]))
-    return math.sqrt(max(0.0, (c[0] - c[1]) ** 2 / 4.0 - u_stat ** 2))
+    return halves_line(c[0], c[1], u_stat)
 
 
 def term_budget(fit: Sequence, prod: Sequence[int], col: Optional[int], coef: float, ci: Tuple[float, float],

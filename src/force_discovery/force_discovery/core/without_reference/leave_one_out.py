@@ -10,7 +10,7 @@ import numpy as np
 
 from force_tester_sim.core.tolerances import Band
 
-from ..budget import COMBINED, HALF_PULLS, OPERATING_RANGE, STATISTICAL, expanded
+from ..budget import COMBINED, HALF_PULLS, OPERATING_RANGE, STATISTICAL, expanded, halves_line
 from ..candidate import Candidate, Evidence
 from ..ringing import MOUNT_MAX_FRACTION, cluster_modes, damped_basis, ring_sse
 from ..significance import MIN_REL_REDUCTION, MIN_T, significance
@@ -36,7 +36,7 @@ def _budget(est: float, ci: Optional[List[float]], halves: Optional[Tuple[float,
         return ci, {}
     q = t_quantile(n)
     u_stat = 0.5 * (ci[1] - ci[0]) / q
-    u_op = math.sqrt(max(0.0, (halves[0] - halves[1]) ** 2 / 4.0 - u_stat ** 2))
+    u_op = halves_line(halves[0], halves[1], u_stat)
     U = max(expanded(q, u_stat, u_op), 0.5 * (ci[1] - ci[0]))
     center = 0.5 * (ci[0] + ci[1])     # the jackknife's interval is about the estimate; mean_ci's about the mean
     return [float(center - U), float(center + U)], {STATISTICAL: u_stat, OPERATING_RANGE: u_op,
