@@ -2,7 +2,8 @@
 (tests/independent/rig.py): its carriage answers the moving cell's fast ringing (m2 a2 at the cells' and lanyard's
 modes) with its own acceleration, which the encoder's smoothed a3 does not carry, so a balance with F_move as it is
 left -m2 a2 in the current's residual, and three of five clean campaigns were given an `a2` term on the current.
-The balance is now formed in the encoder's bandwidth (prep.as_encoder)."""
+The balance is now formed as a3 sees the motion (prep.like_a3), at the analog channels' fitted lead
+(beyond.series.balance_lead)."""
 from __future__ import annotations
 
 import sys

@@ -244,6 +244,7 @@ class Stream:
         blocks, dts_ = [st.blocks for st in stats], [st.dt for st in stats]
         fm_h, fm_0 = ForceStats(blocks, dts_, m2, scales), ForceStats(blocks, dts_, m2)
         hum, significant = hum_candidate(f_hum, hum_freqs, amps, a_fit, fm_h, fm_0, fit, held)
+        fit_scales = scales if significant else None   # the hum's per-pull scales where the hum is fitted
         self.f_hum, self.scales = f_hum, scales
         self.fm_h, self.fm_0 = fm_h, fm_0
         force_cand, force = force_stage_from(fm_h if significant else fm_0, fit, held, m2)
@@ -259,14 +260,14 @@ class Stream:
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
         # the accelerometer's delay filter-shaped (the data prefer it to a shift): the filter form's fit is the estimate
-        form = filter_form_preferred(stats, fit, m2, scales if significant else None)
+        form = filter_form_preferred(stats, fit, m2, fit_scales)
         if form:
             fstats = self._strict('statistics', self._map('statistics', form_stats,
                                                           [(src, rig, self.c1, job) for src, job in zip(self.sources,
                                                                                                         jobs)], names))
             form_cand, _ = force_stage_from(ForceStats([s.blocks for s in fstats], dts_, m2,
-                                                       scales if significant else None), fit, held, m2)
-            form_line = filter_form_parts(stats, fstats, fit, m2, scales if significant else None)
+                                                       fit_scales), fit, held, m2)
+            form_line = filter_form_parts(stats, fstats, fit, m2, fit_scales)
             # the budget's force-model lines from the filter form's statistics too
             stats = [dataclasses.replace(st, blocks=f.blocks, variants=f.variants) for st, f in zip(stats, fstats)]
             cand = {**cand, **{t: dataclasses.replace(cand[t], parameters=form_cand[t].parameters,
@@ -275,7 +276,7 @@ class Stream:
                          'it (its squared residual below half a shift\'s seen through the same filter); the gain, m2, '
                          'delay and AC coupling are that fit\'s')
         sys_ = campaign_systematics(cand, stats, fit, [s.quality.peak_n for s in usable],
-                                    scales if significant else None, m2, modes, rows,
+                                    fit_scales, m2, modes, rows,
                                     [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
                                     mode_variants, hum_form)
         if form:   # the shift is the alternative the data rejected; the line is the filter's own (filter_form_parts)

@@ -60,7 +60,7 @@ def balance_lead(p: Pull, d, fm: np.ndarray, use: np.ndarray) -> float:
     m_c a3 + b v3, least squares on the samples use (Gauss-Newton from 0, two steps; within +/-LEAD_MAX_S). One
     nuisance parameter a pull, like the hum's phase: its information is in the load's rise and the break."""
     kf = d.force_per_amp_n_per_a
-    motion = d.reflected_mass_kg * p.a3 + d.viscous_damping_n_s_per_m * p.v3
+    motion = drive_force_balance(p, d, 0.0)   # m_c a3 + b v3
     lead = 0.0
     for _ in range(2):
         g = like_a3(kf * p.current - fm, p.dt, lead)
