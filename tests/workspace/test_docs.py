@@ -58,6 +58,9 @@ def test_the_docs_have_command_lines():
     assert len(command_lines()) > 30
 
 
+# one worker runs them all (one xdist group), so each command's `./ft ... --help` runs once per run (help_text's cache
+# is a process's), not once on each worker: 46 commands for 162 lines
+@pytest.mark.xdist_group('documented_command_lines')
 @pytest.mark.parametrize('line, where', command_lines(), ids=[w for _, w in command_lines()])
 def test_a_documented_command_line_parses(line, where):
     words = line.split()
