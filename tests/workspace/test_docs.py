@@ -2,8 +2,9 @@
 option it uses is one that command's --help lists (so an example cannot rot when an option is renamed). The map
 (docs/README.md) lists every page and every link between the pages resolves, anchors included; pages have
 headings and stay under about 15 KB; the README comes in its order and shows the demo's table as the demo prints
-it; the CLI reference is what tools/cli_reference.py writes; docs/tests-files.md names every test file; the references of
-the rig YAML and the channel map, and the catalog page, name every key, cause and band the code defines."""
+it; the CLI reference is what tools/cli_reference.py writes; docs/tests-files.md names every test file; the
+references of the rig YAML and the channel map, and the catalog page, name every key, cause and band the code
+defines."""
 from __future__ import annotations
 
 import json
