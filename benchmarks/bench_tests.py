@@ -29,7 +29,7 @@ from ft_cli.commands.workspace import DURATIONS  # noqa: E402  (where ./ft test 
 
 
 def load(path: Path) -> list:
-    """[{nodeid, seconds, kind, slow, campaign, discover}] from a durations file or a JUnit XML report."""
+    """[{nodeid, seconds, kind, slow, campaign, discover, cpu}] from a durations file or a JUnit XML report."""
     if path.suffix == '.xml':
         out = []
         for case in ET.parse(path).getroot().iter('testcase'):
@@ -76,6 +76,14 @@ def print_tables(records: list, top: int, baseline: list | None = None) -> None:
     base = {r['nodeid']: r['seconds'] for r in baseline or []}
     print(f'{len(records)} tests, {total:.0f} s of test time ({total / 60:.1f} min)'
           + (f'; baseline {len(base)} tests, {sum(base.values()):.0f} s' if baseline else ''))
+    cpu = [r for r in records if r.get('cpu') is not None]
+    if cpu:   # what a run on fewer cores than workers waits for: the CPU, not the seconds a test waited
+        print(f"{sum(r['cpu'] for r in cpu):.0f} CPU seconds (each test's process and the children it waited for)")
+        print(f'\nThe {top} tests that cost the most CPU\n')
+        print('| # | CPU s | seconds | kind | test |')
+        print('|---|---|---|---|---|')
+        for i, r in enumerate(sorted(cpu, key=lambda r: -r['cpu'])[:top], 1):
+            print(f"| {i} | {r['cpu']:.1f} | {r['seconds']:.1f} | {r['kind'] or '-'} | `{r['nodeid']}` |")
     print(f'\nThe {top} slowest tests (seconds: setup + call + teardown)\n')
     print('| # | seconds |' + (' baseline |' if baseline else '') + ' kind | test |')
     print('|---|---|' + ('---|' if baseline else '') + '---|---|')

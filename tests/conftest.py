@@ -10,7 +10,8 @@ domains (every test that talks over DDS takes one from the ros_domain fixtures; 
 the rest), so two workers' graphs never see each other. A test that cannot share the machine carries
 `@pytest.mark.xdist_group(SOLO)`: those tests run one after another on one worker, beside the others.
 
-Bookkeeping. Each test's report carries the seconds it spent making campaigns and in `discover` (tests/kinds.py);
+Bookkeeping. Each test's report carries the seconds it spent making campaigns and in `discover` (tests/kinds.py)
+and the CPU seconds it cost (`cpu`: this process's, plus its children's that were waited for);
 `--record-durations FILE` writes every test's time, kind and those seconds as JSON (`./ft bench tests`).
 
 Skips. Under CI=true a skipped test fails the run unless its node id is in tests/skips_allowed.txt, with its reason.
@@ -21,6 +22,8 @@ import fnmatch
 import itertools
 import json
 import os
+import resource
+import time
 from pathlib import Path
 
 import pytest
@@ -36,6 +39,7 @@ ROS_DOMAINS = 100     # ROS_DOMAIN_ID 1..100 are shared out among the workers
 _ROS_FIXTURES = {'ros_domain', 'module_ros_domain'}
 _domains = itertools.count()
 _RUN = {'tests': {}, 'skips': []}   # what the reports said, for the summary and --record-durations
+_CPU_AT_START = pytest.StashKey[float]()
 
 MARKERS = {
     'slow': 'takes more than about 3 s on its own: left out of ./ft test --fast',
@@ -118,9 +122,16 @@ def _name_the_group(item) -> None:
         item._id = NodeId.parse(f'{item.nodeid}@{group.args[0]}')
 
 
+def cpu_seconds() -> float:
+    """This process's CPU seconds (user + system) plus those of its children that were waited for."""
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + kids.ru_utime + kids.ru_stime
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     take()
+    item.stash[_CPU_AT_START] = cpu_seconds()
     yield
 
 
@@ -129,7 +140,8 @@ def pytest_runtest_makereport(item, call):
     outcome = yield
     report = outcome.get_result()
     if call.when == 'teardown':
-        report.user_properties.append(('spent', json.dumps(take())))
+        spent = {**take(), 'cpu': round(cpu_seconds() - item.stash.get(_CPU_AT_START, cpu_seconds()), 3)}
+        report.user_properties.append(('spent', json.dumps(spent)))
 
 
 def pytest_runtest_logreport(report):

@@ -94,6 +94,7 @@ def test_a_killed_worker_has_its_pull_rerun_and_reported(cluster, tmp_path):
     assert set(r.retried) <= set(names)
 
 
+@pytest.mark.slow   # a Dask cluster of worker processes (5-14 s in the fast tier of a fresh run)
 def test_a_pull_that_kills_every_worker_fails_alone(tmp_path, monkeypatch):
     """The embedded cluster allows RETRIES reruns, then the pull fails with KilledWorker (after one more try
     alone); the pulls that shared its dying workers finish."""

@@ -1,5 +1,7 @@
 """Unit tests of the ROS-free physics core of force_tester_sim."""
 import dataclasses
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -412,3 +414,18 @@ def test_a_departures_uncertainty_is_stated_in_the_same_section():
                        'uncertainty': {'departures': {'accel_delay': {'delay_s': 1e-3}}}})
     with pytest.raises(SimError, match=r'uncertainty\.departures\.accel_delay\.gain is not a parameter'):
         rig_from_dict({'uncertainty': {'departures': {'accel_delay': {'gain': 0.1}}}})
+
+
+def test_the_sim_nodes_process_plans_pulls_without_scipy():
+    """The sim node's own process plans the pulls and publishes them; its worker process simulates (and loads
+    scipy). Importing the node and planning a campaign's pulls loads no scipy: 0.9 s less CPU per sim started."""
+    code = ('import sys\n'
+            'import force_tester_sim.sim_node\n'
+            'from force_tester_sim.core import load_rig, make_pull_specs\n'
+            'from force_tester_sim.core.sim_config import SimConfig\n'
+            'assert make_pull_specs(load_rig(), 3, 2, seed=0)\n'
+            'print(sorted({m.split(".")[0] for m in sys.modules} & {"scipy", "force_tester_sim.core.integrate"}))\n'
+            'print("force_tester_sim.core.integrate" in sys.modules)\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ['[]', 'False'], out.stdout

@@ -283,6 +283,7 @@ def test_nominal_rig_does_not_reproduce_table7(nominal):
     assert tables[0]['raw_diff_pct'] < 2.0 and tables[0]['a2_max_g'] < 0.5 * 330.0
 
 
+@pytest.mark.slow   # a Dask cluster of worker processes (5-14 s in the fast tier of a fresh run)
 def test_generation_is_deterministic(truth, embedded_cluster):
     a = generate_campaign(truth, (2, 4), 2, 7)                    # here, one pull after the other
     b = generate_campaign(truth, (2, 4), 2, 7, mapper=map_pulls)  # on the embedded Dask cluster's workers

@@ -110,6 +110,7 @@ def test_a_killed_worker_is_rerun_and_the_campaign_is_unchanged(cluster, tmp_pat
     assert files(tmp_path / 'c') == files(tmp_path / 'ref')
 
 
+@pytest.mark.slow   # a Dask cluster of worker processes (5-14 s in the fast tier of a fresh run)
 def test_a_corrupt_pull_is_named_and_the_rest_is_imported(cluster, tmp_path):
     from daq_data import T0, make_pulls
     src = write_campaign(tmp_path / 'camp', make_pulls(4, start=T0))

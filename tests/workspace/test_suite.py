@@ -101,6 +101,7 @@ def test_a_skip_fails_the_run_under_ci_unless_allowed(inner_runs):
     assert rec['test_passes']['kind'] == 'rest' and not rec['test_passes']['slow']
     assert rec['test_marked_slow']['slow'] and rec['test_skips']['outcome'] == 'skipped'
     assert 0 < rec['test_makes_a_campaign']['campaign'] <= rec['test_makes_a_campaign']['seconds']
+    assert rec['test_makes_a_campaign']['cpu'] > 0 and all(r['cpu'] >= 0 for r in rec.values())   # its CPU seconds
     # the fast tier leaves out the slow and the ros test
     assert '2 passed, 1 skipped, 2 deselected' in ci.stdout, ci.stdout
 
@@ -166,3 +167,11 @@ def test_bench_tests_prints_the_tables(tmp_path):
     assert '| ROS graphs and nodes | 13 |' in r.stdout and '| network namespaces | 8 |' in r.stdout
     assert '| the rest | 22 |' in r.stdout   # 1..5 and 9 - 1.5 measured
     assert 'fast tier (not slow): 5 tests, 15 s' in r.stdout
+    assert 'CPU' not in r.stdout   # records without CPU seconds (a JUnit report, an older file): no CPU table
+    for rec in records:
+        rec['cpu'] = rec['seconds'] / 2 if rec['kind'] == 'rest' else 0.5
+    (tmp_path / 'd.json').write_text(json.dumps(records))
+    r = subprocess.run([sys.executable, str(ROOT / 'benchmarks' / 'bench_tests.py'), '--file', str(tmp_path / 'd.json'),
+                        '--top', '3'], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert '14 CPU seconds' in r.stdout and '| 1 | 4.5 | 9.0 | rest | `tests/x/test_a.py::test_9` |' in r.stdout

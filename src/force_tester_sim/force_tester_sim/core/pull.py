@@ -13,7 +13,6 @@ from .chain import ChainParams, force_move, force_stat, tension
 from .departures import apply_sensor_departures
 from .errors import SimError
 from .extra_terms import extra_channels, signals
-from .integrate import ChainTrajectory, integrate_chain
 from .motion import MotionSource, PrescribedMotion, hold_time_s, nominal_slack_m
 from .params import RigParams
 
@@ -232,7 +231,9 @@ def run_pull_with_motion(rig: RigParams, spec: PullSpec, motion: MotionSource, n
     p = chain_params(rig, spec)
     t = sample_times_s(rig) if t is None else np.asarray(t, dtype=float)
     x3, v3, a3 = kin = motion.kinematics(t)
-    traj: ChainTrajectory = integrate_chain(p, motion, t, kinematics=kin)
+    # scipy: loaded where a pull is simulated, not where one is planned (the sim node plans, its worker simulates)
+    from .integrate import integrate_chain
+    traj = integrate_chain(p, motion, t, kinematics=kin)
     X = traj.x
     U = np.column_stack([x3, v3, a3, traj.beta])
     T = tension(X, U, p)

@@ -6,7 +6,6 @@ from typing import Dict
 
 import numpy as np
 
-from .coupled import run_coupled_pull
 from .params import RigParams
 from .pull import PullSpec, run_pull
 
@@ -15,5 +14,6 @@ def simulate_pull(rig: RigParams, spec: PullSpec, noise: bool = True, drive: boo
     """The DAQ export columns of one pull (keys: CHANNELS). ``drive=True``: the drive model coupled to the force
     chain instead of the prescribed carriage motion."""
     if drive:
+        from .coupled import run_coupled_pull  # scipy: loaded by the process that simulates
         return run_coupled_pull(rig, spec, noise).channels
     return run_pull(rig, spec, noise).channels
