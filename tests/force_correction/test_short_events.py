@@ -113,33 +113,3 @@ def test_noise_and_a_removed_wiggle_are_not_short_events_and_no_loss_reads_minus
     assert short_events(inertial + noise, noise, rate, WINDOW) == []
     assert percent(-0.004) == '0' and percent(0.5) == '50'
     assert '-0 %' not in ShortEvent(0.1, 1e-3, WINDOW, 2.0, 1.0, 1e3, 5, 2.01).line(rate)
-
-
-def test_the_scorer_thread_gives_each_pull_its_own_score_and_events_in_order():
-    """PullScorer scores each complete pull on its own thread while pieces keep coming: every pull's score and
-    short events are those of score_pull and short_events on that pull's samples, listed in the order the pulls
-    were complete (not the order the thread finished them)."""
-    from force_correction.core.scoring import score_pull
-    from force_correction.offline.scorer import PullScorer
-    n, pulls = 30_000, 6
-    t = np.arange(pulls * n, dtype=np.int64) * 10_000       # 100 kHz, ns
-    widths = [0.13e-3, 20e-3, 0.2e-3, 0.1e-3, 20e-3, 0.15e-3]  # short, long, short, ...
-    f = np.concatenate([impact(w, n=n, peak=-3000.0 * (k + 1), seed=k) for k, w in enumerate(widths)])
-    c = f - 0.5
-    filt = np.concatenate([trailing_mean(c[k * n:(k + 1) * n], WINDOW) for k in range(pulls)])
-    stat = np.abs(c) + 1.0
-    windows = [(int(t[k * n]), int(t[(k + 1) * n - 1]) + 1, 1 + k % 2, 10 + k) for k in range(pulls)]
-    scorer = PullScorer(windows, [], 0.1, short_window=WINDOW)
-    for a in range(0, t.size, 7_777):                        # pieces across the pulls' bounds
-        s = slice(a, a + 7_777)
-        scorer.add({'t': t[s], 'stationary': stat[s], 'raw': f[s], 'corrected': c[s], 'filtered': filt[s],
-                    'inertial': np.zeros(t[s].size)}, RATE)
-    got = scorer.finish()
-    want_events = []
-    for k in range(pulls):
-        s = slice(k * n, (k + 1) * n)
-        want = score_pull(stat[s], f[s], c[s], filt[s], loaded_fraction=0.1, inertial=np.zeros(n),
-                          sample_rate_hz=RATE)
-        assert got.pulls[k].pull_id == 10 + k and repr(got.pulls[k].score) == repr(want)
-        want_events += [(10 + k, e, RATE) for e in short_events(f[s], c[s], RATE, WINDOW)]
-    assert scorer.events == want_events and len(want_events) == 4

@@ -6,14 +6,9 @@ at or after its end has been seen (or at finish), and gives the same result as s
 recording with searchsorted: what the validator node's PullAccumulator does live. With
 ``short_window`` it also searches each pull that the moving average cuts (or that cannot be scored) for
 events shorter than a few windows, on the samples it holds anyway: no second read of the recording.
-A complete pull is scored on a thread of the scorer's own while the caller reads and corrects the next
-samples (numpy releases the GIL in its loops, so both cores work); each pull's score is a function of its
-samples alone, so the results are the same as one thread's, in the same order.
 """
 from __future__ import annotations
 
-import queue
-import threading
 from dataclasses import replace
 
 import numpy as np
@@ -44,18 +39,13 @@ class PullScorer:
         self.windows = list(windows)
         self.short_window = short_window
         self.rates: dict = {}     # window -> the blocks' sample rate of its first piece (short events, the peak's U)
-        self.events: list = []    # (pull_id, ShortEvent, rate_hz) in the order the pulls were scored (at finish)
+        self.events: list = []    # (pull_id, ShortEvent, rate_hz) in the order the pulls were scored
         by_start = sorted(range(len(self.windows)), key=lambda i: self.windows[i][:2])
         self.open = {i: [] for i in by_start}  # stays in start order
         self.outcome: dict = {}
-        self.found: dict = {}     # window -> its short events (the scoring thread's)
-        self.scored: list = []    # windows in the order they were complete
         self.drops = np.array(sorted(drops), dtype=np.int64)
         self.loaded_fraction = loaded_fraction
         self.peak_inputs = peak_inputs
-        self._jobs: queue.SimpleQueue | None = None   # complete pulls for the scoring thread
-        self._thread: threading.Thread | None = None
-        self._errors: list = []
 
     def add(self, piece: dict, rate_hz: float = 0.0) -> None:
         t = piece['t']
@@ -75,7 +65,6 @@ class PullScorer:
                 self._score(i)
 
     def _score(self, i: int) -> None:
-        """Window i is complete: its samples go to the scoring thread."""
         parts = self.open.pop(i)
         start, end, set_id, pull_id = self.windows[i]
         if not parts:
@@ -83,23 +72,6 @@ class PullScorer:
             return
         arrays = [np.concatenate([p[k] for p in parts]) if len(parts) > 1 else parts[0][k]
                   for k in SCORED]
-        self.scored.append(i)
-        if self._jobs is None:
-            self._jobs = queue.SimpleQueue()
-            self._thread = threading.Thread(target=self._scoring, name='pull-scorer', daemon=True)
-            self._thread.start()
-        self._jobs.put((i, arrays))
-
-    def _scoring(self) -> None:
-        while (job := self._jobs.get()) is not None:
-            try:
-                if not self._errors:
-                    self._score_now(*job)
-            except BaseException as exc:  # noqa: BLE001 - re-raised by finish(), on the caller's thread
-                self._errors.append(exc)
-
-    def _score_now(self, i: int, arrays: list) -> None:
-        start, end, set_id, pull_id = self.windows[i]
         rate = self.rates.get(i, 0.0)
         try:
             *scored, inertial = arrays
@@ -110,20 +82,13 @@ class PullScorer:
         except CorrectionError as exc:
             self.outcome[i] = f'pull {pull_id} (set {set_id}) not scored: {exc}'
         if self.short_window and rate > 0 and (isinstance(self.outcome[i], str) or lossy(self.outcome[i])):
-            self.found[i] = [(int(pull_id), e, rate) for e in short_events(arrays[1], arrays[2], rate,
-                                                                           self.short_window)]
+            self.events += [(int(pull_id), e, rate) for e in short_events(arrays[1], arrays[2], rate,
+                                                                          self.short_window)]
 
     def finish(self) -> Scored:
         """Every pull scored (``Scored``: PullRecords in window order)."""
         for i in list(self.open):
             self._score(i)
-        if self._thread is not None:   # the scoring thread ends after the pulls queued
-            self._jobs.put(None)
-            self._thread.join()
-            self._jobs = self._thread = None
-        if self._errors:
-            raise self._errors[0]
-        self.events = [e for i in self.scored for e in self.found.get(i, ())]
         stats, pulls, warnings = SetStatistics(), [], []
         for i, (start, end, set_id, pull_id) in enumerate(self.windows):
             s = self.outcome[i]
