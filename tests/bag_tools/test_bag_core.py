@@ -102,6 +102,32 @@ def test_shared_typestore_agrees_with_the_full_jazzy_store(store):
     assert bytes(shared.serialize_cdr(shared.deserialize_cdr(cdr, FORCE), FORCE)) == cdr
 
 
+def test_shared_typestore_registers_what_is_asked_for(tmp_path, store):
+    """Asked for some types, the shared store parses and registers those and the types they use, not all sixteen;
+    their definitions, hashes and bytes are the full store's; asked for more later, it adds them."""
+    import shutil
+
+    from bag_tools.core.typestore import shared_typestore, type_definition
+    msg = tmp_path / 'share' / 'force_tester_msgs' / 'msg'   # a prefix of its own: a store of its own
+    shutil.copytree(MSG_DIR, msg)
+    env = {'AMENT_PREFIX_PATH': str(tmp_path)}
+    score = 'force_tester_msgs/msg/PullScore'
+    shared = shared_typestore(env, names=[score])
+
+    def ours(types):
+        return {t for t in types if t.startswith('force_tester_msgs/')}
+    assert ours(shared.types) == {score} and 'std_msgs/msg/Header' in shared.types
+    assert type_definition(score, env) == (store.generate_msgdef(score, ros_version=2)[0], store.hash_rihs01(score))
+    assert shared_typestore(env, names=[FORCE]) is shared and FORCE in shared.types and ACCEL not in shared.types
+    cdr = bytes(force(store, T0, 3))
+    assert bytes(shared.serialize_cdr(shared.deserialize_cdr(cdr, FORCE), FORCE)) == cdr
+    history = 'force_tester_msgs/msg/ScoreHistory'   # uses ScoreRow and SetRow: registered with it
+    shared_typestore(env, names=[history])
+    assert {'force_tester_msgs/msg/ScoreRow', 'force_tester_msgs/msg/SetRow'} <= set(shared.types)
+    assert shared.hash_rihs01(history) == store.hash_rihs01(history)
+    assert ours(shared_typestore(env).types) == ours(store.types)
+
+
 # -- writer / reader round trip ----------------------------------------------------------------
 def test_round_trip_bytes_and_stamps(bag, store):
     path, msgs = bag

@@ -1,9 +1,11 @@
 """events.median: np.median's value bit for bit (a zero's sign aside), on the records it is given and on orders
 that defeat its bracket."""
+from contextlib import nullcontext
+
 import numpy as np
 import pytest
 
-from force_tester_common.core.events import deviations, median
+from force_tester_common.core.events import deviations, median, nanmedian
 
 
 def records():
@@ -42,3 +44,32 @@ def test_median_is_numpys_bit_for_bit(name, x):
         return
     # the same double; only a zero's sign may differ (which of -0.0 and 0.0 lands in the middle: equal values)
     assert got == want and (got.tobytes() == want.tobytes() or got == 0), (name, got, want)
+
+
+def short_records():
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 3, 4, 7, 8, 560, 561, 4095):
+        yield f'{n} normals', rng.normal(size=n)
+        yield f'{n} signed zeros', rng.choice([-0.0, 0.0], size=n)
+        yield f'{n} zeros, ones and infinities', rng.choice([-0.0, 0.0, 1.0, -1.0, np.inf, -np.inf], size=n)
+        yield f'{n} ADC steps', np.round(rng.normal(size=n) * 3) * 0.1
+
+
+@pytest.mark.parametrize('name,x', list(short_records()), ids=[r[0] for r in short_records()])
+def test_short_median_is_numpys_to_the_bit(name, x):
+    """A record shorter than the bracketed path takes: np.median's value to the bit, a zero's sign included."""
+    with np.errstate(invalid='ignore'):    # -inf and inf in the middle: NaN, as np.median gives
+        want, got = np.median(x), median(x)
+    assert type(got) is type(want) and got.tobytes() == want.tobytes(), (name, got, want)
+
+
+@pytest.mark.parametrize('name,x', [('short', np.array([3.0, np.nan, -1.0, 2.0])), ('all NaN', np.full(5, np.nan)),
+                                    ('long, no NaN', np.random.default_rng(3).normal(size=9000)),
+                                    ('short, no NaN', np.array([-0.0, -0.0, 1.0, -2.0]))])
+def test_nanmedian_is_numpys(name, x):
+    with np.errstate(invalid='ignore'), pytest.warns(RuntimeWarning) if np.isnan(x).all() else nullcontext():
+        want = np.nanmedian(x)
+    with np.errstate(invalid='ignore'), pytest.warns(RuntimeWarning) if np.isnan(x).all() else nullcontext():
+        got = nanmedian(x)
+    assert (np.isnan(want) and np.isnan(got)) or (got == want and (got.tobytes() == want.tobytes() or got == 0)), \
+        (name, got, want)

@@ -61,10 +61,11 @@ class Command:
     run: Callable[[argparse.Namespace], int]
     errors: tuple = ()
 
-    def add_to(self, sub) -> None:
-        p = sub.add_parser(self.name, help=self.help, description=self.description)
-        self.add_arguments(p)
-        p.set_defaults(func=self.run)
+    def add_to(self, sub, chosen: str | None = None) -> None:
+        p = _command(sub, self.name, self.help, chosen, description=self.description)
+        if p is not None:
+            self.add_arguments(p)
+            p.set_defaults(func=self.run)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -312,13 +313,20 @@ def positive_float(name):
     return conv
 
 
-def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
-    """The ./ft bag parser: bag_tools' own commands plus ``extra`` ones from the packages above
-    it (force_correction adds correct and plot), which bag_tools itself does not import."""
-    from force_tester_common.engine import add_scheduler_argument
+def _command(sub, name: str, help_: str, chosen: str | None, **kwargs) -> argparse.ArgumentParser | None:
+    """The subparser of command ``name``, or None when another command is ``chosen``: then ``name`` gets only its
+    help line (what `./ft bag --help` lists), and what its options need is not imported."""
+    if chosen is not None and name != chosen:
+        sub.add_parser(name, help=help_)
+        return None
+    return sub.add_parser(name, help=help_, **kwargs)
 
-    from .core.daq import META_DEFAULTS
-    from .core.playback import PLAY_DESCRIPTION, add_play_arguments
+
+def build_parser(extra: Sequence[Command] = (), chosen: str | None = None) -> argparse.ArgumentParser:
+    """The ./ft bag parser: bag_tools' own commands plus ``extra`` ones from the packages above
+    it (force_correction adds correct and plot), which bag_tools itself does not import. ``chosen``: the
+    command about to run, the only one whose arguments are set up (None: every command's)."""
+    from force_tester_common.engine import add_scheduler_argument
     p = _Parser(prog='./ft bag', description='Record, play, inspect, convert and correct '
                 'rosbag2 bags (MCAP or sqlite3) and DAQ campaign folders (see '
                 'src/bag_tools/README.md).')
@@ -327,44 +335,62 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
                    'characters)')
     sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND',
                            parser_class=_Parser)
-    i = sub.add_parser('info', help='topics, types, counts, duration, sample rate, dropped blocks, pulls')
-    i.add_argument('bag')
-    i.set_defaults(func=cmd_info)
-    pl = sub.add_parser('play', help='republish a bag with its original timing; topics of types '
-                        'not installed are skipped (./ft bag play --help)',
-                        description=PLAY_DESCRIPTION)
-    add_play_arguments(pl)
-    pl.set_defaults(func=cmd_play)
-    r = sub.add_parser('record', help='record topics to a new MCAP bag until Ctrl-C')
-    r.add_argument('-o', '--output', required=True, help='bag directory to create')
-    r.add_argument('--max-size', type=float, default=0.0, metavar='MB',
-                   help='split: start a new .mcap file in the bag once the current one holds '
-                   'MB megabytes (1e6 bytes); 0 = no split (default)')
-    r.add_argument('--max-duration', type=float, default=0.0, metavar='S',
-                   help='split: start a new .mcap file once the current one spans S seconds; '
-                   '0 = no split (default)')
-    r.add_argument('topics', nargs='*', help='topics (default: every force tester topic)')
-    r.set_defaults(func=cmd_record)
-    ri = sub.add_parser('reindex', help='rebuild the MCAP summary and metadata.yaml of a bag an '
-                        'interrupted recording left', description='Like `ros2 bag reindex`: '
-                        'every message whose chunk reached the disk is kept; the torn tail is '
-                        'cut off, the summary, footer and metadata.yaml are written.')
-    ri.add_argument('bag', help='rosbag2 directory')
-    ri.set_defaults(func=cmd_reindex)
+    i = _command(sub, 'info', 'topics, types, counts, duration, sample rate, dropped blocks, pulls', chosen)
+    if i is not None:
+        i.add_argument('bag')
+        i.set_defaults(func=cmd_info)
+    pl = _command(sub, 'play', 'republish a bag with its original timing; topics of types '
+                  'not installed are skipped (./ft bag play --help)', chosen)
+    if pl is not None:
+        from .core.playback import PLAY_DESCRIPTION, add_play_arguments
+        pl.description = PLAY_DESCRIPTION
+        add_play_arguments(pl)
+        pl.set_defaults(func=cmd_play)
+    r = _command(sub, 'record', 'record topics to a new MCAP bag until Ctrl-C', chosen)
+    if r is not None:
+        r.add_argument('-o', '--output', required=True, help='bag directory to create')
+        r.add_argument('--max-size', type=float, default=0.0, metavar='MB',
+                       help='split: start a new .mcap file in the bag once the current one holds '
+                       'MB megabytes (1e6 bytes); 0 = no split (default)')
+        r.add_argument('--max-duration', type=float, default=0.0, metavar='S',
+                       help='split: start a new .mcap file once the current one spans S seconds; '
+                       '0 = no split (default)')
+        r.add_argument('topics', nargs='*', help='topics (default: every force tester topic)')
+        r.set_defaults(func=cmd_record)
+    ri = _command(sub, 'reindex', 'rebuild the MCAP summary and metadata.yaml of a bag an '
+                  'interrupted recording left', chosen, description='Like `ros2 bag reindex`: '
+                  'every message whose chunk reached the disk is kept; the torn tail is '
+                  'cut off, the summary, footer and metadata.yaml are written.')
+    if ri is not None:
+        ri.add_argument('bag', help='rosbag2 directory')
+        ri.set_defaults(func=cmd_reindex)
 
-    e = sub.add_parser('export', help='bag -> DAQ campaign folder (CSV per pull + campaign.yaml)',
-                       description='Cut the bag into pulls at its PullEvent START/END and write '
-                       'one lossless CSV per pull plus campaign.yaml (stamps kept as start_ns).')
-    e.add_argument('bag', help='rosbag2 directory')
-    e.add_argument('dir', help='campaign folder to create (must not exist)')
-    add_scheduler_argument(e)
-    e.set_defaults(func=cmd_export)
+    e = _command(sub, 'export', 'bag -> DAQ campaign folder (CSV per pull + campaign.yaml)', chosen,
+                 description='Cut the bag into pulls at its PullEvent START/END and write '
+                 'one lossless CSV per pull plus campaign.yaml (stamps kept as start_ns).')
+    if e is not None:
+        e.add_argument('bag', help='rosbag2 directory')
+        e.add_argument('dir', help='campaign folder to create (must not exist)')
+        add_scheduler_argument(e)
+        e.set_defaults(func=cmd_export)
 
-    im = sub.add_parser('import', help='DAQ campaign folder or DAQ file (.csv .tdms .lvm .mf4 .uff) -> bag',
-                        description='Write the block messages and PullEvents of a campaign '
-                        '(or of one DAQ file: TDMS, LabVIEW LVM, ASAM MDF4, UFF 58, CSV; one pull per '
-                        'record) into a new bag. A channel map (--channels) says which file channel is '
-                        'which of ours, in which unit and sensitivity, which sign, and which are absent.')
+    im = _command(sub, 'import', 'DAQ campaign folder or DAQ file (.csv .tdms .lvm .mf4 .uff) -> bag', chosen,
+                  description='Write the block messages and PullEvents of a campaign '
+                  '(or of one DAQ file: TDMS, LabVIEW LVM, ASAM MDF4, UFF 58, CSV; one pull per '
+                  'record) into a new bag. A channel map (--channels) says which file channel is '
+                  'which of ours, in which unit and sensitivity, which sign, and which are absent.')
+    if im is not None:
+        _import_arguments(im)
+
+    for command in extra:
+        command.add_to(sub, chosen)
+    return p
+
+
+def _import_arguments(im: argparse.ArgumentParser) -> None:
+    from force_tester_common.engine import add_scheduler_argument
+
+    from .core.daq import META_DEFAULTS
     im.add_argument('src', help='campaign folder (campaign.yaml) or a DAQ file')
     im.add_argument('bag', nargs='?', default=None, help='bag directory to create (must not exist)')
     im.add_argument('--channels', metavar='MAP.yaml', default=None,
@@ -391,10 +417,6 @@ def build_parser(extra: Sequence[Command] = ()) -> argparse.ArgumentParser:
     tg.add_argument('--pull-id', type=int, default=None)
     im.set_defaults(func=cmd_import)
 
-    for command in extra:
-        command.add_to(sub)
-    return p
-
 
 def main(argv=None, extra: Sequence[Command] = ()) -> int:
     """Run one command. Bad input (BagError, or an extra command's own error type) exits 2, an
@@ -406,7 +428,7 @@ def main(argv=None, extra: Sequence[Command] = ()) -> int:
     if '--ros-args' in argv:
         cut = argv.index('--ros-args')
         argv, ros_args = argv[:cut], argv[cut:]
-    parser = build_parser(extra)
+    parser = build_parser(extra, chosen=next((a for a in argv if not a.startswith('-')), None))
     args = parser.parse_args(argv)
     if ros_args and args.command != 'play':
         parser.error(f'--ros-args applies to play, not to {args.command}')

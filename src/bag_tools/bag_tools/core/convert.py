@@ -16,7 +16,7 @@ from __future__ import annotations
 import itertools
 import math
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, NamedTuple
+from typing import Callable, Iterator, Mapping, NamedTuple
 
 import numpy as np
 from rosbags.typesys.store import Typestore
@@ -37,15 +37,12 @@ from force_tester_common.core.channels import (
 from force_tester_common.core.clock import (
     NS_PER_S,
     end_stamp_ns,
-    ns_to_stamp,
     record_stamps_ns,
     sample_stamps_ns,
-    stamp_to_ns,
 )
 from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
 from .daq import (
-    CAMPAIGN_FILE,
     CORRECTED_COLUMNS,
     DEFAULT_EPOCH_NS,
     DEFAULT_GAP_NS,
@@ -68,7 +65,7 @@ from .daq import (
 from .daqfiles import NOTHING_TO_CORRECT
 from .errors import BagError
 from .reader import open_bag
-from .typestore import default_typestore
+from .typestore import default_typestore, header, stamp_of
 from .writer import BagWriter
 
 CORRECTED_NAME, (CORRECTED_TOPIC, CORRECTED_FIELDS) = CORRECTED_TYPE
@@ -83,31 +80,7 @@ QUIET_TYPES = ('force_tester_msgs/msg/PullScore', 'force_tester_msgs/msg/SetSumm
 Progress = Callable[[int, int], None]
 
 
-def source_kind(src: str | Path) -> str:
-    """'campaign' (a DAQ export folder) or 'bag' (a rosbag2 directory); BagError otherwise."""
-    p = Path(src)
-    if (p / CAMPAIGN_FILE).is_file():
-        return 'campaign'
-    if (p / 'metadata.yaml').is_file() or any(p.glob('*.mcap')):
-        return 'bag'
-    if not p.exists():
-        raise BagError(f'source {str(p)!r} does not exist; expected a bag or a campaign folder')
-    raise BagError(f'source {str(p)!r} is neither a bag (metadata.yaml) nor a campaign '
-                   f'({CAMPAIGN_FILE})')
-
-
 # --------------------------------------------------------------------------- messages
-def header(store: Typestore, stamp_ns: int, frame_id: str = ''):
-    T = store.types
-    sec, nanosec = ns_to_stamp(stamp_ns)
-    return T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
-                                    frame_id=frame_id)
-
-
-def stamp_of(msg: Any) -> int:
-    return stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
-
-
 _EMPTY = np.empty(0, dtype=np.float64)
 
 

@@ -50,8 +50,8 @@ from .daqfiles import (
     write_csv,
 )
 from .errors import BagError, one_line
+from .sources import CAMPAIGN_FILE
 
-CAMPAIGN_FILE = 'campaign.yaml'
 FORMAT = 'force_tester_daq/1'
 #: Columns written by `correct` into a campaign (optional extras, also accepted on reading).
 CORRECTED_COLUMNS = tuple(f for f in CORRECTED_FIELDS if f != 'raw_n')

@@ -494,7 +494,7 @@ class ExtendedBag:
             size = int(rec_end[j - 1] - rec_rel[i])
             abs_rec[i:j] = pos + CHUNK_HEADER + rec_rel[i:j] - rec_rel[i]
             ch = c[i:j]
-            chans = [single] if single is not None else np.unique(ch).tolist()
+            chans = [single] if single is not None else sorted(set(ch.tolist()))   # not np.unique: it imports numpy.ma
             counts = [j - i] if single is not None else \
                 [int(np.count_nonzero(ch == k)) for k in chans]
             mi_len = sum(15 + 16 * k for k in counts)
@@ -539,7 +539,7 @@ class ExtendedBag:
                 message_index_length=mi_len, compression='', compressed_size=size,
                 uncompressed_size=size))
         self._pos += total
-        for k in ([single] if single is not None else np.unique(c).tolist()):
+        for k in ([single] if single is not None else sorted(set(c.tolist()))):
             self._counts[k] += int(np.count_nonzero(c == k))
         self._times = [min(self._times[0], int(lg.min())), max(self._times[1], int(lg.max()))]
         data = abs_rec - shift + RECORD_HEADER

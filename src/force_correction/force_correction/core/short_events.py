@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from force_tester_common.core.correction import EVENT_BANDWIDTH_ENERGY, MA_HALF_POWER, SHORT_EVENT_WINDOWS
-from force_tester_common.core.events import below_snr, deviations, event_width_s, find_events
+from force_tester_common.core.events import below_snr, deviations, event_width_s, find_events, nanmedian
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,7 @@ def short_events(force_moving_n, corrected_n, rate_hz: float, window: int) -> li
             continue
         a, b = span
         lo, hi = max(0, a - window), min(corr.size, b + 2 * window)   # the averaged event and its tail
-        base = np.nanmedian(corr[max(0, a - 4 * window):a]) if a > 0 else 0.0
+        base = nanmedian(corr[max(0, a - 4 * window):a]) if a > 0 else 0.0
         base = 0.0 if not math.isfinite(base) else base
         seg = corr[lo:hi] - base
         sign = 1.0 if np.nanmax(seg) >= -np.nanmin(seg) else -1.0

@@ -18,12 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bag_tools.core.convert import header, stamp_of
 from bag_tools.core.errors import BagError
 from bag_tools.core.fastcdr import FastPathError, block_lengths, decode_blocks, encode_blocks
 from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw
 from bag_tools.core.reader import open_bag
-from bag_tools.core.typestore import default_typestore, shared_typestore, type_definition
+from bag_tools.core.typestore import default_typestore, header, shared_typestore, stamp_of, type_definition
 from bag_tools.core.writer import BagWriter
 from force_tester_common.core.blocks import PullWindows
 from force_tester_common.core.channels import (
@@ -52,6 +51,8 @@ CORRECTED_NAME, (CORRECTED_TOPIC, _) = CORRECTED_TYPE
 RESULT_TOPICS = ((CORRECTED_TOPIC, CORRECTED_NAME), (PULL_SCORE_TOPIC, PULL_SCORE_TYPE),
                  (SET_SUMMARY_TOPIC, SET_SUMMARY_TYPE))  # what correct adds to a bag
 OUTPUT_TOPICS = tuple(t for t, _ty in RESULT_TOPICS)
+#: the message types the fast path reads (their hashes checked; the events deserialised) and writes
+FAST_TYPES = (FORCE_TYPE, ACCEL_TYPE, PULL_EVENT_TYPE, *(ty for _t, ty in RESULT_TOPICS))
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,7 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     if force_topic is None or accel_topic is None or not event_t:
         raise FastPathError('missing topics')
     wanted = [force_topic, accel_topic, *event_t]
+    store = shared_typestore(names=FAST_TYPES)
     if any(bag.hashes.get(t) != type_definition(topics[t]).rihs01 for t in wanted):
         raise FastPathError('message definitions differ from force_tester_msgs')
     raw, _ = read_topics_raw(bag.mcap, wanted, bag.summary, bag.mm)
@@ -122,7 +124,6 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     why = clean_pairing(headers, max_pending)
     if why is not None:
         raise FastPathError(why)
-    store = shared_typestore()
     starts = PullWindows()
     windows: list = []
     notes: list = []  # the warnings, given only once the fast path is sure to apply
@@ -295,6 +296,7 @@ def extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
 
 def extended_sink(target: ExtendedBag):
     """Result topics added to ``target``, and a stream sink writing /force_corrected into it."""
+    shared_typestore(names=FAST_TYPES)   # every type the fast path uses, registered at once
     cids = {t: target.add_topic(t, ty, *type_definition(ty)) for t, ty in RESULT_TOPICS}
 
     def sink(piece, blocks, frame, seq0):
@@ -304,7 +306,7 @@ def extended_sink(target: ExtendedBag):
 
 
 def write_results(target: ExtendedBag, cids: dict, pulls, running) -> None:
-    small = result_messages(shared_typestore(), pulls, running)
+    small = result_messages(shared_typestore(names=FAST_TYPES), pulls, running)
     target.write_messages([cids[g[2]] for g in small], [g[0] for g in small], [g[4] for g in small])
 
 

@@ -8,15 +8,13 @@ campaign (plus inertial_n, corrected_n, filtered_n columns and scores.json).
 from __future__ import annotations
 
 import shutil
-import tempfile
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-from bag_tools.core.convert import campaign_to_bag, read_bag_pulls, source_kind
-from bag_tools.core.daq import DaqPull, Mapper, read_campaign
 from bag_tools.core.fastcdr import FastPathError
+from bag_tools.core.sources import source_kind
 from force_tester_common.core.correction import LOADED_FRACTION, LOADED_FRACTION_RANGE, MASS_KG, MAX_PENDING, WINDOW
 
 from ..core.errors import CorrectionError
@@ -27,11 +25,15 @@ from ..core.peak_uncertainty import PeakInputs
 from ..core.short_events import advice, bandwidth_window, short_events
 from ..core.streaming import correct_signal
 from . import bag as bagio
-from .campaign import bag_pulls_with_columns, correct_runs, write_corrected_campaign
 from .result import CorrectionResult
 from .scorer import running_summaries
 from .stream import SEGMENT_SAMPLES, CorrectionStream
 
+if TYPE_CHECKING:
+    from bag_tools.core.daq import Mapper
+
+# A campaign's modules (bag_tools' DAQ reading and conversion, .campaign) are imported by the paths that use them:
+# a bag corrected into a bag needs none of them.
 Progress = Callable[[int, int], None]
 PATHS = ('auto', 'fast', 'fast_read', 'generic')
 
@@ -127,6 +129,8 @@ def _event_dict(pid, e) -> dict:
 def _events_of(src: Path, kind: str, params: CorrectionParams, mapper, skip_failed) -> list:
     """[(pull_id, ShortEvent, rate)] of every pull: m*a on the moving cell (no moving average) against
     the same with ``params.window``."""
+    from bag_tools.core.convert import read_bag_pulls
+    from bag_tools.core.daq import read_campaign
     if kind == 'campaign':
         # here, not on the mapper: it counts its failed pulls, and the correction has reported those already
         camp = read_campaign(src, mapper=None, skip_failed=True)
@@ -155,6 +159,9 @@ def _correct(src: Path, dst: Path, setup: CorrectionSetup, kind: str, to, path: 
         if not dst.parent.is_dir():
             raise CorrectionError(f'parent directory {str(dst.parent)!r} of output {str(dst)!r} '
                                   'does not exist')
+        import tempfile
+
+        from bag_tools.core.convert import campaign_to_bag
         tmp = Path(tempfile.mkdtemp(prefix=f'.{dst.name}.import-', dir=dst.parent))
         try:
             warnings: list = []
@@ -212,6 +219,7 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
         if target is None:
             bagio.rewrite_bag(src, dst, stream.arrays(), read, pulls, running, warnings)
         return _result(setup, pulls, stats, stream, used, warnings)
+    from .campaign import bag_pulls_with_columns, write_corrected_campaign
     result = _result(setup, pulls, stats, stream, used, warnings)
     rate, camp_pulls = bag_pulls_with_columns(src, stream.arrays())
     write_corrected_campaign(dst, camp_pulls, rate, None, _scores_doc(result), mapper)
@@ -219,6 +227,9 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
 
 
 def _correct_campaign(src: Path, dst: Path, setup: CorrectionSetup, mapper, skip_failed) -> CorrectionResult:
+    from bag_tools.core.daq import DaqPull, read_campaign
+
+    from .campaign import correct_runs, write_corrected_campaign
     camp = read_campaign(src, mapper=mapper, skip_failed=skip_failed)
     stream = CorrectionStream(setup.params, setup.extension, setup.loaded_fraction, peak_inputs=setup.peak_inputs)
     windows, columns = correct_runs(camp, stream)

@@ -10,8 +10,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bag_tools.core.convert import read_bag_pulls, source_kind
+from bag_tools.core.convert import read_bag_pulls
 from bag_tools.core.daq import DaqPull, read_campaign
+from bag_tools.core.sources import source_kind
 from force_tester_common.core.units import FT_M, G_M_S2, LBF_N
 
 from ..core.errors import CorrectionError

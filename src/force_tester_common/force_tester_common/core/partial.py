@@ -23,7 +23,6 @@ import contextlib
 import fcntl
 import os
 import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -106,6 +105,7 @@ def staging(folder: Path, prefix: str, warnings: list | None = None):
     """A fresh hidden folder ``prefix``* inside ``folder`` (made if needed), marked while in use and removed at
     the end; what a writer that died left there is removed first. Yields its Marked: call unmark() before moving
     the finished files out."""
+    import tempfile  # here: the writers that stage nothing (a bag's) do not load it
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     tell(clear_stale_in(folder, prefix), warnings)
