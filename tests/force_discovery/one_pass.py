@@ -31,7 +31,7 @@ from force_discovery.core.force_model import TERMS, ForceModel, fit_terms
 from force_discovery.core.friction import (
     calibrated_rows,
     drive_calibration,
-    drive_line,
+    drive_lines,
     friction_row,
     friction_rows,
     friction_sse,
@@ -121,7 +121,7 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
     if 'coulomb_friction' in cand:
         rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
         drive = drive_calibration(rows, rig)
-        line = None if drive is None else drive_line(rows, drive[1] / drive[0])
+        line = None if drive is None else drive_lines(rows, drive, calibrated_rows(rows, False), rig)
         rows = calibrated_rows(rows, drive is not None)
         joint = viscous_separable(rows, viscous_u(rig))
         out['coulomb_friction'] = {'force_n': B.friction_systematics(

@@ -17,6 +17,7 @@ from force_discovery.core.friction import (
     calibrated_rows,
     drive_calibration,
     drive_line,
+    drive_lines,
     friction_row,
     friction_rows,
     friction_stat,
@@ -72,11 +73,15 @@ def test_with_the_drive_calibrated_the_force_constant_line_leaves_the_budget():
     stat = partial(friction_stat, joint=False)
     stated = B.friction_systematics(calibrated_rows(rows, False), rows_v, stat)
     kf, u = drive_calibration(rows, rig)
-    calibrated = B.friction_systematics(calibrated_rows(rows, True), rows_v, stat, drive=drive_line(rows, u / kf))
+    lines = drive_lines(rows, (kf, u), calibrated_rows(rows, False), rig)
+    calibrated = B.friction_systematics(calibrated_rows(rows, True), rows_v, stat, drive=lines)
     assert stated['torque_constant'] > 5.0 and B.DRIVE_CALIBRATION not in stated, stated
     assert calibrated['torque_constant'] < 0.5 and calibrated['actuator_inertia'] < 0.5, calibrated
     assert 0.0 < calibrated[B.DRIVE_CALIBRATION] < 0.5 and B.KIND[B.DRIVE_CALIBRATION] == 'nominal constant'
-    assert calibrated[B.DRIVE_CALIBRATION] == pytest.approx(np.mean(rows[:, 7]) * u / kf)
+    assert calibrated[B.DRIVE_CALIBRATION] == pytest.approx(drive_line(rows, u / kf))
+    assert lines[0] == pytest.approx(np.mean(rows[:, 7]) * u / kf)
+    # two models of the drive: half the gap between the calibrated friction and the datasheet drive's (its 3 % on D)
+    assert calibrated[B.DRIVE_MODEL] == lines[1] > 5.0 and B.KIND[B.DRIVE_MODEL] == 'model form'
 
 
 def test_pulls_that_do_not_settle_the_drive_keep_its_datasheet():

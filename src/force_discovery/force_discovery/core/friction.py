@@ -121,6 +121,16 @@ def drive_line(rows: np.ndarray, u_rel: float) -> float:
     return float(np.mean(np.abs(rows[:, 7]))) * u_rel
 
 
+def drive_lines(rows: np.ndarray, drive: Tuple[float, float], raw: np.ndarray, rig) -> Tuple[float, float]:
+    """(drive_line, the model line): with the drive calibrated (drive: drive_calibration's (k_F, u)), its own u's
+    effect, and half the gap between the friction the calibrated rows give and the one the datasheet's drive gives
+    (raw: calibrated_rows(rows, False)), each with its own viscous fit where the speeds allow one (two models of the
+    drive that both fit the data: on the own generator 0.4-3 N, what the calibration's own spread does not show)."""
+    cal = calibrated_rows(rows, True)
+    stats = [friction_stat(r, viscous_separable(r, viscous_u(rig))) for r in (cal, raw)]
+    return drive_line(rows, drive[1] / drive[0]), abs(stats[0] - stats[1]) / 2.0
+
+
 def calibrated_rows(rows: np.ndarray, calibrated: bool) -> np.ndarray:
     """The friction_row()s' (moving, rest, speed) columns: the drive-calibrated ones, or with calibrated False the
     uncalibrated ones (columns 4 and 5); rows of three columns as they are."""

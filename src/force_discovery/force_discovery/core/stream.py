@@ -71,7 +71,7 @@ from .force_stats import ForceStats
 from .friction import (
     calibrated_rows,
     drive_calibration,
-    drive_line,
+    drive_lines,
     friction_rows,
     friction_stat,
     viscous_departure,
@@ -212,7 +212,8 @@ class Stream:
         self.dt = dt
         rows = friction_rows(usable[j].friction for j in fit)
         drive = drive_calibration(rows, rig)   # the drive's force per amp the data settle (friction.py), or None
-        drive_u = None if drive is None else drive_line(rows, drive[1] / drive[0])   # the friction's line from it
+        raw = None if rows is None else calibrated_rows(rows, False)
+        drive_u = None if drive is None else drive_lines(rows, drive, raw, rig)   # the friction's lines from it
         rows = None if rows is None else calibrated_rows(rows, drive is not None)
         joint = viscous_separable(rows, viscous_u(rig))
         fcf = None if rows is None else friction_stat(rows, joint)
