@@ -29,6 +29,9 @@ from force_discovery.core.extension import extension
 from force_discovery.core.force_errors import ForceErrors, error_part
 from force_discovery.core.force_model import TERMS, ForceModel, fit_terms
 from force_discovery.core.friction import (
+    calibrated_rows,
+    drive_calibration,
+    drive_lines,
     friction_row,
     friction_rows,
     friction_sse,
@@ -117,9 +120,13 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
         out.setdefault('mains_hum', {}).setdefault(par, {}).update(comps)
     if 'coulomb_friction' in cand:
         rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
+        drive = drive_calibration(rows, rig)
+        line = None if drive is None else drive_lines(rows, drive, calibrated_rows(rows, False), rig)
+        rows = calibrated_rows(rows, drive is not None)
         joint = viscous_separable(rows, viscous_u(rig))
         out['coulomb_friction'] = {'force_n': B.friction_systematics(
-            rows, [B.friction_variants(pulls[j], rig) for j in fit], partial(friction_stat, joint=joint), joint)}
+            rows, [B.friction_variants(pulls[j], rig) for j in fit], partial(friction_stat, joint=joint), joint,
+            line)}
     return out
 
 
@@ -161,12 +168,15 @@ def current_stage(pulls, fit, held, rig):
     rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
     if rows is None:
         return None, None
+    drive = drive_calibration(rows, rig)
+    rows = calibrated_rows(rows, drive is not None)
     joint = viscous_separable(rows, viscous_u(rig))
     fcf, db = friction_stat(rows, joint), viscous_departure(rows, joint)
     b = [friction_sse(pulls[j], rig, 0.0, db) for j in held]
     e = [friction_sse(pulls[j], rig, fcf, db) for j in held]
     return (S.friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit), joint,
-                                 rig.drive.viscous_damping_n_s_per_m + db if joint else None),
+                                 rig.drive.viscous_damping_n_s_per_m + db if joint else None,
+                                 None if drive is None else drive[0]),
             {'sse_base': b, 'sse_ext': e, 'samples': [len(pulls[j].t) for j in held]})
 
 

@@ -46,7 +46,7 @@ from force_correction.core.peak_uncertainty import COVERAGE_FACTOR
 from .candidate import Candidate
 from .force_model import EXTRA, TERMS, ForceModel, force_params
 from .force_stats import ForceStats
-from .friction import friction_row, friction_stat, viscous_fit
+from .friction import calibrated_rows, friction_row, friction_stat, viscous_fit
 from .prep import Pull, tension_from_stationary
 from .uncertainty import CONFIDENCE, t_quantile
 
@@ -57,11 +57,14 @@ WINDOW_LATER_S, WINDOW_EARLIER_S = 0.025, 0.05   # the shorter analysis window's
 
 STATISTICAL, COMBINED, MODEL_FORM = 'statistical', 'combined', 'model form'
 OPERATING_RANGE = 'operating_range'   # a term's model-form line beyond the catalog (operating_range)
+DRIVE_CALIBRATION = 'drive_calibration'   # the friction's line from the drive's k_F calibrated on the data ...
+DRIVE_MODEL = 'drive_model'               # ... and half its gap to the friction with the datasheet's drive
 HALF_PULLS = 2                        # ... measured when each half of the fitted pulls has at least this many
 #: component -> its kind (report.md groups the budget table by kind)
 KIND = {STATISTICAL: 'statistical',
         'm1': 'nominal constant', 'cell_stiffness': 'nominal constant',
         'torque_constant': 'nominal constant', 'pulley_radius': 'nominal constant',
+        DRIVE_CALIBRATION: 'nominal constant', DRIVE_MODEL: MODEL_FORM,
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
         'cell_damping': MODEL_FORM, 'anti_alias_filter': MODEL_FORM, 'analysis_window': MODEL_FORM,
@@ -338,12 +341,21 @@ def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dic
     return out
 
 
-def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]], stat, joint: bool = False) -> dict:
+def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]], stat, joint: bool = False,
+                         drive: Optional[Tuple[float, float]] = None) -> dict:
     """{component: change of the friction statistic} with each drive constant off (rows: the fitted pulls'
-    friction_row()s; rows_v: their friction_variants(); stat: friction.friction_stat; joint: the viscous damping
-    fitted with it); and the model-form line OPERATING_RANGE (friction_range)."""
+    friction_row()s as friction.calibrated_rows gave them; rows_v: their friction_variants(); stat:
+    friction.friction_stat; joint: the viscous damping fitted with it; drive: with the drive calibrated on the data
+    (friction.drive_calibration), the lines DRIVE_CALIBRATION (its own u's effect, friction.drive_line) and
+    DRIVE_MODEL (half the gap between the friction with the calibrated drive and with the datasheet's: two models of
+    the drive that both fit), and each variant's rows calibrated too, so a force-per-amp or inertia variant leaves
+    about nothing); and the model-form line OPERATING_RANGE (friction_range)."""
     f0 = stat(rows)
-    out = {name: abs(stat(np.array([r[name] for r in rows_v])) - f0) for name in DRIVE_VARIANTS}
+    calibrated = drive is not None
+    out = {name: abs(stat(calibrated_rows(np.array([r[name] for r in rows_v]), calibrated)) - f0)
+           for name in DRIVE_VARIANTS}
+    if calibrated:
+        out[DRIVE_CALIBRATION], out[DRIVE_MODEL] = drive
     out[OPERATING_RANGE] = friction_range(rows, joint)
     return out
 
@@ -548,11 +560,11 @@ def clock_relative(rig) -> float:
 
 def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float, modes, rows, rows_v, delay: float,
                          joint: bool = False, hum_freqs: Sequence[float] = (), mode_variants: Sequence = (),
-                         hum_form: Optional[Mapping] = None) -> dict:
+                         hum_form: Optional[Mapping] = None, drive: Optional[Tuple[float, float]] = None) -> dict:
     """{cause: {parameter: {component: u}}}: the systematic parts of the budgets (module doc) from pass 3's variant
     statistics and load groups (the force model, at the campaign's delay), the free-decay modes and their analysis
     variants (the mount), the few pulls' own hum frequencies and the friction rows (joint: friction_stat's, with the
-    viscous damping fitted)."""
+    viscous damping fitted; drive: friction_systematics')."""
     out: dict = {}
     vidx = [j for j in fit if stats[j].variants is not None]
     if vidx:
@@ -577,14 +589,14 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
             out.setdefault('mains_hum', {}).setdefault(par, {}).update(comps)
     if 'coulomb_friction' in cand and rows is not None and all(r is not None for r in rows_v):
         out['coulomb_friction'] = {'force_n': friction_systematics(rows, rows_v, partial(friction_stat, joint=joint),
-                                                                   joint)}
+                                                                   joint, drive)}
     return out
 
 
-__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'DELAY_FORMS', 'HALF_PULLS', 'KIND', 'MODEL_FORM', 'OPERATING_RANGE',
-           'STATISTICAL', 'bessel_attenuation', 'campaign_systematics', 'cell_damping_u', 'cell_stiffness_u',
-           'clock_relative', 'delay_form', 'expanded', 'extra_systematics', 'filter_delay', 'filter_form_parts',
-           'filter_form_preferred', 'force_systematics', 'force_variants', 'friction_range', 'friction_systematics',
-           'friction_variants', 'honest', 'honest_all', 'load_dependence', 'load_groups', 'mode_form_parts',
-           'operating_range', 'own_delay', 'pull_to_pull_parts', 'rate_scale', 'rate_stat_u', 'statistical_u',
-           'term_budget', 'variant_pulls']
+__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'DELAY_FORMS', 'DRIVE_CALIBRATION', 'DRIVE_MODEL', 'HALF_PULLS', 'KIND',
+           'MODEL_FORM', 'OPERATING_RANGE', 'STATISTICAL', 'bessel_attenuation', 'campaign_systematics',
+           'cell_damping_u', 'cell_stiffness_u', 'clock_relative', 'delay_form', 'expanded', 'extra_systematics',
+           'filter_delay', 'filter_form_parts', 'filter_form_preferred', 'force_systematics', 'force_variants',
+           'friction_range', 'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence',
+           'load_groups', 'mode_form_parts', 'operating_range', 'own_delay', 'pull_to_pull_parts', 'rate_scale',
+           'rate_stat_u', 'statistical_u', 'term_budget', 'variant_pulls']

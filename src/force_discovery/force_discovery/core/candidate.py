@@ -17,7 +17,7 @@ TEST_ORDER = ('statistic', 'rel_sse_reduction', 't', 'threshold', 'significant',
 UNTESTED_ORDER = ('significant', 'rel_sse_reduction', 't', 'rms_gain')
 EVIDENCE_ORDER = ('rms_gain_alone', 't_squared_rel_reduction', 'observed_frequency_hz', 'observed_damping_ratio',
                   'cell_mode_hz', 'frequency_rule', 'ring_to_noise', 'ring_to_noise_ci95', 'viscous_damping_n_s_per_m',
-                  'ac_coupling_per_s', 'per_pull_rel_reduction')
+                  'drive_force_per_amp_n_per_a', 'ac_coupling_per_s', 'per_pull_rel_reduction')
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,7 @@ class Evidence:
     ring_to_noise: Optional[float] = None             # mount_resonance: the mode's ring over the noise (its band)
     ring_to_noise_ci95: Optional[tuple] = None
     viscous_damping_n_s_per_m: Optional[float] = None   # coulomb_friction: the drive's b fitted with it (joint)
+    drive_force_per_amp_n_per_a: Optional[float] = None   # coulomb_friction: the drive's k_F the pulls calibrated
     ac_coupling_per_s: Optional[float] = None         # effective_mass without a reference: k fitted with g and m2
     per_pull_rel_reduction: Optional[tuple] = None    # leave-one-out: each held-out pull's own relative reduction
 

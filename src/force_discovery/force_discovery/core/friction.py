@@ -12,7 +12,20 @@ The current's zero is the residual at rest BEFORE the carriage first moves (rest
 contact holds whatever force the drive still applies, anywhere within +/- F_c (the velocity loop's integrator
 keeps a current against it), so the rest after the pull is not the current's zero. On the independent generator's
 tanh friction (seed 5102, F_c 218 N) the rest after the stop read -25 to -35 N and the friction came out 252 N;
-the rest before the launch reads 0.01 N."""
+the rest before the launch reads 0.01 N.
+
+The drive is calibrated on the data, not taken from its datasheet (drive_fit): while the carriage moves, the
+residual of a drive whose force per amp k_F is off by a fraction is that fraction of the drive force D = k_F i,
+and one whose reflected mass is off is a multiple of a3; the drive force runs from the free phase (no load) to the
+peak, so each pull's own least squares of its residual on [1, D, a3, v] measures both, and the pull's friction is
+its residual with them taken out. The datasheet's 2 % on k_F leaves the friction's budget: the pulls' spread
+carries the calibration's own noise instead. The fit regresses a residual on a drive force that contains it, so it
+is checked against the reverse regression (the current on [1, F_move, a3, v], whose regressors are the cells' and
+the encoder's): where the drive's balance holds sample by sample the two agree (own generator: within 0.1 %); where
+it does not (the independent generator's drive: belt, encoder and controller dynamics in the transients) they part
+by 5 to 200 % and neither is k_F. drive_calibration takes the calibration only where the two agree and the pulls
+settle k_F better than the rig YAML states it; elsewhere the rows are the uncalibrated ones (calibrated_rows) and the
+friction keeps the datasheet's lines."""
 from __future__ import annotations
 
 import math
@@ -55,6 +68,76 @@ def rest_level(rho: np.ndarray, sg: np.ndarray) -> float:
     if np.count_nonzero(before) >= MIN_REST_SAMPLES:
         return float(median(rho[:len(before)][before]))
     return float(median(rho[still]))
+
+
+DRIVE_COLUMNS = 4          # drive_fit's regressors: 1, the drive force, a3, the speed about its median
+MIN_DRIVE_SAMPLES = 200    # moving samples a pull needs for its own drive fit
+
+
+def drive_fit(p: Pull, rho: np.ndarray, sg: np.ndarray, force_per_amp: float) -> Optional[np.ndarray]:
+    """(s, e, w, s_reverse): the least squares of the pull's residual while moving (current_resid's rho where sg is
+    1) on [1, D, a3, v3 - its median] (D = force_per_amp i, the drive force the current says): s the fraction of D
+    the rig YAML's force per amp is off by (the true one is force_per_amp (1 - s)), e the reflected mass's departure
+    (kg), w a viscous departure within the pull; and s_reverse the same fraction from the reverse regression, the
+    current on [1, F_move, a3, v3 - its median] (module doc); None with fewer than MIN_DRIVE_SAMPLES moving
+    samples or a rank-deficient fit."""
+    mv = sg == 1.0
+    if np.count_nonzero(mv) < MIN_DRIVE_SAMPLES:
+        return None
+    v = p.v3[mv]
+    X = np.column_stack([np.ones(len(v)), force_per_amp * p.current[mv], p.a3[mv], v - median(v)])
+    coef, _res, rank, _sv = np.linalg.lstsq(X, rho[mv], rcond=None)
+    X[:, 1] = p.fm[mv]
+    rev, _res, rank_r, _sv = np.linalg.lstsq(X, p.current[mv], rcond=None)
+    if rank < DRIVE_COLUMNS or rank_r < DRIVE_COLUMNS or not rev[1] > 0:
+        return None
+    return np.r_[coef[1:], 1.0 - 1.0 / (rev[1] * force_per_amp)]
+
+
+def drive_calibration(rows: Optional[np.ndarray], rig) -> Optional[Tuple[float, float]]:
+    """(k_F, its standard uncertainty) in N/A: the drive's force per amp the fitted pulls' drive fits measure (their
+    mean s, friction_row's column 3), its u the pulls' standard deviation over sqrt(n) and half the gap to the
+    reverse regression's mean (column 6: module doc) in quadrature; when every pull has a fit and that u is below
+    the rig YAML's own (the torque constant's and the pulley radius's). Else None: the data do not settle k_F
+    better than its datasheet, and the friction keeps the stated lines (calibrated_rows)."""
+    if rows is None or rows.shape[1] <= 7 or len(rows) < 3 or not np.all(np.isfinite(rows[:, [3, 6]])):
+        return None
+    d, u = rig.drive, rig.uncertainty
+    stated = math.hypot(u.relative('drive.torque_constant_nm_per_a', d.torque_constant_nm_per_a),
+                        u.relative('drive.pulley_radius_m', d.pulley_radius_m))
+    s = rows[:, 3]
+    gap = float(np.mean(s) - np.mean(rows[:, 6]))
+    u_s = math.hypot(float(np.std(s, ddof=1)) / math.sqrt(len(s)), gap / 2.0)
+    if not u_s < stated:
+        return None
+    kf = d.force_per_amp_n_per_a
+    return kf * (1.0 - float(np.mean(s))), kf * u_s
+
+
+def drive_line(rows: np.ndarray, u_rel: float) -> float:
+    """The friction's line from the drive calibration's own uncertainty (u_rel: drive_calibration's u over its k_F):
+    the fitted pulls' mean median drive force while moving (friction_row's column 7) times u_rel, what k_F that far
+    off moves each pull's friction by."""
+    return float(np.mean(np.abs(rows[:, 7]))) * u_rel
+
+
+def drive_lines(rows: np.ndarray, drive: Tuple[float, float], raw: np.ndarray, rig) -> Tuple[float, float]:
+    """(drive_line, the model line): with the drive calibrated (drive: drive_calibration's (k_F, u)), its own u's
+    effect, and half the gap between the friction the calibrated rows give and the one the datasheet's drive gives
+    (raw: calibrated_rows(rows, False)), each with its own viscous fit where the speeds allow one (two models of the
+    drive that both fit the data: on the own generator 0.4-3 N, what the calibration's own spread does not show)."""
+    cal = calibrated_rows(rows, True)
+    stats = [friction_stat(r, viscous_separable(r, viscous_u(rig))) for r in (cal, raw)]
+    return drive_line(rows, drive[1] / drive[0]), abs(stats[0] - stats[1]) / 2.0
+
+
+def calibrated_rows(rows: np.ndarray, calibrated: bool) -> np.ndarray:
+    """The friction_row()s' (moving, rest, speed) columns: the drive-calibrated ones, or with calibrated False the
+    uncalibrated ones (columns 4 and 5); rows of three columns as they are."""
+    rows = np.asarray(rows, float)
+    if rows.shape[1] <= 3:
+        return rows
+    return rows[:, :3] if calibrated else rows[:, [4, 5, 2]]
 
 
 def viscous_fit(rows: np.ndarray) -> Optional[Tuple[float, float, float, float]]:
@@ -116,13 +199,27 @@ def viscous_departure(rows: Optional[np.ndarray], joint: bool) -> float:
 
 
 def friction_row(p: Pull, rig) -> Optional[tuple]:
-    """The pull's median force-balance residual while moving and at rest (rest_level), and its median speed while
-    moving (None without a current channel)."""
+    """(moving, rest, speed, s, moving_raw, rest_raw, s_reverse, drive): the pull's median force-balance residual
+    while moving and at rest (rest_level) with its own drive fit taken out (drive_fit: the residual less s D + e a3,
+    and while moving less w (v3 - its median)), its median speed while moving, the fit's s (nan without one: then
+    the first two are the raw ones), the two medians of the raw residual (calibrated_rows picks), the reverse
+    regression's s (drive_calibration checks s against it) and the median drive force D while moving (what a
+    fraction off k_F moves the friction by: drive_line; None without a current channel)."""
     cr = current_resid(p, rig)
     if cr is None:
         return None
     rho, sg = cr
-    return median(rho[sg == 1.0]), rest_level(rho, sg), median(p.v3[sg == 1.0])
+    mv = sg == 1.0
+    v = median(p.v3[mv])
+    raw = median(rho[mv]), rest_level(rho, sg)
+    kf = rig.drive.force_per_amp_n_per_a
+    drive = median(kf * p.current[mv])
+    fit = drive_fit(p, rho, sg, kf)
+    if fit is None:
+        return (*raw, v, math.nan, *raw, math.nan, drive)
+    s, e, w, s_reverse = fit
+    cal = rho - s * kf * p.current - e * p.a3
+    return median(cal[mv] - w * (p.v3[mv] - v)), rest_level(cal, sg), v, float(s), *raw, float(s_reverse), drive
 
 
 def friction_rows(rows: Iterable[Optional[tuple]]) -> Optional[np.ndarray]:

@@ -190,12 +190,15 @@ def ring_stage_from(modes: Sequence[Optional[tuple]], parts: Sequence[Optional[R
 
 
 def friction_candidate(rows: np.ndarray, fcf: float, b: np.ndarray, e: np.ndarray, n_fit: int,
-                       joint: bool = False, viscous: Optional[float] = None) -> Candidate:
+                       joint: bool = False, viscous: Optional[float] = None,
+                       force_per_amp: Optional[float] = None) -> Candidate:
     """The coulomb-friction candidate from the fitted pulls' friction_row()s, their statistic fcf (friction_stat;
     joint: fitted with the viscous damping, its interval the line's, else a bootstrap over pulls), and the held-out
     pulls' friction_sse() without (b) and with (e) it; viscous: the drive's viscous damping the joint fit measured
-    (evidence; None: the rig YAML's was used)."""
-    ev = dataclasses.replace(significance(b, e), viscous_damping_n_s_per_m=viscous)
+    (evidence; None: the rig YAML's was used); force_per_amp: the drive's force per amp the pulls calibrated
+    (friction.drive_calibration; evidence, None: the rig YAML's)."""
+    ev = dataclasses.replace(significance(b, e), viscous_damping_n_s_per_m=viscous,
+                             drive_force_per_amp_n_per_a=force_per_amp)
     ci = joint_ci(rows, CONFIDENCE) if joint else bootstrap_ci(rows, friction_stat)
     return Candidate({'force_n': fcf}, {'force_n': list(ci)}, n_fit, ev,
                      'motor_current_a - force balance (i kf = m_c a3 + b v3 + F_move)')

@@ -69,6 +69,9 @@ from .force_errors import ForceErrors
 from .force_model import TERMS, fit_terms
 from .force_stats import ForceStats
 from .friction import (
+    calibrated_rows,
+    drive_calibration,
+    drive_lines,
     friction_rows,
     friction_stat,
     viscous_departure,
@@ -208,6 +211,10 @@ class Stream:
         dt = usable[0].info.dt
         self.dt = dt
         rows = friction_rows(usable[j].friction for j in fit)
+        drive = drive_calibration(rows, rig)   # the drive's force per amp the data settle (friction.py), or None
+        raw = None if rows is None else calibrated_rows(rows, False)
+        drive_u = None if drive is None else drive_lines(rows, drive, raw, rig)   # the friction's lines from it
+        rows = None if rows is None else calibrated_rows(rows, drive is not None)
         joint = viscous_separable(rows, viscous_u(rig))
         fcf = None if rows is None else friction_stat(rows, joint)
         db = viscous_departure(rows, joint)
@@ -255,7 +262,8 @@ class Stream:
             b = [stats[j].friction[0] for j in held]
             e = [stats[j].friction[1] for j in held]
             friction = friction_candidate(rows, fcf, np.array(b), np.array(e), len(fit), joint,
-                                          rig.drive.viscous_damping_n_s_per_m + db if joint else None)
+                                          rig.drive.viscous_damping_n_s_per_m + db if joint else None,
+                                          None if drive is None else drive[0])
             friction_sses = {'sse_base': b, 'sse_ext': e, 'samples': [usable[j].info.samples for j in held]}
         cand, more = candidate_notes({'mains_hum': hum, **force_cand}, mount, friction)
         notes += more
@@ -278,7 +286,7 @@ class Stream:
         sys_ = campaign_systematics(cand, stats, fit, [s.quality.peak_n for s in usable],
                                     fit_scales, m2, modes, rows,
                                     [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
-                                    mode_variants, hum_form)
+                                    mode_variants, hum_form, drive_u)
         if form:   # the shift is the alternative the data rejected; the line is the filter's own (filter_form_parts)
             for t in TERMS:
                 for par, comps in sys_.get(t, {}).items():
