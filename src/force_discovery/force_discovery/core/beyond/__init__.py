@@ -65,12 +65,12 @@ from .own import carrier, reading_factors
 from .priority import CAUSE_PARAMS
 from .search import BeyondResult, search
 from .selection import NEAR_TIE, Term, near_tied, search_channel
-from .series import ChannelSeries, channel_series, decimation, sensor_corrected
+from .series import ChannelSeries, before_samples, channel_series, decimation, sensor_corrected
 from .spectrum import REFINE_PULLS, SearchSettings, settings_from, spectrum_part
 from .traces import TermTrace, term_traces
 
 __all__ = ['CAUSE_PARAMS', 'COULOMB', 'NEAR_TIE', 'REFINE_PULLS', 'SEARCHED', 'SENSORS', 'BeyondPart', 'BeyondResult',
-           'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'beyond_part',
+           'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'before_samples', 'beyond_part',
            'carrier', 'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
            'near_tied', 'pairs', 'reading_factors', 'search', 'search_channel', 'sensor_corrected',
            'spectrum_part', 'settings_from', 'term_traces']
