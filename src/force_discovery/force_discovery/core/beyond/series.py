@@ -11,7 +11,7 @@ import numpy as np
 from force_tester_sim.core.extra_terms import SIN, parse_term, signals, term_values
 
 from ..budget import DRIVE_VARIANTS
-from ..friction import MOVING_M_S, STILL_M_S, drive_force_balance
+from ..friction import MOVING_M_S, STILL_M_S, drive_force_balance, rest_level
 from ..prep import Pull, as_encoder, like_a3, tension_from_stationary
 from .grammar import RELATIVE, SENSORS
 
@@ -153,9 +153,14 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
             slow = {k: (fm_b if k == 'F_move' else like_a3(v, p.dt, lead) if k in ANALOG else v)
                     for k, v in full.items()}   # F_move is the prediction fm_pred (signals above)
 
+            # the current's zero: the balance at rest before the carriage first moves (friction.rest_level: after
+            # the stop a dry contact holds what the drive still applies; and a term in x, at rest at the track's end
+            # there, would leave its whole size in the zero, not in the residual: an injected x read -0.02 of 0.60)
+            sg = np.where(p.usable(), np.where(moving, 1.0, np.where(still, 0.0, np.nan)), np.nan)
+
             def balance(d):   # the current's force balance in A with the drive constants d
                 rho = cur * d.force_per_amp_n_per_a - drive_force_balance(p, d, fm_b)
-                return (rho - np.median(rho[still & p.usable()])) / d.force_per_amp_n_per_a
+                return (rho - rest_level(rho, sg)) / d.force_per_amp_n_per_a
             y = balance(d)
             col = moving.astype(float) / kf
             sel = np.flatnonzero(use)[::q]
