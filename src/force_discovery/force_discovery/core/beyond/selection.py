@@ -22,6 +22,7 @@ from .normal_equations import ChannelStats
 from .spectrum import SearchSettings
 
 MAX_TERMS = 3
+DAMPING_SHIFT = 'damping_fitted'   # a current term's budget line: its shift with the drive's damping fitted beside it
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (search_channel)
 NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
@@ -295,9 +296,13 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         model = best
         # the term's coefficient, interval and budget with the drive's damping fitted beside it (kv): a damping off
         # the rig YAML's is then the data's to measure, not the stated +/-50 % in the budget of every term like v
-        prof = model
+        prof, form = model, None
         if kv is not None and not is_sin and kv not in model.prod:
             prof = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
+            # which damping holds, the rig YAML's or the one fitted beside the term, the data do not say for certain:
+            # the coefficient's shift between the two is a model-form line of its budget (DAMPING_SHIFT)
+            k0 = new_prod[0]
+            form = (DAMPING_SHIFT, prof.coef[list(prof.prod).index(k0)] - model.coef[list(model.prod).index(k0)])
         ci = jackknife(fit, prof, n_prod)
         if is_sin:
             name, coef, cif, col = names[n_prod + model.sin], model.amp, ci[-1], None
@@ -318,7 +323,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         rms_unit = math.sqrt(norm / max(n_held, 1))
         lo, hi = sorted(cif)
         si = si_factor(name, settings.scales)
-        budget, (lo, hi) = term_budget(fit, prof.prod, col, coef, (lo, hi), si, relative_part(channel, rig))
+        budget, (lo, hi) = term_budget(fit, prof.prod, col, coef, (lo, hi), si, relative_part(channel, rig), form)
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
