@@ -37,7 +37,7 @@ def current_on_a2(camp, rig, c_added: float = 0.0):
     for meta, ch in camp:
         ch = {**ch, 'motor_current_a': ch['motor_current_a'] + c_added * ch['accel_axial_m_s2']}
         p = prepare(meta, ch, rig)
-        cs = channel_series(p, rig, np.zeros(p.w1 - p.w0), None, None, {})['motor_current']
+        cs = channel_series(p, rig, np.zeros(p.w1 - p.w0), None, {})['motor_current']
         a, y = cs.signals['a2'], cs.residual
         xx, xy, yy = xx + a @ a, xy + a @ y, yy + y @ y
     return xy / xx, (xy * xy / xx) / yy

@@ -275,6 +275,25 @@ class ForceModel:
         return float(1 - s1 / s0) if s0 > 0 else 0.0
 
 
+def resid_at(p: Pull, m2: float, hum: Optional[np.ndarray], terms, coef: dict, d: float,
+             sel: np.ndarray) -> np.ndarray:
+    """The force model's residual at the samples sel of the whole record (outside W: the moving cell's free phase
+    before the load, where T is about 0 and the model the catalog's g m2 a2), with the coefficients fitted on W:
+    F_move - hum - (g T + M a2(t + d) - k C), C the running integral over the whole record as on W; a2 is shifted by
+    linear interpolation (the carriage's motion before the load is slow beside the delay)."""
+    y = p.fm - (0.0 if hum is None else hum)
+    a2 = np.interp(p.t[sel] + d, p.t, p.a2) if ('accel_delay' in terms and d) else p.a2[sel]
+    T = p.T[sel]
+    if 'moving_cell_gain' in terms and 'effective_mass' not in terms:
+        pred = coef['g'] * (T + m2 * a2)
+    else:
+        pred = (coef['g'] if 'moving_cell_gain' in terms else 1.0) * T \
+            + (coef['M'] if 'effective_mass' in terms else m2) * a2
+    if 'ac_coupling' in terms:
+        pred = pred - coef['k'] * (np.cumsum(y) * p.dt)[sel]
+    return y[sel] - pred
+
+
 def _parabolic_offset(y: np.ndarray, k: int) -> float:
     """Offset (in grid steps, within (-1, 1)) of the vertex of the parabola through y[k-1:k+2]; 0 at an end."""
     if not 0 < k < len(y) - 1:

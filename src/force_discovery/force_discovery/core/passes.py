@@ -33,7 +33,7 @@ from .cells import (
 )
 from .errors import DiscoveryError
 from .force_errors import ErrorPart, error_part
-from .force_model import ForceModel, TermsFit
+from .force_model import ForceModel, TermsFit, resid_at
 from .force_stats import force_blocks
 from .friction import (
     friction_row,
@@ -127,7 +127,6 @@ class BeyondJob:
     f_hum: float
     hum_scale: Optional[float]          # the hum estimate's factor (None: the hum is not named)
     err_fit: TermsFit                   # the named force-channel causes' fit
-    coulomb: Optional[float]            # the named Coulomb friction (N), or None
     settings: Optional[bey.SearchSettings]   # None: the spectrum pass (a few fitted pulls); else the statistics
     sensors: tuple = ()                 # terms found on the sensors on their own (beyond.sensor_corrected)
     records: bool = False               # the spectrum pass keeps the residual's samples (beyond.REFINE_PULLS pulls)
@@ -281,9 +280,13 @@ def beyond_pass(item, series: bool = False):
     fm_ = ForceModel([p], m2, [h])
     r = fm_.resid(set(terms), coef, d, 0)
     causes = {k: fm_.resid(set(terms) - {k}, coef, d, 0) - r for k in terms}   # each cause undone (cause_check)
+    # the moving cell's free phase before the load, at the same fitted parameters (beyond.series.before_samples)
+    sel = bey.before_samples(p)
+    r_b = resid_at(p, m2, h, set(terms), coef, d, sel)
+    causes_b = {k: resid_at(p, m2, h, set(terms) - {k}, coef, d, sel) - r_b for k in terms}
     if h is not None:
-        causes['mains_hum'] = h[p.w0:p.w1]
-    out = bey.channel_series(p, rig, r, h, job.coulomb, causes)
+        causes['mains_hum'], causes_b['mains_hum'] = h[p.w0:p.w1], h[sel]
+    out = bey.channel_series(p, rig, r, h, causes, (sel, r_b, causes_b))
     if series:
         return out
     series = out

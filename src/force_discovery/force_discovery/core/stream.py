@@ -325,14 +325,11 @@ class Stream:
         import time
         t0 = time.perf_counter()
         err_hum, fit_ = self.err_fit(analysis, decision)
-        fcf = None
-        if 'coulomb_friction' in decision.named:
-            fcf = analysis.candidates['coulomb_friction'].parameters['force_n']
         names = [p.name for p in analysis.pulls]
 
         def job(j, settings, sensors=(), records=False):
             return (self.sources[j], self.rig, self.c1,
-                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, fcf, settings, sensors, records))
+                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, settings, sensors, records))
         few = few_pulls(analysis.fit)
         jobs = [job(j, None, records=i < bey.REFINE_PULLS) for i, j in enumerate(few)]
         specs = self._strict('beyond', self._map('beyond', beyond_pass, jobs, [names[j] for j in few]))

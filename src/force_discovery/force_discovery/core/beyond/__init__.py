@@ -4,7 +4,8 @@ terms with sparse regression, fitted on the fitted pulls and scored on the held-
 The grammar (its one home: force_tester_sim.core.extra_terms; per channel: grammar.py). A term is added to one
 channel's model; the search forms the residual of SEARCHED: the stationary cell and the accelerometer on their own,
 in the free phases (lanyard slack, T = 0: the stationary cell's model is 0, the accelerometer's the encoder's
-acceleration), the moving cell over the analysis window after the named force-channel causes, and the motor
+acceleration), the moving cell over the analysis window after the named force-channel causes (with its free
+phase before the load, series.before_samples: a zero drifting there with no load is no AC coupling), and the motor
 current's force balance after the model of record. The sensors come first: their product terms are taken out of
 F_stat (and T) and a2 (series.sensor_corrected) before the moving cell and the current are searched, so a drifting
 stationary cell is named on its own channel. A sensor's own terms are in the quantity it should read: the
@@ -38,7 +39,10 @@ significant AND its contribution's rms on the held-out pulls, over that interval
 
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
-PRIORITY_MARGIN more than it does (the same number of parameters: one). On the moving cell each named force-model
+PRIORITY_MARGIN more than it does (the same number of parameters: one). A term on the current is named only when
+it beats the drive's causes in its place (the viscous damping, whose form is `v`, and the Coulomb step; Term's
+catalog_beat), and is fitted with `v` beside it, so the damping's stated uncertainty is measured, not a systematic
+part of its budget. On the moving cell each named force-model
 cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the cause undone, on every campaign; a cause
 kept says what the library in its place left (BeyondResult.checked). A cause a library term
 explains better is withheld: the report names the term and says the nearest catalog cause does not fit
@@ -65,12 +69,12 @@ from .own import carrier, reading_factors
 from .priority import CAUSE_PARAMS
 from .search import BeyondResult, search
 from .selection import NEAR_TIE, Term, near_tied, search_channel
-from .series import ChannelSeries, channel_series, decimation, sensor_corrected
+from .series import ChannelSeries, before_samples, channel_series, decimation, sensor_corrected
 from .spectrum import REFINE_PULLS, SearchSettings, settings_from, spectrum_part
 from .traces import TermTrace, term_traces
 
 __all__ = ['CAUSE_PARAMS', 'COULOMB', 'NEAR_TIE', 'REFINE_PULLS', 'SEARCHED', 'SENSORS', 'BeyondPart', 'BeyondResult',
-           'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'beyond_part',
+           'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'before_samples', 'beyond_part',
            'carrier', 'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
            'near_tied', 'pairs', 'reading_factors', 'search', 'search_channel', 'sensor_corrected',
            'spectrum_part', 'settings_from', 'term_traces']

@@ -42,6 +42,11 @@ RELATIVE = {'force_moving': ('cell_sensitivity', 'sensors.load_cell_sensitivity_
                             'accelerometer_sensitivity_mv_per_g')}
 FORCES = ('F_move', 'F_stat', 'T')     # the cells' forces: the moving cell's, the stationary cell's, the tension
 COULOMB = 'coulomb_friction'   # the catalog cause that is a library column on the motor current
+# the drive's viscous damping (rig drive.viscous_damping_*): a catalog constant whose form on the motor current is the
+# library's `v` (its departure from the rig YAML's, in A per m/s). A term on the current is fitted with it beside,
+# so the data measure the damping rather than its stated +/-50 % entering the term's budget, and a term is named
+# only when it beats it, and the Coulomb step, in its place (selection.search_channel)
+DAMPING, DAMPING_FORM = 'viscous_damping', 'v'
 
 
 def library() -> List[str]:

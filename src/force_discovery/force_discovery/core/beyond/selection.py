@@ -16,12 +16,13 @@ from force_tester_sim.core.extra_terms import CHANNEL_UNITS, SIN, term_unit
 from ..budget import term_budget
 from ..significance import significance
 from ..uncertainty import jackknife_se, t_quantile
-from .grammar import RELATIVE, channel_band, mixed_forces, reads_own, si_factor
+from .grammar import COULOMB, DAMPING, DAMPING_FORM, RELATIVE, channel_band, mixed_forces, reads_own, si_factor
 from .interpretation import interpretation
 from .normal_equations import ChannelStats
 from .spectrum import SearchSettings
 
 MAX_TERMS = 3
+DAMPING_SHIFT = 'damping_fitted'   # a current term's budget line: its shift with the drive's damping fitted beside it
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (search_channel)
 NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
@@ -170,6 +171,8 @@ class Term:
     budget: Dict[str, float] = field(default_factory=dict)   # standard uncertainties: statistical, systematic parts
     alternatives: Tuple[str, ...] = ()   # terms the held-out pulls cannot tell from it (near_tied), best first
     beat: Tuple = ()            # (the best other term in its place, its held-out margin over it: a share of the SSE)
+    catalog_beat: Tuple = ()    # (the best catalog cause in its place, the term's held-out margin over it; <= 0:
+                                # the cause does as well, and the term is not named): the motor current's drive causes
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -183,7 +186,9 @@ class Term:
                              'band': self.band},
                 'uncertainty_budget': dict(self.budget), 'near_tied': list(self.alternatives),
                 'best_alternative': None if not self.beat else {'term': self.beat[0],
-                                                                'held_out_margin': self.beat[1]}}
+                                                                'held_out_margin': self.beat[1]},
+                'best_catalog_alternative': None if not self.catalog_beat else {
+                    'cause': self.catalog_beat[0], 'held_out_margin': self.catalog_beat[1]}}
 
 
 class ChannelResult(NamedTuple):
@@ -219,8 +224,13 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     n_sin = sum(1 for n in names if n.endswith(SIN))
     n_prod = len(names) - n_sin
     use_cat = catalog_named and fit[0].catalog is not None and channel == 'motor_current'
+    # the motor current's drive causes a term competes with in its place, one parameter each: the Coulomb step (the
+    # catalog column) and the viscous damping's departure (its form, the library's v: fitted beside every other
+    # term, so its stated uncertainty is measured, not a systematic part of the term's budget)
+    has_step = channel == 'motor_current' and fit[0].catalog is not None
+    kv = names.index(DAMPING_FORM) if channel == 'motor_current' and DAMPING_FORM in names[:n_prod] else None
     sf, sh = {False: stacked(fit, False)}, {False: stacked(held, False)}
-    if use_cat:
+    if has_step:
         sf[True], sh[True] = stacked(fit, True), stacked(held, True)
 
     def fitted(prod, sin, cat):
@@ -282,14 +292,24 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             runner[0], float((base.sum() - ext.sum() - runner[1]) / base.sum()))
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
+        cat_beat = catalog_margin(model, best, new_prod, base.sum(), kv, has_step, fitted, sse_held)
         model = best
-        ci = jackknife(fit, model, n_prod)
+        # the term's coefficient, interval and budget with the drive's damping fitted beside it (kv): a damping off
+        # the rig YAML's is then the data's to measure, not the stated +/-50 % in the budget of every term like v
+        prof, form = model, None
+        if kv is not None and not is_sin and kv not in model.prod:
+            prof = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
+            # which damping holds, the rig YAML's or the one fitted beside the term, the data do not say for certain:
+            # the coefficient's shift between the two is a model-form line of its budget (DAMPING_SHIFT)
+            k0 = new_prod[0]
+            form = (DAMPING_SHIFT, prof.coef[list(prof.prod).index(k0)] - model.coef[list(model.prod).index(k0)])
+        ci = jackknife(fit, prof, n_prod)
         if is_sin:
             name, coef, cif, col = names[n_prod + model.sin], model.amp, ci[-1], None
         else:
             k = new_prod[0]
-            pos = list(model.prod).index(k)
-            name, coef, cif, col = names[k], model.coef[pos], ci[pos], k
+            pos = list(prof.prod).index(k)
+            name, coef, cif, col = names[k], prof.coef[pos], ci[pos], k
         # the contribution's rms on the held-out pulls (scaled columns), then the SI coefficient
         n_held = sum(st.n for st in held)
         if col is None:
@@ -303,14 +323,31 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         rms_unit = math.sqrt(norm / max(n_held, 1))
         lo, hi = sorted(cif)
         si = si_factor(name, settings.scales)
-        budget, (lo, hi) = term_budget(fit, model.prod, col, coef, (lo, hi), si, relative_part(channel, rig))
+        budget, (lo, hi) = term_budget(fit, prof.prod, col, coef, (lo, hi), si, relative_part(channel, rig), form)
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
-                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, bool(rms_lo > band), budget, alternatives,
-                          beat))
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band,
+                          bool(rms_lo > band) and (not cat_beat or cat_beat[1] > 0), budget, alternatives, beat,
+                          cat_beat))
     return ChannelResult(found, demoted, model, kept)
+
+
+def catalog_margin(model: Model, best: Model, new_prod: Sequence[int], base: float, kv: Optional[int],
+                   has_step: bool, fitted, sse_held) -> Tuple:
+    """(the best drive cause in the new term's place, the term's held-out margin over it as a share of the SSE
+    before it; () when none competes): the viscous damping (its form, column kv) and the Coulomb step (the catalog
+    column), each added to the model instead of the term, one parameter as the term."""
+    alts = {}
+    if kv is not None and kv not in model.prod and kv not in new_prod:
+        alts[DAMPING] = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
+    if has_step and not model.cat:
+        alts[COULOMB] = fitted(model.prod, model.sin, True)
+    if not alts or base <= 0:
+        return ()
+    cause, e_alt = min(((c, total(sse_held(m))) for c, m in alts.items()), key=lambda x: x[1])
+    return cause, float((e_alt - total(sse_held(best))) / base)
 
 
 def relative_part(channel: str, rig) -> Optional[Tuple[str, float]]:

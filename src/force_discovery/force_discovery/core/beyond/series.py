@@ -11,11 +11,13 @@ import numpy as np
 from force_tester_sim.core.extra_terms import SIN, parse_term, signals, term_values
 
 from ..budget import DRIVE_VARIANTS
-from ..friction import MOVING_M_S, STILL_M_S, drive_force_balance
+from ..friction import MOVING_M_S, STILL_M_S, drive_force_balance, rest_level
 from ..prep import Pull, as_encoder, like_a3, tension_from_stationary
 from .grammar import RELATIVE, SENSORS
 
 FREE_SPAN_S = 0.5              # the sensors' free phases: at most this long before the pull and after its ringing
+BEFORE_LOAD_S = 0.2            # the moving cell's free phase before the load, searched with its analysis window: a
+                               # zero that drifts is there with no load, an AC coupling acts only on a signal
 EDGE_S = 0.02                  # the free phases leave the record's first and last 20 ms out (the filters' edges)
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
 ANALOG = ('F_move', 'F_stat', 'T', 'a2')   # the signals from analog channels: the current's balance filters them as
@@ -49,6 +51,14 @@ def free_samples(p: Pull) -> np.ndarray:
     return np.flatnonzero(free & p.usable())[::decimation(p.dt)]
 
 
+def before_samples(p: Pull) -> np.ndarray:
+    """The moving cell's free phase before the load, decimated: BEFORE_LOAD_S up to the analysis window's start
+    (lanyard slack, T about 0), the record's first EDGE_S left out, usable samples only."""
+    free = np.zeros(len(p.t), bool)
+    free[max(int(round(EDGE_S / p.dt)), p.w0 - int(round(BEFORE_LOAD_S / p.dt))):p.w0] = True
+    return np.flatnonzero(free & p.usable())[::decimation(p.dt)]
+
+
 def smoothed_a2(p: Pull) -> np.ndarray:
     """a2 smoothed as the encoder's a3 is (the accelerometer's free-phase model is a3)."""
     return as_encoder(p.a2, p.dt)
@@ -75,16 +85,21 @@ def balance_lead(p: Pull, d, fm: np.ndarray, use: np.ndarray) -> float:
 
 
 def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarray],
-                   coulomb_n: Optional[float], causes: Optional[Dict[str, np.ndarray]] = None
+                   causes: Optional[Dict[str, np.ndarray]] = None, before: Optional[tuple] = None
                    ) -> Dict[str, ChannelSeries]:
     """{channel: ChannelSeries} of one pull.
 
     force_moving: the force model's residual on W after the named causes (force_resid, from ForceModel.resid);
     F_move is the model's prediction (measured minus hum minus residual). motor_current (A): the drive's force
     balance with the predicted F_move, over the samples at rest and moving, minus the pull's median at rest;
-    its catalog column is the Coulomb step (1 while moving) in A per N of friction: coulomb_n is whether it
-    is named (the column is offered only then). causes: each named force-model cause's contribution to the moving
-    cell's residual on W (what the residual would gain were the cause undone, at its fitted parameters; cause_check)."""
+    its catalog column is the Coulomb step (1 while moving) in A per N of friction, on every pull: the search
+    fits it with the terms when the cause is named, and weighs it against each term in the term's place (a catalog
+    cause with as many parameters). causes: each named force-model cause's contribution to the moving
+    cell's residual on W (what the residual would gain were the cause undone, at its fitted parameters; cause_check).
+    before: (samples, residual, causes) of the moving cell's free phase before the load (before_samples; the force
+    model there at its fitted parameters, force_model.resid_at), put ahead of W: a zero drifting with no load is
+    seen there, where an AC coupling, which acts on the load, leaves nothing; so the two compete on the same
+    held-out samples (issue 39: a drift from the record's start was fitted as the AC coupling on W alone)."""
     q = decimation(p.dt)
     out = {}
     w = slice(p.w0, p.w1)
@@ -98,9 +113,19 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
     # the catalog, and its linear error leaks into any term that grows with the load (F_move^3, F_move*v)
     _, key, attr = RELATIVE['force_moving']
     u_g = rig.uncertainty.relative(key, getattr(rig.sensors, attr))
-    out['force_moving'] = ChannelSeries(np.asarray(force_resid)[::q][ok], {k: v[w][::q][ok] for k, v in full.items()},
-                                        None, {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()},
-                                        {'m2': (u_m2 * p.a2)[w][::q][ok], 'gain': (u_g * fm_pred)[w][::q][ok]})
+    on_w = np.arange(p.w0, p.w1)[::q][ok]   # W's samples as the residual has them
+    y_m, c_m = np.asarray(force_resid)[::q][ok], {c: np.asarray(v)[::q][ok] for c, v in (causes or {}).items()}
+    idx_m, fm_m = on_w, fm_pred
+    if before is not None and len(before[0]):
+        b_sel, b_res, b_causes = before
+        idx_m = np.concatenate([b_sel, on_w])
+        y_m = np.concatenate([b_res, y_m])
+        c_m = {c: np.concatenate([b_causes[c], v]) for c, v in c_m.items()}
+        fm_m = fm_pred.copy()
+        fm_m[b_sel] = fm_m[b_sel] - b_res   # F_move there the model's prediction too
+    sig_m = signals(p.t, fm_m, p.fs, p.T, p.a2, p.v3, p.x3)
+    out['force_moving'] = ChannelSeries(y_m, {k: v[idx_m] for k, v in sig_m.items()}, None, c_m,
+                                        {'m2': (u_m2 * p.a2)[idx_m], 'gain': (u_g * fm_m)[idx_m]})
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
     # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
     # accelerometer's the carriage's acceleration from the encoder (a2 smoothed as the encoder's a3 is), and the
@@ -128,19 +153,23 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
             slow = {k: (fm_b if k == 'F_move' else like_a3(v, p.dt, lead) if k in ANALOG else v)
                     for k, v in full.items()}   # F_move is the prediction fm_pred (signals above)
 
+            # the current's zero: the balance at rest before the carriage first moves (friction.rest_level: after
+            # the stop a dry contact holds what the drive still applies; and a term in x, at rest at the track's end
+            # there, would leave its whole size in the zero, not in the residual: an injected x read -0.02 of 0.60)
+            sg = np.where(p.usable(), np.where(moving, 1.0, np.where(still, 0.0, np.nan)), np.nan)
+
             def balance(d):   # the current's force balance in A with the drive constants d
                 rho = cur * d.force_per_amp_n_per_a - drive_force_balance(p, d, fm_b)
-                return (rho - np.median(rho[still & p.usable()])) / d.force_per_amp_n_per_a
+                return (rho - rest_level(rho, sg)) / d.force_per_amp_n_per_a
             y = balance(d)
-            col = None if coulomb_n is None else (moving.astype(float) / kf)
+            col = moving.astype(float) / kf
             sel = np.flatnonzero(use)[::q]
             sys_ = {}
             for name, key in DRIVE_VARIANTS.items():   # each drive constant one standard uncertainty off
                 u = rig.uncertainty.u(f'drive.{key}')
                 if u > 0:
                     sys_[name] = (balance(dataclasses.replace(d, **{key: getattr(d, key) + u})) - y)[sel]
-            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in slow.items()},
-                                                 None if col is None else col[sel], {}, sys_)
+            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in slow.items()}, col[sel], {}, sys_)
     return out
 
 
