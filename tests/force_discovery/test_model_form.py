@@ -3,13 +3,15 @@ whose answer is known: the free-decay mode's analysis variants (ringing.free_dec
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import pytest
 
 from force_discovery.core import budget as B
+from force_discovery.core.force_model import WindowShift, delay_grid
 from force_discovery.core.prep import Pull
-from force_discovery.core.ringing import MODE_VARIANTS, free_decay_mode, free_decay_variants
+from force_discovery.core.ringing import MODE_VARIANTS, free_decay_mode, free_decay_variants, matrix_pencil
 
 DT = 1e-4
 
@@ -41,6 +43,49 @@ def test_one_clean_mode_gives_every_variant_the_same_mode():
         assert v is not None, name
         assert abs(v[0] / nominal[0] - 1) < 1e-3 and abs(v[1] / nominal[1] - 1) < 0.02, (name, v, nominal)
     assert free_decay_variants(p, None) is None
+
+
+def test_the_matrix_pencil_takes_only_the_leading_right_vectors(monkeypatch):
+    """The modes of a 1500-sample decay are those of the full-SVD pencil (the right singular vectors of the
+    Hankel matrix) to 1e-9, without a full SVD of that matrix (only pinv's small ones)."""
+    y = _decay([(800.0, 0.012, 1.0), (2300.0, 0.03, 0.4)], n=1500, seed=3)
+    L = len(y) // 2
+    Vh = np.linalg.svd(np.lib.stride_tricks.sliding_window_view(y, L + 1), full_matrices=False)[2]
+    V = Vh[:8].conj().T
+    z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+    reference = sorted(abs(np.log(z[z.imag > 0]).imag) / (2 * math.pi * DT))
+    svd = np.linalg.svd
+
+    def small_svd(a, *args, **kw):
+        assert min(np.shape(a)) <= 8, np.shape(a)
+        return svd(a, *args, **kw)
+    monkeypatch.setattr(np.linalg, 'svd', small_svd)
+    modes = matrix_pencil(y, DT)
+    assert abs(modes[0][0] - 800.0) < 0.5 and abs(modes[1][0] - 2300.0) < 2.0
+    found = sorted(f for f, _, _ in modes)
+    assert len(found) == len(reference)
+    assert max(abs(a / b - 1) for a, b in zip(found, reference)) < 1e-9, (found, reference)
+
+
+@pytest.mark.parametrize('dt', [1e-5, 2e-5, 1 / 48000])
+def test_a_window_shift_by_many_delays_transforms_once_per_fraction_of_a_sample(monkeypatch, dt):
+    """WindowShift.many (force_blocks' a2 at every grid delay) equals the shift one delay at a time to rounding,
+    with one inverse transform per fraction of a sample on the grid (a delay's whole samples are a rotation)."""
+    x = np.cumsum(np.random.default_rng(5).standard_normal(3000))
+    p = types.SimpleNamespace(w0=300, w1=2700, dt=dt)
+    grid = delay_grid(dt)
+    shift = WindowShift(x, p)
+    one_by_one = np.array([shift(d) for d in grid])
+    irfft, rows = np.fft.irfft, []
+
+    def counted(a, *args, **kw):
+        rows.append(1 if np.ndim(a) == 1 else len(a))
+        return irfft(a, *args, **kw)
+    monkeypatch.setattr(np.fft, 'irfft', counted)
+    many = shift.many(grid)
+    fractions = len(np.unique(np.round((grid - np.floor(grid / dt + 1e-6) * dt) / dt, 6)))
+    assert sum(rows) == fractions < len(grid), (rows, fractions, len(grid))
+    assert np.max(np.abs(many - one_by_one)) < 1e-12 * np.max(np.abs(one_by_one))
 
 
 def test_a_decay_that_is_not_one_linear_mode_spreads_the_variants():

@@ -79,13 +79,24 @@ class WindowShift:
         return self.x if d == 0.0 else self.shifter(d)[self.m:self.m + self.n]
 
     def many(self, ds: np.ndarray) -> np.ndarray:
-        """(len(ds), W): the channel shifted by each d of ds, the same numbers as __call__ one d at a time (one
-        batched inverse transform of the Shifter's spectrum; d = 0: the channel itself)."""
+        """(len(ds), W): the channel shifted by each d of ds, as __call__ one d at a time to rounding (d = 0: the
+        channel itself). A shift by d = k dt + f is the shift by f, rotated circularly by k samples (the spectrum's
+        factor exp(i w d) = exp(i w f) exp(i w k dt), the DFT's shift theorem: exact, the Nyquist bin included), so a
+        grid of delays needs one inverse transform per fraction f of a sample it holds (a grid of half samples:
+        one), not one per delay."""
         ds = np.asarray(ds, float)
         sh = self.shifter
-        full = np.fft.irfft(sh.X * np.exp(1j * np.multiply.outer(ds, sh.w)), sh.n, axis=-1) + sh.trend
-        out = (full + (sh.slope * ds)[:, None])[:, self.m:self.m + self.n]
-        out[np.asarray(ds) == 0.0] = self.x
+        k = np.floor(ds / sh.dt + 1e-6).astype(int)          # whole samples of each d
+        frac = ds - k * sh.dt                                 # and the rest, in [0, dt) to rounding
+        key = np.round(frac / sh.dt, 6)
+        trend = sh.trend[self.m:self.m + self.n]
+        at = np.arange(self.m, self.m + self.n)
+        out = np.empty((len(ds), self.n))
+        for f in np.unique(key):
+            rows = np.flatnonzero(key == f)
+            base = np.fft.irfft(sh.X * np.exp(1j * sh.w * frac[rows[0]]), sh.n)
+            out[rows] = np.take(base, at + k[rows, None], mode='wrap') + trend + (sh.slope * ds[rows])[:, None]
+        out[ds == 0.0] = self.x
         return out
 
     def rate(self) -> np.ndarray:

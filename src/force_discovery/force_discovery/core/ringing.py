@@ -21,8 +21,7 @@ def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float,
     n = len(y)
     L = n // 2
     Y = np.lib.stride_tricks.sliding_window_view(y, L + 1)
-    U, s, Vh = np.linalg.svd(Y, full_matrices=False)
-    V = Vh[:order].conj().T
+    V = _top_right_vectors(Y, order)
     V1, V2 = V[:-1], V[1:]
     z = np.linalg.eigvals(np.linalg.pinv(V1) @ V2)
     z = z[np.abs(z) > 1e-6]
@@ -50,6 +49,18 @@ def matrix_pencil(y: np.ndarray, dt: float, order: int = 8) -> List[Tuple[float,
             merged.append([f, zt, e])
     merged.sort(key=lambda m: -m[2])
     return [tuple(m) for m in merged]
+
+
+def _top_right_vectors(Y: np.ndarray, k: int) -> np.ndarray:
+    """The k leading right singular vectors of Y as columns, strongest first (the eigenvectors of Y^T Y with the k
+    largest eigenvalues: only those are computed, not a full SVD with its left vectors). A vector's sign may differ
+    from the SVD's; matrix_pencil's poles do not depend on it (pinv(V1) V2 changes by a similarity)."""
+    from scipy.linalg import eigh
+    n = Y.shape[1]
+    k = min(k, min(Y.shape))
+    Y = np.ascontiguousarray(Y)                  # a sliding window view is not BLAS's layout (2x slower product)
+    _, V = eigh(Y.T @ Y, subset_by_index=[n - k, n - 1], driver='evr')
+    return V[:, ::-1]
 
 
 def ring_segment(p: Pull, length_s: float = 0.03) -> Optional[np.ndarray]:
