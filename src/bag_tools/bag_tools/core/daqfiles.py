@@ -194,7 +194,10 @@ def read_mdf(path: Path) -> list:
         raise BagError(f'cannot read MDF4 file {str(path)!r}: {rest[0]}')
     chans, units, time = rest
     rate = None
-    if time is not None and time.size > 1 and time[-1] > time[0]:
+    # the rate only from a time channel that is finite and strictly increasing; any other is the pull's time column
+    # as it is, which the time checks refuse with its row (asammdf fills a corrupt block's samples from memory it
+    # never wrote, so a rate from the two ends would be a guess and the samples imported as evenly spaced)
+    if time is not None and time.size > 1 and np.all(np.isfinite(time)) and np.all(np.diff(time) > 0):
         with np.errstate(all='ignore'):     # a subnormal span: an infinite rate, which the time checks refuse
             rate = snap_rate((time.size - 1) / (time[-1] - time[0]))
     return [Record(chans, units, rate, time)]
