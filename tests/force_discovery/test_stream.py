@@ -138,9 +138,10 @@ def _traced_peak(camp, tmp, live: list, made: list) -> int:
 
 @pytest.mark.slow
 def test_memory_is_flat_in_the_number_of_pulls(tmp_path, monkeypatch):
-    """The streamed discovery of 16 pulls allocates at its peak no more than that of 8 pulls (plus 10 %): the pulls
-    pass through one at a time and only small results stay. Not timed: tracemalloc counts every numpy allocation
-    exactly, the same on every run. And no prepared pull outlives its stage (counted when each pull finishes)."""
+    """The streamed discovery of 16 pulls allocates at its peak less than one pull's channels more than that of 8
+    pulls: the pulls pass through one at a time and only small results stay. Not timed: tracemalloc counts every
+    numpy allocation (within about 1 MB from run to run). And no prepared pull outlives its stage (counted when each
+    pull finishes)."""
     small = make_campaign(None, seed=62, sets=(2, 3), pulls=4)
     large = make_campaign(None, seed=62, sets=(2, 3), pulls=8)
     live_small, live_large, made = [], [], []
@@ -155,8 +156,10 @@ def test_memory_is_flat_in_the_number_of_pulls(tmp_path, monkeypatch):
     one_pull = sum(np.asarray(v).nbytes for v in large[0][1].values())   # one pull's channels
     # the measure sees the work (a pull is prepared, filtered and re-simulated) ...
     assert peak_small > one_pull, (peak_small, one_pull)
-    # ... and it does not grow with the pulls (holding them all would add 8 pulls' worth, 10 times the margin)
-    assert peak_large <= 1.1 * peak_small, (peak_large / 2 ** 20, peak_small / 2 ** 20, one_pull / 2 ** 20)
+    # ... and it does not grow with the pulls: 8 more pulls add less than one pull's channels (holding them all would
+    # add 8 pulls' worth; what does grow is each pull's small results: 6.0-6.8 MB for 8 pulls on 2026-11-28, where a
+    # margin of 10 % of the peak, 6.6 MB, failed once)
+    assert peak_large - peak_small < one_pull, (peak_large / 2 ** 20, peak_small / 2 ** 20, one_pull / 2 ** 20)
     assert len(live_large) >= 2 * 16 and max(live_small + live_large) == 0, (live_small, live_large)
 
 
