@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -61,10 +62,32 @@ def test_on_its_own(i):
 '''
 
 
+CLUSTER = '''
+import os
+import pytest
+from pathlib import Path
+
+@pytest.fixture(scope='module')
+def children():   # this process's spawned children: Dask's worker processes (not multiprocessing's resource tracker)
+    me = os.getpid()
+    kids = lambda: [c for t in Path(f'/proc/{me}/task').glob('*') for c in (t / 'children').read_text().split()]
+    return lambda: [c for c in kids() if b'spawn_main' in Path(f'/proc/{c}/cmdline').read_bytes()]
+
+def test_1_starts_the_embedded_cluster(children, monkeypatch):
+    from force_tester_common.engine import SCHEDULER_ENV, map_pulls
+    monkeypatch.delenv(SCHEDULER_ENV, raising=False)
+    assert map_pulls(abs, [-1, 2]).scheduler.startswith('embedded LocalCluster') and children()
+
+def test_2_finds_no_process_left(children):
+    assert children() == []
+'''
+
+
 def run_inner(folder: Path, *args: str, ci: bool) -> subprocess.CompletedProcess:
-    """pytest in FOLDER (SAMPLE and GROUPED written there) with this suite's conftest.py as a plugin."""
+    """pytest in FOLDER (SAMPLE, GROUPED and CLUSTER written there) with this suite's conftest.py as a plugin."""
     (folder / 'test_sample.py').write_text(SAMPLE)
     (folder / 'test_grouped.py').write_text(GROUPED)
+    (folder / 'test_cluster.py').write_text(CLUSTER)
     env = {**os.environ, 'PYTHONPATH': f"{ROOT / 'tests'}:{os.environ.get('PYTHONPATH', '')}",
            'WORKERS_DIR': str(folder), 'CI': 'true' if ci else 'false'}
     for k in ('PYTEST_XDIST_WORKER', 'PYTEST_XDIST_WORKER_COUNT'):
@@ -77,12 +100,13 @@ def run_inner(folder: Path, *args: str, ci: bool) -> subprocess.CompletedProcess
 @pytest.fixture(scope='module')
 def inner_runs(tmp_path_factory):
     """Two inner runs, each paying pytest's and conftest's start-up once: SAMPLE and GROUPED as ./ft test runs
-    them (`-n 2 --dist loadgroup`, CI unset, the durations recorded), and SAMPLE's fast tier under CI=true."""
+    them (`-n 2 --dist loadgroup`, CI unset, the durations recorded), and the fast tier of SAMPLE and CLUSTER
+    under CI=true, in one process."""
     folder = tmp_path_factory.mktemp('inner')
     out = folder / 'durations.json'
     quiet = run_inner(folder, '-n', '2', '--dist', 'loadgroup', '--record-durations', str(out), 'test_sample.py',
                       'test_grouped.py', ci=False)
-    ci_fast = run_inner(folder, '-m', 'not slow', 'test_sample.py', ci=True)
+    ci_fast = run_inner(folder, '-m', 'not slow', 'test_sample.py', 'test_cluster.py', ci=True)
     return {'folder': folder, 'quiet': quiet, 'ci_fast': ci_fast, 'durations': out}
 
 
@@ -103,7 +127,7 @@ def test_a_skip_fails_the_run_under_ci_unless_allowed(inner_runs):
     assert 0 < rec['test_makes_a_campaign']['campaign'] <= rec['test_makes_a_campaign']['seconds']
     assert rec['test_makes_a_campaign']['cpu'] > 0 and all(r['cpu'] >= 0 for r in rec.values())   # its CPU seconds
     # the fast tier leaves out the slow and the ros test
-    assert '2 passed, 1 skipped, 2 deselected' in ci.stdout, ci.stdout
+    assert '4 passed, 1 skipped, 2 deselected' in ci.stdout, ci.stdout   # SAMPLE's 2, CLUSTER's 2
 
 
 @pytest.mark.slow
@@ -114,6 +138,14 @@ def test_a_module_fixture_keeps_its_tests_on_one_worker(inner_runs):
     grouped, alone = ((inner_runs['folder'] / n).read_text().split() for n in ('grouped', 'alone'))
     assert len(grouped) == 6 and len(set(grouped)) == 1, grouped
     assert len(alone) == 6 and set(grouped + alone) == {'gw0', 'gw1'}, (grouped, alone)   # both workers had work
+
+
+@pytest.mark.slow
+def test_the_embedded_cluster_a_test_started_is_closed_after_it(inner_runs):
+    """A test that takes the default path (the embedded Dask cluster) leaves no process behind for the next
+    test on its worker: conftest.py closes the cluster after each test (idle, it cost 7 CPU-s a minute)."""
+    out = inner_runs['ci_fast'].stdout   # one process: CLUSTER's two tests in order
+    assert re.search(r'^test_cluster\.py \.\.\s', out, re.M) and 'FAILED test_cluster' not in out, out[-3000:]
 
 
 def test_the_allow_list_is_short_and_every_line_has_a_reason():
