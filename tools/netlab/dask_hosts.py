@@ -143,10 +143,11 @@ class StageClock:
 
 def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment | None = None,
                  lose: str | None = 'c', lose_on: str | None = None, back: bool = False,
-                 lose_in: tuple = (), timeout: float = 1500.0, client: str = 'a', say=print) -> dict:
-    """Star a, b, c (and d if ``client`` is 'd'): the scheduler in a, the client command
-    (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2 --nthreads 1``
-    in b and in c.
+                 lose_in: tuple = (), timeout: float = 1500.0, client: str = 'a', say=print,
+                 worker_hosts: tuple = WORKER_HOSTS) -> dict:
+    """Star a and the ``worker_hosts`` (b and c by default; and d if ``client`` is 'd'): the scheduler in a, the
+    client command (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2
+    --nthreads 1`` in each worker host (one is enough where the host lost is the scheduler's or the client's).
 
     With ``lose``: once a worker in that host (any worker, for a host with none) is processing a task whose key
     starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch port goes down and every
@@ -167,16 +168,17 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
     out.mkdir(parents=True, exist_ok=True)
     res = {'rc': None, 'stdout': '', 'stderr': '', 'removed': [], 'lost_s': None, 'back_s': None,
            'used_after_back': [], 'address': None, 'losses': [], 'missed': [], 'executed': {}, 'lost_workers': []}
-    if lose_in and lose not in WORKER_HOSTS:
-        raise NetnsError(f'lose_in needs a worker host ({WORKER_HOSTS}); got {lose!r}')
-    with Star(('a', 'b', 'c', *((client,) if client not in ('a', 'b', 'c') else ())), impairment, log_dir=out) as net:
+    if lose_in and lose not in worker_hosts:
+        raise NetnsError(f'lose_in needs a worker host ({worker_hosts}); got {lose!r}')
+    names = ('a', *worker_hosts)
+    with Star((*names, *((client,) if client not in names else ())), impairment, log_dir=out) as net:
         cluster = DaskHosts(net, env, out / 'logs')
         res['address'] = address = cluster.scheduler('a')
-        for h in WORKER_HOSTS:
+        for h in worker_hosts:
             cluster.workers(h)
-        cluster.wait(len(WORKER_HOSTS) * NWORKERS)
-        say(f'cluster: scheduler {address} in {net.host("a").netns}, {NWORKERS} workers in each of b and c; '
-            f'{net.impairment.describe()} ({net.method})')
+        cluster.wait(len(worker_hosts) * NWORKERS)
+        say(f'cluster: scheduler {address} in {net.host("a").netns}, {NWORKERS} workers in each of '
+            f'{", ".join(worker_hosts)}; {net.impairment.describe()} ({net.method})')
         watch, seen = cluster.watch(client), queue.Queue()
         threading.Thread(target=_lines, args=(watch.stdout, seen), daemon=True).start()
         t0 = time.monotonic()
@@ -206,7 +208,7 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
                 while todo and clock.i > [s for s, _ in STAGES].index(todo[0]):   # that stage ended meanwhile
                     res['missed'].append(todo.pop(0))
             # a worker host is lost while one of its workers runs such a task; another host while any worker does
-            busy = mine if lose in WORKER_HOSTS else processing
+            busy = mine if lose in worker_hosts else processing
             keys = [k for ks in busy.values() for k in ks]
             hit = (todo and clock.name == todo[0] and keys) if lose_in else \
                 any(k.startswith(lose_on) for k in keys)
