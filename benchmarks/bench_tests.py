@@ -78,7 +78,8 @@ def print_tables(records: list, top: int, baseline: list | None = None) -> None:
           + (f'; baseline {len(base)} tests, {sum(base.values()):.0f} s' if baseline else ''))
     cpu = [r for r in records if r.get('cpu') is not None]
     if cpu:   # what a run on fewer cores than workers waits for: the CPU, not the seconds a test waited
-        print(f"{sum(r['cpu'] for r in cpu):.0f} CPU seconds (each test's process and the children it waited for)")
+        print(f"{sum(r['cpu'] for r in cpu):.0f} CPU seconds (each test's process, the children it waited for and "
+              'its descendants still running)')
         print(f'\nThe {top} tests that cost the most CPU\n')
         print('| # | CPU s | seconds | kind | test |')
         print('|---|---|---|---|---|')
