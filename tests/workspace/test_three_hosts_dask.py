@@ -12,8 +12,8 @@ campaign's on the embedded cluster of the default path, the rerun pulls must be 
 have been given pulls. Then a host D runs `./ft bag import`, `./ft bag export` and `./ft discover` on a fresh
 cluster each (the scheduler in A, workers in B alone), and host A (the scheduler's) is lost; and D runs `./ft bag
 export` and is lost itself (the client's host), after which the next export removes what it left. Needs root
-(skipped otherwise, with the reason); the hosts are deleted whatever happens. 5 min 32 s on this 2-core machine
-(157 s of it the two campaigns).
+(skipped otherwise, with the reason); the hosts are deleted whatever happens. 6 min 19 s on this 2-core machine,
+loaded by other work (`-n 2`, 2026-11-28: 166 CPU-s; 218 s of it the two campaigns, 45 s each lab losing A).
 """
 from __future__ import annotations
 
