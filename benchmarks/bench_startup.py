@@ -13,6 +13,10 @@ too: on a shared machine it moves less with the load than the wall time.
 and runs its `./ft bag correct` alternately with this one's, so both are measured side by side in one run on the
 same machine state, and prints the ratios.
 
+--stages: where a whole `./ft bag correct` goes, this tree only, each step --reps times, alternately: the whole
+command; the same without bash's `./ft` (`python -m ft_cli`); its imports alone; numpy alone; the interpreter alone
+(`-c pass`, with the ROS wheels' .pth hook); `./ft env`. Wall and CPU, min and median.
+
 --setup N: the set-up from nothing, N times for each tree (this one's HEAD and REV, alternately), each in a new git
 worktree under /tmp with no .venv, install/ or .ft/: the venv step (`python -m ft_cli.bootstrap venv`, what ./ft
 runs first: making .venv and installing the lock) and the build step (`./ft` up to its first command: colcon).
@@ -139,10 +143,40 @@ def bench_setup(revs: dict, runs: int) -> None:
 def whole(ft: Path, bag: Path, out: Path) -> tuple:
     """(wall, CPU: user + system of ./ft and everything it ran) of one `./ft bag correct`, s."""
     shutil.rmtree(out, ignore_errors=True)
+    return run_once([str(ft), 'bag', 'correct', str(bag), str(out)])
+
+
+def run_once(cmd: list) -> tuple:
+    """(wall, CPU of it and its children) of one command, s."""
     r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    subprocess.run([str(ft), 'bag', 'correct', str(bag), str(out)], check=True, capture_output=True)
+    subprocess.run(cmd, check=True, capture_output=True, cwd=ROOT)
     wall, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime
+
+
+def bench_stages(bag: Path, reps: int) -> None:
+    """The steps of a whole `./ft bag correct` (see --stages), each reps times, alternately."""
+    py = sys.executable   # the venv's, run under ./ft
+    imports = 'import ft_cli.main, force_correction.offline.cli, force_correction.offline.pipeline, ' \
+              'force_correction.offline.bag, bag_tools.core.sources'
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / 'out'
+        steps = {'./ft bag correct': [str(ROOT / 'ft'), 'bag', 'correct', str(bag), str(out)],
+                 'python -m ft_cli bag correct': [py, '-m', 'ft_cli', 'bag', 'correct', str(bag), str(out)],
+                 'its imports alone': [py, '-c', imports],
+                 'numpy alone': [py, '-c', 'import numpy'],
+                 'the interpreter (-c pass)': [py, '-c', 'pass'],
+                 './ft env': [str(ROOT / 'ft'), 'env']}
+        got = {k: [] for k in steps}
+        for rep in range(reps):
+            print(f'stages: run {rep + 1} of {reps}', file=sys.stderr)
+            for name, cmd in steps.items():
+                shutil.rmtree(out, ignore_errors=True)
+                got[name].append(run_once(cmd))
+    print(f'the steps of `./ft bag correct` ({reps} runs each, alternately): wall min / median, CPU min / median, s')
+    for name, runs in got.items():
+        w, c = [r[0] for r in runs], [r[1] for r in runs]
+        print(f'  {name:<30} {min(w):.3f} / {statistics.median(w):.3f}   {min(c):.3f} / {statistics.median(c):.3f}')
 
 
 def main() -> int:
@@ -152,12 +186,16 @@ def main() -> int:
     ap.add_argument('--baseline', metavar='REV', help='also run REV (a commit) side by side, alternately')
     ap.add_argument('--setup', type=int, default=0, metavar='N',
                     help='also time the set-up from nothing N times each (this HEAD and --baseline REV)')
+    ap.add_argument('--stages', action='store_true',
+                    help="also time the steps of a whole `./ft bag correct`: bash's ./ft, imports, numpy, Python")
     args = ap.parse_args()
     if args.setup:
         head = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT, check=True, capture_output=True,
                               text=True).stdout.strip()
         bench_setup({'this HEAD': head, **({args.baseline: args.baseline} if args.baseline else {})}, args.setup)
     bag, seconds = make_bag(args.pulls)
+    if args.stages:
+        bench_stages(bag, args.reps)
     trees = {'this tree': ROOT}
     if args.baseline:
         trees[args.baseline] = baseline_tree(args.baseline)
