@@ -5,8 +5,9 @@ and it is named only when it beats each of them in its place.
 
 Before, the gain and m2 stayed at the rig YAML's values, and their stated uncertainties entered the term's budget as
 the coefficient's shift with each one standard uncertainty off. A load term is nearly collinear with F_move over the
-loaded window, so that shift swamped it: on this campaign an injected `T*t` of 3x the moving cell's band had 0.0084
-from the gain against 0.0003 statistical, its interval held 0, and it went to `within_tolerance`.
+loaded window, so that shift swamped it: on this campaign (df4bff0) an injected `T*t` of 3x the moving cell's band
+came out at 0.0126 (true 0.0128) with the interval [-0.0042, 0.0294], twice the gain's 0.0084 each side, holding 0,
+and went to `within_tolerance`.
 
 The campaign is bench_sweep's nominal one (the independent generator, tests/independent/rig.py, seed 3900, twelve
 pulls on sets 2-4 at 20 kHz), with one term added to the recorded moving cell as bench_sweep adds it: sized from the

@@ -250,9 +250,9 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     # systematic parts of every term that grows with the load. When the force model named one of them (the data put
     # it outside its tolerance) and the one selection withheld it for library terms on the same held-out criterion
     # (forms), the stated uncertainty no longer says what is known of it, and it swamped the term that took its
-    # place (an injected T*t at 3x the band on the independent generator: 0.0118 with 7.9e-5 statistical and 0.0084
-    # from the gain, its interval holding 0): then both are measured beside the term (with the gain alone, m2's line
-    # rose in its place)
+    # place (bench_sweep's F_move*t cell at 3x the band on the independent generator, named T*t: 0.0118 with 7.9e-5
+    # statistical and 0.0084 from the gain, its interval holding 0): then both are measured beside the term (with
+    # the gain alone, m2's line rose in its place)
     gain_form = channel == 'force_moving' and fit[0].catalog is not None
     kv = names.index(DAMPING_FORM) if channel == 'motor_current' and DAMPING_FORM in names[:n_prod] else None
     sf, sh = {False: stacked(fit, False)}, {False: stacked(held, False)}
