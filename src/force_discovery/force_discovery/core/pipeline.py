@@ -78,7 +78,7 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
         found = st.beyond(analysis, decision)
         decision = with_beyond(decision, found)
         if set(found.demoted) & set(bey.CAUSE_PARAMS):   # the force residual changes without the cause: again
-            again = st.beyond(analysis, decision)
+            again = st.beyond(analysis, decision, tuple(found.demoted))
             found = dataclasses.replace(again, demoted={**found.demoted, **again.demoted},
                                         seconds=found.seconds + again.seconds)
             decision = with_beyond(decision, found)

@@ -319,9 +319,10 @@ class Stream:
         err_hum = analysis.hums is not None and 'mains_hum' in decision.named
         return err_hum, fit_terms(self.fm_h if err_hum else self.fm_0, terms, analysis.fit)
 
-    def beyond(self, analysis: Analysis, decision: Decision) -> bey.BeyondResult:
+    def beyond(self, analysis: Analysis, decision: Decision, withheld: Sequence[str] = ()) -> bey.BeyondResult:
         """Pass 5: the search beyond the catalog (core/beyond/) on the residuals the named causes leave: the residual
-        spectra of a few fitted pulls, then every usable pull's library statistics."""
+        spectra of a few fitted pulls, then every usable pull's library statistics (withheld: the causes a first
+        search withheld for library terms, beyond.search)."""
         import time
         t0 = time.perf_counter()
         err_hum, fit_ = self.err_fit(analysis, decision)
@@ -338,12 +339,14 @@ class Stream:
         parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                  [job(j, settings) for j in range(len(names))], names))
         factors = bey.reading_factors(fit_.coefficients, self.rig.force_chain.m2)
-        res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named, factors=factors)
+        res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named, factors=factors,
+                         withheld=withheld)
         sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS)
         if sensors:   # the moving cell and the current again, against what the sensors read without their terms
             parts = self._strict('beyond', self._map('beyond', beyond_pass,
                                                      [job(j, settings, sensors) for j in range(len(names))], names))
             rest = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named,
+                              withheld=withheld,
                               channels=tuple(c for c in bey.SEARCHED if c not in bey.SENSORS), sensors=True)
             keep = [t for t in res.terms if t.channel in bey.SENSORS]
             res = dataclasses.replace(

@@ -42,6 +42,10 @@ RELATIVE = {'force_moving': ('cell_sensitivity', 'sensors.load_cell_sensitivity_
                             'accelerometer_sensitivity_mv_per_g')}
 FORCES = ('F_move', 'F_stat', 'T')     # the cells' forces: the moving cell's, the stationary cell's, the tension
 COULOMB = 'coulomb_friction'   # the catalog cause that is a library column on the motor current
+GAIN, MASS = 'moving_cell_gain', 'effective_mass'
+# the force model's causes whose forms (F_move, a2) are the moving cell's catalog columns, in that order: a term there
+# is fitted with them beside it, and named only when it beats each in its place (selection.search_channel)
+FORCE_FORMS = (GAIN, MASS)
 # the drive's viscous damping (rig drive.viscous_damping_*): a catalog constant whose form on the motor current is the
 # library's `v` (its departure from the rig YAML's, in A per m/s). A term on the current is fitted with it beside,
 # so the data measure the damping rather than its stated +/-50 % entering the term's budget, and a term is named

@@ -33,9 +33,11 @@ class ChannelStats(NamedTuple):
     xy: np.ndarray                      # X'y
     yy: float                           # y.y: the squared residual with no term
     n: int                              # samples
-    catalog: Optional[Column]           # the catalog column (the Coulomb step on the current), or None
+    catalog: Optional[Column]           # the catalog columns C (C'C, X'C, C'y: the Coulomb step on the current, the
+                                        # gain's and m2's forms F_move and a2 on the moving cell), or None
     causes: Dict[str, Column]           # each named force-model cause's contribution (priority.cause_check)
-    systematic: Dict[str, np.ndarray]   # X'z of the residual's change z with each rig constant one u off
+    systematic: Dict[str, np.ndarray]   # X'z of the residual's change z with each rig constant one u off (and, with
+                                        # catalog columns C, C'z last)
     window_ss: Optional[np.ndarray] = None   # a sensor's product columns' sums of squares over the analysis window
     n_window: int = 0                         # and its samples (selection: a sensor's own term is judged there)
 
@@ -85,12 +87,16 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
             full[:, :X.shape[1]] = X
             for i, (_, c, s) in enumerate(sins):
                 full[:, X.shape[1] + 2 * i], full[:, X.shape[1] + 2 * i + 1] = c, s
-        cat = cs.catalog
-        catalog = None if cat is None else Column(float(cat @ cat), full.T @ cat, float(cat @ y))
+        cat = None if cs.catalog is None else np.asarray(cs.catalog, float).reshape(len(y), -1)
+        catalog = None if cat is None else Column(cat.T @ cat, full.T @ cat, cat.T @ y)
         causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in cs.causes.items()}
+        # X'z, then C'z with catalog columns C: a term's budget regresses z on those too when they are fitted beside
+        # the term (the moving cell's gain and m2)
+        systematic = {c: full.T @ z if cat is None else np.append(full.T @ z, cat.T @ z)
+                      for c, z in cs.systematic.items()}
         on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
         out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
-                               len(y), catalog, causes, {c: full.T @ z for c, z in cs.systematic.items()},
+                               len(y), catalog, causes, systematic,
                                None if on_w is None else np.einsum('ij,ij->j', on_w, on_w),
                                0 if on_w is None else len(on_w))
     return BeyondPart(out)

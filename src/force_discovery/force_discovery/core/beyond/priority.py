@@ -6,12 +6,13 @@ from typing import NamedTuple, Optional, Sequence
 
 from force_tester_sim.core.extra_terms import SIN
 
+from .grammar import GAIN, MASS
 from .normal_equations import ChannelStats
 from .selection import PRIORITY_MARGIN, Model, Term, search_channel, sse
 from .spectrum import SearchSettings
 
 # parameters of each force-model cause the check weighs against library terms (the hum: amplitude and phase)
-CAUSE_PARAMS = {'moving_cell_gain': 1, 'effective_mass': 1, 'accel_delay': 1, 'ac_coupling': 1, 'mains_hum': 2}
+CAUSE_PARAMS = {GAIN: 1, MASS: 1, 'accel_delay': 1, 'ac_coupling': 1, 'mains_hum': 2}
 
 
 class CauseCheck(NamedTuple):

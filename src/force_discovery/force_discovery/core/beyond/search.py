@@ -6,7 +6,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Sequence, Tuple
 
-from .grammar import COULOMB, SEARCHED
+from .grammar import COULOMB, FORCE_FORMS, SEARCHED
 from .identify import identifiability
 from .normal_equations import BeyondPart
 from .own import own_reading, reading_factors
@@ -30,10 +30,12 @@ class BeyondResult:
 
 def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int], settings: SearchSettings, rig,
            named: Sequence[str], channels: Sequence[str] = SEARCHED, sensors: bool = False,
-           factors: Optional[Dict[str, float]] = None) -> BeyondResult:
+           factors: Optional[Dict[str, float]] = None, withheld: Sequence[str] = ()) -> BeyondResult:
     """The search over the channels (the package docstring; default every searched one): parts in the usable pulls'
     order; sensors: terms were found on the sensors on their own (the force model's causes are checked then, and the
-    moving cell's terms stay its own); factors: own.reading_factors (default: the rig's m2, gain 1)."""
+    moving cell's terms stay its own); factors: own.reading_factors (default: the rig's m2, gain 1); withheld: the
+    catalog causes a first search withheld for library terms (the moving cell's gain or m2 among them: its terms
+    are measured beside both, selection.search_channel)."""
     t0 = time.perf_counter()
     terms, within, demoted, checked = [], [], {}, {}
     factors = factors or reading_factors({}, rig.force_chain.m2)
@@ -42,7 +44,8 @@ def search(parts: Sequence[BeyondPart], fit: Sequence[int], held: Sequence[int],
             continue
         fit_st, held_st = [parts[j].stats[ch] for j in fit], [parts[j].stats[ch] for j in held]
         found, why, model, kept = search_channel(ch, fit_st, held_st, settings, rig,
-                                                 COULOMB in named and ch == 'motor_current')
+                                                 COULOMB in named and ch == 'motor_current',
+                                                 bool(set(FORCE_FORMS) & set(withheld)))
         if why is not None:
             demoted[COULOMB] = why
         if kept is not None:   # the Coulomb step kept its priority on the current: what the library did in its place

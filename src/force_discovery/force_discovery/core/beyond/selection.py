@@ -16,13 +16,24 @@ from force_tester_sim.core.extra_terms import CHANNEL_UNITS, SIN, term_unit
 from ..budget import term_budget
 from ..significance import significance
 from ..uncertainty import jackknife_se, t_quantile
-from .grammar import COULOMB, DAMPING, DAMPING_FORM, RELATIVE, channel_band, mixed_forces, reads_own, si_factor
+from .grammar import (
+    COULOMB,
+    DAMPING,
+    DAMPING_FORM,
+    FORCE_FORMS,
+    RELATIVE,
+    channel_band,
+    mixed_forces,
+    reads_own,
+    si_factor,
+)
 from .interpretation import interpretation
 from .normal_equations import ChannelStats
 from .spectrum import SearchSettings
 
 MAX_TERMS = 3
 DAMPING_SHIFT = 'damping_fitted'   # a current term's budget line: its shift with the drive's damping fitted beside it
+FORMS_SHIFT = 'gain_mass_fitted'   # a moving-cell term's budget line: its shift with the gain and m2 fitted beside it
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (search_channel)
 NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
@@ -37,7 +48,8 @@ class Model:
     coef: Tuple[float, ...] = ()
     sin: Optional[int] = None
     amp: float = 0.0
-    cat: bool = False           # the catalog column is in (its coefficient: the last of coef)
+    cat: Tuple[int, ...] = ()   # the catalog columns in (their positions among the channel's; their coefficients
+                                # the last of coef)
 
 
 def sin_pair(n_prod: int, k: int) -> List[int]:
@@ -46,16 +58,17 @@ def sin_pair(n_prod: int, k: int) -> List[int]:
 
 
 def augmented(st: ChannelStats, use_cat: bool) -> ChannelStats:
-    """The statistics with the catalog column appended last to the columns (when use_cat)."""
+    """The statistics with the catalog columns appended last to the columns (when use_cat)."""
     cat = st.catalog
     if not use_cat or cat is None:
         return st
-    G2 = np.block([[st.gram, cat.cx[:, None]], [cat.cx[None, :], np.array([[cat.cc]])]])
+    G2 = np.block([[st.gram, cat.cx], [cat.cx.T, cat.cc]])
     return st._replace(gram=G2, xy=np.append(st.xy, cat.cy))
 
 
-def _cols(model_prod, cat: bool, n_all: int) -> List[int]:
-    return list(model_prod) + ([n_all] if cat else [])
+def _cols(model_prod, cat: Sequence[int], n_all: int) -> List[int]:
+    """The columns of a model's product terms and catalog columns cat, after the channel's n_all own columns."""
+    return list(model_prod) + [n_all + j for j in cat]
 
 
 class Stacked(NamedTuple):
@@ -64,17 +77,19 @@ class Stacked(NamedTuple):
     gram: np.ndarray                    # (pulls, columns, columns)
     xy: np.ndarray                      # (pulls, columns)
     yy: np.ndarray                      # (pulls,)
+    n_all: int                          # the library's columns, before any catalog column
 
 
 def stacked(stats: Sequence[ChannelStats], cat: bool) -> Stacked:
     aug = [augmented(st, cat) for st in stats]
-    return Stacked(np.stack([a.gram for a in aug]), np.stack([a.xy for a in aug]), np.array([a.yy for a in aug]))
+    return Stacked(np.stack([a.gram for a in aug]), np.stack([a.xy for a in aug]), np.array([a.yy for a in aug]),
+                   len(stats[0].xy))
 
 
 def sse_each(sk: Stacked, model: Model, n_prod: int) -> np.ndarray:
     """sse() of every pull of sk (stacked with the model's catalog flag) in one pass: the same arithmetic on all
     rows at once."""
-    idx = _cols(model.prod, model.cat, sk.xy.shape[1] - (1 if model.cat else 0))
+    idx = _cols(model.prod, model.cat, sk.n_all)
     c = np.array(model.coef)
     e = sk.yy.copy()
     if idx:
@@ -96,7 +111,7 @@ def total(values: np.ndarray) -> float:
 
 def sse(st: ChannelStats, model: Model, n_prod: int) -> float:
     """One pull's squared residual under model (the sinusoid's phase fitted on the pull)."""
-    a = augmented(st, model.cat)
+    a = augmented(st, bool(model.cat))
     G, b, s = a.gram, a.xy, a.yy
     idx = _cols(model.prod, model.cat, len(st.xy))
     c = np.array(model.coef)
@@ -124,18 +139,18 @@ def _sin_amp(Gp: np.ndarray, br: np.ndarray) -> float:
     return float(np.hypot(*np.linalg.lstsq(Gp, br, rcond=1e-10)[0]))
 
 
-def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optional[int], cat: bool,
+def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optional[int], cat: Tuple[int, ...],
               n_prod: int, sk: Optional[Stacked] = None) -> Model:
-    """Pooled least squares of the product columns (and catalog) over stats, then the sinusoid's amplitude (sk: the
-    same statistics stacked with the flag cat, when the caller has them)."""
+    """Pooled least squares of the product columns (and the catalog columns cat) over stats, then the sinusoid's
+    amplitude (sk: the same statistics stacked with their catalog columns, when the caller has them)."""
     idx = _cols(prod, cat, len(stats[0].xy))
     coef: Tuple[float, ...] = ()
     if idx:
         if sk is not None:   # summed over the pulls in order, as below
             Gs, bs = sk.gram[:, idx][:, :, idx].sum(axis=0), sk.xy[:, idx].sum(axis=0)
         else:
-            Gs = sum(augmented(st, cat).gram[np.ix_(idx, idx)] for st in stats)
-            bs = sum(augmented(st, cat).xy[idx] for st in stats)
+            Gs = sum(augmented(st, bool(cat)).gram[np.ix_(idx, idx)] for st in stats)
+            bs = sum(augmented(st, bool(cat)).xy[idx] for st in stats)
         d = np.sqrt(np.maximum(np.diag(Gs), 1e-300))
         c = np.linalg.lstsq(Gs / np.outer(d, d), bs / d, rcond=1e-10)[0] / d
         coef = tuple(float(v) for v in c)
@@ -143,13 +158,13 @@ def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optiona
     if sin is not None:   # one amplitude for the campaign: the mean of the pulls' own
         amps = []
         for st in stats:
-            a = augmented(st, cat)
+            a = augmented(st, bool(cat))
             G, b = a.gram, a.xy
             pr = sin_pair(n_prod, sin)
             br = b[pr] - (G[np.ix_(pr, idx)] @ np.array(coef) if idx else 0.0)
             amps.append(_sin_amp(G[np.ix_(pr, pr)], br))
         amp = float(np.mean(amps))
-    return Model(tuple(prod), coef, sin, amp, cat)
+    return Model(tuple(prod), coef, sin, amp, tuple(cat))
 
 
 @dataclass(frozen=True)
@@ -172,7 +187,8 @@ class Term:
     alternatives: Tuple[str, ...] = ()   # terms the held-out pulls cannot tell from it (near_tied), best first
     beat: Tuple = ()            # (the best other term in its place, its held-out margin over it: a share of the SSE)
     catalog_beat: Tuple = ()    # (the best catalog cause in its place, the term's held-out margin over it; <= 0:
-                                # the cause does as well, and the term is not named): the motor current's drive causes
+                                # the cause does as well, and the term is not named): the motor current's drive causes,
+                                # the moving cell's gain and effective mass
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -216,9 +232,10 @@ def jackknife(stats: Sequence[ChannelStats], model: Model, n_prod: int) -> np.nd
 
 
 def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[ChannelStats],
-                   settings: SearchSettings, rig, catalog_named: bool) -> ChannelResult:
+                   settings: SearchSettings, rig, catalog_named: bool, forms: bool = False) -> ChannelResult:
     """The forward selection on one channel (the module docstring): fit/held are the fitted and held-out pulls'
-    statistics (BeyondPart.stats[channel])."""
+    statistics (BeyondPart.stats[channel]); forms: on the moving cell, the force model named its gain or m2 and the
+    one selection (priority.cause_check) withheld it for library terms: measure both beside each term (below)."""
     names = fit[0].names
     f_hz = settings.freq.get(channel)
     n_sin = sum(1 for n in names if n.endswith(SIN))
@@ -228,19 +245,29 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     # catalog column) and the viscous damping's departure (its form, the library's v: fitted beside every other
     # term, so its stated uncertainty is measured, not a systematic part of the term's budget)
     has_step = channel == 'motor_current' and fit[0].catalog is not None
+    # the moving cell's gain and effective mass (their forms F_move and a2 the channel's catalog columns, FORCE_FORMS):
+    # a term is named only when it beats each in its place (catalog_margin). Their stated uncertainties are
+    # systematic parts of every term that grows with the load. When the force model named one of them (the data put
+    # it outside its tolerance) and the one selection withheld it for library terms on the same held-out criterion
+    # (forms), the stated uncertainty no longer says what is known of it, and it swamped the term that took its
+    # place (bench_sweep's F_move*t cell at 3x the band on the independent generator, named T*t: 0.0118 with 7.9e-5
+    # statistical and 0.0084 from the gain, its interval holding 0): then both are measured beside the term (with
+    # the gain alone, m2's line rose in its place)
+    gain_form = channel == 'force_moving' and fit[0].catalog is not None
     kv = names.index(DAMPING_FORM) if channel == 'motor_current' and DAMPING_FORM in names[:n_prod] else None
     sf, sh = {False: stacked(fit, False)}, {False: stacked(held, False)}
-    if has_step:
+    if has_step or gain_form:
         sf[True], sh[True] = stacked(fit, True), stacked(held, True)
 
-    def fitted(prod, sin, cat):
-        return fit_model(fit, prod, sin, cat, n_prod, sf[cat])
+    def fitted(prod, sin, cat):   # cat: the catalog columns in (True: the current's Coulomb step, its one column)
+        cat = (0,) if cat is True else tuple(cat or ())
+        return fit_model(fit, prod, sin, cat, n_prod, sf[bool(cat)])
 
     def sse_fit(m):
-        return sse_each(sf[m.cat], m, n_prod)
+        return sse_each(sf[bool(m.cat)], m, n_prod)
 
     def sse_held(m):
-        return sse_each(sh[m.cat], m, n_prod)
+        return sse_each(sh[bool(m.cat)], m, n_prod)
     demoted = kept = None
     if use_cat:   # the catalog keeps priority unless one library term (one parameter, as it) beats it
         m_cat = fitted((), None, True)
@@ -292,17 +319,28 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             runner[0], float((base.sum() - ext.sum() - runner[1]) / base.sum()))
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
-        cat_beat = catalog_margin(model, best, new_prod, base.sum(), kv, has_step, fitted, sse_held)
+        cat_beat = catalog_margin(model, best, new_prod, base.sum(), kv,
+                                  (COULOMB,) if has_step else FORCE_FORMS if gain_form else (), fitted, sse_held)
         model = best
         # the term's coefficient, interval and budget with the drive's damping fitted beside it (kv): a damping off
         # the rig YAML's is then the data's to measure, not the stated +/-50 % in the budget of every term like v
-        prof, form = model, None
+        prof, form, lines = model, None, None
         if kv is not None and not is_sin and kv not in model.prod:
             prof = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
             # which damping holds, the rig YAML's or the one fitted beside the term, the data do not say for certain:
             # the coefficient's shift between the two is a model-form line of its budget (DAMPING_SHIFT)
             k0 = new_prod[0]
             form = (DAMPING_SHIFT, prof.coef[list(prof.prod).index(k0)] - model.coef[list(model.prod).index(k0)])
+        elif forms and gain_form and not is_sin and not model.cat:
+            # the moving cell's gain and m2 in the same way, the other way round: the coefficient is the one with them
+            # as the force model left them (fitted beside a load term they take part of it: on the own generator's
+            # quadratic stationary cell the coefficient came out 32 % low, its interval missing), and their stated
+            # uncertainties give way to the coefficient's shift when both are fitted beside it (FORMS_SHIFT): the
+            # data measure them, so a gain or m2 one u off is theirs, not the term's (lines: the budget's systematic
+            # parts regressed with their columns beside the term)
+            lines = fitted(model.prod, model.sin, range(len(FORCE_FORMS)))
+            k0 = new_prod[0]
+            form = (FORMS_SHIFT, lines.coef[list(lines.prod).index(k0)] - model.coef[list(model.prod).index(k0)])
         ci = jackknife(fit, prof, n_prod)
         if is_sin:
             name, coef, cif, col = names[n_prod + model.sin], model.amp, ci[-1], None
@@ -323,7 +361,17 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         rms_unit = math.sqrt(norm / max(n_held, 1))
         lo, hi = sorted(cif)
         si = si_factor(name, settings.scales)
-        budget, (lo, hi) = term_budget(fit, prof.prod, col, coef, (lo, hi), si, relative_part(channel, rig), form)
+        beside = lines.cat if lines is not None else ()
+        if beside:   # and what measuring them on these pulls adds to the coefficient's scatter (jackknife, with them
+            # fitted beside it against held): the data's uncertainty of the gain and m2 in place of the stated one
+            pos_l = list(lines.prod).index(col)
+            lo_l, hi_l = sorted(jackknife(fit, lines, n_prod)[pos_l])
+            q = t_quantile(len(fit))
+            u_l, u_0 = 0.5 * (hi_l - lo_l) / q, 0.5 * abs(hi - lo) / q
+            form = (form[0], math.hypot(form[1], math.sqrt(max(0.0, u_l * u_l - u_0 * u_0))))
+        budget, (lo, hi) = term_budget([augmented(st, True) for st in fit] if beside else fit,
+                                       _cols(prof.prod, beside, len(fit[0].xy)), col, coef, (lo, hi), si,
+                                       relative_part(channel, rig), form)
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
@@ -335,15 +383,17 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
 
 
 def catalog_margin(model: Model, best: Model, new_prod: Sequence[int], base: float, kv: Optional[int],
-                   has_step: bool, fitted, sse_held) -> Tuple:
-    """(the best drive cause in the new term's place, the term's held-out margin over it as a share of the SSE
-    before it; () when none competes): the viscous damping (its form, column kv) and the Coulomb step (the catalog
-    column), each added to the model instead of the term, one parameter as the term."""
+                   cat_causes: Sequence[str], fitted, sse_held) -> Tuple:
+    """(the best catalog cause in the new term's place, the term's held-out margin over it as a share of the SSE
+    before it; () when none competes): on the motor current the viscous damping (its form, column kv) and the
+    Coulomb step, on the moving cell its gain and effective mass (cat_causes: the causes whose forms are the
+    channel's catalog columns, in order), each added to the model instead of the term, one parameter as the term."""
     alts = {}
     if kv is not None and kv not in model.prod and kv not in new_prod:
         alts[DAMPING] = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
-    if has_step and not model.cat:
-        alts[COULOMB] = fitted(model.prod, model.sin, True)
+    if not model.cat:
+        for j, cause in enumerate(cat_causes):
+            alts[cause] = fitted(model.prod, model.sin, (j,))
     if not alts or base <= 0:
         return ()
     cause, e_alt = min(((c, total(sse_held(m))) for c, m in alts.items()), key=lambda x: x[1])

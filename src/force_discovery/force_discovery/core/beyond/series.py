@@ -30,7 +30,9 @@ class ChannelSeries(NamedTuple):
 
     residual: np.ndarray                # what the model of record (and the named causes) leave, channel unit
     signals: Dict[str, np.ndarray]      # the grammar's signals on the same samples (extra_terms.SIGNALS, 't')
-    catalog: Optional[np.ndarray]       # the catalog column that competes with the library (the Coulomb step)
+    catalog: Optional[np.ndarray]       # the catalog columns that compete with the library (samples x k or samples:
+                                        # the Coulomb step on the current; the gain's and m2's forms on the moving
+                                        # cell)
     causes: Dict[str, np.ndarray]       # each named force-model cause's contribution (priority.cause_check)
     systematic: Dict[str, np.ndarray]   # the residual's change with each rig constant one standard u off
     window: Optional[Dict[str, np.ndarray]] = None   # a sensor's signals over the analysis window, as measured: its
@@ -124,7 +126,12 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
         fm_m = fm_pred.copy()
         fm_m[b_sel] = fm_m[b_sel] - b_res   # F_move there the model's prediction too
     sig_m = signals(p.t, fm_m, p.fs, p.T, p.a2, p.v3, p.x3)
-    out['force_moving'] = ChannelSeries(y_m, {k: v[idx_m] for k, v in sig_m.items()}, None, c_m,
+    # its catalog columns are the forms of the gain and m2 (grammar.FORCE_FORMS): F_move (the gain's relative
+    # departure times the predicted force) and a2 (the mass's departure times it): a term is fitted with them beside
+    # it, so the data measure them and their stated uncertainties leave the term's budget (selection.search_channel),
+    # and a term is named only when it beats each in its place
+    forms = np.column_stack([fm_m[idx_m], p.a2[idx_m]])
+    out['force_moving'] = ChannelSeries(y_m, {k: v[idx_m] for k, v in sig_m.items()}, forms, c_m,
                                         {'m2': (u_m2 * p.a2)[idx_m], 'gain': (u_g * fm_m)[idx_m]})
     # the sensors on their own, in the free phases (lanyard slack before the pull and after the break's ringing,
     # FREE_SPAN_S each, the record's edges left out): there T = 0, so the stationary cell's model is 0 and the
