@@ -25,7 +25,8 @@ the encoder's): where the drive's balance holds sample by sample the two agree (
 it does not (the independent generator's drive: belt, encoder and controller dynamics in the transients) they part
 by 5 to 200 % and neither is k_F. drive_calibration takes the calibration only where the two agree and the pulls
 settle k_F better than the rig YAML states it; elsewhere the rows are the uncalibrated ones (calibrated_rows) and the
-friction keeps the datasheet's lines."""
+friction keeps the datasheet's lines. Each pull keeps its own fit (the estimate); the campaign's one k_F (pooled_rows)
+is the other reading of the same calibration, and half the gap between the two frictions is a line (drive_lines)."""
 from __future__ import annotations
 
 import math
@@ -121,14 +122,29 @@ def drive_line(rows: np.ndarray, u_rel: float) -> float:
     return float(np.mean(np.abs(rows[:, 7]))) * u_rel
 
 
-def drive_lines(rows: np.ndarray, drive: Tuple[float, float], raw: np.ndarray, rig) -> Tuple[float, float]:
-    """(drive_line, the model line): with the drive calibrated (drive: drive_calibration's (k_F, u)), its own u's
-    effect, and half the gap between the friction the calibrated rows give and the one the datasheet's drive gives
-    (raw: calibrated_rows(rows, False)), each with its own viscous fit where the speeds allow one (two models of the
-    drive that both fit the data: on the own generator 0.4-3 N, what the calibration's own spread does not show)."""
+def drive_lines(rows: np.ndarray, drive: Tuple[float, float], raw: np.ndarray, rig) -> Tuple[float, float, float]:
+    """(drive_line, the model line, the pooling line): with the drive calibrated (drive: drive_calibration's (k_F,
+    u)), its own u's effect; half the gap between the friction the calibrated rows give and the one the datasheet's
+    drive gives (raw: calibrated_rows(rows, False)): two models of the drive that both fit the data, on the own
+    generator 0.4-3 N, what the calibration's own spread does not show; and half the gap between the friction with
+    each pull's own k_F (the estimate) and with the campaign's one k_F (pooled_rows): the pulls of one set agree on
+    their k_F to 0.01 %, but a set's fit can part from the others' by 20-30 % of the k_F departure (own generator,
+    --trials 4: the slowest set, 2.4 m/s), and the line through the sets' (speed, friction) carries that part times
+    the set's drive force, extrapolated to v = 0 (there 0.7-4.5 N, 0.85-3.9 N off the truth). Each with its own
+    viscous fit where the speeds allow one."""
     cal = calibrated_rows(rows, True)
-    stats = [friction_stat(r, viscous_separable(r, viscous_u(rig))) for r in (cal, raw)]
-    return drive_line(rows, drive[1] / drive[0]), abs(stats[0] - stats[1]) / 2.0
+    stats = [friction_stat(r, viscous_separable(r, viscous_u(rig))) for r in (cal, raw, pooled_rows(rows))]
+    return drive_line(rows, drive[1] / drive[0]), abs(stats[0] - stats[1]) / 2.0, abs(stats[0] - stats[2]) / 2.0
+
+
+def pooled_rows(rows: np.ndarray) -> np.ndarray:
+    """The calibrated rows (calibrated_rows(rows, True)) with each pull's own force-per-amp fraction s (column 3)
+    replaced by the fitted pulls' mean, drive_calibration's one k_F for the campaign: each pull's moving residual
+    moves by (s - mean s) D (D its median drive force while moving, column 7; the median of the shifted residual
+    taken as the shifted median, as drive_line takes it)."""
+    out = np.array(calibrated_rows(rows, True), float)
+    out[:, 0] = out[:, 0] + (rows[:, 3] - np.mean(rows[:, 3])) * rows[:, 7]
+    return out
 
 
 def calibrated_rows(rows: np.ndarray, calibrated: bool) -> np.ndarray:
