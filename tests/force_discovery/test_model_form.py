@@ -334,7 +334,7 @@ def test_the_delay_search_solves_its_grid_of_fits_in_one_batch(monkeypatch):
     calls the least-squares solver once (the refined delay's fit), not once per grid delay."""
     from force_discovery.core.force_model import TERMS, ForceModel
     from force_discovery.core.force_stats import ForceStats, force_blocks
-    pulls = [_loaded_pull(30e-6, 'shift', m2=1.25), _loaded_pull(60e-6, 'bessel', m2=1.15)]
+    pulls = [_loaded_pull(30e-6, 'shift', m2=1.25), _loaded_pull(60e-6, 'shift', m2=1.15)]
     idx, terms = [0, 1], set(TERMS)
     hums = [np.zeros(len(p.t)) for p in pulls]
     lstsq, calls = np.linalg.lstsq, []
