@@ -326,3 +326,52 @@ def test_a_term_beyond_the_catalog_gets_an_operating_range_line():
     b = B.term_budget(split, [0], 0, 1.5, (1.49, 1.51), 1.0, None)
     assert b.budget[B.OPERATING_RANGE] == pytest.approx(0.5, abs=0.01)
     assert b.ci95[1] - 1.5 >= 2 * 0.49 and B.KIND[B.OPERATING_RANGE] == 'model form'
+
+
+def test_the_delay_search_solves_its_grid_of_fits_in_one_batch(monkeypatch):
+    """fit_delay's sums of squares at the grid delays (grid_sse: one batched QR) are fit()'s, one least-squares
+    solve each, to 1e-9 relative, for a ForceModel and for the ForceStats of the same pulls; the search itself
+    calls the least-squares solver once (the refined delay's fit), not once per grid delay."""
+    from force_discovery.core.force_model import TERMS, ForceModel
+    from force_discovery.core.force_stats import ForceStats, force_blocks
+    pulls = [_loaded_pull(30e-6, 'shift', m2=1.25), _loaded_pull(60e-6, 'shift', m2=1.15)]
+    idx, terms = [0, 1], set(TERMS)
+    hums = [np.zeros(len(p.t)) for p in pulls]
+    lstsq, calls = np.linalg.lstsq, []
+
+    def counted(*a, **kw):
+        calls.append(1)
+        return lstsq(*a, **kw)
+    for fm_ in (ForceModel(pulls, 1.2, hums), ForceStats([force_blocks(p, h) for p, h in zip(pulls, hums)],
+                                                         [DT, DT], 1.2, [1.0, 1.0])):
+        grid = fm_.delay_grid()
+        each = np.array([fm_.fit(terms, idx, d).sse for d in grid])
+        batched = fm_.grid_sse(terms, idx, grid)
+        assert np.max(np.abs(batched / each - 1)) < 1e-9, (batched, each)
+        calls.clear()
+        monkeypatch.setattr(np.linalg, 'lstsq', counted)
+        fm_.fit_delay(terms, idx)
+        monkeypatch.setattr(np.linalg, 'lstsq', lstsq)
+        assert len(calls) == 1, len(calls)
+
+
+def test_the_hum_fits_are_the_least_squares_sinusoid_without_a_design_matrix(monkeypatch):
+    """The hum's amplitude and the pulls' own frequencies (hum.hum_form_parts) come from 3 x 3 normal equations:
+    the same as least squares on the n x 3 design of sin, cos and 1 to 1e-12, and no lstsq call."""
+    from force_discovery.core.hum import hum_frequencies, hum_per_pull
+    n, f = 2400, 50.3
+    t = np.arange(n) * DT
+    r = 0.8 * np.sin(2 * math.pi * f * t + 0.7) + 0.3 + 0.05 * np.random.default_rng(2).standard_normal(n)
+    z = np.zeros(n)
+    p = Pull('p', t, DT, r, z, z, z, z, z, z, None, 0, n, n, n, n - 1, 1.0)
+    i0 = int(0.02 / DT)
+    A = np.column_stack([np.sin(2 * np.pi * f * t[i0:]), np.cos(2 * np.pi * f * t[i0:]), np.ones(n - i0)])
+    c = np.linalg.lstsq(A, r[i0:], rcond=None)[0]
+
+    def no_lstsq(*a, **kw):
+        raise AssertionError('lstsq called')
+    monkeypatch.setattr(np.linalg, 'lstsq', no_lstsq)
+    amp, hum = hum_per_pull(p, f, 0.0)
+    assert abs(amp / math.hypot(c[0], c[1]) - 1) < 1e-12, (amp, c)
+    assert np.max(np.abs(hum - (c[0] * np.sin(2 * np.pi * f * t) + c[1] * np.cos(2 * np.pi * f * t)))) < 1e-12
+    assert abs(hum_frequencies([(t, r)], 50.0)[0] - f) < 0.01

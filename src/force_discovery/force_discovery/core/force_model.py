@@ -149,14 +149,16 @@ class ForceModel:
         self._shifters: Dict[int, WindowShift] = {}
         self._cache: Dict[float, list] = {}
 
-    def a2_at(self, j: int, d: float) -> np.ndarray:
-        """Pull j's a2(t + d) on W."""
+    def a2_at(self, j: int, d: float, made: Optional[np.ndarray] = None) -> np.ndarray:
+        """Pull j's a2(t + d) on W (made: it, already shifted, to keep)."""
         key = round(d, 12)
         if key not in self._cache:
             if len(self._cache) > 128:
                 self._cache.clear()
             self._cache[key] = [None] * len(self.pulls)
         row = self._cache[key]
+        if row[j] is None and made is not None:
+            row[j] = made
         if row[j] is None:
             if j not in self._shifters:
                 self._shifters[j] = WindowShift(self.pulls[j].a2, self.pulls[j])
@@ -235,10 +237,47 @@ class ForceModel:
     def fit_delay(self, terms, idx) -> Fit:
         """The model of ``terms`` fitted on pulls idx, the delay too (the grid's best, refined by a parabola)."""
         grid = self.delay_grid()
-        sse = np.array([self.fit(terms, idx, d).sse for d in grid])
+        sse = self.grid_sse(terms, idx, grid)
         k = int(np.argmin(sse))
         d = float(grid[k] + _parabolic_offset(sse, k) * (grid[1] - grid[0]))
         return self.fit(terms, idx, d)
+
+    def grid_sse(self, terms, idx, grid: np.ndarray) -> np.ndarray:
+        """fit(terms, idx, d).sse at each d of grid: the designs stacked (zero rows pad the shorter ones: they add
+        nothing to a fit), the coefficients from one batched QR of them, the residuals y - X c summed as fit() sums
+        them."""
+        if self.pulls:
+            self.prefill(idx, grid)
+        designs = [self.design(terms, d, idx) for d in grid]
+        if not designs[0][2]:
+            return np.array([float(sum(np.sum(y ** 2) for y in ys)) for ys, _, _ in designs])
+        Xs = [np.vstack(X) for _, X, _ in designs]
+        ys = [np.concatenate(y) for y, _, _ in designs]
+        n = max(len(y) for y in ys)
+        X = np.zeros((len(grid), n, Xs[0].shape[1]))
+        y = np.zeros((len(grid), n))
+        for k, (Xk, yk) in enumerate(zip(Xs, ys)):
+            X[k, :len(yk)], y[k, :len(yk)] = Xk, yk
+        Q, R = np.linalg.qr(X)
+        try:
+            c = np.linalg.solve(R, np.einsum('kni,kn->ki', Q, y)[..., None])[..., 0]
+        except np.linalg.LinAlgError:       # a design without full rank: fit()'s least squares, one delay at a time
+            return np.array([self.fit(terms, idx, d).sse for d in grid])
+        r = y - np.einsum('kni,ki->kn', X, c)
+        return np.einsum('kn,kn->k', r, r)
+
+    def prefill(self, idx, grid: np.ndarray) -> None:
+        """a2_at(j, d) for every pull j of idx and every d of grid made at once (WindowShift.many)."""
+        if len(grid) > 128:
+            return
+        for j in idx:
+            missing = [d for d in grid if self._cache.get(round(d, 12), [None] * len(self.pulls))[j] is None]
+            if len(missing) < 2:
+                continue
+            if j not in self._shifters:
+                self._shifters[j] = WindowShift(self.pulls[j].a2, self.pulls[j])
+            for d, a in zip(missing, self._shifters[j].many(np.array(missing))):
+                self.a2_at(j, d, a)
 
     def loo_fits(self, terms, idx) -> List[LooFit]:
         """Leave-one-pull-out refits over idx, the delay refitted on the grid when it is a term.

@@ -13,8 +13,28 @@ HUM_BAND_HZ = (45.0, 65.0)
 FEW_PULLS = 12               # the hum frequency and the free-decay modes come from this many fitted pulls
 
 
-def _hum_design(t, f):
-    return np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
+def _hum_fit(t: np.ndarray, r: np.ndarray, f: float) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(c, sin, cos): the least-squares fit r ~ c0 sin(2 pi f t) + c1 cos(2 pi f t) + c2 and its two columns. The
+    3 x 3 normal equations, columns scaled to a unit diagonal (the columns are near orthogonal over a few line
+    cycles: a least-squares solver's answer to rounding, without building the n x 3 design)."""
+    ph = 2 * np.pi * f * t
+    sn, cs = np.sin(ph), np.cos(ph)
+    ss, sc, s1, cc, c1 = sn @ sn, sn @ cs, sn.sum(), cs @ cs, cs.sum()
+    G = np.array([[ss, sc, s1], [sc, cc, c1], [s1, c1, float(len(t))]])
+    b = np.array([sn @ r, cs @ r, r.sum()])
+    D = np.sqrt(np.diag(G))
+    D[D == 0] = 1.0
+    try:
+        c = np.linalg.solve(G / np.outer(D, D), b / D) / D
+    except np.linalg.LinAlgError:   # too few samples for three columns: the least-squares solver's answer
+        c = np.linalg.lstsq(np.column_stack([sn, cs, np.ones_like(t)]), r, rcond=None)[0]
+    return c, sn, cs
+
+
+def _line_power(t: np.ndarray, r: np.ndarray, f: float) -> float:
+    """The power of the fitted sinusoid at f (_hum_fit) over the samples t."""
+    c, sn, cs = _hum_fit(t, r, f)
+    return float(np.sum((c[0] * sn + c[1] * cs) ** 2))
 
 
 def pre_residual(p: Pull, m2: float) -> Tuple[np.ndarray, np.ndarray]:
@@ -36,9 +56,7 @@ def hum_frequency_from(pres: Sequence[Tuple[np.ndarray, np.ndarray]], dt: float)
     def power(f):
         tot = 0.0
         for t, r in pres:
-            A = _hum_design(t, f)
-            c, *_ = np.linalg.lstsq(A, r, rcond=None)
-            tot += float(np.sum((A[:, :2] @ c[:2]) ** 2))
+            tot += _line_power(t, r, f)
         return tot
     nfft = 2 ** 19   # zero-padded periodogram (about 0.1 Hz bins) summed over pulls, then a local LS refinement
     spec = 0.0
@@ -61,9 +79,7 @@ def hum_frequency_near(t: np.ndarray, r: np.ndarray, f0: float) -> float:
     from scipy.optimize import minimize_scalar
 
     def neg_power(f):
-        A = _hum_design(t, f)
-        c, *_ = np.linalg.lstsq(A, r, rcond=None)
-        return -float(np.sum((A[:, :2] @ c[:2]) ** 2))
+        return -_line_power(t, r, f)
     return float(minimize_scalar(neg_power, bounds=(f0 - 0.3, f0 + 0.3), method='bounded',
                                  options={'xatol': 1e-3}).x)
 
@@ -76,7 +92,7 @@ def hum_frequencies(pres: Sequence[Tuple[np.ndarray, np.ndarray]], f0: float) ->
 def hum_per_pull(p: Pull, f: float, m2: float) -> Tuple[float, np.ndarray]:
     """(amplitude, hum over the whole record) with the phase/amplitude fitted on the pre-pull record only."""
     t, r = pre_residual(p, m2)
-    c, *_ = np.linalg.lstsq(_hum_design(t, f), r, rcond=None)
+    c = _hum_fit(t, r, f)[0]
     return float(math.hypot(c[0], c[1])), c[0] * np.sin(2 * np.pi * f * p.t) + c[1] * np.cos(2 * np.pi * f * p.t)
 
 
@@ -118,7 +134,7 @@ HUM_WINDOWS = ('first half', 'second half')   # the pre-pull record's halves: hu
 
 
 def _amplitude(t: np.ndarray, r: np.ndarray, f: float) -> float:
-    c, *_ = np.linalg.lstsq(_hum_design(t, f), r, rcond=None)
+    c = _hum_fit(t, r, f)[0]
     return float(math.hypot(c[0], c[1]))
 
 

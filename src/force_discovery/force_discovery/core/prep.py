@@ -35,16 +35,32 @@ def _lowpass_w(f: np.ndarray, dt: float) -> np.ndarray:
     return w
 
 
-def filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
-    """Zero-phase low-pass of x, optionally times a frequency response h(omega) (end trend removed first)."""
-    n = len(x)
-    trend = np.linspace(x[0], x[-1], n)
-    X = np.fft.rfft(x - trend)
+@functools.lru_cache(maxsize=16)
+def _lowpass_on_grid(n: int, dt: float) -> tuple:
+    """(f, the low-pass's weights) on the rfft grid of n samples at dt: the same for every pull of a campaign."""
     f = np.fft.rfftfreq(n, dt)
     H = _lowpass_w(f, dt)
+    f.flags.writeable = H.flags.writeable = False
+    return f, H
+
+
+def _detrended_spectrum(x: np.ndarray, dt: float) -> tuple:
+    """(X, f, H, trend): the spectrum of x less its end-to-end line, the rfft grid's frequencies and the low-pass's
+    weights on it, and the line."""
+    from scipy import fft as sfft  # numpy.fft's numbers to the bit, and faster on lengths with large prime factors
+    n = len(x)
+    trend = np.linspace(x[0], x[-1], n)
+    f, H = _lowpass_on_grid(n, float(dt))
+    return sfft.rfft(x - trend), f, H, trend
+
+
+def filtered(x: np.ndarray, dt: float, h=None) -> np.ndarray:
+    """Zero-phase low-pass of x, optionally times a frequency response h(omega) (end trend removed first)."""
+    from scipy import fft as sfft
+    X, f, H, trend = _detrended_spectrum(x, dt)
     if h is None:
-        return np.fft.irfft(H * X, n) + trend
-    return np.fft.irfft(H * h(2 * np.pi * f) * X, n)
+        return sfft.irfft(H * X, len(x)) + trend
+    return sfft.irfft(H * h(2 * np.pi * f) * X, len(x))
 
 
 def lowpassed(x: np.ndarray, dt: float) -> np.ndarray:
@@ -88,24 +104,37 @@ def a3_filter(n: int, dt: float) -> tuple:
     return w, a3_response(w, dt)
 
 
+@functools.lru_cache(maxsize=16)
+def _a3_read_later(m: int, dt: float, lead: float) -> np.ndarray:
+    """a3_filter's response on the rfft grid of m samples at dt, read lead s later (times exp(i omega lead)): a
+    campaign's pulls share m and dt, and a drive's lead is used on several channels."""
+    w, h = a3_filter(m, dt)
+    out = h * np.exp(1j * w * lead) if lead else h
+    out.flags.writeable = False
+    return out
+
+
 def like_a3(x: np.ndarray, dt: float, lead: float = 0.0) -> np.ndarray:
     """x through the filter that makes the encoder's a3 of the carriage's acceleration (a3_response), read lead s
     later (x(t + lead): an analog channel lags the encoder by its anti-alias filter's delay; the encoder's latched
     counter has none). A force balance with a3 in it holds only so: what rings faster than a3 follows (m2 a2 in
     F_move, at the cells' and the lanyard's modes) the carriage's own acceleration answers, not the current."""
+    from scipy import fft as sfft
     x = np.asarray(x, float)
     n = len(x)
-    from scipy.fft import next_fast_len
     trend = np.linspace(x[0], x[-1], n)
-    m = next_fast_len(n, real=True)   # zero-padded (x - trend ends at 0) to a length the FFT factors fast
-    w, h = a3_filter(m, float(dt))
-    y = np.fft.irfft(np.fft.rfft(x - trend, m) * (h * np.exp(1j * w * lead) if lead else h), m)[:n]
+    m = sfft.next_fast_len(n, real=True)   # zero-padded (x - trend ends at 0) to a length the FFT factors fast
+    y = sfft.irfft(sfft.rfft(x - trend, m) * _a3_read_later(m, float(dt), float(lead)), m)[:n]
     return y + trend + lead * (x[-1] - x[0]) / max((n - 1) * dt, dt)
 
 
 def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:
-    """T = F_stat + m1 a1 (eq 21/23) with a1 from F_stat = K u1 + c1 v1 (exact in the frequency domain)."""
-    return filtered(fs, dt) + filtered(fs, dt, lambda w: -m1 * w ** 2 / (k1 + 1j * c1 * w))
+    """T = F_stat + m1 a1 (eq 21/23) with a1 from F_stat = K u1 + c1 v1 (exact in the frequency domain): filtered(fs)
+    plus filtered(fs) times a1's response, from one spectrum of fs."""
+    from scipy import fft as sfft
+    X, f, H, trend = _detrended_spectrum(fs, dt)
+    w = 2 * np.pi * f
+    return (sfft.irfft(H * X, len(fs)) + trend) + sfft.irfft(H * (-m1 * w ** 2 / (k1 + 1j * c1 * w)) * X, len(fs))
 
 
 @dataclass(frozen=True)
