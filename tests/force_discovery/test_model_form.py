@@ -331,7 +331,10 @@ def test_a_term_beyond_the_catalog_gets_an_operating_range_line():
 def test_the_delay_search_solves_its_grid_of_fits_in_one_batch(monkeypatch):
     """fit_delay's sums of squares at the grid delays (grid_sse: one batched QR) are fit()'s, one least-squares
     solve each, to 1e-9 relative, for a ForceModel and for the ForceStats of the same pulls; the search itself
-    calls the least-squares solver once (the refined delay's fit), not once per grid delay."""
+    calls the least-squares solver once (the refined delay's fit), not once per grid delay. The batch is bounded
+    (GRID_BATCH_BYTES: all 51 delays of a 100-pull campaign's fitted pulls at once held 0.3 GB) and its size does not
+    change the numbers beyond rounding (one design a batch: no zero rows padding it; 1e-12 relative)."""
+    from force_discovery.core import force_model
     from force_discovery.core.force_model import TERMS, ForceModel
     from force_discovery.core.force_stats import ForceStats, force_blocks
     pulls = [_loaded_pull(30e-6, 'shift', m2=1.25), _loaded_pull(60e-6, 'shift', m2=1.15)]
@@ -348,6 +351,11 @@ def test_the_delay_search_solves_its_grid_of_fits_in_one_batch(monkeypatch):
         each = np.array([fm_.fit(terms, idx, d).sse for d in grid])
         batched = fm_.grid_sse(terms, idx, grid)
         assert np.max(np.abs(batched / each - 1)) < 1e-9, (batched, each)
+        if isinstance(fm_, ForceModel):
+            for size in (1, 1 << 40):
+                monkeypatch.setattr(force_model, 'GRID_BATCH_BYTES', size)
+                again = fm_.grid_sse(terms, idx, grid)
+                assert np.max(np.abs(again / batched - 1)) < 1e-12, (size, again, batched)
         calls.clear()
         monkeypatch.setattr(np.linalg, 'lstsq', counted)
         fm_.fit_delay(terms, idx)

@@ -38,6 +38,9 @@ EXTRA = ('tension_timing',)
 TIMING_UNIT_S = 1e-6
 
 
+GRID_BATCH_BYTES = 1 << 20   # grid_sse's designs stacked at most this big at once (at least one): all 51 delays of a
+                             # 100-pull campaign's fitted pulls at once made its discover peak at 357 MB, 292 MB so,
+                             # 282 before the batching; a 12-pull discover's CPU is the same with 1 MB or no bound
 SHIFT_MARGIN = 256   # samples either side of W a shift sees (a delay reaches 20 samples at 100 kHz; the ends' ripple
                      # stays in the margin): a 2 s record is shifted from about a fifth of it
 
@@ -243,28 +246,40 @@ class ForceModel:
         return self.fit(terms, idx, d)
 
     def grid_sse(self, terms, idx, grid: np.ndarray) -> np.ndarray:
-        """fit(terms, idx, d).sse at each d of grid: the designs stacked (zero rows pad the shorter ones: they add
-        nothing to a fit), the coefficients from one batched QR of them, the residuals y - X c summed as fit() sums
-        them."""
+        """fit(terms, idx, d).sse at each d of grid: the designs of GRID_BATCH_BYTES at a time stacked (zero rows pad
+        the shorter ones: they add nothing to a fit), their coefficients from one batched QR, the residuals y - X c
+        summed as fit() sums them. Each design's QR is its own: the batch changes a number only by rounding (its zero
+        rows)."""
         if self.pulls:
             self.prefill(idx, grid)
-        designs = [self.design(terms, d, idx) for d in grid]
-        if not designs[0][2]:
-            return np.array([float(sum(np.sum(y ** 2) for y in ys)) for ys, _, _ in designs])
-        Xs = [np.vstack(X) for _, X, _ in designs]
-        ys = [np.concatenate(y) for y, _, _ in designs]
-        n = max(len(y) for y in ys)
-        X = np.zeros((len(grid), n, Xs[0].shape[1]))
-        y = np.zeros((len(grid), n))
-        for k, (Xk, yk) in enumerate(zip(Xs, ys)):
-            X[k, :len(yk)], y[k, :len(yk)] = Xk, yk
-        Q, R = np.linalg.qr(X)
-        try:
-            c = np.linalg.solve(R, np.einsum('kni,kn->ki', Q, y)[..., None])[..., 0]
-        except np.linalg.LinAlgError:       # a design without full rank: fit()'s least squares, one delay at a time
-            return np.array([self.fit(terms, idx, d).sse for d in grid])
-        r = y - np.einsum('kni,ki->kn', X, c)
-        return np.einsum('kn,kn->k', r, r)
+        out = np.empty(len(grid))
+        a = 0
+        while a < len(grid):
+            first = self.design(terms, grid[a], idx)
+            if not first[2]:
+                return np.array([float(sum(np.sum(y ** 2) for y in ys)) for ys, _, _ in
+                                 (self.design(terms, d, idx) for d in grid)])
+            rows, cols = sum(len(y) for y in first[0]), len(first[2])
+            b = min(len(grid), a + max(1, GRID_BATCH_BYTES // (8 * rows * (cols + 1))))
+            designs = [first, *(self.design(terms, d, idx) for d in grid[a + 1:b])]
+            Xs = [np.vstack(X) for _, X, _ in designs]
+            ys = [np.concatenate(y) for y, _, _ in designs]
+            n = max(len(y) for y in ys)
+            X = np.zeros((b - a, n, cols))
+            y = np.zeros((b - a, n))
+            for k, (Xk, yk) in enumerate(zip(Xs, ys)):
+                X[k, :len(yk)], y[k, :len(yk)] = Xk, yk
+            del Xs, ys, designs
+            Q, R = np.linalg.qr(X)
+            try:
+                c = np.linalg.solve(R, np.einsum('kni,kn->ki', Q, y)[..., None])[..., 0]
+            except np.linalg.LinAlgError:   # a design without full rank: fit()'s least squares, one delay at a time
+                return np.array([self.fit(terms, idx, d).sse for d in grid])
+            del Q
+            r = y - np.einsum('kni,ki->kn', X, c)
+            out[a:b] = np.einsum('kn,kn->k', r, r)
+            a = b
+        return out
 
     def prefill(self, idx, grid: np.ndarray) -> None:
         """a2_at(j, d) for every pull j of idx and every d of grid made at once (WindowShift.many)."""
