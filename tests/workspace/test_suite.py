@@ -175,7 +175,7 @@ def test_ft_test_command_line():
         return args[args.index(name) + 1]
     cmd = pytest_command([])
     assert cmd[:4] == [sys.executable, '-m', 'pytest', str(ROOT / 'tests')]
-    assert option(cmd, '-n') == os.environ.get('FT_TEST_WORKERS', str(len(os.sched_getaffinity(0)) + 1))
+    assert option(cmd, '-n') == os.environ.get('FT_TEST_WORKERS', str(len(os.sched_getaffinity(0)) + 2))
     assert option(cmd, '--dist') == 'loadgroup'
     assert '--record-durations' in cmd and '-m' not in cmd[3:]
     fast = pytest_command(['-m', 'ros', '-n', '3'], fast=True)

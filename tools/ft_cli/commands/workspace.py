@@ -48,11 +48,11 @@ def _has_option(args: list, *names: str) -> bool:
 
 
 def default_workers(fast: bool = False) -> int:
-    """One pytest-xdist worker per core, and for the whole suite one more: its ROS graphs, network labs and Dask
-    clusters wait on real time and on other processes, and the spare worker keeps the cores busy meanwhile
-    (docs/tests.md, on 2 cores: the suite 16.8 min with 3 workers, over 20 with 2; the fast tier, which waits on
-    nothing, 1.9 min with 2, 2.0 with 3)."""
-    return len(os.sched_getaffinity(0)) + (0 if fast else 1)
+    """One pytest-xdist worker per core, and for the whole suite two more: its ROS graphs, network labs, browser and
+    Dask clusters wait on real time and on other processes, and the spare workers keep the cores busy meanwhile
+    (docs/tests.md, on 2 cores, the same tree back to back on an idle machine: 12 min 38 s with 3 workers, 11 min 31 s
+    with 4; the fast tier, which waits on nothing, 1.9 min with 2, 2.0 with 3)."""
+    return len(os.sched_getaffinity(0)) + (0 if fast else 2)
 
 
 def pytest_command(args: list, fast: bool = False) -> list:
