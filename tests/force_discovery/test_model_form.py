@@ -383,3 +383,37 @@ def test_the_hum_fits_are_the_least_squares_sinusoid_without_a_design_matrix(mon
     assert abs(amp / math.hypot(c[0], c[1]) - 1) < 1e-12, (amp, c)
     assert np.max(np.abs(hum - (c[0] * np.sin(2 * np.pi * f * t) + c[1] * np.cos(2 * np.pi * f * t)))) < 1e-12
     assert abs(hum_frequencies([(t, r)], 50.0)[0] - f) < 0.01
+
+
+@pytest.mark.parametrize('dt', [2e-5, 4e-5])
+def test_the_encoder_fit_is_scipys_savgol_filter_to_rounding(monkeypatch, dt):
+    """as_encoder takes savgol_filter's kernel and end fits once and convolves with numpy: each derivative equals
+    scipy's savgol_filter to rounding, ends included, without calling it again; a record with a NaN or shorter
+    than the window is savgol_filter's own."""
+    import scipy.signal as ss
+
+    from force_discovery.core import prep
+    n = 60000
+    t = np.arange(n) * dt
+    rng = np.random.default_rng(7)
+    x = 2.0 * t ** 2 + 0.05 * np.sin(2 * np.pi * 30 * t) + 1e-6 * rng.standard_normal(n)
+    win = prep.encoder_window(dt)
+    want = [ss.savgol_filter(x, win, 3, deriv=k, delta=dt) for k in range(3)]
+    for k in range(3):   # the kernels and end rows are made once (from savgol_filter's own end fits)
+        prep.as_encoder(x[:2 * win], dt, k)
+    calls = []
+    real = ss.savgol_filter
+    monkeypatch.setattr(ss, 'savgol_filter', lambda *a, **k: calls.append(1) or real(*a, **k))
+    for k in range(3):
+        got = prep.as_encoder(x, dt, k)
+        assert np.max(np.abs(got - want[k])) <= 1e-10 * np.max(np.abs(want[k]))
+    assert not calls
+    holed = x.copy()
+    holed[n // 2] = np.nan
+    for rec in (holed, x[:win - 2]):
+        if len(rec) < win:
+            with pytest.raises(ValueError):
+                prep.as_encoder(rec, dt, 1)
+        else:
+            assert np.array_equal(prep.as_encoder(rec, dt, 1), real(rec, win, 3, deriv=1, delta=dt), equal_nan=True)
+    assert len(calls) == 2
