@@ -240,7 +240,8 @@ def test_reference_rig_extension_beats_the_thesis_in_every_set(tmp_path):
     assert set(truth.departures.names) <= named, (truth.departures.names, named)
     assert report['gain'] > 1
     setup = CorrectionSetup.build(extension_file=tmp_path / 'out' / 'extension.yaml')
-    res = correct(folder, tmp_path / 'corrected', setup, to='campaign').as_dict()
+    # the scores are the same whatever the output's kind; a bag, not a CSV campaign: 4.3 CPU-s instead of 6.7
+    res = correct(folder, tmp_path / 'corrected', setup, to='bag').as_dict()
     table8 = {1: 1.5, 2: 12.8, 3: 5.4, 4: 11.1, 5: 32.0}
     table9 = {1: 2.5, 2: 5.3, 3: 3.8, 4: 22.2, 5: 16.3}
     for s in res['sets']:
