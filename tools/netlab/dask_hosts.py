@@ -5,16 +5,17 @@ install/), as the README's "a cluster of your own" recipe runs them; the namespa
 system, which plays the cluster's shared storage (the campaign folders are seen at the same path everywhere).
 
     cluster = DaskHosts(net, env, log_dir)        # net: an entered netns.Star
-    cluster.scheduler('a'); cluster.workers('b'); cluster.workers('c'); cluster.wait(4)
+    cluster.scheduler('a'); cluster.workers('b'); cluster.workers('c')
+    watch = cluster.watch('a')                    # its lines name every worker: wait for 4 there
     cluster.run('a', [...])                       # a client command inside host a (Popen)
 
 ``run_campaign`` does all of it for one client command, and can lose a host mid-run and bring it back.
 
-``python -m netlab.dask_hosts wait ADDRESS N TIMEOUT`` (run inside a host) waits until the scheduler has N
-workers; ``... watch ADDRESS`` prints, as JSON lines, which task keys each worker is processing whenever that
-changes (what a test waits on before it removes a host); ``... executed ADDRESS`` prints how many tasks each
-worker has run, from the worker's own state machine (what shows that a host brought back was used). They reach
-Dask through the engine (force_tester_common.engine.get_client), the one module that imports it.
+``python -m netlab.dask_hosts watch ADDRESS`` (run inside a host) prints, as JSON lines, which task keys each
+worker is processing whenever that changes, every worker the scheduler has included (what run_campaign waits on:
+the workers to register, then the task before it removes a host); ``... executed ADDRESS`` prints how many tasks
+each worker has run, from the worker's own state machine (what shows that a host brought back was used). They
+reach Dask through the engine (force_tester_common.engine.get_client), the one module that imports it.
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from netlab.netns import Impairment, NetnsError, Star
 PORT = 8786
 NWORKERS = 2      # worker processes per worker host (dask worker --nworkers), one thread each
 WORKER_HOSTS = ('b', 'c')   # run_campaign's worker hosts (the scheduler is in a)
+WATCH_S = 0.1   # how often the watcher asks the scheduler (a pull's task lasts 0.3 s and more on these hosts)
 
 
 class DaskHosts:
@@ -78,19 +80,25 @@ class DaskHosts:
         self.procs[name] = proc
         return proc
 
-    def wait(self, n: int, host: str | None = None, timeout: float = 120.0) -> None:
-        """Wait until the scheduler has ``n`` workers (asked from ``host``, default the scheduler's)."""
-        host = host or self.address.split('//')[1].split(':')[0]
-        host = next((h.name for h in self.net.hosts if h.address == host), host)
-        res = subprocess.run([*self.net.host(host).prefix(), sys.executable, '-m', 'netlab.dask_hosts', 'wait',
-                              self.address, str(n), str(timeout)], env=self.env, capture_output=True, text=True)
-        if res.returncode:
-            raise NetnsError(f'the scheduler at {self.address} did not get {n} workers within {timeout:g} s: '
-                             f'{(res.stderr or res.stdout).strip()[-400:]}; logs in {self.log_dir}')
-
     def watch(self, host: str) -> subprocess.Popen:
-        """The watcher in ``host``: JSON lines {worker address: [task keys processing]} on its stdout."""
+        """The watcher in ``host``: JSON lines {worker address: [task keys processing]} on its stdout, every
+        worker the scheduler has in each (so the first line with n of them says that n have registered)."""
         return self.run(host, f'watch_{host}', [sys.executable, '-m', 'netlab.dask_hosts', 'watch', self.address])
+
+    def wait(self, lines: queue.Queue, n: int, timeout: float = 120.0) -> None:
+        """Wait until the watcher's ``lines`` (its stdout, read into a queue) name ``n`` workers: no process of
+        its own (each would import Dask: about 1.3 CPU-s)."""
+        deadline, last = time.monotonic() + timeout, {}
+        while len(last) < n:
+            try:
+                line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                line = None
+            if line is None:   # the deadline passed, or the watcher ended
+                raise NetnsError(f'the scheduler at {self.address} did not get {n} workers within {timeout:g} s '
+                                 f'(it had {sorted(last)}); logs in {self.log_dir}')
+            last = json.loads(line)
+
 
     def executed(self, host: str = 'a') -> dict:
         """{worker address: tasks it has run}, as each worker's own state machine counts them (asked from
@@ -144,10 +152,11 @@ class StageClock:
 def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment | None = None,
                  lose: str | None = 'c', lose_on: str | None = None, back: bool = False,
                  lose_in: tuple = (), timeout: float = 1500.0, client: str = 'a', say=print,
-                 worker_hosts: tuple = WORKER_HOSTS) -> dict:
+                 worker_hosts: tuple = WORKER_HOSTS, nworkers: int = NWORKERS) -> dict:
     """Star a and the ``worker_hosts`` (b and c by default; and d if ``client`` is 'd'): the scheduler in a, the
-    client command (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers 2
-    --nthreads 1`` in each worker host (one is enough where the host lost is the scheduler's or the client's).
+    client command (``client_cmd`` + ``--scheduler ADDRESS``) in ``client``, a ``dask worker --nworkers
+    NWORKERS --nthreads 1`` in each worker host (one is enough where the host lost is the scheduler's or the
+    client's; ``nworkers`` processes each, NWORKERS by default).
 
     With ``lose``: once a worker in that host (any worker, for a host with none) is processing a task whose key
     starts with ``lose_on`` (the engine's keys are pull-<function>-...), its switch port goes down and every
@@ -175,12 +184,12 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
         cluster = DaskHosts(net, env, out / 'logs')
         res['address'] = address = cluster.scheduler('a')
         for h in worker_hosts:
-            cluster.workers(h)
-        cluster.wait(len(worker_hosts) * NWORKERS)
-        say(f'cluster: scheduler {address} in {net.host("a").netns}, {NWORKERS} workers in each of '
-            f'{", ".join(worker_hosts)}; {net.impairment.describe()} ({net.method})')
+            cluster.workers(h, nworkers)
         watch, seen = cluster.watch(client), queue.Queue()
         threading.Thread(target=_lines, args=(watch.stdout, seen), daemon=True).start()
+        cluster.wait(seen, len(worker_hosts) * nworkers)
+        say(f'cluster: scheduler {address} in {net.host("a").netns}, {nworkers} workers in each of '
+            f'{", ".join(worker_hosts)}; {net.impairment.describe()} ({net.method})')
         t0 = time.monotonic()
         proc = cluster.run(client, 'client', [*client_cmd, '--scheduler', address])
         lost = net.host(lose).address if lose else None
@@ -238,7 +247,7 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
             elif state == 'lost' and not (set(mine) & gone):   # the scheduler let the lost workers go
                 loss['dropped_s'] = now()
                 net.plug(lose)
-                cluster.workers(lose)
+                cluster.workers(lose, nworkers)
                 loss['back_s'] = res['back_s'] = now()
                 say(f'host {lose} back at {loss["back_s"]:.1f} s (the scheduler dropped its workers at '
                     f'{loss["dropped_s"]:.1f} s; they start again)')
@@ -254,7 +263,7 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
         res['missed'] += todo
         res['lost_workers'] = sorted(gone)
         res['after_loss_s'] = res['seconds'] - res['losses'][-1]['lost_s'] if res['losses'] else None
-        if lose != 'a':
+        if lose is None or lose in worker_hosts:   # what a worker host brought back ran (the scheduler is there)
             res['executed'] = cluster.executed()
         res['counters'] = net.counters()
         res['method'] = net.method
@@ -262,22 +271,15 @@ def run_campaign(out: Path, env: dict, client_cmd: list, impairment: Impairment 
     return res
 
 
-def _wait(address: str, n: int, timeout: float) -> int:
-    from force_tester_common.engine import get_client  # the one module that imports Dask
-    client = get_client(address, connect_timeout=timeout)[0]
-    client.wait_for_workers(n, timeout=timeout)
-    return 0
-
-
 def _watch(address: str) -> int:
-    from force_tester_common.engine import get_client
-    client, last = get_client(address, connect_timeout=30.0)[0], None
+    from force_tester_common.engine import get_client  # the one module that imports Dask
+    client, last = get_client(address, connect_timeout=120.0)[0], None   # the scheduler may still be starting
     while True:
         now = {w: sorted(str(k) for k in keys) for w, keys in client.processing().items()}
         if now != last:
             print(json.dumps(now), flush=True)
             last = now
-        time.sleep(0.05)
+        time.sleep(WATCH_S)
 
 
 def _executed_count(dask_worker=None) -> int:   # runs in each worker (client.run)
@@ -293,10 +295,8 @@ def _executed(address: str) -> int:
 
 if __name__ == '__main__':
     args = sys.argv[1:]
-    if args[:1] == ['wait'] and len(args) == 4:
-        sys.exit(_wait(args[1], int(args[2]), float(args[3])))
     if args[:1] == ['watch'] and len(args) == 2:
         sys.exit(_watch(args[1]))
     if args[:1] == ['executed'] and len(args) == 2:
         sys.exit(_executed(args[1]))
-    sys.exit('usage: python -m netlab.dask_hosts wait ADDRESS N TIMEOUT | watch ADDRESS | executed ADDRESS')
+    sys.exit('usage: python -m netlab.dask_hosts watch ADDRESS | executed ADDRESS')
