@@ -526,7 +526,7 @@ def operating_range(fit: Sequence, idx: Sequence[int], col: int, u_stat: float) 
 
 def term_budget(fit: Sequence, prod: Sequence[int], col: Optional[int], coef: float, ci: Tuple[float, float],
                 si: float, relative: Optional[Tuple[str, float]],
-                form: Optional[Tuple[str, float]] = None) -> TermBudget:
+                forms: Sequence[Tuple[str, float]] = ()) -> TermBudget:
     """One coefficient of a term beyond the catalog, its budget made as honest() makes the catalog's: the
     statistical part from the jackknife interval ci (its own Student factor); each systematic part the
     coefficient's shift when a rig constant is one standard uncertainty off (the residual's change, its normal
@@ -534,8 +534,9 @@ def term_budget(fit: Sequence, prod: Sequence[int], col: Optional[int], coef: fl
     mass m2 on the moving cell, each drive constant on the motor current); the model-form line OPERATING_RANGE (a
     product term's coefficient on each half of the fitted pulls); relative: (component, relative u) of the
     channel's sensor calibration. fit: the fitted pulls' ChannelStats; col: the term's column (None: a sinusoid);
-    si: the factor from the scaled coefficient to SI; form: (component, u) of one more model-form line the caller
-    measured (the motor current's: the coefficient's shift with the drive's damping fitted beside it)."""
+    si: the factor from the scaled coefficient to SI; forms: (component, u) of each more model-form line the caller
+    measured (the motor current's: the coefficient's shift with the drive's damping, and with its k_F and reflected
+    mass, fitted beside it)."""
     q = t_quantile(len(fit))
     u_stat = 0.5 * abs(ci[1] - ci[0]) / q
     sys_: Dict[str, float] = {}
@@ -551,8 +552,8 @@ def term_budget(fit: Sequence, prod: Sequence[int], col: Optional[int], coef: fl
     if relative is not None:
         comp, rel = relative
         sys_[comp] = rel * abs(coef)
-    if form is not None:
-        sys_[form[0]] = abs(form[1])
+    for comp, u in forms:
+        sys_[comp] = abs(u)
     u_sys = math.sqrt(sum(v * v for v in sys_.values()))
     U = expanded(q, u_stat, u_sys)
     budget = {STATISTICAL: u_stat, **sys_}

@@ -40,13 +40,14 @@ significant AND its contribution's rms on the held-out pulls, over that interval
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
 PRIORITY_MARGIN more than it does (the same number of parameters: one). A term on the current is named only when
-it beats the drive's causes in its place (the viscous damping, whose form is `v`, and the Coulomb step; Term's
-catalog_beat), and is fitted with `v` beside it, so the damping's stated uncertainty is measured, not a systematic
-part of its budget. On the moving cell each named force-model
-cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the cause undone, on every campaign; a cause
-kept says what the library in its place left (BeyondResult.checked). A cause a library term
-explains better is withheld: the report names the term and says the nearest catalog cause does not fit
-(BeyondResult.demoted).
+it beats the drive's causes in its place (the viscous damping, whose form is `v`, the Coulomb step, k_F and the
+reflected mass; Term's catalog_beat), and is fitted with `v` beside it, so the damping's stated uncertainty is
+measured, not a systematic part of its budget; and with the forms of the drive's k_F and reflected mass beside it,
+whose stated lines give way to the data's where they separate the term from them (selection.search_channel). On
+the moving cell each named force-model cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the
+cause undone, on every campaign; a cause kept says what the library in its place left (BeyondResult.checked). A
+cause a library term explains better is withheld: the report names the term and says the nearest catalog cause
+does not fit (BeyondResult.demoted).
 
 The modules, in the order a search runs:
 

@@ -51,6 +51,12 @@ FORCE_FORMS = (GAIN, MASS)
 # so the data measure the damping rather than its stated +/-50 % entering the term's budget, and a term is named
 # only when it beats it, and the Coulomb step, in its place (selection.search_channel)
 DAMPING, DAMPING_FORM = 'viscous_damping', 'v'
+# the drive's force per amp k_F and reflected mass (rig drive.*: the torque constant, the pulley, the inertias): their
+# forms on the motor current, the drive force the model of record needs (m_c a3 + b v3 + F_move, over k_F) and a3 over
+# k_F, are its catalog columns after the Coulomb step, in this order. A term there is fitted with both beside it, so
+# the data measure them rather than their stated uncertainties (the reflected inertia's 5 %, k_F's 2.24 %) entering
+# the term's budget, and it is named only when it beats each in its place (selection.search_channel)
+DRIVE_FORMS = ('drive_force_per_amp', 'drive_reflected_mass')
 
 
 def library() -> List[str]:

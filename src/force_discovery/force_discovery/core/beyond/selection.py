@@ -13,13 +13,14 @@ import numpy as np
 
 from force_tester_sim.core.extra_terms import CHANNEL_UNITS, SIN, term_unit
 
-from ..budget import term_budget
+from ..budget import COMBINED, term_budget
 from ..significance import significance
 from ..uncertainty import jackknife_se, t_quantile
 from .grammar import (
     COULOMB,
     DAMPING,
     DAMPING_FORM,
+    DRIVE_FORMS,
     FORCE_FORMS,
     RELATIVE,
     channel_band,
@@ -27,6 +28,7 @@ from .grammar import (
     reads_own,
     si_factor,
 )
+from .identify import COLLINEAR
 from .interpretation import interpretation
 from .normal_equations import ChannelStats
 from .spectrum import SearchSettings
@@ -34,6 +36,8 @@ from .spectrum import SearchSettings
 MAX_TERMS = 3
 DAMPING_SHIFT = 'damping_fitted'   # a current term's budget line: its shift with the drive's damping fitted beside it
 FORMS_SHIFT = 'gain_mass_fitted'   # a moving-cell term's budget line: its shift with the gain and m2 fitted beside it
+DRIVE_SHIFT = 'drive_fitted'       # a current term's budget line: its shift with the drive's k_F and reflected mass
+                                   # fitted beside it
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (search_channel)
 NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
@@ -245,6 +249,11 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     # catalog column) and the viscous damping's departure (its form, the library's v: fitted beside every other
     # term, so its stated uncertainty is measured, not a systematic part of the term's budget)
     has_step = channel == 'motor_current' and fit[0].catalog is not None
+    # the drive's k_F and reflected mass (their forms the current's catalog columns after the step, DRIVE_FORMS) in the
+    # same way: every term there is fitted with both beside it, so the data measure them. With their stated
+    # uncertainties as systematic parts, every term that grows with the drive force or the acceleration was swamped
+    # (bench_sweep's motor_current cells at 3x the band on the independent generator: 34 of 42 named nothing)
+    drive = tuple(range(1, 1 + len(DRIVE_FORMS))) if has_step and len(fit[0].catalog.cy) > len(DRIVE_FORMS) else ()
     # the moving cell's gain and effective mass (their forms F_move and a2 the channel's catalog columns, FORCE_FORMS):
     # a term is named only when it beats each in its place (catalog_margin). Their stated uncertainties are
     # systematic parts of every term that grows with the load. When the force model named one of them (the data put
@@ -320,17 +329,28 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
         cat_beat = catalog_margin(model, best, new_prod, base.sum(), kv,
-                                  (COULOMB,) if has_step else FORCE_FORMS if gain_form else (), fitted, sse_held)
+                                  ((COULOMB, *DRIVE_FORMS) if drive else (COULOMB,)) if has_step
+                                  else FORCE_FORMS if gain_form else (), fitted, sse_held)
         model = best
         # the term's coefficient, interval and budget with the drive's damping fitted beside it (kv): a damping off
         # the rig YAML's is then the data's to measure, not the stated +/-50 % in the budget of every term like v
-        prof, form, lines = model, None, None
+        prof, shifts, lines = model, [], None
         if kv is not None and not is_sin and kv not in model.prod:
             prof = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
             # which damping holds, the rig YAML's or the one fitted beside the term, the data do not say for certain:
             # the coefficient's shift between the two is a model-form line of its budget (DAMPING_SHIFT)
             k0 = new_prod[0]
-            form = (DAMPING_SHIFT, prof.coef[list(prof.prod).index(k0)] - model.coef[list(model.prod).index(k0)])
+            shifts.append((DAMPING_SHIFT,
+                           prof.coef[list(prof.prod).index(k0)] - model.coef[list(model.prod).index(k0)]))
+        if drive and not is_sin and separable(fit, prof.prod, tuple(sorted({*prof.cat, *drive})), new_prod[0]):
+            # the drive's k_F and reflected mass as the gain and m2 below: the coefficient is the one with them at
+            # the rig YAML's, their stated uncertainties give way to its shift when both are fitted beside it
+            # (DRIVE_SHIFT) and to what fitting them adds to its scatter; when the data separate the term from
+            # them at all (an F_move term is exactly k_F's form less the mass's and the damping's: there only the
+            # stated uncertainties bound it) and settle it better than the stated ones do (below)
+            lines = fitted(prof.prod, prof.sin, tuple(sorted({*prof.cat, *drive})))
+            k0 = new_prod[0]
+            shifts.append((DRIVE_SHIFT, lines.coef[list(lines.prod).index(k0)] - prof.coef[list(prof.prod).index(k0)]))
         elif forms and gain_form and not is_sin and not model.cat:
             # the moving cell's gain and m2 in the same way, the other way round: the coefficient is the one with them
             # as the force model left them (fitted beside a load term they take part of it: on the own generator's
@@ -338,9 +358,10 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             # uncertainties give way to the coefficient's shift when both are fitted beside it (FORMS_SHIFT): the
             # data measure them, so a gain or m2 one u off is theirs, not the term's (lines: the budget's systematic
             # parts regressed with their columns beside the term)
-            lines = fitted(model.prod, model.sin, range(len(FORCE_FORMS)))
+            lines = fitted(model.prod, model.sin, tuple(range(len(FORCE_FORMS))))
             k0 = new_prod[0]
-            form = (FORMS_SHIFT, lines.coef[list(lines.prod).index(k0)] - model.coef[list(model.prod).index(k0)])
+            shifts.append((FORMS_SHIFT,
+                           lines.coef[list(lines.prod).index(k0)] - model.coef[list(model.prod).index(k0)]))
         ci = jackknife(fit, prof, n_prod)
         if is_sin:
             name, coef, cif, col = names[n_prod + model.sin], model.amp, ci[-1], None
@@ -368,10 +389,16 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             lo_l, hi_l = sorted(jackknife(fit, lines, n_prod)[pos_l])
             q = t_quantile(len(fit))
             u_l, u_0 = 0.5 * (hi_l - lo_l) / q, 0.5 * abs(hi - lo) / q
-            form = (form[0], math.hypot(form[1], math.sqrt(max(0.0, u_l * u_l - u_0 * u_0))))
-        budget, (lo, hi) = term_budget([augmented(st, True) for st in fit] if beside else fit,
-                                       _cols(prof.prod, beside, len(fit[0].xy)), col, coef, (lo, hi), si,
-                                       relative_part(channel, rig), form)
+            shifts[-1] = (shifts[-1][0], math.hypot(shifts[-1][1], math.sqrt(max(0.0, u_l * u_l - u_0 * u_0))))
+        budget, (lo_b, hi_b) = term_budget([augmented(st, True) for st in fit] if beside else fit,
+                                           _cols(prof.prod, beside, len(fit[0].xy)), col, coef, (lo, hi), si,
+                                           relative_part(channel, rig), shifts)
+        if drive and beside:   # the data's k_F and mass only where they know the term better than the datasheet's
+            stated = term_budget(fit, list(prof.prod), col, coef, (lo, hi), si, relative_part(channel, rig),
+                                 shifts[:-1])
+            if stated.budget[COMBINED] <= budget[COMBINED]:
+                budget, (lo_b, hi_b) = stated
+        lo, hi = lo_b, hi_b
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
@@ -382,18 +409,35 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     return ChannelResult(found, demoted, model, kept)
 
 
+def separable(stats: Sequence[ChannelStats], prod: Sequence[int], cat: Sequence[int], k: int) -> bool:
+    """Whether product column k is more than collinear (identify.COLLINEAR: 1 - r^2 against the others) with the
+    other product columns prod and the catalog columns cat over the pulls stats (their normal equations, pooled)."""
+    idx = _cols(prod, cat, len(stats[0].xy))
+    G = sum(augmented(st, True).gram[np.ix_(idx, idx)] for st in stats)
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    C = G / np.outer(d, d)
+    pos = idx.index(k)
+    rest = [i for i in range(len(idx)) if i != pos]
+    if not rest:
+        return True
+    g = C[rest, pos]
+    left = 1.0 - float(g @ np.linalg.lstsq(C[np.ix_(rest, rest)], g, rcond=1e-12)[0])
+    return left > COLLINEAR
+
+
 def catalog_margin(model: Model, best: Model, new_prod: Sequence[int], base: float, kv: Optional[int],
                    cat_causes: Sequence[str], fitted, sse_held) -> Tuple:
     """(the best catalog cause in the new term's place, the term's held-out margin over it as a share of the SSE
-    before it; () when none competes): on the motor current the viscous damping (its form, column kv) and the
-    Coulomb step, on the moving cell its gain and effective mass (cat_causes: the causes whose forms are the
-    channel's catalog columns, in order), each added to the model instead of the term, one parameter as the term."""
+    before it; () when none competes): on the motor current the viscous damping (its form, column kv), the
+    Coulomb step and the drive's k_F and reflected mass (DRIVE_FORMS), on the moving cell its gain and effective
+    mass (cat_causes: the causes whose forms are the channel's catalog columns, in order), each added to the model
+    instead of the term (beside the catalog columns the model holds), one parameter as the term."""
     alts = {}
     if kv is not None and kv not in model.prod and kv not in new_prod:
         alts[DAMPING] = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
-    if not model.cat:
-        for j, cause in enumerate(cat_causes):
-            alts[cause] = fitted(model.prod, model.sin, (j,))
+    for j, cause in enumerate(cat_causes):
+        if j not in model.cat:
+            alts[cause] = fitted(model.prod, model.sin, tuple(sorted({*model.cat, j})))
     if not alts or base <= 0:
         return ()
     cause, e_alt = min(((c, total(sse_held(m))) for c, m in alts.items()), key=lambda x: x[1])

@@ -93,15 +93,17 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
 
     force_moving: the force model's residual on W after the named causes (force_resid, from ForceModel.resid);
     F_move is the model's prediction (measured minus hum minus residual). motor_current (A): the drive's force
-    balance with the predicted F_move, over the samples at rest and moving, minus the pull's median at rest;
-    its catalog column is the Coulomb step (1 while moving) in A per N of friction, on every pull: the search
-    fits it with the terms when the cause is named, and weighs it against each term in the term's place (a catalog
-    cause with as many parameters). causes: each named force-model cause's contribution to the moving
-    cell's residual on W (what the residual would gain were the cause undone, at its fitted parameters; cause_check).
-    before: (samples, residual, causes) of the moving cell's free phase before the load (before_samples; the force
-    model there at its fitted parameters, force_model.resid_at), put ahead of W: a zero drifting with no load is
-    seen there, where an AC coupling, which acts on the load, leaves nothing; so the two compete on the same
-    held-out samples (issue 39: a drift from the record's start was fitted as the AC coupling on W alone)."""
+    balance with the predicted F_move, over the samples at rest and moving, minus the pull's median at rest; its
+    catalog columns are the Coulomb step (1 while moving) in A per N of friction, on every pull (the search fits it
+    with the terms when the cause is named, and weighs it against each term in the term's place: a catalog cause
+    with as many parameters), then the forms of the drive's k_F and reflected mass (grammar.DRIVE_FORMS: fitted
+    beside a term, weighed against it in its place). causes: each named force-model cause's contribution to the
+    moving cell's residual on W (what the residual would gain were the cause undone, at its fitted parameters;
+    cause_check). before: (samples, residual, causes) of the moving cell's free phase before the load
+    (before_samples; the force model there at its fitted parameters, force_model.resid_at), put ahead of W: a zero
+    drifting with no load is seen there, where an AC coupling, which acts on the load, leaves nothing; so the two
+    compete on the same held-out samples (issue 39: a drift from the record's start was fitted as the AC coupling on
+    W alone)."""
     q = decimation(p.dt)
     out = {}
     w = slice(p.w0, p.w1)
@@ -169,7 +171,11 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
                 rho = cur * d.force_per_amp_n_per_a - drive_force_balance(p, d, fm_b)
                 return (rho - rest_level(rho, sg)) / d.force_per_amp_n_per_a
             y = balance(d)
-            col = moving.astype(float) / kf
+            # the catalog columns: the Coulomb step (A per N of friction), then the forms of the drive's k_F and
+            # reflected mass (grammar.DRIVE_FORMS: the balance's change per relative k_F departure, the drive force
+            # the model needs over k_F; and per kg of reflected mass, a3 over k_F), each from its rest level
+            need = drive_force_balance(p, d, fm_b)
+            col = np.column_stack([moving.astype(float), need - rest_level(need, sg), p.a3 - rest_level(p.a3, sg)]) / kf
             sel = np.flatnonzero(use)[::q]
             sys_ = {}
             for name, key in DRIVE_VARIANTS.items():   # each drive constant one standard uncertainty off
