@@ -26,7 +26,19 @@ it does not (the independent generator's drive: belt, encoder and controller dyn
 by 5 to 200 % and neither is k_F. drive_calibration takes the calibration only where the two agree and the pulls
 settle k_F better than the rig YAML states it; elsewhere the rows are the uncalibrated ones (calibrated_rows) and the
 friction keeps the datasheet's lines. Each pull keeps its own fit (the estimate); the campaign's one k_F (pooled_rows)
-is the other reading of the same calibration, and half the gap between the two frictions is a line (drive_lines)."""
+is the other reading of the same calibration, and half the gap between the two frictions is a line (drive_lines).
+
+Why they part there, from its data: per phase, the residual's regression on F_move while the cable is loaded (a few
+ms) has slope -1 (the current does not follow the load within the load), and after the break F_move rings while the
+current does not; what the current does not carry sits in F_move, a regressor of the reverse fit, which it
+attenuates (s_reverse -3 to -236 %). No one lag between the current and the force makes them agree (a first-order
+lag of 0.2-2 ms on either side moves them apart or swaps them); passing the current and F_move through a3's filter
+(prep.like_a3) narrows the gap to 0.1-5 %. The balance of the impulses does hold: every column's mean over windows
+of 20 ms (drive_fit's window_s, the impulse form) averages the rings and the lags out, and the forward and reverse
+fits agree to 0.25 % or better on every pull of the four campaigns (median 0.02 %). impulse_form takes that form where the sample form is
+refused and it is not (the own generator, whose sample form agrees, keeps it); its pulls' s scatter by 0.5-1 % (tens
+of windows a pull), so its estimate is the campaign's one k_F (impulse_rows) and the window, 10 or 40 ms as well as
+20, is a line of its own (drive_lines' form line)."""
 from __future__ import annotations
 
 import math
