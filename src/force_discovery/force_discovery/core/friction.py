@@ -35,10 +35,10 @@ attenuates (s_reverse -3 to -236 %). No one lag between the current and the forc
 lag of 0.2-2 ms on either side moves them apart or swaps them); passing the current and F_move through a3's filter
 (prep.like_a3) narrows the gap to 0.1-5 %. The balance of the impulses does hold: every column's mean over windows
 of 20 ms (drive_fit's window_s, the impulse form) averages the rings and the lags out, and the forward and reverse
-fits agree to 0.25 % or better on every pull of the four campaigns (median 0.02 %). impulse_form takes that form where the sample form is
-refused and it is not (the own generator, whose sample form agrees, keeps it); its pulls' s scatter by 0.5-1 % (tens
-of windows a pull), so its estimate is the campaign's one k_F (impulse_rows) and the window, 10 or 40 ms as well as
-20, is a line of its own (drive_lines' form line)."""
+fits agree to 0.25 % or better on every pull of the four campaigns (median 0.02 %). impulse_form takes that form
+where the sample form is refused and it is not (the own generator, whose sample form agrees, keeps it); its pulls' s
+scatter by 0.5-1 % (tens of windows a pull), so its estimate is the campaign's one k_F (impulse_rows) and the window,
+10 or 40 ms as well as 20, is a line of its own (drive_lines' form line)."""
 from __future__ import annotations
 
 import math
