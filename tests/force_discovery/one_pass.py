@@ -36,6 +36,9 @@ from force_discovery.core.friction import (
     friction_rows,
     friction_sse,
     friction_stat,
+    impulse_form,
+    impulse_rows,
+    impulse_variants,
     viscous_departure,
     viscous_separable,
     viscous_u,
@@ -120,13 +123,17 @@ def systematic_parts(pulls, fit, cand, hums, rig, c1, fcal, delay) -> dict:
         out.setdefault('mains_hum', {}).setdefault(par, {}).update(comps)
     if 'coulomb_friction' in cand:
         rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
+        impulse = impulse_form(rows, rig)
+        rows_v = [B.friction_variants(pulls[j], rig) for j in fit]
+        if impulse:
+            rows = impulse_rows(rows)
+            rows_v = impulse_variants(rows_v)
         drive = drive_calibration(rows, rig)
-        line = None if drive is None else drive_lines(rows, drive, calibrated_rows(rows, False), rig)
+        line = None if drive is None else drive_lines(rows, drive, calibrated_rows(rows, False), rig, impulse)
         rows = calibrated_rows(rows, drive is not None)
         joint = viscous_separable(rows, viscous_u(rig))
         out['coulomb_friction'] = {'force_n': B.friction_systematics(
-            rows, [B.friction_variants(pulls[j], rig) for j in fit], partial(friction_stat, joint=joint), joint,
-            line)}
+            rows, rows_v, partial(friction_stat, joint=joint), joint, line)}
     return out
 
 
@@ -168,6 +175,8 @@ def current_stage(pulls, fit, held, rig):
     rows = friction_rows(friction_row(pulls[j], rig) for j in fit)
     if rows is None:
         return None, None
+    if impulse_form(rows, rig):
+        rows = impulse_rows(rows)
     drive = drive_calibration(rows, rig)
     rows = calibrated_rows(rows, drive is not None)
     joint = viscous_separable(rows, viscous_u(rig))

@@ -60,12 +60,14 @@ OPERATING_RANGE = 'operating_range'   # a term's model-form line beyond the cata
 DRIVE_CALIBRATION = 'drive_calibration'   # the friction's line from the drive's k_F calibrated on the data ...
 DRIVE_MODEL = 'drive_model'               # ... and half its gap to the friction with the datasheet's drive
 DRIVE_POOLING = 'drive_pooling'           # ... and half the gap between each pull's own k_F and the campaign's one
+DRIVE_FORM = 'drive_form'                 # ... and, in the drive's impulse form, its spread over the window
 HALF_PULLS = 2                        # ... measured when each half of the fitted pulls has at least this many
 #: component -> its kind (report.md groups the budget table by kind)
 KIND = {STATISTICAL: 'statistical',
         'm1': 'nominal constant', 'cell_stiffness': 'nominal constant',
         'torque_constant': 'nominal constant', 'pulley_radius': 'nominal constant',
         DRIVE_CALIBRATION: 'nominal constant', DRIVE_MODEL: MODEL_FORM, DRIVE_POOLING: MODEL_FORM,
+        DRIVE_FORM: MODEL_FORM,
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
         'cell_damping': MODEL_FORM, 'anti_alias_filter': MODEL_FORM, 'analysis_window': MODEL_FORM,
@@ -343,14 +345,15 @@ def load_dependence(fm_, groups: Sequence[Sequence[int]], m2: float, u_stat: dic
 
 
 def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]], stat, joint: bool = False,
-                         drive: Optional[Tuple[float, float, float]] = None) -> dict:
+                         drive: Optional[Tuple[float, ...]] = None) -> dict:
     """{component: change of the friction statistic} with each drive constant off (rows: the fitted pulls'
     friction_row()s as friction.calibrated_rows gave them; rows_v: their friction_variants(); stat:
     friction.friction_stat; joint: the viscous damping fitted with it; drive: with the drive calibrated on the data
     (friction.drive_calibration), the lines DRIVE_CALIBRATION (its own u's effect, friction.drive_line),
     DRIVE_MODEL (half the gap between the friction with the calibrated drive and with the datasheet's: two models of
     the drive that both fit) and DRIVE_POOLING (half the gap between the friction with each pull's own k_F and with
-    the campaign's one): friction.drive_lines, in that order; and each variant's rows calibrated too, so a
+    the campaign's one) and, in the drive's impulse form, DRIVE_FORM (its spread over the window):
+    friction.drive_lines, in that order; and each variant's rows calibrated too, so a
     force-per-amp or inertia variant leaves about nothing); and the model-form line OPERATING_RANGE
     (friction_range)."""
     f0 = stat(rows)
@@ -358,7 +361,7 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     out = {name: abs(stat(calibrated_rows(np.array([r[name] for r in rows_v]), calibrated)) - f0)
            for name in DRIVE_VARIANTS}
     if calibrated:
-        out[DRIVE_CALIBRATION], out[DRIVE_MODEL], out[DRIVE_POOLING] = drive
+        out.update(zip((DRIVE_CALIBRATION, DRIVE_MODEL, DRIVE_POOLING, DRIVE_FORM), drive))
     out[OPERATING_RANGE] = friction_range(rows, joint)
     return out
 
@@ -601,8 +604,9 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
     return out
 
 
-__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'DELAY_FORMS', 'DRIVE_CALIBRATION', 'DRIVE_MODEL', 'HALF_PULLS', 'KIND',
-           'MODEL_FORM', 'OPERATING_RANGE', 'STATISTICAL', 'bessel_attenuation', 'campaign_systematics',
+__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'DELAY_FORMS', 'DRIVE_CALIBRATION', 'DRIVE_FORM', 'DRIVE_MODEL',
+           'HALF_PULLS', 'KIND', 'MODEL_FORM', 'OPERATING_RANGE', 'STATISTICAL', 'bessel_attenuation',
+           'campaign_systematics',
            'cell_damping_u', 'cell_stiffness_u', 'clock_relative', 'delay_form', 'expanded', 'extra_systematics',
            'filter_delay', 'filter_form_parts', 'filter_form_preferred', 'force_systematics', 'force_variants',
            'friction_range', 'friction_systematics', 'friction_variants', 'honest', 'honest_all', 'load_dependence',

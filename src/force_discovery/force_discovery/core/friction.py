@@ -26,11 +26,23 @@ it does not (the independent generator's drive: belt, encoder and controller dyn
 by 5 to 200 % and neither is k_F. drive_calibration takes the calibration only where the two agree and the pulls
 settle k_F better than the rig YAML states it; elsewhere the rows are the uncalibrated ones (calibrated_rows) and the
 friction keeps the datasheet's lines. Each pull keeps its own fit (the estimate); the campaign's one k_F (pooled_rows)
-is the other reading of the same calibration, and half the gap between the two frictions is a line (drive_lines)."""
+is the other reading of the same calibration, and half the gap between the two frictions is a line (drive_lines).
+
+Why they part there, from its data: per phase, the residual's regression on F_move while the cable is loaded (a few
+ms) has slope -1 (the current does not follow the load within the load), and after the break F_move rings while the
+current does not; what the current does not carry sits in F_move, a regressor of the reverse fit, which it
+attenuates (s_reverse -3 to -236 %). No one lag between the current and the force makes them agree (a first-order
+lag of 0.2-2 ms on either side moves them apart or swaps them); passing the current and F_move through a3's filter
+(prep.like_a3) narrows the gap to 0.1-5 %. The balance of the impulses does hold: every column's mean over windows
+of 20 ms (drive_fit's window_s, the impulse form) averages the rings and the lags out, and the forward and reverse
+fits agree to 0.25 % or better on every pull of the four campaigns (median 0.02 %). impulse_form takes that form
+where the sample form is refused and it is not (the own generator, whose sample form agrees, keeps it); its pulls' s
+scatter by 0.5-1 % (tens of windows a pull), so its estimate is the campaign's one k_F (impulse_rows) and the window,
+10 or 40 ms as well as 20, is a line of its own (drive_lines' form line)."""
 from __future__ import annotations
 
 import math
-from typing import Iterable, Optional, Tuple
+from typing import Iterable, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -73,23 +85,50 @@ def rest_level(rho: np.ndarray, sg: np.ndarray) -> float:
 
 DRIVE_COLUMNS = 4          # drive_fit's regressors: 1, the drive force, a3, the speed about its median
 MIN_DRIVE_SAMPLES = 200    # moving samples a pull needs for its own drive fit
+IMPULSE_WINDOWS_S = (0.02, 0.01, 0.04)   # the impulse form's window: the nominal, then the two of its model-form line
+MIN_WINDOWS = 8            # windows a pull needs for its impulse-form fit
+SAMPLE_FORM = (0, 1, 3, 6)       # friction_row's columns of a drive form: moving, rest, s, s_reverse ...
+IMPULSE_FORM = (8, 9, 10, 11)    # ... the impulse form's (the nominal window); then moving, rest, s at the other two
+IMPULSE_ALTERNATIVES = ((12, 13, 14), (15, 16, 17))
+IMPULSE_ROW = 18                 # friction_row's width
 
 
-def drive_fit(p: Pull, rho: np.ndarray, sg: np.ndarray, force_per_amp: float) -> Optional[np.ndarray]:
+def moving_windows(mv: np.ndarray, n: int) -> np.ndarray:
+    """(k, n) sample indices: every run of moving samples (mv) cut into whole windows of n samples."""
+    idx = np.flatnonzero(mv)
+    out = [r[:len(r) // n * n].reshape(-1, n) for r in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)]
+    return np.concatenate(out) if out else np.zeros((0, n), int)
+
+
+def drive_fit(p: Pull, rho: np.ndarray, sg: np.ndarray, force_per_amp: float,
+              window_s: float = 0.0) -> Optional[np.ndarray]:
     """(s, e, w, s_reverse): the least squares of the pull's residual while moving (current_resid's rho where sg is
     1) on [1, D, a3, v3 - its median] (D = force_per_amp i, the drive force the current says): s the fraction of D
     the rig YAML's force per amp is off by (the true one is force_per_amp (1 - s)), e the reflected mass's departure
     (kg), w a viscous departure within the pull; and s_reverse the same fraction from the reverse regression, the
     current on [1, F_move, a3, v3 - its median] (module doc); None with fewer than MIN_DRIVE_SAMPLES moving
-    samples or a rank-deficient fit."""
+    samples or a rank-deficient fit. window_s > 0: the impulse form, every column the mean over windows of that
+    length (moving_windows; at least MIN_WINDOWS of them): the balance of the impulses, which a lag or a ring
+    between the current and the force shorter than the window does not break (module doc)."""
     mv = sg == 1.0
     if np.count_nonzero(mv) < MIN_DRIVE_SAMPLES:
         return None
-    v = p.v3[mv]
-    X = np.column_stack([np.ones(len(v)), force_per_amp * p.current[mv], p.a3[mv], v - median(v)])
-    coef, _res, rank, _sv = np.linalg.lstsq(X, rho[mv], rcond=None)
-    X[:, 1] = p.fm[mv]
-    rev, _res, rank_r, _sv = np.linalg.lstsq(X, p.current[mv], rcond=None)
+    vm = median(p.v3[mv])
+    if window_s > 0:
+        w = moving_windows(mv, max(1, int(round(window_s / p.dt))))
+        if len(w) < MIN_WINDOWS:
+            return None
+
+        def cols(x):
+            return x[w].mean(axis=1)
+    else:
+        def cols(x):
+            return x[mv]
+    cur, y, fm = cols(p.current), cols(rho), cols(p.fm)
+    X = np.column_stack([np.ones(len(y)), force_per_amp * cur, cols(p.a3), cols(p.v3) - vm])
+    coef, _res, rank, _sv = np.linalg.lstsq(X, y, rcond=None)
+    X[:, 1] = fm
+    rev, _res, rank_r, _sv = np.linalg.lstsq(X, cur, rcond=None)
     if rank < DRIVE_COLUMNS or rank_r < DRIVE_COLUMNS or not rev[1] > 0:
         return None
     return np.r_[coef[1:], 1.0 - 1.0 / (rev[1] * force_per_amp)]
@@ -122,19 +161,72 @@ def drive_line(rows: np.ndarray, u_rel: float) -> float:
     return float(np.mean(np.abs(rows[:, 7]))) * u_rel
 
 
-def drive_lines(rows: np.ndarray, drive: Tuple[float, float], raw: np.ndarray, rig) -> Tuple[float, float, float]:
-    """(drive_line, the model line, the pooling line): with the drive calibrated (drive: drive_calibration's (k_F,
-    u)), its own u's effect; half the gap between the friction the calibrated rows give and the one the datasheet's
-    drive gives (raw: calibrated_rows(rows, False)): two models of the drive that both fit the data, on the own
-    generator 0.4-3 N, what the calibration's own spread does not show; and half the gap between the friction with
-    each pull's own k_F (the estimate) and with the campaign's one k_F (pooled_rows): the pulls of one set agree on
-    their k_F to 0.01 %, but a set's fit can part from the others' by 20-30 % of the k_F departure (own generator,
-    --trials 4: the slowest set, 2.4 m/s), and the line through the sets' (speed, friction) carries that part times
-    the set's drive force, extrapolated to v = 0 (there 0.7-4.5 N, 0.85-3.9 N off the truth). Each with its own
-    viscous fit where the speeds allow one."""
+def drive_lines(rows: np.ndarray, drive: Tuple[float, float], raw: np.ndarray, rig,
+                impulse: bool = False) -> Tuple[float, ...]:
+    """(drive_line, the model line, the pooling line; with impulse, the form line): with the drive calibrated
+    (drive: drive_calibration's (k_F, u)), its own u's effect; half the gap between the friction the calibrated rows
+    give and the one the datasheet's drive gives (raw: calibrated_rows(rows, False)): two models of the drive that
+    both fit the data, on the own generator 0.4-3 N, what the calibration's own spread does not show; and half the
+    gap between the friction with each pull's own k_F (the estimate) and with the campaign's one k_F (pooled_rows):
+    the pulls of one set agree on their k_F to 0.01 %, but a set's fit can part from the others' by 20-30 % of the
+    k_F departure (own generator, --trials 4: the slowest set, 2.4 m/s), and the line through the sets' (speed,
+    friction) carries that part times the set's drive force, extrapolated to v = 0 (there 0.7-4.5 N, 0.85-3.9 N off
+    the truth). With impulse (the rows are impulse_rows', whose estimate is the campaign's one k_F: no pooling
+    line), the RMS of the friction's departures at the impulse form's two other windows (IMPULSE_WINDOWS_S, each
+    pooled too) from the nominal's: the window is a choice the data do not make. Each with its own viscous fit
+    where the speeds allow one."""
+    def stat(r):
+        return friction_stat(r, viscous_separable(r, viscous_u(rig)))
     cal = calibrated_rows(rows, True)
-    stats = [friction_stat(r, viscous_separable(r, viscous_u(rig))) for r in (cal, raw, pooled_rows(rows))]
-    return drive_line(rows, drive[1] / drive[0]), abs(stats[0] - stats[1]) / 2.0, abs(stats[0] - stats[2]) / 2.0
+    stats = [stat(r) for r in (cal, raw)]
+    out = drive_line(rows, drive[1] / drive[0]), abs(stats[0] - stats[1]) / 2.0
+    if not impulse:
+        return (*out, abs(stats[0] - stat(pooled_rows(rows))) / 2.0)
+    out = (*out, 0.0)   # the impulse form's rows are pooled already (impulse_rows)
+    alts = []
+    for cols in IMPULSE_ALTERNATIVES:
+        ok = np.all(np.isfinite(rows[:, list(cols)]), axis=1)
+        if np.count_nonzero(ok) >= 3:
+            alt = np.array(cal[ok])
+            alt[:, :2] = pooled(rows[ok][:, list(cols)], rows[ok, 7])[:, :2]
+            alts.append(stat(alt) - stat(cal[ok]))
+    return (*out, float(math.sqrt(np.mean(np.square(alts)))) if alts else 0.0)
+
+
+def pooled(mrs: np.ndarray, drive: np.ndarray) -> np.ndarray:
+    """(moving, rest, s) rows with each pull's s replaced by their mean: the moving residual moves by (s - mean s) D
+    (drive: each pull's median drive force while moving, friction_row's column 7)."""
+    out = np.array(mrs, float)
+    out[:, 0] = out[:, 0] + (out[:, 2] - np.mean(out[:, 2])) * drive
+    return out
+
+
+def impulse_rows(rows) -> np.ndarray:
+    """The friction_row()s of a campaign's fitted pulls in the drive's impulse form: its moving, rest, s and
+    s_reverse (IMPULSE_FORM) in the sample form's places (SAMPLE_FORM), where calibrated_rows, drive_calibration
+    and pooled_rows read them, and the moving residual with the campaign's one k_F (the pulls' mean s, pooled): a
+    pull's impulse fit has tens of windows, so its own s scatters by 0.5-1 % (independent generator) about the
+    rig's one k_F, a scatter drive_calibration's u carries."""
+    out = np.array(rows, float)
+    out[:, list(SAMPLE_FORM)] = out[:, list(IMPULSE_FORM)]
+    out[:, 0] = pooled(out[:, [0, 1, 3]], out[:, 7])[:, 0]
+    return out
+
+
+def impulse_variants(rows_v: Sequence[Mapping[str, tuple]]) -> list:
+    """The fitted pulls' friction_variants() ({variant: friction_row()} per pull) in the impulse form: each
+    variant's rows over the campaign through impulse_rows."""
+    names = list(rows_v[0])
+    per = {n: impulse_rows(np.array([v[n] for v in rows_v], float)) for n in names}
+    return [{n: per[n][k] for n in names} for k in range(len(rows_v))]
+
+
+def impulse_form(rows: Optional[np.ndarray], rig) -> bool:
+    """Whether the data support the drive's impulse form and not its sample form: the sample-by-sample balance does
+    not calibrate the drive (drive_calibration None: its forward and reverse regressions part) and the balance of
+    the window means does (module doc)."""
+    return (rows is not None and rows.shape[1] >= IMPULSE_ROW and drive_calibration(rows, rig) is None
+            and drive_calibration(impulse_rows(rows), rig) is not None)
 
 
 def pooled_rows(rows: np.ndarray) -> np.ndarray:
@@ -215,12 +307,15 @@ def viscous_departure(rows: Optional[np.ndarray], joint: bool) -> float:
 
 
 def friction_row(p: Pull, rig) -> Optional[tuple]:
-    """(moving, rest, speed, s, moving_raw, rest_raw, s_reverse, drive): the pull's median force-balance residual
-    while moving and at rest (rest_level) with its own drive fit taken out (drive_fit: the residual less s D + e a3,
-    and while moving less w (v3 - its median)), its median speed while moving, the fit's s (nan without one: then
-    the first two are the raw ones), the two medians of the raw residual (calibrated_rows picks), the reverse
+    """(moving, rest, speed, s, moving_raw, rest_raw, s_reverse, drive, then the impulse form's moving, rest, s,
+    s_reverse, then moving, rest, s at each of its two other windows): the pull's median force-balance residual while
+    moving and at rest (rest_level) with its own drive fit taken out (drive_fit: the residual less s D + e a3, and
+    while moving less w (v3 - its median)), its median speed while moving, the fit's s (nan without one: then the
+    first two are the raw ones), the two medians of the raw residual (calibrated_rows picks), the reverse
     regression's s (drive_calibration checks s against it) and the median drive force D while moving (what a
-    fraction off k_F moves the friction by: drive_line; None without a current channel)."""
+    fraction off k_F moves the friction by: drive_line); then the same with the impulse form's fit
+    (IMPULSE_WINDOWS_S; nan without one; impulse_rows puts them in place) and the moving, rest and s of its fits at
+    the two other windows (drive_lines' form line). None without a current channel."""
     cr = current_resid(p, rig)
     if cr is None:
         return None
@@ -230,12 +325,23 @@ def friction_row(p: Pull, rig) -> Optional[tuple]:
     raw = median(rho[mv]), rest_level(rho, sg)
     kf = rig.drive.force_per_amp_n_per_a
     drive = median(kf * p.current[mv])
+
+    def taken_out(fit):
+        if fit is None:
+            return math.nan, math.nan
+        s, e, w, _s_reverse = fit
+        cal = rho - s * kf * p.current - e * p.a3
+        return median(cal[mv] - w * (p.v3[mv] - v)), rest_level(cal, sg)
+
+    fits = [drive_fit(p, rho, sg, kf, window) for window in IMPULSE_WINDOWS_S]
+    nominal = (math.nan, math.nan) if fits[0] is None else (float(fits[0][0]), float(fits[0][3]))
+    impulse = (*taken_out(fits[0]), *nominal)
+    for f in fits[1:]:
+        impulse += (*taken_out(f), math.nan if f is None else float(f[0]))
     fit = drive_fit(p, rho, sg, kf)
     if fit is None:
-        return (*raw, v, math.nan, *raw, math.nan, drive)
-    s, e, w, s_reverse = fit
-    cal = rho - s * kf * p.current - e * p.a3
-    return median(cal[mv] - w * (p.v3[mv] - v)), rest_level(cal, sg), v, float(s), *raw, float(s_reverse), drive
+        return (*raw, v, math.nan, *raw, math.nan, drive, *impulse)
+    return (*taken_out(fit), v, float(fit[0]), *raw, float(fit[3]), drive, *impulse)
 
 
 def friction_rows(rows: Iterable[Optional[tuple]]) -> Optional[np.ndarray]:

@@ -74,6 +74,9 @@ from .friction import (
     drive_lines,
     friction_rows,
     friction_stat,
+    impulse_form,
+    impulse_rows,
+    impulse_variants,
     viscous_departure,
     viscous_separable,
     viscous_u,
@@ -211,9 +214,14 @@ class Stream:
         dt = usable[0].info.dt
         self.dt = dt
         rows = friction_rows(usable[j].friction for j in fit)
+        impulse = impulse_form(rows, rig)   # the drive's balance over windows, where the data support only it
+        rows_v = [usable[j].friction_variants for j in fit]
+        if impulse:
+            rows = impulse_rows(rows)
+            rows_v = impulse_variants(rows_v)
         drive = drive_calibration(rows, rig)   # the drive's force per amp the data settle (friction.py), or None
         raw = None if rows is None else calibrated_rows(rows, False)
-        drive_u = None if drive is None else drive_lines(rows, drive, raw, rig)   # the friction's lines from it
+        drive_u = None if drive is None else drive_lines(rows, drive, raw, rig, impulse)   # the friction's lines
         rows = None if rows is None else calibrated_rows(rows, drive is not None)
         joint = viscous_separable(rows, viscous_u(rig))
         fcf = None if rows is None else friction_stat(rows, joint)
@@ -285,7 +293,7 @@ class Stream:
                          'delay and AC coupling are that fit\'s')
         sys_ = campaign_systematics(cand, stats, fit, [s.quality.peak_n for s in usable],
                                     fit_scales, m2, modes, rows,
-                                    [usable[j].friction_variants for j in fit], force['delay_s'], joint, hum_freqs,
+                                    rows_v, force['delay_s'], joint, hum_freqs,
                                     mode_variants, hum_form, drive_u)
         if form:   # the shift is the alternative the data rejected; the line is the filter's own (filter_form_parts)
             for t in TERMS:
