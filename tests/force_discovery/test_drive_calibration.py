@@ -113,7 +113,7 @@ def test_a_ring_the_drive_does_not_carry_is_calibrated_on_the_impulse_form():
     rows_v = impulse_variants([B.friction_variants(p, rig) for p in pulls])
     sys_ = B.friction_systematics(calibrated_rows(cal, True), rows_v, friction_stat, drive=lines)
     assert sys_['torque_constant'] < 0.5 and sys_[B.DRIVE_POOLING] == 0.0, sys_
-    assert 0.0 < sys_[B.DRIVE_FORM] == lines[3] < 1.0 and B.KIND[B.DRIVE_FORM] == 'model form'
+    assert 0.0 < sys_[B.DRIVE_WINDOW] == lines[3] < 1.0 and B.KIND[B.DRIVE_WINDOW] == 'model form'
     clean = _rows()[2]                                                   # the sample form: no form line
     assert len(drive_lines(clean, drive_calibration(clean, rig), calibrated_rows(clean, False), rig)) == 3
 

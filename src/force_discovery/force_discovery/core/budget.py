@@ -60,14 +60,14 @@ OPERATING_RANGE = 'operating_range'   # a term's model-form line beyond the cata
 DRIVE_CALIBRATION = 'drive_calibration'   # the friction's line from the drive's k_F calibrated on the data ...
 DRIVE_MODEL = 'drive_model'               # ... and half its gap to the friction with the datasheet's drive
 DRIVE_POOLING = 'drive_pooling'           # ... and half the gap between each pull's own k_F and the campaign's one
-DRIVE_FORM = 'drive_form'                 # ... and, in the drive's impulse form, its spread over the window
+DRIVE_WINDOW = 'drive_window'             # ... and, in the drive's impulse form, its spread over the window
 HALF_PULLS = 2                        # ... measured when each half of the fitted pulls has at least this many
 #: component -> its kind (report.md groups the budget table by kind)
 KIND = {STATISTICAL: 'statistical',
         'm1': 'nominal constant', 'cell_stiffness': 'nominal constant',
         'torque_constant': 'nominal constant', 'pulley_radius': 'nominal constant',
         DRIVE_CALIBRATION: 'nominal constant', DRIVE_MODEL: MODEL_FORM, DRIVE_POOLING: MODEL_FORM,
-        DRIVE_FORM: MODEL_FORM,
+        DRIVE_WINDOW: MODEL_FORM,
         'actuator_inertia': 'nominal constant', 'motor_inertia': 'nominal constant',
         'viscous_damping_motor': 'nominal constant', 'viscous_damping_actuator': 'nominal constant',
         'cell_damping': MODEL_FORM, 'anti_alias_filter': MODEL_FORM, 'analysis_window': MODEL_FORM,
@@ -352,7 +352,7 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     (friction.drive_calibration), the lines DRIVE_CALIBRATION (its own u's effect, friction.drive_line),
     DRIVE_MODEL (half the gap between the friction with the calibrated drive and with the datasheet's: two models of
     the drive that both fit) and DRIVE_POOLING (half the gap between the friction with each pull's own k_F and with
-    the campaign's one) and, in the drive's impulse form, DRIVE_FORM (its spread over the window):
+    the campaign's one) and, in the drive's impulse form, DRIVE_WINDOW (its spread over the window):
     friction.drive_lines, in that order; and each variant's rows calibrated too, so a
     force-per-amp or inertia variant leaves about nothing); and the model-form line OPERATING_RANGE
     (friction_range)."""
@@ -361,7 +361,7 @@ def friction_systematics(rows: np.ndarray, rows_v: Sequence[Mapping[str, tuple]]
     out = {name: abs(stat(calibrated_rows(np.array([r[name] for r in rows_v]), calibrated)) - f0)
            for name in DRIVE_VARIANTS}
     if calibrated:
-        out.update(zip((DRIVE_CALIBRATION, DRIVE_MODEL, DRIVE_POOLING, DRIVE_FORM), drive))
+        out.update(zip((DRIVE_CALIBRATION, DRIVE_MODEL, DRIVE_POOLING, DRIVE_WINDOW), drive))
     out[OPERATING_RANGE] = friction_range(rows, joint)
     return out
 
@@ -604,7 +604,7 @@ def campaign_systematics(cand: dict, stats: list, fit, peaks, scales, m2: float,
     return out
 
 
-__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'DELAY_FORMS', 'DRIVE_CALIBRATION', 'DRIVE_FORM', 'DRIVE_MODEL',
+__all__ = ['COMBINED', 'DELAY_FORM_REFERENCE', 'DELAY_FORMS', 'DRIVE_CALIBRATION', 'DRIVE_MODEL', 'DRIVE_WINDOW',
            'HALF_PULLS', 'KIND', 'MODEL_FORM', 'OPERATING_RANGE', 'STATISTICAL', 'bessel_attenuation',
            'campaign_systematics',
            'cell_damping_u', 'cell_stiffness_u', 'clock_relative', 'delay_form', 'expanded', 'extra_systematics',
