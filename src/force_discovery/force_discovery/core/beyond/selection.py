@@ -61,8 +61,9 @@ def sin_pair(n_prod: int, k: int) -> List[int]:
     return [n_prod + 2 * k, n_prod + 2 * k + 1]
 
 
-def augmented(st: ChannelStats, use_cat: bool) -> ChannelStats:
-    """The statistics with the catalog columns appended last to the columns (when use_cat)."""
+def augmented(st: ChannelStats, use_cat) -> ChannelStats:
+    """The statistics with the catalog columns appended last to the columns (when use_cat: True, or a model's
+    non-empty catalog columns)."""
     cat = st.catalog
     if not use_cat or cat is None:
         return st
@@ -115,7 +116,7 @@ def total(values: np.ndarray) -> float:
 
 def sse(st: ChannelStats, model: Model, n_prod: int) -> float:
     """One pull's squared residual under model (the sinusoid's phase fitted on the pull)."""
-    a = augmented(st, bool(model.cat))
+    a = augmented(st, model.cat)
     G, b, s = a.gram, a.xy, a.yy
     idx = _cols(model.prod, model.cat, len(st.xy))
     c = np.array(model.coef)
@@ -153,8 +154,9 @@ def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optiona
         if sk is not None:   # summed over the pulls in order, as below
             Gs, bs = sk.gram[:, idx][:, :, idx].sum(axis=0), sk.xy[:, idx].sum(axis=0)
         else:
-            Gs = sum(augmented(st, bool(cat)).gram[np.ix_(idx, idx)] for st in stats)
-            bs = sum(augmented(st, bool(cat)).xy[idx] for st in stats)
+            aug = [augmented(st, cat) for st in stats]
+            Gs = sum(a.gram[np.ix_(idx, idx)] for a in aug)
+            bs = sum(a.xy[idx] for a in aug)
         d = np.sqrt(np.maximum(np.diag(Gs), 1e-300))
         c = np.linalg.lstsq(Gs / np.outer(d, d), bs / d, rcond=1e-10)[0] / d
         coef = tuple(float(v) for v in c)
@@ -162,7 +164,7 @@ def fit_model(stats: Sequence[ChannelStats], prod: Tuple[int, ...], sin: Optiona
     if sin is not None:   # one amplitude for the campaign: the mean of the pulls' own
         amps = []
         for st in stats:
-            a = augmented(st, bool(cat))
+            a = augmented(st, cat)
             G, b = a.gram, a.xy
             pr = sin_pair(n_prod, sin)
             br = b[pr] - (G[np.ix_(pr, idx)] @ np.array(coef) if idx else 0.0)
