@@ -21,54 +21,37 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
-from force_discovery.core.beyond.grammar import channel_band
 from force_discovery.core.beyond.normal_equations import ChannelStats, Column
 from force_discovery.core.beyond.selection import separable
 from force_discovery.core.pipeline import discover
-from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, term_values
-from force_tester_sim.core.params import rig_from_dict
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'independent'))
-import rig as R  # noqa: E402  the independent generator
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
+import bench_sweep as S  # noqa: E402  the sweep's base campaign and its way of adding a term
 
 SEED = 3900               # bench_sweep's nominal rig
 STRENGTH = 3.0            # the term's rms over the loaded windows, in the channel's band
-LOADED = (0.05, 0.15)     # s before the lanyard goes taut, s after the break: where the term is sized
 STATED = ('torque_constant', 'pulley_radius', 'actuator_inertia', 'motor_inertia')   # the drive's stated lines
 
 
 @pytest.fixture(scope='module')
 def base():
-    camp, truth = R.generate_campaign(SEED, n_pulls=12, sets=[2, 3, 4], departures=[],
-                                      rig={'daq.absent': [], 'daq.sample_rate_hz': 20e3}, keep_signals=True)
-    return camp, truth, rig_from_dict(yaml.safe_load(R.rig_yaml(truth)))
+    """bench_sweep's nominal base campaign (its clean signals kept), from the benchmark's cache when made before."""
+    return S.base_case('nominal', SEED, 12)
 
 
 def with_term(base, channel: str, term: str, sign: float):
-    """(campaign with sign x STRENGTH x band of `term` on the recorded channel, the coefficient)."""
-    camp, truth, rig = base
-    col = CHANNEL_COLUMNS[channel]
-    values, on = [], []
-    for (_, ch), entry in zip(camp, truth['pulls']):
-        t = np.asarray(ch['time_s'], float)
-        sig = {**{k: np.asarray(v, float) for k, v in entry['signals'].items()}, 't': t - t[0]}
-        values.append(term_values(term, sig))
-        on.append((t >= entry['t_taut_s'] - LOADED[0]) & (t <= entry['t_break_s'] + LOADED[1]))
-    rms = float(np.sqrt(np.mean(np.concatenate([v[m] for v, m in zip(values, on)]) ** 2)))
-    coef = sign * STRENGTH * channel_band(channel, rig) / rms
-    lsb = truth['daq']['channels'][col]['lsb_si']
-    out = [(meta, {**ch, col: np.round((np.asarray(ch[col], float) + coef * v) / lsb) * lsb})
-           for (meta, ch), v in zip(camp, values)]
-    return out, coef
+    """(the campaign with sign x STRENGTH x band of `term` on the recorded channel, as bench_sweep adds it; the
+    coefficient)."""
+    coef = S.coefficient(base, channel, term, STRENGTH, sign)
+    return S.inject(base, channel, term, coef), coef
 
 
 @pytest.mark.slow
 def test_a_drag_on_the_current_is_named_beside_the_fitted_drive_constants(base, tmp_path):
     # one sign: a discover of this campaign is ~25 CPU-s; both signs are in the sweep (docs/discovery-sweep-drive.md)
     camp, coef = with_term(base, 'motor_current', 'v^2', -1.0)
-    report = discover(camp, base[2], tmp_path, scheduler='inline')
+    report = discover(camp, base.rig, tmp_path, scheduler='inline')
     mine = [t for t in report['beyond_catalog'] if t['channel'] == 'motor_current']
     assert mine and mine[0]['term'] == 'v^2', (coef, report['beyond_catalog'], report['beyond_search'])
     first = mine[0]

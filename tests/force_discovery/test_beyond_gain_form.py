@@ -18,52 +18,35 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
-import yaml
 
-from force_discovery.core.beyond.grammar import channel_band
 from force_discovery.core.pipeline import discover
-from force_tester_sim.core.extra_terms import term_values
-from force_tester_sim.core.params import rig_from_dict
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'independent'))
-import rig as R  # noqa: E402  the independent generator
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
+import bench_sweep as S  # noqa: E402  the sweep's base campaign and its way of adding a term
 
 pytestmark = pytest.mark.slow
 SEED = 3900               # bench_sweep's nominal rig
 STRENGTH = 3.0            # the term's rms over the loaded windows, in the channel's band
-LOADED = (0.05, 0.15)     # s before the lanyard goes taut, s after the break: where the term is sized
 
 
 @pytest.fixture(scope='module')
 def base():
-    camp, truth = R.generate_campaign(SEED, n_pulls=12, sets=[2, 3, 4], departures=[],
-                                      rig={'daq.absent': [], 'daq.sample_rate_hz': 20e3}, keep_signals=True)
-    return camp, truth, rig_from_dict(yaml.safe_load(R.rig_yaml(truth)))
+    """bench_sweep's nominal base campaign (its clean signals kept), from the benchmark's cache when made before."""
+    return S.base_case('nominal', SEED, 12)
 
 
-def with_term(base, term: str, sign: float):
-    """(campaign with sign x STRENGTH x band of `term` on the recorded moving cell, the coefficient)."""
-    camp, truth, rig = base
-    values, on = [], []
-    for (_, ch), entry in zip(camp, truth['pulls']):
-        t = np.asarray(ch['time_s'], float)
-        sig = {**{k: np.asarray(v, float) for k, v in entry['signals'].items()}, 't': t - t[0]}
-        values.append(term_values(term, sig))
-        on.append((t >= entry['t_taut_s'] - LOADED[0]) & (t <= entry['t_break_s'] + LOADED[1]))
-    rms = float(np.sqrt(np.mean(np.concatenate([v[m] for v, m in zip(values, on)]) ** 2)))
-    coef = sign * STRENGTH * channel_band('force_moving', rig) / rms
-    lsb = truth['daq']['channels']['force_moving_n']['lsb_si']
-    out = [(meta, {**ch, 'force_moving_n': np.round((np.asarray(ch['force_moving_n'], float) + coef * v) / lsb) * lsb})
-           for (meta, ch), v in zip(camp, values)]
-    return out, coef
+def with_term(base, channel: str, term: str, sign: float):
+    """(the campaign with sign x STRENGTH x band of `term` on the recorded channel, as bench_sweep adds it; the
+    coefficient)."""
+    coef = S.coefficient(base, channel, term, STRENGTH, sign)
+    return S.inject(base, channel, term, coef), coef
 
 
 @pytest.mark.parametrize('sign', [1.0, -1.0])
 def test_a_load_term_on_the_moving_cell_is_named_beside_the_fitted_gain_and_mass(base, sign, tmp_path):
-    camp, coef = with_term(base, 'T*t', sign)
-    report = discover(camp, base[2], tmp_path, scheduler='inline')
+    camp, coef = with_term(base, 'force_moving', 'T*t', sign)
+    report = discover(camp, base.rig, tmp_path, scheduler='inline')
     mine = [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving']
     assert mine and mine[0]['term'] == 'T*t', (coef, report['beyond_catalog'], report['beyond_search'])
     first = mine[0]
@@ -77,6 +60,5 @@ def test_a_load_term_on_the_moving_cell_is_named_beside_the_fitted_gain_and_mass
 
 
 def test_the_campaign_with_nothing_added_names_nothing_beyond_the_catalog(base, tmp_path):
-    camp, _, rig = base
-    report = discover(camp, rig, tmp_path, scheduler='inline')
+    report = discover(base.campaign, base.rig, tmp_path, scheduler='inline')
     assert report['beyond_catalog'] == [], report['beyond_catalog']
