@@ -55,6 +55,10 @@ class Model:
     cat: Tuple[int, ...] = ()   # the catalog columns in (their positions among the channel's; their coefficients
                                 # the last of coef)
 
+    def coef_of(self, k: int) -> float:
+        """The pooled coefficient of product column k (one of prod)."""
+        return self.coef[list(self.prod).index(k)]
+
 
 def sin_pair(n_prod: int, k: int) -> List[int]:
     """The columns of the k-th sinusoid's (cos, sin) pair, after the n_prod product columns."""
@@ -341,9 +345,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             prof = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
             # which damping holds, the rig YAML's or the one fitted beside the term, the data do not say for certain:
             # the coefficient's shift between the two is a model-form line of its budget (DAMPING_SHIFT)
-            k0 = new_prod[0]
-            shifts.append((DAMPING_SHIFT,
-                           prof.coef[list(prof.prod).index(k0)] - model.coef[list(model.prod).index(k0)]))
+            shifts.append((DAMPING_SHIFT, prof.coef_of(new_prod[0]) - model.coef_of(new_prod[0])))
         if drive and not is_sin and separable(fit, prof.prod, tuple(sorted({*prof.cat, *drive})), new_prod[0]):
             # the drive's k_F and reflected mass as the gain and m2 below: the coefficient is the one with them at
             # the rig YAML's, their stated uncertainties give way to its shift when both are fitted beside it
@@ -351,8 +353,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             # them at all (an F_move term is exactly k_F's form less the mass's and the damping's: there only the
             # stated uncertainties bound it) and settle it better than the stated ones do (below)
             lines = fitted(prof.prod, prof.sin, tuple(sorted({*prof.cat, *drive})))
-            k0 = new_prod[0]
-            shifts.append((DRIVE_SHIFT, lines.coef[list(lines.prod).index(k0)] - prof.coef[list(prof.prod).index(k0)]))
+            shifts.append((DRIVE_SHIFT, lines.coef_of(new_prod[0]) - prof.coef_of(new_prod[0])))
         elif forms and gain_form and not is_sin and not model.cat:
             # the moving cell's gain and m2 in the same way, the other way round: the coefficient is the one with them
             # as the force model left them (fitted beside a load term they take part of it: on the own generator's
@@ -361,9 +362,7 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             # data measure them, so a gain or m2 one u off is theirs, not the term's (lines: the budget's systematic
             # parts regressed with their columns beside the term)
             lines = fitted(model.prod, model.sin, tuple(range(len(FORCE_FORMS))))
-            k0 = new_prod[0]
-            shifts.append((FORMS_SHIFT,
-                           lines.coef[list(lines.prod).index(k0)] - model.coef[list(model.prod).index(k0)]))
+            shifts.append((FORMS_SHIFT, lines.coef_of(new_prod[0]) - model.coef_of(new_prod[0])))
         ci = jackknife(fit, prof, n_prod)
         if is_sin:
             name, coef, cif, col = names[n_prod + model.sin], model.amp, ci[-1], None
