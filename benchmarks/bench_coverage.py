@@ -182,7 +182,7 @@ def own_rows(a, causes, variants, tmp) -> list:
                 deps = {**(nuisance['departures'] if nuisance else {}), name: effect}
                 gen_rig, _ = true_rig(data, rig, seed, deps, nuisance)
                 camp = make_campaign(gen_rig, seed, nuisance)
-                rep = discover(camp, rig, tmp / f'{var}_{name}_{trial}', scheduler='inline')
+                rep = discover(camp, rig, tmp / f'{var}_{name}_{trial}', scheduler='inline', plots=False)
                 label = f'{var}/{name}{"+nuis" if nuisance else ""} ({done}/{n_camp})'
                 rows += score(label, rep, truths(name, effect, deps, gen_rig), rig)
     return rows
@@ -200,7 +200,7 @@ def independent_rows(a, causes, tmp) -> list:
             seed = a.seed + 100 * trial + sorted(IG.CATALOG).index(name)
             done += 1
             c = IG.case(seed, [{'name': name}])
-            rep = discover(c.campaign, c.rig, tmp / f'independent_{name}_{trial}', scheduler='inline')
+            rep = discover(c.campaign, c.rig, tmp / f'independent_{name}_{trial}', scheduler='inline', plots=False)
             rows += score(f'independent/{name} ({done}/{n_camp})', rep, IG.catalog_truths(c.truth), c.rig)
     return rows
 

@@ -77,7 +77,7 @@ def identification(gen: str, a, tmp) -> tuple:
                 c = IG.case(seed + 100 * sorted(IG.CATALOG).index(name), [{'name': name}])
                 camp, rig_k, truth, nuisance = c.campaign, c.rig, IG.catalog_truths(c.truth), None
             t1 = time.perf_counter()
-            rep = discover(camp, rig_k, tmp / f'{gen}_{name}_{k}')
+            rep = discover(camp, rig_k, tmp / f'{gen}_{name}_{k}', plots=False)
             t_an += time.perf_counter() - t1
             t_sim += t1 - t0
             bad = G.check_identified(rep, name, truth) if gen == 'own' else check_identified(rep, name, truth)
@@ -101,7 +101,7 @@ def false_alarms(gen: str, a, tmp) -> int:
         else:
             c = IG.case(2000 + k, [])
             kind, camp, rig_k = 'clean', c.campaign, c.rig
-        rep = discover(camp, rig_k, tmp / f'{gen}_false_{k}')
+        rep = discover(camp, rig_k, tmp / f'{gen}_false_{k}', plots=False)
         wrong = rep['cause'] not in (('none', 'unexplained') if kind == 'defects' else ('none',))
         fa += wrong
         got.setdefault(kind, []).append(rep['cause'])
@@ -126,7 +126,7 @@ def main() -> int:
         fa = false_alarms(gen, a, tmp) if a.false_trials else 0
         if gen == 'own':
             for kind in G.OUT_OF_CATALOG:
-                causes = [discover(G.out_of_catalog(kind, 3000 + k), rig, tmp / f'{kind}_{k}')['cause']
+                causes = [discover(G.out_of_catalog(kind, 3000 + k), rig, tmp / f'{kind}_{k}', plots=False)['cause']
                           for k in range(max(1, a.trials // 2))]
                 print(f'{gen:<12} {kind:<18} catalog names given: '
                       f'{sum(c not in ("none", "unexplained") for c in causes)}/{len(causes)}  causes: {causes}',

@@ -66,7 +66,7 @@ def main() -> int:
         imp = draw(k, a.rate)
         camp = memory_campaign(imp, a.records, seed0=100 * k)
         t = time.perf_counter()
-        rep = discover(camp, rig, tmp / f'id{k}', scheduler='inline')
+        rep = discover(camp, rig, tmp / f'id{k}', scheduler='inline', plots=False)
         times.append(time.perf_counter() - t)
         bad = identified(rep, imp)
         ok += not bad
@@ -77,7 +77,8 @@ def main() -> int:
     for k in range(a.false_trials):
         imp = Impactor(m2_kg=0.30, gain=1.0, accel_delay_s=0.0, hum_n=0.2, mount_hz=float(1000 + 300 * k),
                        rate_hz=a.rate)
-        rep = discover(memory_campaign(imp, a.records, seed0=1000 + 100 * k), rig, tmp / f'fa{k}', scheduler='inline')
+        rep = discover(memory_campaign(imp, a.records, seed0=1000 + 100 * k), rig, tmp / f'fa{k}',
+                       scheduler='inline', plots=False)
         named = {c['name'] for c in rep['causes']} & {'gain_mass_product', 'accel_delay', 'mains_hum'}
         fa += bool(named)
         print(f'null {k}: named {sorted(named) or "nothing"} in the force channel', flush=True)

@@ -120,7 +120,7 @@ def run(camp, rig, out):
     rec = Recorder(bey.search)
     bey.search = rec
     try:
-        report = discover(camp, rig, out, scheduler='inline')
+        report = discover(camp, rig, out, scheduler='inline', plots=False)
     finally:
         bey.search = rec.search
     return report, rec.last

@@ -153,7 +153,7 @@ def run_cell(base: IG.Case, channel: str, term: str, strength: float, sign: floa
     if coef is None:
         return {**dict.fromkeys(OUTCOMES, False), 'error': True}, 'the term is zero on the loaded windows'
     try:
-        report = discover(inject(base, channel, term, coef), base.rig, out, scheduler='inline')
+        report = discover(inject(base, channel, term, coef), base.rig, out, scheduler='inline', plots=False)
     except DiscoveryError as exc:
         return {**dict.fromkeys(OUTCOMES, False), 'error': True}, str(exc)
     named = [f'{b["channel"]}:{b["term"]}' for b in beyond_terms(report)] + named_catalog(report)
@@ -163,7 +163,7 @@ def run_cell(base: IG.Case, channel: str, term: str, strength: float, sign: floa
 def what_is_named(case: IG.Case, out: Path) -> str:
     """What discover names on a campaign as it is: its beyond-catalog terms and catalog causes."""
     try:
-        report = discover(case.campaign, case.rig, out, scheduler='inline')
+        report = discover(case.campaign, case.rig, out, scheduler='inline', plots=False)
     except DiscoveryError as exc:
         return f'error {exc}'
     terms = [f'{b["channel"]}:{b["term"]}' for b in beyond_terms(report)]
@@ -257,7 +257,7 @@ def main(argv=None) -> int:
         n = clean_pulls(seed, *a.clean_pulls)
         c = IG.case(seed, [], pulls=n, overrides=RIGS[rig])
         try:
-            report = discover(c.campaign, c.rig, tmp / f'clean{k}', scheduler='inline')
+            report = discover(c.campaign, c.rig, tmp / f'clean{k}', scheduler='inline', plots=False)
         except DiscoveryError as exc:
             print(f'[clean {k + 1}/{a.clean}] seed {seed}: error {exc}', file=sys.stderr, flush=True)
             continue

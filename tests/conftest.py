@@ -295,7 +295,7 @@ def discovered(tmp_path_factory):
     """discovered(departures, seed, nuisance_seed=None, **make_campaign's keywords) -> (report, output folder):
     the streamed discovery (inline) of the discovery generator's campaign, made once per session and content for
     every test that asserts on it (those carry `@pytest.mark.xdist_group(SHARED_REPORTS)`, so that one worker makes
-    it); each caller gets its own copy of the report and of the folder."""
+    it); each caller gets its own copy of the report and of the folder (no PNGs: no caller looks at them)."""
     import copy
     import shutil
 
@@ -311,7 +311,7 @@ def discovered(tmp_path_factory):
             out = tmp_path_factory.mktemp('discovered')
             nuisance = draw_nuisance(nuisance_seed) if nuisance_seed is not None else None
             made[key] = (discover(make_campaign(departures, seed=seed, nuisance=nuisance, **kw), load_rig(), out,
-                                  scheduler='inline'), out)
+                                  scheduler='inline', plots=False), out)
         report, out = made[key]
         mine = tmp_path_factory.mktemp('report')
         shutil.copytree(out, mine, dirs_exist_ok=True)

@@ -5,6 +5,7 @@ test sees only the data and the nominal rig; the truth is used only to score."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,8 +30,9 @@ from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, parse_term, term_
 from force_tester_sim.core.params import NOMINAL_YAML, load_rig, rig_from_dict
 
 
-def run(camp, tmp):
-    return discover(camp, load_rig(), tmp, scheduler='inline')
+def run(camp, tmp, plots=False):
+    """The discovery, inline; its PNGs only where a test looks at them (they cost about 1 CPU-s a run)."""
+    return discover(camp, load_rig(), tmp, scheduler='inline', plots=plots)
 
 
 # each kind the search was built on once, at a seed of its own; every other one through the model-form nuisances;
@@ -44,8 +46,13 @@ CASES = [(kind, 11 + i, i % 2 == 1) for i, kind in enumerate(sorted(set(BEYOND) 
 @pytest.mark.parametrize('kind,seed,nuisance', CASES)
 def test_a_departure_outside_the_catalog_is_found_as_its_term(kind, seed, nuisance, tmp_path):
     camp, truth = beyond_campaign(kind, seed, nuisance)
-    report = run(camp, tmp_path)
+    plots = (kind, seed, nuisance) == CASES[0]   # the plots of one case: each named term has its before/after
+    report = run(camp, tmp_path, plots=plots)
     got = check_beyond(report, truth)
+    if plots:
+        assert [Path(p).name for p in report['plots'] if 'beyond_' in p] == \
+            [f'beyond_{k + 1}.png' for k in range(len(report['beyond_catalog']))], report['plots']
+        assert all(Path(p).stat().st_size > 10_000 for p in report['plots']), report['plots']
     assert got['right_term'], (truth['channel'], truth['term'], got['found'])
     # on its own channel only: a drifting stationary cell is not a drift of the moving cell (T comes from it)
     assert not [t for t in report['beyond_catalog'] if t['term'] == truth['term'] and

@@ -51,7 +51,7 @@ def with_term(base, channel: str, term: str, sign: float):
 def test_a_drag_on_the_current_is_named_beside_the_fitted_drive_constants(base, tmp_path):
     # one sign: a discover of this campaign is ~25 CPU-s; both signs are in the sweep (docs/discovery-sweep-drive.md)
     camp, coef = with_term(base, 'motor_current', 'v^2', -1.0)
-    report = discover(camp, base.rig, tmp_path, scheduler='inline')
+    report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
     mine = [t for t in report['beyond_catalog'] if t['channel'] == 'motor_current']
     assert mine and mine[0]['term'] == 'v^2', (coef, report['beyond_catalog'], report['beyond_search'])
     first = mine[0]

@@ -46,7 +46,7 @@ def with_term(base, channel: str, term: str, sign: float):
 @pytest.mark.parametrize('sign', [1.0, -1.0])
 def test_a_load_term_on_the_moving_cell_is_named_beside_the_fitted_gain_and_mass(base, sign, tmp_path):
     camp, coef = with_term(base, 'force_moving', 'T*t', sign)
-    report = discover(camp, base.rig, tmp_path, scheduler='inline')
+    report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
     mine = [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving']
     assert mine and mine[0]['term'] == 'T*t', (coef, report['beyond_catalog'], report['beyond_search'])
     first = mine[0]
@@ -60,5 +60,5 @@ def test_a_load_term_on_the_moving_cell_is_named_beside_the_fitted_gain_and_mass
 
 
 def test_the_campaign_with_nothing_added_names_nothing_beyond_the_catalog(base, tmp_path):
-    report = discover(base.campaign, base.rig, tmp_path, scheduler='inline')
+    report = discover(base.campaign, base.rig, tmp_path, scheduler='inline', plots=False)
     assert report['beyond_catalog'] == [], report['beyond_catalog']

@@ -31,7 +31,7 @@ def test_a_zero_drifting_from_the_records_start_is_a_drift_not_ac_coupling(tmp_p
     # -8 N/s on the moving cell, the whole record; the model-form nuisances on. Before: ac_coupling named, then
     # withheld for `x` (-5.1 N/m), the drift's nearest on W alone
     camp, truth = campaign('zero_drift', 2700, -8.0, nuisance=True)
-    report = discover(camp, load_rig(), tmp_path, scheduler='inline')
+    report = discover(camp, load_rig(), tmp_path, scheduler='inline', plots=False)
     got = check_beyond(report, truth)
     assert got['right_term'] and got['coefficient_30pct'] and got['ci95_holds'], got['found']
     assert 'ac_coupling' not in got['catalog_named'], got['catalog_named']
@@ -43,7 +43,7 @@ def test_a_drag_on_the_motor_current_is_named_beside_the_drives_damping(tmp_path
     # band, its interval [0.028, 0.134] A/(m/s)^2 made wide by the damping's stated uncertainty (0.0185 twice)
     kf = draw_beyond('air_drag', 2700)['force_per_amp']
     camp, truth = campaign('air_drag', 2700, 100.0 / V_REF ** 2 / kf, nuisance=False)
-    report = discover(camp, load_rig(), tmp_path, scheduler='inline')
+    report = discover(camp, load_rig(), tmp_path, scheduler='inline', plots=False)
     got = check_beyond(report, truth)
     assert got['right_term'] and got['coefficient_30pct'], (truth['coefficient'], got['found'])
     first = next(t for t in report['beyond_catalog'] if t['channel'] == 'motor_current')

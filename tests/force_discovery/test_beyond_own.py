@@ -117,7 +117,7 @@ def test_every_pair_has_a_reading_or_says_plainly_it_has_none():
                                                 ('accel_quadratic', 3903, False)])
 def test_a_sensors_own_non_linearity_hidden_in_a_campaign_is_named_on_that_sensor(kind, seed, nuisance, tmp_path):
     camp, truth = beyond_campaign(kind, seed, nuisance)
-    report = discover(camp, load_rig(), tmp_path, scheduler='inline')
+    report = discover(camp, load_rig(), tmp_path, scheduler='inline', plots=False)
     got = check_beyond(report, truth)
     assert got['right_term'] and got['coefficient_30pct'], (truth['channel'], truth['term'], truth['coefficient'],
                                                             got['found'])

@@ -29,9 +29,10 @@ def load_rig_text(text: str):
     return rig_from_dict(yaml.safe_load(text))
 
 
-def run(camp, tmp):
-    """The streamed discovery, its per-pull stages inline (test_stream.py runs them on Dask workers)."""
-    return discover(camp, load_rig(), tmp, scheduler='inline')
+def run(camp, tmp, plots=False):
+    """The streamed discovery, its per-pull stages inline (test_stream.py runs them on Dask workers); its PNGs
+    only where a test looks at them (they cost about 1 CPU-s a run)."""
+    return discover(camp, load_rig(), tmp, scheduler='inline', plots=plots)
 
 
 @pytest.mark.slow
@@ -71,7 +72,7 @@ def test_out_of_catalog_effect_is_not_named_wrongly(kind, tmp_path):
 @pytest.mark.slow
 def test_outputs_written(tmp_path):
     truth = {'mass_kg': 1.4}
-    report = run(make_campaign({'effective_mass': truth}, seed=6, sets=(3,), pulls=4), tmp_path)
+    report = run(make_campaign({'effective_mass': truth}, seed=6, sets=(3,), pulls=4), tmp_path, plots=True)
     doc = json.loads((tmp_path / 'report.json').read_text())
     for k in ('cause', 'causes', 'baseline_error', 'extended_error', 'gain', 'metric', 'fitted_pulls',
               'held_out_pulls'):
@@ -182,9 +183,14 @@ def test_cli_on_campaign_folder(tmp_path, capsys):
     write_campaign(tmp_path / 'camp', make_campaign({'accel_delay': {'delay_s': 5e-5}}, seed=9, sets=(3,), pulls=4))
     ap = argparse.ArgumentParser()
     discover_cmd.add_arguments(ap)
-    assert discover_cmd.main(ap.parse_args([str(tmp_path / 'camp'), '--out', str(tmp_path / 'out')])) == 0
+    assert discover_cmd.main(ap.parse_args([str(tmp_path / 'camp'), '--out', str(tmp_path / 'out'),
+                                            '--no-plots'])) == 0
     doc = json.loads((tmp_path / 'out' / 'report.json').read_text())
     assert doc['cause'] == 'accel_delay'
+    # --no-plots: the report and the extension, no PNG, and report.md points at none
+    assert doc['plots'] == [] and not list((tmp_path / 'out').glob('*.png'))
+    assert {'report.md', 'extension.yaml'} <= {p.name for p in (tmp_path / 'out').iterdir()}
+    assert '.png' not in (tmp_path / 'out' / 'report.md').read_text()
     assert abs(doc['causes'][0]['parameters']['delay_s'] - 5e-5) < 3e-6
     assert discover_cmd.main(ap.parse_args([str(tmp_path / 'nope'), '--out', str(tmp_path / 'o2')])) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -34,7 +34,7 @@ def test_a_clipped_cell_is_a_saturation_with_its_level_and_no_term(tmp_path, cha
     (dep,) = truth['departures']
     level = dep['params']['clip_level_si']
     assert all(p['clipped'][channel] > 0 for p in truth['pulls'])        # the generator clipped every pull
-    report = discover(camp, rig, tmp_path, scheduler='inline')
+    report = discover(camp, rig, tmp_path, scheduler='inline', plots=False)
     sat = [d for d in report['data_quality'] if d['kind'] == Q.SATURATION]
     assert {d['channel'] for d in sat} == {channel}, report['data_quality']
     assert {d['pull'] for d in sat} == {m['file'] for m, _ in camp}

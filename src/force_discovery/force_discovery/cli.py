@@ -24,6 +24,9 @@ def add_arguments(p):
                    help='your rig YAML: departures are named against its nominal values and tolerances (default: '
                    'none; without a reference nothing is judged, with one the packaged nominal rig, ours)')
     p.add_argument('--out', metavar='DIR', required=True, help='output folder')
+    p.add_argument('--no-plots', dest='plots', action='store_false',
+                   help='write report.json, report.md and extension.yaml but no PNG plots (quicker; nothing '
+                   'decided changes)')
     from force_tester_common.engine import add_scheduler_argument
     add_scheduler_argument(p)
 
@@ -67,7 +70,8 @@ def main(args) -> int:
             from bag_tools.core.convert import bag_to_campaign
             tmp = Path(tempfile.mkdtemp(prefix='ft_discover_'))
             folder = bag_to_campaign(data, tmp / 'campaign')
-        report = discover(folder, rig, Path(args.out), scheduler=scheduler, progress=_progress(), rig_file=args.rig)
+        report = discover(folder, rig, Path(args.out), scheduler=scheduler, progress=_progress(), rig_file=args.rig,
+                          plots=getattr(args, 'plots', True))
     except (BagError, DiscoveryError, SimError, EngineError) as exc:
         return _error(exc)
     except OSError as exc:

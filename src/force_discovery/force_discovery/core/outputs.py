@@ -15,10 +15,11 @@ from .stages import Analysis
 
 
 def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], named, rig, out: Path, check=None,
-                  ext: dict | None = None, traces=()) -> None:
-    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']). check: the
-    simulation check (resim.SimulationCheck), whose kept pull is overlaid in simulation.png; ext: extension()
-    of the report when the caller has it already; traces: beyond.term_traces (beyond_<k>.png).
+                  ext: dict | None = None, traces=(), plots: bool = True) -> None:
+    """Write DIR/extension.yaml, report.json, report.md and the plots (adds report['plots']; none when
+    plots=False). check: the simulation check (resim.SimulationCheck), whose kept pull is overlaid in
+    simulation.png; ext: extension() of the report when the caller has it already; traces: beyond.term_traces
+    (beyond_<k>.png).
 
     Everything is written into a fresh folder beside DIR first and moved in at the end, so a failure never
     leaves a half-written report."""
@@ -28,9 +29,9 @@ def write_outputs(report, analysis: Analysis, errors: Optional[ForceErrors], nam
         stage = mark.folder
         ext = extension(report, rig) if ext is None else ext
         (stage / 'extension.yaml').write_text(extension_yaml(ext))
-        plots = (residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
-                 + beyond_plots(traces, stage))
-        report['plots'] = [str(out / Path(q).name) for q in plots]
+        pngs = (residual_plots(analysis, errors, named, rig, stage) + simulation_plot(check, stage)
+                + beyond_plots(traces, stage)) if plots else []
+        report['plots'] = [str(out / Path(q).name) for q in pngs]
         (stage / 'report.json').write_text(json.dumps(report, indent=1))
         md = markdown(report, report['plots'], analysis.screens, analysis.excluded)
         more = identifiability_lines(report)

@@ -40,12 +40,14 @@ def spills_locally(scheduler: Optional[str]) -> bool:
 
 
 def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
-             progress: Optional[Callable[[str, int, int], None]] = None, mapper=None, rig_file=None) -> dict:
+             progress: Optional[Callable[[str, int, int], None]] = None, mapper=None, rig_file=None,
+             plots: bool = True) -> dict:
     """Analyse, decide, re-simulate the held-out pulls, write DIR/report.json, report.md, extension.yaml (+ plots).
     Returns the report dict. campaign: a campaign folder (read pull by pull), [(meta, channels)] or
     [source.PullRef]; scheduler: where the per-pull stages run (force_tester_common.engine: None for the embedded
     cluster or $DASK_SCHEDULER_ADDRESS, 'inline', or tcp://HOST:PORT), or mapper: a force_tester_common.engine.Mapper
-    to run them (its scheduler then); progress(stage, done, total) as pulls finish. rig: the rig given (a
+    to run them (its scheduler then); progress(stage, done, total) as pulls finish; plots=False writes no PNGs
+    (report.md then lists none; nothing decided changes). rig: the rig given (a
     RigParams; rig_file: the file it came from), or None when none was given: the reference-free path then judges
     nothing against a nominal (report.rig_state), the path with a reference takes the packaged nominal rig."""
     from force_tester_common.engine import Mapper
@@ -73,7 +75,7 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
             report = complete({**unusable_report(analysis, rig), **campaign_section(analysis, absent), 'plots': [],
                                'rig': state},
                               {}, 'the data-quality screen left too few pulls to analyse (data_quality)')
-            write_outputs(report, analysis, None, (), rig, out)
+            write_outputs(report, analysis, None, (), rig, out, plots=plots)
             return report
         found = st.beyond(analysis, decision)
         decision = with_beyond(decision, found)
@@ -95,7 +97,7 @@ def discover(campaign, rig, out_dir, *, scheduler: Optional[str] = None,
         add_beyond(report, found)
         report = complete({**report, **campaign_section(analysis, absent), 'plots': [], 'rig': state},
                           WITHOUT_REFERENCE_ONLY)
-        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext, found.traces)
+        write_outputs(report, analysis, errors, decision.named, rig, out, check, ext, found.traces, plots=plots)
         return report
     finally:
         if spill is not None:
