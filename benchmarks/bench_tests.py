@@ -71,6 +71,24 @@ def kind_table(kinds: dict, total: float) -> list:
             for k in (*KINDS, 'unknown') if kinds.get(k)]
 
 
+def worker_lines(records: list) -> list:
+    """The run's span (first test's start to last test's end) and, per xdist worker, the seconds it spent in tests
+    and when it ran out of tests: the tail is the time the last worker ran on alone at the end."""
+    t0, t1 = min(r['start'] for r in records), max(r['end'] for r in records)
+    ends = {}
+    lines = [f'Workers: the tests ran from start to end in {t1 - t0:.0f} s ({(t1 - t0) / 60:.1f} min)', '',
+             '| worker | tests | seconds in tests | its last test ended at |', '|---|---|---|---|']
+    for w in sorted({r['worker'] for r in records}):
+        mine = [r for r in records if r['worker'] == w]
+        ends[w] = max(r['end'] for r in mine) - t0
+        lines.append(f"| {w} | {len(mine)} | {sum(r['end'] - r['start'] for r in mine):.0f} | {ends[w]:.0f} s |")
+    last = sorted(ends.values())
+    if len(last) > 1:
+        lines.append(f'\ntail (the last worker alone after the one before it ran out of tests): '
+                     f'{last[-1] - last[-2]:.0f} s')
+    return lines
+
+
 def print_tables(records: list, top: int, baseline: list | None = None) -> None:
     total = sum(r['seconds'] for r in records)
     base = {r['nodeid']: r['seconds'] for r in baseline or []}
@@ -103,6 +121,9 @@ def print_tables(records: list, top: int, baseline: list | None = None) -> None:
         print('| kind | seconds | share |')
         print('|---|---|---|')
         print('\n'.join(kind_table(by_kind(was), sum(r['seconds'] for r in was))))
+    timed = [r for r in records if r.get('start') is not None]
+    if timed:
+        print('\n' + '\n'.join(worker_lines(timed)))
     fast = [r for r in records if r['slow'] is False]
     if fast:
         over = [r for r in fast if r['seconds'] > FAST_S]

@@ -42,6 +42,7 @@ _ROS_FIXTURES = {'ros_domain', 'module_ros_domain'}
 _domains = itertools.count()
 _RUN = {'tests': {}, 'skips': []}   # what the reports said, for the summary and --record-durations
 _CPU_AT_START = pytest.StashKey[float]()
+_WALL_AT_START = pytest.StashKey[float]()
 
 MARKERS = {
     'slow': 'takes more than about 3 s on its own: left out of ./ft test --fast',
@@ -165,6 +166,7 @@ def cpu_seconds() -> float:
 def pytest_runtest_protocol(item, nextitem):
     take()
     item.stash[_CPU_AT_START] = cpu_seconds()
+    item.stash[_WALL_AT_START] = time.time()
     yield
 
 
@@ -182,7 +184,9 @@ def pytest_runtest_makereport(item, call):
     outcome = yield
     report = outcome.get_result()
     if call.when == 'teardown':
-        spent = {**take(), 'cpu': round(cpu_seconds() - item.stash.get(_CPU_AT_START, cpu_seconds()), 3)}
+        spent = {**take(), 'cpu': round(cpu_seconds() - item.stash.get(_CPU_AT_START, cpu_seconds()), 3),
+                 'start': round(item.stash.get(_WALL_AT_START, time.time()), 3), 'end': round(time.time(), 3),
+                 'worker': os.environ.get('PYTEST_XDIST_WORKER', 'main')}
         report.user_properties.append(('spent', json.dumps(spent)))
 
 

@@ -208,3 +208,18 @@ def test_bench_tests_prints_the_tables(tmp_path):
                         '--top', '3'], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert '14 CPU seconds' in r.stdout and '| 1 | 4.5 | 9.0 | rest | `tests/x/test_a.py::test_9` |' in r.stdout
+    assert 'Workers' not in r.stdout   # no start and end times recorded: no worker table
+    # each test's start and end on its worker: the span, each worker's time in tests, and the tail at the end
+    t = 1000.0
+    for i, rec in enumerate(records):
+        rec['worker'] = f'gw{i % 2}'
+        rec['start'] = t if i < 2 else records[i - 2]['end']
+        rec['end'] = rec['start'] + rec['seconds']
+    (tmp_path / 'd.json').write_text(json.dumps(records))
+    r = subprocess.run([sys.executable, str(ROOT / 'benchmarks' / 'bench_tests.py'), '--file', str(tmp_path / 'd.json'),
+                        '--top', '3'], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    # gw0: tests 1, 3, 5, 7, 9 (25 s); gw1: 2, 4, 6, 8 (20 s): the span 25 s, the tail 5 s
+    assert 'from start to end in 25 s' in r.stdout, r.stdout
+    assert '| gw0 | 5 | 25 | 25 s |' in r.stdout and '| gw1 | 4 | 20 | 20 s |' in r.stdout, r.stdout
+    assert 'ran out of tests): 5 s' in r.stdout, r.stdout
