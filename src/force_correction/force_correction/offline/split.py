@@ -27,7 +27,7 @@ from ..core.errors import CorrectionError
 #: fewest pull windows for a second process (fewer: one); ./ft bench startup --pulls N (docs/speed-setup.md)
 MIN_PULLS = 8
 #: the child's share of the samples: the parent also decodes the pull events before and writes the results after
-CHILD_SHARE = 0.4
+CHILD_SHARE = 0.5
 
 
 def spare_core() -> bool:
