@@ -453,28 +453,18 @@ class ExtendedBag:
             finally:
                 done.set()
 
-    def write_definitions(self) -> None:
-        """Write the new schemas and channels (before their messages; the first reserve() does it too)."""
+    def _write_definitions(self) -> None:
         if not self._definitions_written:  # schemas and channels precede their messages
             self._write(serialize(*self._new_schemas, *(c for c, *_ in self._new_channels)))
             self._definitions_written = True
 
-    def write_pending(self) -> None:
-        """Write the buffers of earlier reserve() calls (their data complete) now, in this thread."""
-        pending, self._pending = self._pending, []
-        for pos, buf in pending:
-            self._write_at(pos, buf)
-
-    def reserve(self, cids, data_len, log_ns, into: np.ndarray | None = None, elsewhere: bool = False) -> tuple:
+    def reserve(self, cids, data_len, log_ns) -> tuple:
         """Lay out new messages (channel ids, CDR byte lengths, log times; any order) as chunks
         at the end of the file: returns (buf, starts), the uint8 buffer of that stretch of the
         file and, per message in the caller's order, where its CDR data go in buf. Chunk, record
         and message-index headers are filled in here; the caller must write every data byte
         before the bag is closed (when buf is written to the file). In the file the messages
-        are in log order (stable). ``into``: lay out in into[:len(buf)] if it has room (a
-        buffer written already, say), else in a buffer of its own. ``elsewhere``: another
-        process writes these bytes (laying the same messages out at the same place): they are
-        counted in the summary, and buf is None."""
+        are in log order (stable)."""
         cids = np.asarray(cids, dtype=np.int64)
         data_len = np.asarray(data_len, dtype=np.int64)
         log_ns = np.asarray(log_ns, dtype=np.int64)
@@ -483,7 +473,7 @@ class ExtendedBag:
             return np.zeros(0, _U8), np.zeros(0, np.int64)
         if log_ns.min() < 0 or (data_len < 4).any():
             raise BagError('messages need log times >= 0 and CDR data of >= 4 bytes')
-        self.write_definitions()
+        self._write_definitions()
         order = np.argsort(log_ns, kind='stable')
         if (order == np.arange(m)).all():
             order = None
@@ -512,45 +502,37 @@ class ExtendedBag:
             pos += CHUNK_HEADER + size + mi_len
         total = pos - self._pos
         buf = None
-        if elsewhere:
-            pass
-        elif into is not None and into.size >= total:
-            buf = into[:total]
         # reuse the oldest committed buffer once written; wait for it only when many bytes
         # are queued (the writes share the disk with the input copy and may lag behind)
-        elif into is None and self._written and (self._written[0][0].is_set() or sum(
+        if self._written and (self._written[0][0].is_set() or sum(
                 b.size for _d, b in self._written) > QUEUED_BYTES):
             done, old = self._written.pop(0)
             done.wait()
             if self._errors:
                 raise self._errors[0]
             buf = old[:total] if old.size >= total else None
-        if buf is None and not elsewhere:
+        if buf is None:
             buf = np.empty(total, dtype=_U8)  # every byte is written: by us or the caller
         shift = self._pos
-        if buf is not None:
-            self._pending.append((self._pos, buf))
-            fill_record_headers(buf, abs_rec - shift, n, c, lg)
+        self._pending.append((self._pos, buf))
+        fill_record_headers(buf, abs_rec - shift, n, c, lg)
         for i, j, start, size, chans, mi_len in plan:
             t0, t1 = int(lg[i:j].min()), int(lg[i:j].max())
             # chunk record header (uncompressed, no CRC): op, length, start and end time,
             # uncompressed size, CRC, compression '' and records size
             head = struct.pack('<BQQQQIIQ', 0x06, CHUNK_HEADER - 9 + size, t0, t1, size, 0, 0, size)
-            if buf is not None:
-                buf[start - shift:start - shift + CHUNK_HEADER] = np.frombuffer(head, _U8)
+            buf[start - shift:start - shift + CHUNK_HEADER] = np.frombuffer(head, _U8)
             p = start + CHUNK_HEADER + size
             index = []
             rel = abs_rec[i:j] - (start + CHUNK_HEADER)
             for k in chans:
-                n_k = (j - i) if single is not None else int(np.count_nonzero(c[i:j] == k))
-                if buf is not None:
-                    sel = slice(None) if single is not None else c[i:j] == k
-                    ent = np.empty((rel[sel].size, 2), dtype='<u8')
-                    ent[:, 0], ent[:, 1] = lg[i:j][sel], rel[sel]
-                    rec = struct.pack('<BQHI', 0x07, 6 + ent.nbytes, k, ent.nbytes) + ent.tobytes()
-                    buf[p - shift:p - shift + len(rec)] = np.frombuffer(rec, _U8)
+                sel = slice(None) if single is not None else c[i:j] == k
+                ent = np.empty((rel[sel].size, 2), dtype='<u8')
+                ent[:, 0], ent[:, 1] = lg[i:j][sel], rel[sel]
+                rec = struct.pack('<BQHI', 0x07, 6 + ent.nbytes, k, ent.nbytes) + ent.tobytes()
+                buf[p - shift:p - shift + len(rec)] = np.frombuffer(rec, _U8)
                 index.append((k, p))
-                p += 15 + 16 * n_k
+                p += len(rec)
             self._chunk_index.append(ChunkIndex(
                 message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
                 chunk_length=CHUNK_HEADER + size, message_index_offsets=dict(index),
@@ -602,7 +584,7 @@ class ExtendedBag:
         return info
 
     def _finish(self) -> None:
-        self.write_definitions()
+        self._write_definitions()
         self.commit()
         s = self.summary
         info = self._metadata()

@@ -215,28 +215,6 @@ def correct_block(force_moving_n, accel_axial_m_s2, params: CorrectionParams,
     return CorrectedBlock(f.copy(), inertial, corrected, filtered, nbad), new_state
 
 
-def state_after(force_moving_n, accel_axial_m_s2, params: CorrectionParams) -> CorrectionState:
-    """The state correct_block leaves after the first samples of a run (``force_moving_n``, ``accel_axial_m_s2``),
-    without the moving average: m*a is per sample, so the state is its last ``window - 1`` corrected samples and
-    their counts. What lets a run be corrected from its middle on (in another process, say), bit for bit."""
-    _check_params(params)
-    f = _as_1d(force_moving_n, 'force_moving_n')
-    a = _as_1d(accel_axial_m_s2, 'accel_axial_m_s2')
-    if a.shape[0] != f.shape[0]:
-        raise CorrectionError(
-            f"force has {f.shape[0]} samples but accel has {a.shape[0]}; expected equal lengths")
-    corrected = f - params.mass_kg * a
-    bad = ~np.isfinite(corrected)
-    keep = min(params.window - 1, f.shape[0])
-    tail = _EMPTY
-    if keep:
-        tail = corrected[f.shape[0] - keep:].copy()
-        tail[bad[f.shape[0] - keep:]] = np.nan
-        tail.setflags(write=False)
-    return CorrectionState(window=params.window, tail=tail, samples_seen=int(f.shape[0]),
-                           nan_total=int(np.count_nonzero(bad)))
-
-
 def correct_signal(force_moving_n, accel_axial_m_s2, params: CorrectionParams) -> CorrectedBlock:
     """One-pass (batch) correction of a whole run: the reference for the streamed version."""
     out, _ = correct_block(force_moving_n, accel_axial_m_s2, params, initial_state(params))

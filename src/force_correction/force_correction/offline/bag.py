@@ -45,7 +45,6 @@ from force_tester_common.core.scores import PULL_SCORE_FIELDS, SET_SUMMARY_FIELD
 from ..core.errors import CorrectionError
 from ..core.pairing import BlockAligner, BlockHeaders, clean_pairing, follows
 from .scorer import block_sample_stamps
-from .split import in_two, split_at
 from .stream import CorrectionStream, segments
 
 CORRECTED_NAME, (CORRECTED_TOPIC, _) = CORRECTED_TYPE
@@ -92,12 +91,10 @@ def fast_bag(src: Path) -> McapBag | None:
 
 
 def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=None,
-              max_pending: int = MAX_PENDING, segment_samples: int | None = None,
-              processes: int = 1) -> BagRead:
+              max_pending: int = MAX_PENDING, segment_samples: int | None = None) -> BagRead:
     """Read with whole-topic numpy decoding. Raises FastPathError (before touching the stream)
     whenever the aligner would report anything but discontinuities, so the generic path handles
-    it. The samples go through the stream in segments, the pull windows known first; with
-    ``processes`` 2, the later segments in a second process where that pays (.split)."""
+    it. The samples go through the stream in segments, the pull windows known first."""
     counts = {n: t[1] for n, t in bag.topics().items()}
     topics = {n: t[0] for n, t in bag.topics().items()}
     force_topic = _topic_of(topics, FORCE_TYPE, '/force')
@@ -150,13 +147,9 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     # segment, which the scorer then takes without copying
     window_blocks = np.searchsorted(last, np.array([w[0] for w in windows], dtype=np.int64))
     size = {} if segment_samples is None else {'size': segment_samples}
-    plan = []  # (first block, end block, first block of its run): runs cut into segments
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
+    for lo, hi in zip(bounds[:-1], bounds[1:]):  # runs, cut into segments
         cuts = segments(ends, lo, hi, window_blocks, **size)
-        plan += [(a, b, lo) for a, b in zip(cuts[:-1], cuts[1:])]
-
-    def feed(part, progress) -> None:
-        for a, b, lo in part:
+        for a, b in zip(cuts[:-1], cuts[1:]):
             sel = slice(a, b)
             stream.add(block_sample_stamps(stamps[sel], n[sel], fr[sel]),
                        fb.values('moving_n', sel), ab.values('axial_m_s2', sel),
@@ -164,18 +157,6 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
                        blocks=(stamps[sel], n[sel], fr[sel]), frame=frame)
             if progress:  # in messages, as the generic path counts
                 progress(2 * b, raw.log_ns.size)
-
-    k = split_at(plan, ends, stamps, windows, stream) if processes > 1 else None
-    if k is None:
-        feed(plan, progress)
-    else:   # the later segments in a second process
-        a, _b, lo = plan[k]
-        before = slice(lo, a)
-
-        def resume() -> None:
-            stream.resume(fb.values('moving_n', before), ab.values('axial_m_s2', before), a)
-        blocks = [(stamps[i:j], n[i:j], fr[i:j]) for i, j, _lo in plan]
-        in_two(stream, feed, plan[:k], plan[k:], (blocks[:k], blocks[k:]), frame, resume, progress)
     return BagRead((stamps, n, fr), windows, [], frame)
 
 
@@ -260,26 +241,19 @@ def _block_arrays(blocks: list) -> tuple:
     return tuple(np.array(c, dtype=d) for c, d in zip(zip(*blocks), (np.int64, np.int64, float)))
 
 
-def corrected_layout(blocks: tuple, frame: str) -> tuple:
-    """(log times, CDR byte lengths) of the /force_corrected blocks for the input blocks
-    (stamps, sample counts, rates): logged at their last sample, as the live node publishes."""
-    stamps, ns, rates = blocks
-    last = np.where(ns > 0, sample_stamps_ns(stamps, np.maximum(ns - 1, 0), rates), stamps)
-    return last, block_lengths(CORRECTED_FIELDS, {f: ns for f in CORRECTED_FIELDS}, frame)
-
-
 def corrected_blocks(piece: dict, blocks: tuple, frame: str, seq0: int = 0,
-                     target: ExtendedBag | None = None, cid: int = 0, into=None) -> tuple:
+                     target: ExtendedBag | None = None, cid: int = 0) -> tuple:
     """/force_corrected blocks for the input blocks (stamps, sample counts, rates) whose
     samples ``piece`` holds, seq from seq0, logged at their last sample (as the live node
     publishes): encode_blocks' (buffer, starts, lengths) and the log times, or, with a target,
-    encoded into the space target.reserve() lays out (in ``into``, if given)."""
+    encoded into the space target.reserve() lays out."""
     stamps, ns, rates = blocks
-    last, lengths = corrected_layout(blocks, frame)
+    last = np.where(ns > 0, sample_stamps_ns(stamps, np.maximum(ns - 1, 0), rates), stamps)
     counts = {f: ns for f in CORRECTED_FIELDS}
     out = starts = None
     if target is not None:
-        out, starts = target.reserve(np.full(ns.size, cid), lengths, last, into=into)
+        out, starts = target.reserve(np.full(ns.size, cid),
+                                     block_lengths(CORRECTED_FIELDS, counts, frame), last)
     values = {'raw_n': piece['raw'], 'inertial_n': piece['inertial'],
               'corrected_n': piece['corrected'], 'filtered_n': piece['filtered']}
     try:
@@ -320,42 +294,15 @@ def extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
     return ExtendedBag(fast, dst)
 
 
-class CorrectedSink:
-    """A stream sink writing /force_corrected into an ExtendedBag, piece by piece: by the bag's
-    writer thread, or, in a second process (``alone``), here and now, each piece laid out where
-    one process would have written it (.split)."""
-
-    def __init__(self, target: ExtendedBag, cid: int) -> None:
-        self.target, self.cid = target, cid
-        self.scratch = None   # alone: one buffer, reused piece after piece
-
-    def __call__(self, piece, blocks, frame, seq0) -> None:
-        buf = corrected_blocks(piece, blocks, frame, seq0, self.target, self.cid, into=self.scratch)[0]
-        if self.scratch is None:
-            self.target.commit()
-            return
-        self.target.write_pending()
-        if buf.size > self.scratch.size:
-            self.scratch = buf
-
-    def alone(self) -> None:
-        """From now on, write each piece here and now (the bag's writer thread is another process's)."""
-        self.scratch = np.empty(0, dtype=np.uint8)
-
-    def skip(self, blocks: list, frame: str) -> None:
-        """Lay out the /force_corrected messages of these pieces' blocks (stamps, sample counts,
-        rates), which another process writes."""
-        for b in blocks:
-            last, lengths = corrected_layout(b, frame)
-            self.target.reserve(np.full(last.size, self.cid), lengths, last, elsewhere=True)
-
-
 def extended_sink(target: ExtendedBag):
     """Result topics added to ``target``, and a stream sink writing /force_corrected into it."""
     shared_typestore(names=FAST_TYPES)   # every type the fast path uses, registered at once
     cids = {t: target.add_topic(t, ty, *type_definition(ty)) for t, ty in RESULT_TOPICS}
-    target.write_definitions()   # before a second process may lay out messages (.split)
-    return cids, CorrectedSink(target, cids[CORRECTED_TOPIC])
+
+    def sink(piece, blocks, frame, seq0):
+        corrected_blocks(piece, blocks, frame, seq0, target, cids[CORRECTED_TOPIC])
+        target.commit()
+    return cids, sink
 
 
 def write_results(target: ExtendedBag, cids: dict, pulls, running) -> None:

@@ -53,9 +53,6 @@ class CorrectionSetup:
     window_from_bandwidth: bool = False
     #: the inputs' uncertainties of each corrected peak's expanded uncertainty (default: only the noise)
     peak_inputs: PeakInputs = field(default_factory=PeakInputs)
-    #: 2: a bag's later pulls corrected in a second process where that pays (offline.split); 1: one process.
-    #: Like segment_samples, it changes no number and no byte of the output
-    processes: int = 2
 
     def __post_init__(self):
         lo, hi = LOADED_FRACTION_RANGE
@@ -65,8 +62,6 @@ class CorrectionSetup:
         if not isinstance(self.segment_samples, int) or self.segment_samples < 1:
             raise CorrectionError(f'segment_samples {self.segment_samples!r} is out of range; '
                                   'expected an integer >= 1')
-        if self.processes not in (1, 2):
-            raise CorrectionError(f'processes {self.processes!r} is out of range; expected 1 or 2')
         BlockAligner(max_pending=self.max_pending)  # validates it
 
     @classmethod
@@ -207,7 +202,7 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
         if fast is not None:
             try:
                 read = bagio.read_fast(fast, stream, warnings, progress, setup.max_pending,
-                                       setup.segment_samples, setup.processes)
+                                       setup.segment_samples)
                 used = 'fast'
             except FastPathError as exc:
                 if path == 'fast':

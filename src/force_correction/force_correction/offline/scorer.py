@@ -85,31 +85,10 @@ class PullScorer:
             self.events += [(int(pull_id), e, rate) for e in short_events(arrays[1], arrays[2], rate,
                                                                           self.short_window)]
 
-    def keep_only(self, windows) -> None:
-        """Hold and score only these windows (indices into the windows given): the pulls another
-        process scores are left to it."""
-        self.open = {i: parts for i, parts in self.open.items() if i in windows}
-
-    def settle(self, skip=()) -> tuple:
-        """Score every window still open (but those in ``skip``), as finish() does: (the outcome of each window
-        scored so far, the short events found, in the order scored)."""
-        for i in [i for i in self.open if i not in skip]:
-            self._score(i)
-        return dict(self.outcome), list(self.events)
-
-    def adopt(self, outcomes: dict, events: list) -> None:
-        """The outcomes and short events of the windows another process scored (settle()'s), which start after
-        every window scored here: the windows still open here are scored first, as they would have been when
-        that process's first samples came."""
-        self.settle(skip=outcomes)
-        for i in outcomes:
-            self.open.pop(i, None)
-        self.outcome.update(outcomes)
-        self.events += events
-
     def finish(self) -> Scored:
         """Every pull scored (``Scored``: PullRecords in window order)."""
-        self.settle()
+        for i in list(self.open):
+            self._score(i)
         stats, pulls, warnings = SetStatistics(), [], []
         for i, (start, end, set_id, pull_id) in enumerate(self.windows):
             s = self.outcome[i]

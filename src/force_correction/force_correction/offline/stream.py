@@ -11,10 +11,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..core.errors import CorrectionError
 from ..core.extension import Extension, ForcePrefilter
 from ..core.params import CorrectionParams
-from ..core.streaming import correct_block, initial_state, state_after
+from ..core.streaming import correct_block, initial_state
 from .result import Scored
 from .scorer import BlockStamps, PullScorer
 
@@ -50,17 +49,6 @@ class CorrectionStream:
 
     def write_to(self, sink: Sink) -> None:
         self.sink = sink
-
-    def resume(self, force: np.ndarray, accel: np.ndarray, seq: int) -> None:
-        """Go on from the middle of a run whose earlier samples (``force``, ``accel``, from its start) are
-        corrected elsewhere (another process): the state they leave, and the /force_corrected seq of the next
-        block. Not with an extension: its prefilter's state is the run's whole past."""
-        if len(force):
-            if self.extension is not None:
-                raise CorrectionError(f'resume after {len(force)} samples of a run with an extension; expected a '
-                                      'split at the start of a run')
-            self._state = state_after(force, accel, self.params)
-        self.seq = seq
 
     def add(self, stamps, force: np.ndarray, accel: np.ndarray, stationary: np.ndarray,
             rate_hz: float, new_run: bool = True, blocks: tuple | None = None,
