@@ -3,7 +3,7 @@ whatever the completion order, a failing pull reported by name while the rest fi
 pull rerun and reported, an unreachable scheduler refused fast."""
 from __future__ import annotations
 
-import os
+import json
 import socket
 import subprocess
 import sys
@@ -151,21 +151,33 @@ def test_an_error_in_the_items_stops_the_map_and_reaches_the_caller(cluster):
     assert again.results == [i * i for i in range(6)]     # the engine still works afterwards
 
 
-def _resident() -> int:
+
+HEAP_PROBE = """
+import json, os
+import numpy as np
+from force_tester_common import engine
+def resident():
     with open('/proc/self/statm') as f:
         return int(f.read().split()[1]) * os.sysconf('SC_PAGE_SIZE')
+base = resident()
+arrays = [np.ones(2 ** 17) for _ in range(160)]   # 160 MiB in 1 MiB arrays, each from the heap
+del arrays
+kept = resident()
+above = engine.trim_above(kept + 2 ** 30)
+after_above = resident()
+below = engine.trim_above(0)
+print(json.dumps([base, kept, above, after_above, below, resident()]))
+"""
 
 
 def test_a_worker_above_the_limit_gives_its_free_heap_back():
-    """engine.trim_above: with ./ft's allocator settings the heap keeps what a pull freed (up to 256 MiB); above
-    the limit it is given back (glibc's malloc_trim), below it nothing is done."""
-    import numpy as np
-    base = _resident()
-    arrays = [np.ones(2 ** 17) for _ in range(160)]   # 160 MiB in 1 MiB arrays, each from the heap
-    del arrays
-    kept = _resident()
+    """engine.trim_above, in a fresh process (a worker's heap, not this one's after other tests): with ./ft's
+    allocator settings the heap keeps what a pull freed (up to 256 MiB); above the limit it is given back (glibc's
+    malloc_trim), below it nothing is done."""
+    r = subprocess.run([sys.executable, '-c', HEAP_PROBE], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    base, kept, above, after_above, below, after = json.loads(r.stdout)
     assert kept - base > 100 * 2 ** 20, ('the heap did not keep the freed arrays: ./ft exports '
                                          'MALLOC_TRIM_THRESHOLD_ and MALLOC_MMAP_THRESHOLD_', kept - base)
-    assert engine.trim_above(kept + 2 ** 30) is False and _resident() > kept - 2 ** 20
-    assert engine.trim_above(0) is True
-    assert _resident() < kept - 100 * 2 ** 20, (kept - _resident()) / 2 ** 20
+    assert above is False and after_above > kept - 2 ** 20
+    assert below is True and after < kept - 100 * 2 ** 20, (kept - after) / 2 ** 20
