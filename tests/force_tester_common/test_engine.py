@@ -101,7 +101,7 @@ def test_a_pull_that_kills_every_worker_fails_alone(tmp_path, monkeypatch):
     alone); the pulls that shared its dying workers finish."""
     monkeypatch.delenv(engine.SCHEDULER_ENV, raising=False)
     r = map_pulls(engine_jobs.always_die, [(str(tmp_path), i) for i in range(3)], names=['x', 'y', 'z'])
-    assert r.results[1:] == [1, 2]
+    assert r.results[1:] == [1, 2], r.failed   # z failed once in 17 fresh runs (load 11): why, here
     assert [n for n, _ in r.failed] == ['x'] and 'KilledWorker' in r.failed[0][1]
     assert len((tmp_path / 'deaths').read_text().split()) == 2 * (engine.RETRIES + 1)
     assert 'x' in r.retried
