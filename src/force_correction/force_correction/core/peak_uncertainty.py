@@ -36,8 +36,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from force_tester_common.core.events import all_finite
-
 from .errors import CorrectionError
 
 #: coverage factor of the stated expanded uncertainty (a calibration certificate's k = 2)
@@ -97,15 +95,14 @@ class PeakUncertainty:
                 'filtered_expanded_n': self.filtered_expanded_n, 'noise_n': self.noise_n, 'method': self.method}
 
 
-def quiet_noise(corrected: np.ndarray, sample_rate_hz: float, finite: bool = False) -> float:
+def quiet_noise(corrected: np.ndarray, sample_rate_hz: float) -> float:
     """sigma of the corrected signal over the quiet lead-in (NaN if there is none): the std of the differences of
-    neighbouring samples over sqrt(2), so a slow drift does not count as noise. finite: the caller knows every
-    sample is finite."""
+    neighbouring samples over sqrt(2), so a slow drift does not count as noise."""
     c = np.asarray(corrected, dtype=float)
-    if finite or all_finite(c):
-        # the usual pull: the largest |c| from the largest and the smallest sample, and the first loud sample
-        # searched for only up to the loudest one (which is loud): no |c| of the whole pull, no masks
-        top, bottom = int(np.argmax(c)), int(np.argmin(c))
+    top, bottom = (int(np.argmax(c)), int(np.argmin(c))) if c.size else (0, 0)
+    if c.size and math.isfinite(c[top]) and math.isfinite(c[bottom]):
+        # the usual pull, every sample finite (the largest and the smallest are; a NaN would be both): the largest
+        # |c| from them, and the first loud sample searched for only up to the loudest one (which is loud)
         loudest = top if c[top] >= -c[bottom] else bottom
         pk = float(abs(c[loudest]))
         end = int(np.argmax(np.abs(c[:loudest + 1]) > QUIET_FRACTION * pk)) if pk > 0 else len(c)
@@ -163,12 +160,14 @@ def noise_peaks(row: np.ndarray, sigma: float, z_noise: np.ndarray) -> np.ndarra
 
 
 def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, inputs: PeakInputs,
-                     k: float = COVERAGE_FACTOR, draws: int = MC_DRAWS) -> PeakUncertainty:
+                     k: float = COVERAGE_FACTOR, draws: int = MC_DRAWS, filtered_peak: float | None = None
+                     ) -> PeakUncertainty:
     """The corrected peak of one pull and its expanded uncertainty (module docstring).
 
     corrected, inertial, filtered: the pull's c = F - m a, m a, and the moving average of c (N, equal lengths,
     NaN allowed); the force the correction used is c + m a. Deterministic (MC_SEED), and independent of where
-    the pull's samples begin: the same pull scored live, replayed or offline gives the same U.
+    the pull's samples begin: the same pull scored live, replayed or offline gives the same U. filtered_peak: the
+    largest filtered sample, NaN ignored (scoring.score_pull's), when the caller has it.
     """
     if not isinstance(inputs, PeakInputs):
         raise CorrectionError(f'inputs {inputs!r} is not a PeakInputs; expected PeakInputs(...)')
@@ -181,16 +180,16 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
     if c.ndim != 1 or ma.shape != c.shape or fl.shape != c.shape:
         raise CorrectionError(f'corrected, inertial and filtered have shapes {c.shape}, {ma.shape}, {fl.shape}; '
                               'expected 1-D arrays of equal length')
-    finite_c = all_finite(c)
-    if finite_c and all_finite(ma):     # the usual pull: the first largest sample without masks or index arrays
-        i = int(np.argmax(c))
-    else:
+    i = int(np.argmax(c)) if c.size else 0
+    # the usual pull: a finite largest corrected sample (so no NaN, argmax would give it) whose m a is finite is the
+    # first largest of those where both are: no masks or index arrays of the whole pull
+    if not (c.size and math.isfinite(c[i]) and math.isfinite(ma[i])):
         fin = np.isfinite(c) & np.isfinite(ma)
         if not fin.any():
             raise CorrectionError('the pull has no finite corrected sample; expected at least one')
         i = int(np.flatnonzero(fin)[np.argmax(c[fin])])
     peak = float(c[i])
-    noise = quiet_noise(c, rate, finite=finite_c)
+    noise = quiet_noise(c, rate)
     sigma = 0.0 if math.isnan(noise) else noise
     n = len(c)
     h = max(2, int(round(PEAK_WINDOW_S * rate)))
@@ -238,8 +237,8 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
     near = int(np.count_nonzero(ok & (c[lo:hi] >= peak - 3.0 * sigma))) if sigma > 0 else 1
     bias = sigma * math.sqrt(2.0 * math.log(near)) if near > 1 else 0.0
     big = k * u + bias
-    top = fl.max() if fl.size else math.nan
-    # a finite max: no NaN (max propagates it), so it is the nanmax, in one pass
+    top = filtered_peak if filtered_peak is not None else fl.max() if fl.size else math.nan
+    # a finite max is the nanmax (fl.max() propagates a NaN; the caller's ignores them): one pass, or none
     fpk = float(top) if math.isfinite(top) else float(np.nanmax(fl)) if np.isfinite(fl).any() else math.nan
     cut = peak - fpk
     return PeakUncertainty(peak_n=peak, u_n=u, expanded_n=big, k=float(k), components=components, ma_cut_n=cut,
