@@ -524,6 +524,38 @@ def test_score_pull_peaks_are_nanmax_with_and_without_nan():
     assert math.isnan(r.filtered_peak_n)
 
 
+def rms_by_masks(a: np.ndarray, s: np.ndarray, fraction: float) -> float:
+    """score_pull's RMS as it was written before the loaded samples were taken by index: boolean masks, the NaN-free
+    errors copied out, their mean square."""
+    loaded = s > fraction * np.nanmax(s)
+    err = a[loaded] - s[loaded]
+    fin = err[~np.isnan(err)]
+    return float(np.sqrt(np.mean(fin * fin))) if fin.size else math.nan
+
+
+@pytest.mark.parametrize('hole', [None, 'nan_in_load', 'all_nan', 'inf'])
+def test_score_pull_rms_and_u_equal_the_masks_definition(hole):
+    """Each RMS to the last bit against the masks' computation; the peak's U is computed where a corrected sample is
+    finite (its nanmax finite, or +inf with a finite one beside it) and not where none is."""
+    rng = np.random.default_rng(3)
+    t = np.arange(4000) / 1000.0
+    s = 1000.0 * np.exp(-0.5 * ((t - 2.0) / 0.3) ** 2) + rng.normal(0, 1, t.size)
+    raw, cor, fil = 1.2 * s + rng.normal(0, 2, t.size), 0.95 * s, 1.01 * s
+    ma = 0.2 * s
+    if hole == 'nan_in_load':
+        raw[2000] = cor[1990:2010:3] = np.nan
+    elif hole == 'all_nan':
+        cor = np.full_like(cor, np.nan)
+    elif hole == 'inf':
+        cor[100] = np.inf
+    r = score_pull(s, raw, cor, fil, inertial=ma, sample_rate_hz=1000.0)
+    for name, a in (('raw', raw), ('corrected', cor), ('filtered', fil)):
+        want, got = rms_by_masks(a, s, 0.1), getattr(r, f'{name}_rms_n')
+        assert got == want or (math.isnan(got) and math.isnan(want)), (name, got, want)
+    assert r.n_loaded == int(np.count_nonzero(s > 0.1 * s.max()))
+    assert math.isnan(r.corrected_peak_u_n) == (hole == 'all_nan')
+
+
 def test_pull_accumulator_splits_straddling_blocks():
     s, raw, cor, fil = hand_pull()
     rate = 1000.0                      # 1 ms per sample

@@ -106,3 +106,100 @@ def test_no_lag_reads_each_sample_as_the_interpolation_does(hole):
     assert (none.u_n, none.expanded_n, none.filtered_expanded_n, none.peak_n) == \
         (tiny.u_n, tiny.expanded_n, tiny.filtered_expanded_n, tiny.peak_n)
     assert none.u_n > 0
+
+
+def quiet_noise_by_masks(c: np.ndarray, rate: float) -> float:
+    """quiet_noise as it was written before it took the loudest sample from argmax and argmin: masks of the whole
+    pull (the definition: the std of neighbouring differences over sqrt 2, before the first sample louder than
+    QUIET_FRACTION of the largest |c|, at most QUIET_MAX_S of them)."""
+    from force_correction.core.peak_uncertainty import QUIET_FRACTION, QUIET_MAX_S
+    fin = np.isfinite(c)
+    if not fin.any():
+        return math.nan
+    mag = np.abs(c)
+    pk = float(np.max(mag[fin]))
+    loud = fin & (mag > QUIET_FRACTION * pk)
+    end = int(np.argmax(loud)) if loud.any() else len(c)
+    q = c[max(0, end - int(QUIET_MAX_S * rate)):end]
+    d = np.diff(q[np.isfinite(q)])
+    return float(np.std(d) / math.sqrt(2.0)) if len(d) >= 8 else math.nan
+
+
+def variants():
+    out, _ = pull(seed=2)
+    c = out.corrected_n
+    yield 'a pull', c
+    yield 'its loudest sample negative', -c
+    yield 'a NaN in the lead-in', np.where(np.arange(c.size) == 14_000, np.nan, c)
+    yield 'an infinity after the peak', np.where(np.arange(c.size) == 16_000, -np.inf, c)
+    yield 'all zeros', np.zeros(5000)
+    yield 'loud from the start', c[int(np.argmax(c)):]
+
+
+@pytest.mark.parametrize('name,c', list(variants()), ids=[v[0] for v in variants()])
+def test_quiet_noise_equals_the_masks_definition(name, c):
+    from force_correction.core.peak_uncertainty import quiet_noise
+    got, want = quiet_noise(c, RATE), quiet_noise_by_masks(c, RATE)
+    assert (math.isnan(got) and math.isnan(want)) or got == want, (name, got, want)
+
+
+def test_noise_peaks_are_every_columns_max():
+    """noise_peaks computes only the columns that can hold a draw's peak: the same doubles as the max over all of
+    them, on rows sharp and flat (a flat row: every column can), and None for a row that is not finite."""
+    from force_correction.core.peak_uncertainty import noise_extremes, noise_peaks
+    z = mc_normals(400, 101)[1]
+    least, most = noise_extremes(400, 101)
+    assert np.array_equal(least, z.min(axis=0)) and np.array_equal(most, z.max(axis=0))
+    j = np.arange(101)
+    for row, sigma in ((1000.0 - 40.0 * np.abs(j - 50), 0.7), (1000.0 - 40.0 * np.abs(j - 3), 5.0),
+                       (np.full(101, 3.0), 1.0), (1000.0 - 0.01 * (j - 70) ** 2, 2.0), (np.sin(j / 4.0), 1e-3)):
+        want = (row[None, :] + sigma * z).max(axis=1)
+        got = noise_peaks(row, sigma, z)
+        assert got.tobytes() == want.tobytes()
+    assert noise_peaks(np.where(j == 7, np.nan, 1.0), 1.0, z) is None
+
+
+def peak_u_by_every_draw(c, ma, fl, inputs):
+    """peak_uncertainty's expanded U and noise as written before the noise-only draws were cut to their columns:
+    every draw over the whole window, NaN masks of the whole pull."""
+    fin = np.isfinite(c) & np.isfinite(ma)
+    i = int(np.flatnonzero(fin)[np.argmax(c[fin])])
+    noise = quiet_noise_by_masks(c, RATE)
+    sigma = 0.0 if math.isnan(noise) else noise
+    h = int(round(1e-3 * RATE))
+    lo, hi = max(i - h, 0), min(i + h + 1, len(c))
+    f_w, ma_w = c[lo:hi] + ma[lo:hi], ma[lo:hi]
+    ok = np.isfinite(f_w) & np.isfinite(ma_w)
+    z, z_noise = mc_normals(400, hi - lo)
+    fv = np.where(ok, f_w, np.nan)
+    f_shift = (fv + 0.0 * fv[np.minimum(np.arange(1, hi - lo + 1), hi - lo - 1)])[None, :]
+    drawn = f_shift * (1 + inputs.gain_rel * z[1])[:, None] - \
+        ma_w[None, :] * ((1 + inputs.mass_rel * z[0]) * (1 + inputs.accel_sensitivity_rel * z[2]))[:, None]
+    if sigma > 0:
+        drawn = drawn + sigma * z_noise
+    u = float(np.std(np.nanmax(np.where(ok[None, :], drawn, np.nan), axis=1), ddof=1))
+    near = int(np.count_nonzero(ok & (c[lo:hi] >= c[i] - 3.0 * sigma))) if sigma > 0 else 1
+    big = 2.0 * u + (sigma * math.sqrt(2.0 * math.log(near)) if near > 1 else 0.0)
+    cut = c[i] - float(np.nanmax(fl))
+    return big, big + abs(cut), noise
+
+
+@pytest.mark.parametrize('seed,noise,inputs,hole', [
+    (0, 0.3, PeakInputs(), None), (1, 2.0, PeakInputs(), None), (2, 0.01, PeakInputs(), None),
+    (3, 0.3, PeakInputs(), 'ma'), (4, 0.3, PeakInputs(), 'c'),
+    (5, 0.3, PeakInputs(mass_rel=0.01, gain_rel=0.004), None), (6, 0.0, PeakInputs(), None)])
+def test_peak_uncertainty_equals_every_draw(seed, noise, inputs, hole):
+    """U, the filtered peak's U and the noise to the last bit against every draw over the whole window (the
+    noise-only path cuts the columns; a NaN near the peak, inputs or no noise take the general one)."""
+    out, _ = pull(seed, noise)
+    c, ma, fl = out.corrected_n.copy(), out.inertial_n.copy(), out.filtered_n
+    i = int(np.argmax(c))
+    if hole == 'ma':
+        ma[i + 5] = np.nan
+    elif hole == 'c':
+        c[i - 4] = np.nan
+    pu = peak_uncertainty(c, ma, fl, RATE, inputs)
+    got = (pu.expanded_n, pu.filtered_expanded_n, pu.noise_n)
+    want = peak_u_by_every_draw(c, ma, fl, inputs)
+    assert all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(got, want)), (got, want)
+    assert peak_uncertainty(c, ma, fl, RATE, inputs, filtered_peak=float(np.nanmax(fl))) == pu

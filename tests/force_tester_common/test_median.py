@@ -5,7 +5,7 @@ from contextlib import nullcontext
 import numpy as np
 import pytest
 
-from force_tester_common.core.events import deviations, median, nanmedian
+from force_tester_common.core.events import all_finite, deviations, median, nanmedian
 
 
 def records():
@@ -73,3 +73,47 @@ def test_nanmedian_is_numpys(name, x):
         got = nanmedian(x)
     assert (np.isnan(want) and np.isnan(got)) or (got == want and (got.tobytes() == want.tobytes() or got == 0)), \
         (name, got, want)
+
+
+def clustered(n_cluster: int) -> np.ndarray:
+    """102,400 samples whose evenly spaced sample (every 100th) is 0..1023 and whose others sit in a cluster of
+    n_cluster at 511.5 and the rest split below and above everything: the count below the sample's middle (512) then
+    puts the median 100 sample ranks away from where it is (a narrow bracket around that guess misses it; the wide
+    one around the middle holds it)."""
+    n = 102_400
+    x = np.empty(n)
+    x[::100] = np.arange(1024.0)
+    rest = n - 1024
+    others = np.concatenate([np.full(n_cluster, 511.5), np.full((rest - n_cluster) // 2, -1000.0),
+                             np.full(rest - n_cluster - (rest - n_cluster) // 2, 5000.0)])
+    x[np.arange(n) % 100 != 0] = np.random.default_rng(5).permutation(others)
+    return x
+
+
+@pytest.mark.parametrize('name,x', [
+    ('the narrow bracket misses, the wide one holds it', clustered(20_000)),
+    ('the narrow bracket holds it', clustered(2_000)),
+    ('a pull in time order', next(records())[1]),
+    ('a record with a step: two levels of noise', np.concatenate([np.random.default_rng(9).normal(0, 1, 60_000),
+                                                                  np.random.default_rng(10).normal(50, 9, 40_001)])),
+])
+def test_each_bracket_gives_numpys_median(name, x):
+    """median's narrow bracket (placed by one count), its wide one and np.median: np.median's double, whichever
+    holds the median's rank; finite=True (the caller's word that x has no NaN) gives the same."""
+    want = np.median(x)
+    assert median(x).tobytes() == want.tobytes() and median(x, finite=True).tobytes() == want.tobytes(), name
+
+
+@pytest.mark.parametrize('x,want', [
+    (np.arange(5.0), True), (np.array([1.0, np.nan]), False), (np.array([np.inf, 1.0]), False),
+    (np.array([-np.inf, 1.0]), False), (np.array([np.inf, -np.inf]), False), (np.full(4, 1e308), True),
+    (np.array([1e308, 1e308, -np.inf]), False), (np.empty(0), True), (np.array([np.nan, 1e308, 1e308]), False),
+])
+def test_all_finite_is_numpys_without_a_warning(x, want):
+    """all_finite (one sum; np.isfinite only when the sum overflows): np.isfinite(x).all(), and no warning for the
+    overflow or for inf + -inf."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        got = all_finite(x)
+    assert got is want and want == bool(np.isfinite(x).all())

@@ -99,13 +99,21 @@ def quiet_noise(corrected: np.ndarray, sample_rate_hz: float) -> float:
     """sigma of the corrected signal over the quiet lead-in (NaN if there is none): the std of the differences of
     neighbouring samples over sqrt(2), so a slow drift does not count as noise."""
     c = np.asarray(corrected, dtype=float)
+    top, bottom = (int(np.argmax(c)), int(np.argmin(c))) if c.size else (0, 0)
+    if c.size and math.isfinite(c[top]) and math.isfinite(c[bottom]):
+        # the usual pull, every sample finite (the largest and the smallest are; a NaN would be both): the largest
+        # |c| from them, and the first loud sample searched for only up to the loudest one (which is loud)
+        loudest = top if c[top] >= -c[bottom] else bottom
+        pk = float(abs(c[loudest]))
+        end = int(np.argmax(np.abs(c[:loudest + 1]) > QUIET_FRACTION * pk)) if pk > 0 else len(c)
+        q = c[max(0, end - int(QUIET_MAX_S * sample_rate_hz)):end]
+        return float(np.std(np.diff(q)) / math.sqrt(2.0)) if len(q) >= 9 else math.nan
     fin = np.isfinite(c)
-    whole = bool(fin.all())       # the usual pull: no copy of it without its NaN samples, no index arrays
-    if not whole and not fin.any():
+    if not fin.any():
         return math.nan
     mag = np.abs(c)
-    pk = float(np.max(mag if whole else mag[fin]))
-    loud = mag > QUIET_FRACTION * pk if whole else fin & (mag > QUIET_FRACTION * pk)
+    pk = float(np.max(mag[fin]))
+    loud = fin & (mag > QUIET_FRACTION * pk)
     end = int(np.argmax(loud)) if loud.any() else len(c)     # the first loud sample
     q = c[max(0, end - int(QUIET_MAX_S * sample_rate_hz)):end]   # just before the load: not where the pull began
     d = np.diff(q[np.isfinite(q)])
@@ -125,13 +133,41 @@ def mc_normals(draws: int, width: int) -> tuple:
     return z, noise
 
 
+@functools.lru_cache(maxsize=8)
+def noise_extremes(draws: int, width: int) -> tuple:
+    """The least and the largest of each column of mc_normals' noise (draws x width): kept once a process."""
+    noise = mc_normals(draws, width)[1]
+    least, most = noise.min(axis=0), noise.max(axis=0)
+    least.flags.writeable = most.flags.writeable = False
+    return least, most
+
+
+def noise_peaks(row: np.ndarray, sigma: float, z_noise: np.ndarray) -> np.ndarray | None:
+    """max over j of row[j] + sigma z_noise[r, j] for each draw r, the same doubles as computing every column (None
+    where a value is not finite: the caller takes its general path). With the inputs all 0 every draw is the
+    window's one row plus its own noise (the general path's products with 1 + 0 z are exact). Rounding keeps order,
+    so each draw's peak is at least the largest row[j] + sigma least[j] (least: the column's smallest normal), and a
+    column whose row[j] + sigma most[j] lies below that bound never holds a draw's peak: only the span of columns
+    that can is computed (a few samples beside a sharp peak, instead of 2 ms of them)."""
+    if not np.isfinite(row).all():
+        return None
+    least, most = noise_extremes(*z_noise.shape)
+    bound = np.max(row + sigma * least)
+    can = np.flatnonzero(row + sigma * most >= bound)
+    a, b = int(can[0]), int(can[-1]) + 1
+    peaks = (row[a:b] + sigma * z_noise[:, a:b]).max(axis=1)
+    return peaks if math.isfinite(bound) and np.isfinite(peaks).all() else None
+
+
 def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, inputs: PeakInputs,
-                     k: float = COVERAGE_FACTOR, draws: int = MC_DRAWS) -> PeakUncertainty:
+                     k: float = COVERAGE_FACTOR, draws: int = MC_DRAWS, filtered_peak: float | None = None
+                     ) -> PeakUncertainty:
     """The corrected peak of one pull and its expanded uncertainty (module docstring).
 
     corrected, inertial, filtered: the pull's c = F - m a, m a, and the moving average of c (N, equal lengths,
     NaN allowed); the force the correction used is c + m a. Deterministic (MC_SEED), and independent of where
-    the pull's samples begin: the same pull scored live, replayed or offline gives the same U.
+    the pull's samples begin: the same pull scored live, replayed or offline gives the same U. filtered_peak: the
+    largest filtered sample, NaN ignored (scoring.score_pull's), when the caller has it.
     """
     if not isinstance(inputs, PeakInputs):
         raise CorrectionError(f'inputs {inputs!r} is not a PeakInputs; expected PeakInputs(...)')
@@ -144,12 +180,13 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
     if c.ndim != 1 or ma.shape != c.shape or fl.shape != c.shape:
         raise CorrectionError(f'corrected, inertial and filtered have shapes {c.shape}, {ma.shape}, {fl.shape}; '
                               'expected 1-D arrays of equal length')
-    fin = np.isfinite(c) & np.isfinite(ma)
-    if fin.all():                 # the usual pull: the first largest sample without index arrays
-        i = int(np.argmax(c))
-    elif not fin.any():
-        raise CorrectionError('the pull has no finite corrected sample; expected at least one')
-    else:
+    i = int(np.argmax(c)) if c.size else 0
+    # the usual pull: a finite largest corrected sample (so no NaN, argmax would give it) whose m a is finite is the
+    # first largest of those where both are: no masks or index arrays of the whole pull
+    if not (c.size and math.isfinite(c[i]) and math.isfinite(ma[i])):
+        fin = np.isfinite(c) & np.isfinite(ma)
+        if not fin.any():
+            raise CorrectionError('the pull has no finite corrected sample; expected at least one')
         i = int(np.flatnonzero(fin)[np.argmax(c[fin])])
     peak = float(c[i])
     noise = quiet_noise(c, rate)
@@ -186,10 +223,13 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
         j1 = np.minimum(j + 1, len(idx) - 1)
         w = pos - j
         f_shift = (1 - w) * fv[j] + w * fv[j1]
-    drawn = f_shift * (1 + eg)[:, None] - ma_w[None, :] * ((1 + em) * (1 + es))[:, None]
-    if sigma > 0:
-        drawn = drawn + sigma * z_noise
-    peaks = np.nanmax(np.where(ok[None, :], drawn, np.nan), axis=1)
+    noise_only = not (inputs.mass_rel or inputs.gain_rel or inputs.accel_sensitivity_rel or inputs.accel_delay_s)
+    peaks = noise_peaks(f_shift[0] - ma_w, sigma, z_noise) if noise_only and sigma > 0 and ok.all() else None
+    if peaks is None:
+        drawn = f_shift * (1 + eg)[:, None] - ma_w[None, :] * ((1 + em) * (1 + es))[:, None]
+        if sigma > 0:
+            drawn = drawn + sigma * z_noise
+        peaks = np.nanmax(np.where(ok[None, :], drawn, np.nan), axis=1)
     u = float(np.std(peaks, ddof=1)) if draws > 1 else 0.0
     # the max of a noisy plateau is its highest noise sample: a one-sided bias the draws' spread does not show.
     # Its size: sigma times the expected max of n standard normals (~ sqrt(2 ln n)), n the samples within 3 sigma
@@ -197,7 +237,9 @@ def peak_uncertainty(corrected, inertial, filtered, sample_rate_hz: float, input
     near = int(np.count_nonzero(ok & (c[lo:hi] >= peak - 3.0 * sigma))) if sigma > 0 else 1
     bias = sigma * math.sqrt(2.0 * math.log(near)) if near > 1 else 0.0
     big = k * u + bias
-    fpk = float(np.nanmax(fl)) if np.isfinite(fl).any() else math.nan
+    top = filtered_peak if filtered_peak is not None else fl.max() if fl.size else math.nan
+    # a finite max is the nanmax (fl.max() propagates a NaN; the caller's ignores them): one pass, or none
+    fpk = float(top) if math.isfinite(top) else float(np.nanmax(fl)) if np.isfinite(fl).any() else math.nan
     cut = peak - fpk
     return PeakUncertainty(peak_n=peak, u_n=u, expanded_n=big, k=float(k), components=components, ma_cut_n=cut,
                            filtered_expanded_n=big + abs(cut) if math.isfinite(cut) else math.nan, noise_n=noise)

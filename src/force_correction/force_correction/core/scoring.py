@@ -75,6 +75,10 @@ def _nanmax(a: np.ndarray) -> float:
 
 
 def _rms(err: np.ndarray) -> float:
+    if err.size:
+        ms = np.mean(err * err)
+        if ms == ms:          # no NaN among the errors: their mean square as it is, without a copy of them
+            return float(np.sqrt(ms))
     fin = err[~np.isnan(err)]
     return float(np.sqrt(np.mean(fin * fin))) if fin.size else math.nan
 
@@ -108,24 +112,28 @@ def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = LO
         raise CorrectionError(
             f"stationary peak {s_peak!r} N is not usable; expected a finite peak > 0 N")
     with np.errstate(invalid='ignore'):
-        loaded = s > lf * s_peak
+        loaded = np.flatnonzero(s > lf * s_peak)     # the loaded samples (a short stretch): taken by index
+    s_loaded = s[loaded]
     out = {}
     for k, a in sigs.items():
         pk = _nanmax(a)
         out[f'{k}_peak_n'] = pk
         out[f'{k}_diff_pct'] = abs(s_peak - pk) / s_peak * 100.0
-        out[f'{k}_rms_n'] = _rms(a[loaded] - s[loaded])
-    if inertial is not None and sample_rate_hz is not None and np.isfinite(sigs['corrected']).any():
+        out[f'{k}_rms_n'] = _rms(a[loaded] - s_loaded)
+    c_peak = out['corrected_peak_n']     # a finite nanmax: a finite sample
+    if inertial is not None and sample_rate_hz is not None and (
+            math.isfinite(c_peak) or c_peak == math.inf and np.isfinite(sigs['corrected']).any()):
         ma = _arr(inertial, 'inertial')
         if ma.shape != s.shape:
             raise CorrectionError(f"inertial has {ma.shape[0]} samples but stationary has {s.shape[0]}; "
                                   "expected equal lengths")
         pu = peak_uncertainty(sigs['corrected'], ma, sigs['filtered'], sample_rate_hz,
-                              PeakInputs() if peak_inputs is None else peak_inputs)
+                              PeakInputs() if peak_inputs is None else peak_inputs,
+                              filtered_peak=out['filtered_peak_n'])
         out.update(corrected_peak_u_n=pu.expanded_n, filtered_peak_u_n=pu.filtered_expanded_n,
                    coverage_factor=pu.k)
     return PullScoreResult(stationary_peak_n=s_peak, n_samples=int(s.shape[0]),
-                           n_loaded=int(np.count_nonzero(loaded)), loaded_fraction=lf, **out)
+                           n_loaded=int(loaded.size), loaded_fraction=lf, **out)
 
 
 _FIELDS = ('stationary', 'raw', 'corrected', 'filtered', 'inertial')

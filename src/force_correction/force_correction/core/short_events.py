@@ -16,7 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from force_tester_common.core.correction import EVENT_BANDWIDTH_ENERGY, MA_HALF_POWER, SHORT_EVENT_WINDOWS
-from force_tester_common.core.events import below_snr, deviations, event_width_s, find_events, nanmedian
+from force_tester_common.core.events import (
+    all_finite,
+    below_snr,
+    deviations,
+    event_width_s,
+    find_events,
+    nanmedian,
+)
 
 
 @dataclass(frozen=True)
@@ -102,7 +109,7 @@ def short_events(force_moving_n, corrected_n, rate_hz: float, window: int) -> li
     dev = None    # corrected_n's deviations, taken once a short event is found (a record has none most of the time)
     spans, median = find_events(f, rate_hz)
     # event_width_s's baseline is the nanmedian, which is find_events' median unless a sample is infinite
-    baseline = median if spans and not np.isinf(f).any() else None
+    baseline = median if spans and (all_finite(f) or not np.isinf(f).any()) else None
     for span in spans:
         width = event_width_s(f, rate_hz, span, baseline)
         if width * rate_hz >= SHORT_EVENT_WINDOWS * window:

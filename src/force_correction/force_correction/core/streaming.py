@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from force_tester_common.core.events import all_finite
+
 from .errors import CorrectionError
 from .params import CorrectionParams
 
@@ -172,9 +174,10 @@ def correct_block(force_moving_n, accel_axial_m_s2, params: CorrectionParams,
         out = CorrectedBlock(f.copy(), inertial, corrected, _EMPTY.copy(), 0)
         return out, state
 
-    bad = ~np.isfinite(corrected)
-    nbad = int(np.count_nonzero(bad))
-    if nbad:
+    nbad = 0
+    if not all_finite(corrected):     # the usual block is finite: no mask of it
+        bad = ~np.isfinite(corrected)
+        nbad = int(np.count_nonzero(bad))
         corrected[bad] = np.nan
 
     tail = state.tail
@@ -193,7 +196,7 @@ def correct_block(force_moving_n, accel_axial_m_s2, params: CorrectionParams,
     if first + n <= w:
         counts = np.arange(first + 1, first + n + 1, dtype=np.float64)
     elif first >= w - 1:
-        counts = np.full(n, float(w))
+        counts = float(w)            # every window full: one count for all (the same quotients as an array of it)
     else:
         counts = np.minimum(np.arange(first + 1, first + n + 1, dtype=np.float64), float(w))
     if ext_bad is None:

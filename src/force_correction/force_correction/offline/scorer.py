@@ -9,6 +9,7 @@ events shorter than a few windows, on the samples it holds anyway: no second rea
 """
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -75,7 +76,8 @@ class PullScorer:
         rate = self.rates.get(i, 0.0)
         try:
             *scored, inertial = arrays
-            known = bool(np.isfinite(inertial).any())
+            top = inertial.max() if inertial.size else math.nan   # finite: m*a known (NaN: it propagates)
+            known = math.isfinite(top) or bool(np.isfinite(inertial).any())
             self.outcome[i] = score_pull(*scored, loaded_fraction=self.loaded_fraction,
                                          inertial=inertial if known else None,
                                          sample_rate_hz=rate or None, peak_inputs=self.peak_inputs)

@@ -7,6 +7,7 @@ a braking load. Stretches closer than ``EVENT_GAP_S`` are one event. Pure numpy.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -42,52 +43,73 @@ class Events(NamedTuple):
 _SELECT_MIN = 4096
 #: the sample's ranks either side of its middle that bracket the median (of about 1024 sampled values)
 _BRACKET = 48
+#: the narrow bracket's half-width, in the sample's ranks, around where the median is estimated to lie in it
+_NEAR = 6
 
 
-def median(x: np.ndarray) -> np.float64:
+def median(x: np.ndarray, finite: bool = False) -> np.float64:
     """np.median of a 1-D float64 array, the same value bit for bit (of a median of zeros, the sign may differ:
-    -0.0 == 0.0), in a fifth of its time on a pull: the median's rank is bracketed by two values of an evenly spaced
-    sample of x, the samples below the bracket are counted, and only those within it are partially sorted
-    (np.median partially sorts all of x, 2-3 ms on 100,000 samples). A short record is partially sorted whole and
-    its middle pair averaged as np.median averages it, the same bits (zeros' signs included), without np.median's
-    NaN check (which imports numpy.ma, 5-10 ms, on its first call). np.median itself for anything else: an empty or
-    other array, one with a NaN (its median is NaN), or when the bracket misses the rank (x in an odd order)."""
+    -0.0 == 0.0), in a sixth of its time on a pull. An evenly spaced sample of about 1024 values of x is sorted; one
+    count (the samples of x below the sample's middle value) tells how far that value's rank is from the median's, so
+    where the median lies in the sample; the two sample values a few ranks either side of there bracket it, the
+    samples of x inside (1-3 % of a pull) are taken out, and their counted rank picks the median from them by a
+    partial sort (np.median partially sorts all of x, 2-3 ms on 100,000 samples). When that bracket misses, a wider
+    one (+-_BRACKET ranks of the sample's middle: 10 % of the samples); when that misses too (x in an odd order),
+    np.median itself. A short record is partially sorted whole and its middle pair averaged as np.median averages
+    it, the same bits (zeros' signs included), without np.median's NaN check (which imports numpy.ma, 5-10 ms, on its
+    first call). np.median itself for anything else: an empty or other array, or one with a NaN (its median is NaN).
+    finite: the caller knows x has no NaN (the check is skipped)."""
     x = np.asarray(x)
     n = x.size
-    if not n or x.ndim != 1 or x.dtype != np.float64 or np.isnan(x).any():
+    if not n or x.ndim != 1 or x.dtype != np.float64 or (not finite and np.isnan(x).any()):
         return np.median(x)
+    k = n // 2                     # the upper middle rank; the lower one too for odd n
+    first = k - 1 if n % 2 == 0 else k
     if n < _SELECT_MIN:
-        k = n // 2
-        first = k - 1 if n % 2 == 0 else k
         # np.median's mean of the middle pair (or of the middle sample): a sum from 0.0, divided by the count
         return np.add.reduce(np.partition(x, [first, k])[first:k + 1]) / (k - first + 1)
     s = np.sort(x[::n // 1024])
     m = s.size // 2
-    lo, hi = s[m - _BRACKET], s[m + _BRACKET]
-    below = int(np.count_nonzero(x < lo))
-    inside = x[(x >= lo) & (x <= hi)]
-    k = n // 2 - below             # the upper middle rank within ``inside``; the lower one too for odd n
-    first = k - 1 if n % 2 == 0 else k
-    if first < 0 or k >= inside.size:
-        return np.median(x)
-    part = np.partition(inside, [first, k])
-    return (part[first] + part[k]) / 2 if n % 2 == 0 else part[k]   # np.median's mean of the middle pair
+    mid = s[m]
+    below_mid = int(np.count_nonzero(x < mid))
+    j = m + int(round((k - below_mid) * s.size / n))     # where the median's rank falls in the sample
+    near = _NEAR + abs(j - m) // 2                          # the further from the middle, the less sure
+    for a, b in ((j - near, j + near), (m - _BRACKET, m + _BRACKET)):
+        if a < 0 or b >= s.size:
+            continue
+        lo, hi = s[a], s[b]
+        inside = np.compress((x >= lo) & (x <= hi), x)
+        below = below_mid - int(np.count_nonzero(inside < mid)) if lo <= mid <= hi else \
+            int(np.count_nonzero(x < lo))
+        if below <= first and k - below < inside.size:      # both middle ranks inside the bracket
+            part = np.partition(inside, [first - below, k - below])
+            # np.median's mean of the middle pair
+            return (part[first - below] + part[k - below]) / 2 if n % 2 == 0 else part[k - below]
+    return np.median(x)
+
+
+def all_finite(x: np.ndarray) -> bool:
+    """Whether every sample of a float array is finite, in one pass and no mask: a NaN or an infinity makes the sum
+    NaN or infinite, and a sum of finite samples is finite unless it overflows (then np.isfinite decides)."""
+    with np.errstate(over='ignore', invalid='ignore'):     # inf + -inf, an overflow: no warning, just not finite
+        total = np.add.reduce(x, axis=None)
+    return math.isfinite(total) or bool(np.isfinite(x).all())
 
 
 def nanmedian(x) -> np.float64:
     """np.nanmedian of a 1-D float64 array, the same value: ``median`` when no sample is NaN, else np.nanmedian."""
     x = np.asarray(x, dtype=np.float64)
-    return median(x) if x.ndim == 1 and x.size and not np.isnan(x).any() else np.nanmedian(x)
+    return median(x, finite=True) if x.ndim == 1 and x.size and not np.isnan(x).any() else np.nanmedian(x)
 
 
 def find_events(force, rate_hz: float, level: float = EVENT_LEVEL, gap_s: float = EVENT_GAP_S) -> Events:
     """The events of ``force`` (``Events``)."""
     x = np.asarray(force, dtype=np.float64)
-    ok = np.isfinite(x)
-    if x.size < 2 or not ok.any():
+    whole = all_finite(x)    # the usual record: no mask, no copies of it without its non-finite samples
+    ok = None if whole else np.isfinite(x)
+    if x.size < 2 or not (whole or ok.any()):
         return Events([], float('nan'))
-    whole = bool(ok.all())   # the usual record: no copies of it without its non-finite samples
-    base = median(x if whole else x[ok])
+    base = median(x if whole else x[ok], finite=True)
     dev = np.abs(x - base)
     if not whole:
         dev[~ok] = 0.0
@@ -114,27 +136,27 @@ def below_snr(dev: np.ndarray, peak: float, or_equal: bool = False) -> bool:
     dev: absolute deviations from the median, finite, at least one."""
     thr = peak / (EVENT_SNR * MAD_SD)
     n = dev.size
-    if np.count_nonzero(dev <= thr * (1 + _MARGIN)) <= (n - 1) // 2:
-        return True
+    # the usual record first (most samples quiet): more than half below the threshold is enough
     if np.count_nonzero(dev < thr * (1 - _MARGIN)) > n // 2:
         return False
-    exact = EVENT_SNR * (MAD_SD * median(dev))
+    if np.count_nonzero(dev <= thr * (1 + _MARGIN)) <= (n - 1) // 2:
+        return True
+    exact = EVENT_SNR * (MAD_SD * median(dev, finite=True))
     return bool(peak <= exact if or_equal else peak < exact)
 
 
 def deviations(x) -> np.ndarray:
     """|x - median(x)| over x's finite samples (empty when it has none): what robust_sd and below_snr take."""
     x = np.asarray(x, dtype=np.float64)
-    ok = np.isfinite(x)
-    x = x if ok.all() else x[ok]     # the usual record: no copy of it
-    return np.abs(x - median(x)) if x.size else x
+    x = x if all_finite(x) else x[np.isfinite(x)]     # the usual record: no copy of it
+    return np.abs(x - median(x, finite=True)) if x.size else x
 
 
 def robust_sd(x) -> float:
     """MAD_SD x the median absolute deviation of x's finite samples (0 when it has none): its noise, robust to
     events."""
     dev = deviations(x)
-    return MAD_SD * float(median(dev)) if dev.size else 0.0
+    return MAD_SD * float(median(dev, finite=True)) if dev.size else 0.0
 
 
 def event_width_s(force, rate_hz: float, span: tuple, baseline: float | None = None) -> float:
