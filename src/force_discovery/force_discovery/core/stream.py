@@ -350,26 +350,9 @@ class Stream:
         res = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named, factors=factors,
                          withheld=withheld)
         sensors = tuple(t for t in res.terms if t.channel in bey.SENSORS)
-        base = bey.moving_sse(parts, analysis.fit, analysis.held) if sensors else None
-        passes = {}
-
-        def corrected(terms):   # every pull's statistics against the sensors read without these terms
-            key = tuple((t.channel, t.term) for t in terms)
-            if key not in passes:
-                passes[key] = self._strict('beyond', self._map('beyond', beyond_pass,
-                                                               [job(j, settings, terms) for j in range(len(names))],
-                                                               names))
-            return passes[key]
-        if base is not None:   # each sensor term confirmed on the moving cell, which reads the same force (confirm.py)
-            refused = tuple(t for t in sensors
-                            if not bey.moving_sse(corrected((t,)), analysis.fit, analysis.held).sum() < base.sum())
-            if refused:
-                sensors = tuple(t for t in sensors if t not in refused)
-                res = dataclasses.replace(res, terms=tuple(t for t in res.terms if t not in refused),
-                                          within_tolerance=res.within_tolerance + tuple(
-                                              dataclasses.replace(t, named=False) for t in refused))
         if sensors:   # the moving cell and the current again, against what the sensors read without their terms
-            parts = corrected(sensors)
+            parts = self._strict('beyond', self._map('beyond', beyond_pass,
+                                                     [job(j, settings, sensors) for j in range(len(names))], names))
             rest = bey.search(parts, analysis.fit, analysis.held, settings, self.rig, decision.named,
                               withheld=withheld,
                               channels=tuple(c for c in bey.SEARCHED if c not in bey.SENSORS), sensors=True)

@@ -57,14 +57,12 @@ The modules, in the order a search runs:
 - normal_equations.py per pull: the library's normal equations per channel (ChannelStats, BeyondPart)
 - selection.py        one channel's forward selection, its jackknife intervals (Model, Term, ChannelResult)
 - own.py              a sensor's own non-linearity seen on the moving cell, read as the sensor's (own_reading)
-- confirm.py          a sensor's term confirmed on the moving cell, which reads the same force (moving_sse)
 - identify.py         the pairs of the grammar a campaign cannot identify, and why (report: identifiability)
 - priority.py         the catalog's priority on the moving cell (cause_check)
 - search.py           every channel (search, BeyondResult)
 - interpretation.py   what a term usually means, in plain words
 - traces.py           the plots' before/after traces (TermTrace)
 """
-from .confirm import moving_sse
 from .grammar import COULOMB, SEARCHED, SENSORS, channel_band, channel_library, library, pairs
 from .interpretation import interpretation
 from .normal_equations import BeyondPart, ChannelStats, beyond_part
@@ -79,5 +77,5 @@ from .traces import TermTrace, term_traces
 __all__ = ['CAUSE_PARAMS', 'COULOMB', 'NEAR_TIE', 'REFINE_PULLS', 'SEARCHED', 'SENSORS', 'BeyondPart', 'BeyondResult',
            'ChannelSeries', 'ChannelStats', 'SearchSettings', 'Term', 'TermTrace', 'before_samples', 'beyond_part',
            'carrier', 'channel_band', 'channel_library', 'channel_series', 'decimation', 'interpretation', 'library',
-           'moving_sse', 'near_tied', 'pairs', 'reading_factors', 'search', 'search_channel', 'sensor_corrected',
+           'near_tied', 'pairs', 'reading_factors', 'search', 'search_channel', 'sensor_corrected',
            'spectrum_part', 'settings_from', 'term_traces']

@@ -78,6 +78,13 @@ def channel_library(channel: str) -> Tuple[str, ...]:
     return tuple(t for t in library() if t not in skip and not blind & set(parse_term(t)))
 
 
+def reads_own(channel: str, term: str) -> bool:
+    """Whether a sensor's term is in its own reading (a2 on the accelerometer: CARRIED): in the free phases it reads
+    the quantity it reads under load, so its size is judged over the analysis window even when a near-tied term
+    stands beside it (selection.search_channel)."""
+    return bool(set(CARRIED.get(channel, ())) & set(parse_term(term)))
+
+
 def via_moving(channel: str, term: str) -> bool:
     """Whether a sensor's term is its own non-linearity (degree >= 2 in its CARRIED signals' first), which the moving
     cell's search reads too (beyond.own)."""
