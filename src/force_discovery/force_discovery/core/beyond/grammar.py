@@ -79,9 +79,9 @@ def channel_library(channel: str) -> Tuple[str, ...]:
 
 
 def reads_own(channel: str, term: str) -> bool:
-    """Whether a sensor's term is in its own reading (a2 on the accelerometer: CARRIED): it acts where the sensor
-    reads the force, so its size is judged over the analysis window (selection.search_channel), not the free
-    phases it was found in."""
+    """Whether a sensor's term is in its own reading (a2 on the accelerometer: CARRIED): in the free phases it reads
+    the quantity it reads under load, so its size is judged over the analysis window even when a near-tied term
+    stands beside it (selection.search_channel)."""
     return bool(set(CARRIED.get(channel, ())) & set(parse_term(term)))
 
 

@@ -39,7 +39,7 @@ class ChannelStats(NamedTuple):
     systematic: Dict[str, np.ndarray]   # X'z of the residual's change z with each rig constant one u off (and, with
                                         # catalog columns C, C'z last)
     window_ss: Optional[np.ndarray] = None   # a sensor's product columns' sums of squares over the analysis window
-    n_window: int = 0                         # and its samples (selection: a sensor's own term is judged there)
+    n_window: int = 0                         # and its samples (selection: a sensor's terms are judged there)
 
 
 @dataclass(frozen=True)

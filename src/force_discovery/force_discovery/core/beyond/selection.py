@@ -375,8 +375,17 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         if col is None:
             pr = sin_pair(n_prod, model.sin)
             norm = sum(0.5 * (st.gram[pr[0], pr[0]] + st.gram[pr[1], pr[1]]) for st in held)
-        elif reads_own(channel, name) and all(st.window_ss is not None for st in held):
-            # a sensor's own term (a2^2 on the accelerometer) acts where the sensor reads the force: its size there
+        elif all(st.window_ss is not None for st in held) and (reads_own(channel, name) or not alternatives):
+            # a sensor's term (found in its free phases: window_ss is the sensors') acts where the sensor reads the
+            # force, over the analysis window: its size is judged there. Before, only its own signal's terms (a2^2 on
+            # the accelerometer) were, the rest in the free phases, where the signals are small: a stationary cell's
+            # v*x at 3x the band on the independent generator came out 1.091 against 1.0915, t = 193, 0.79 N rms in
+            # the free phases (band 1 N), inside the band, and the moving cell named it second hand, through T, as
+            # its own (bench_sweep). A term the free phases cannot tell from another (near-tied) is judged where it
+            # was found: the two can part ways under the load (the stationary cell's F_move is g m2 a2 with the
+            # lanyard slack, hundreds of newtons more under the load), so its size there is not known. Judged over
+            # the window, an a2 there was named F_move at 8.5 N rms (true a2 2.6 N) and the moving cell named T^2
+            # and T^3 to undo it
             norm, n_held = sum(st.window_ss[col] for st in held), sum(st.n_window for st in held)
         else:
             norm = sum(st.gram[col, col] for st in held)

@@ -36,7 +36,7 @@ class ChannelSeries(NamedTuple):
     causes: Dict[str, np.ndarray]       # each named force-model cause's contribution (priority.cause_check)
     systematic: Dict[str, np.ndarray]   # the residual's change with each rig constant one standard u off
     window: Optional[Dict[str, np.ndarray]] = None   # a sensor's signals over the analysis window, as measured: its
-                                                     # own terms are judged there, where it reads the force
+                                                     # terms are all judged there, where it reads the force
 
 
 def decimation(dt: float) -> int:
