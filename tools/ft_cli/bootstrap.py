@@ -6,7 +6,7 @@
     python -m ft_cli.bootstrap chromium --log FILE
 
 The lock is installed exactly as written, with no dependency resolution at all, by uv:
-`uv pip install --no-deps --require-hashes -r LOCK`, then `uv pip check`. requirements.lock is the whole
+`uv pip install --no-deps --require-hashes --compile-bytecode -r LOCK`, then `uv pip check`. requirements.lock is the whole
 closure (`./ft lock --check` says so), so nothing needs resolving; a resolver would ask the index again for every
 requirement that names an extra (`coverage[toml]`) and could pick a newer, unpinned release than the lock's. uv
 downloads and unpacks the wheels in parallel and links them from its cache (pip installed them one at a time:
@@ -130,8 +130,11 @@ def install_lock(python: Path, lock: Path, log: Path, wheels: Path | None = None
         raise SetupError('uv pip install', log, f'FT_WHEELS={wheels} is not a folder (make one with ./ft wheels DIR)')
     uv = ensure_uv(log, wheels) if uv is None else uv
     offline = [] if wheels is None else ['--offline', *source_args(wheels)]
+    # --compile-bytecode: where PYTHONDONTWRITEBYTECODE is set (this machine's default) no command would ever write
+    # a .pyc, and every start would compile numpy, scipy and the rest from source: `./ft bag correct`'s imports
+    # 0.22 s instead of 0.11 s; compiling them here costs about 9 s of the set-up, once
     _run('uv pip install', [uv, 'pip', 'install', '--python', python, '--no-deps', '--require-hashes', *offline,
-                            '-r', lock], log, env=_uv_env())
+                            '--compile-bytecode', '-r', lock], log, env=_uv_env())
     _run('uv pip check', [uv, 'pip', 'check', '--python', python], log, env=_uv_env())
 
 
