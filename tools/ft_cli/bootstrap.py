@@ -6,7 +6,8 @@
     python -m ft_cli.bootstrap chromium --log FILE
 
 The lock is installed exactly as written, with no dependency resolution at all, by uv:
-`uv pip install --no-deps --require-hashes --compile-bytecode -r LOCK`, then `uv pip check`. requirements.lock is the whole
+`uv pip install --no-deps --require-hashes --compile-bytecode -r LOCK` (every .pyc written once: where
+PYTHONDONTWRITEBYTECODE is set no command would write one), then `uv pip check`. requirements.lock is the whole
 closure (`./ft lock --check` says so), so nothing needs resolving; a resolver would ask the index again for every
 requirement that names an extra (`coverage[toml]`) and could pick a newer, unpinned release than the lock's. uv
 downloads and unpacks the wheels in parallel and links them from its cache (pip installed them one at a time:
