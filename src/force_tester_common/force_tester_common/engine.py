@@ -40,6 +40,7 @@ Importing this module is cheap: dask and distributed are imported on first use.
 from __future__ import annotations
 
 import atexit
+import functools
 import os
 import threading
 from typing import Any, Callable, Iterable, List, Optional, Sequence, Tuple
@@ -92,28 +93,30 @@ def _run_one(fn: Callable, item: Any) -> tuple:
         trim_above(TRIM_ABOVE_BYTES)
 
 
-_trim = []   # [malloc_trim, page size], or [None] where there is none (not glibc, no /proc)
+@functools.lru_cache(maxsize=1)
+def _malloc_trim():
+    """(glibc's malloc_trim, the page size), or None where there is none (not glibc)."""
+    try:
+        import ctypes
+        return ctypes.CDLL(None).malloc_trim, os.sysconf('SC_PAGE_SIZE')
+    except (OSError, AttributeError, ValueError):
+        return None
 
 
 def trim_above(limit: int) -> bool:
     """If this process's resident memory is above limit bytes, return the allocator's free pages to the system
     (glibc's malloc_trim(0)); True when it trimmed. Elsewhere (no glibc, no /proc) it does nothing."""
-    if not _trim:
-        try:
-            import ctypes
-            _trim.extend([ctypes.CDLL(None).malloc_trim, os.sysconf('SC_PAGE_SIZE')])
-        except (OSError, AttributeError, ValueError):
-            _trim.append(None)
-    if _trim[0] is None:
+    trim = _malloc_trim()
+    if trim is None:
         return False
     try:
         with open('/proc/self/statm', 'rb') as f:
-            resident = int(f.read().split()[1]) * _trim[1]
+            resident = int(f.read().split()[1]) * trim[1]
     except (OSError, ValueError, IndexError):
         return False
     if resident <= limit:
         return False
-    _trim[0](0)
+    trim[0](0)
     return True
 
 
