@@ -16,35 +16,20 @@ generator's clean signals to 3x the band over the loaded windows, put back on th
 the data and the generator's datasheet rig only."""
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from sweep_case import base_case, with_term
 
 from force_discovery.core.beyond.normal_equations import ChannelStats, Column
 from force_discovery.core.beyond.selection import separable
 from force_discovery.core.pipeline import discover
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
-import bench_sweep as S  # noqa: E402  the sweep's base campaign and its way of adding a term
-
-SEED = 3900               # bench_sweep's nominal rig
-STRENGTH = 3.0            # the term's rms over the loaded windows, in the channel's band
 STATED = ('torque_constant', 'pulley_radius', 'actuator_inertia', 'motor_inertia')   # the drive's stated lines
 
 
 @pytest.fixture(scope='module')
 def base():
-    """bench_sweep's nominal base campaign (its clean signals kept), from the benchmark's cache when made before."""
-    return S.base_case('nominal', SEED, 12)
-
-
-def with_term(base, channel: str, term: str, sign: float):
-    """(the campaign with sign x STRENGTH x band of `term` on the recorded channel, as bench_sweep adds it; the
-    coefficient)."""
-    coef = S.coefficient(base, channel, term, STRENGTH, sign)
-    return S.inject(base, channel, term, coef), coef
+    return base_case()
 
 
 @pytest.mark.slow

@@ -17,31 +17,23 @@ A term the free phases cannot tell from another (near-tied) is judged where it w
 under the load."""
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
+from sweep_case import base_case, with_term
 
 from force_discovery.core.pipeline import discover
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
-import bench_sweep as S  # noqa: E402  the sweep's base campaign and its way of adding a term
-
 pytestmark = pytest.mark.slow
-SEED = 3900               # bench_sweep's nominal rig
-STRENGTH = 3.0            # the term's rms over the loaded windows, in the channel's band
 
 
 @pytest.fixture(scope='module')
 def base():
-    """bench_sweep's nominal base campaign (its clean signals kept), from the benchmark's cache when made before."""
-    return S.base_case('nominal', SEED, 12)
+    return base_case()
 
 
 @pytest.mark.parametrize('channel', ['force_stationary', 'accel_axial'])
 def test_a_sensor_term_is_judged_where_the_sensor_reads_the_force(base, channel, tmp_path):
-    coef = S.coefficient(base, channel, 'v*x', STRENGTH, 1.0)
-    report = discover(S.inject(base, channel, 'v*x', coef), base.rig, tmp_path, scheduler='inline')
+    camp, coef = with_term(base, channel, 'v*x', 1.0)
+    report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
     found = report['beyond_catalog']
     mine = [t for t in found if t['channel'] == channel]
     assert mine and mine[0]['term'] == 'v*x', (coef, found, report['beyond_search']['within_tolerance'])
@@ -59,8 +51,8 @@ def test_a_sensor_term_near_tied_in_its_free_phases_is_judged_there(base, tmp_pa
     the load hundreds of newtons more. Judged over the window it was named F_move at 8.5 N rms (ae0d03f), taken out
     of T, and the moving cell then named T^2 and T^3 to undo it. Near-tied, it is judged in the free phases: inside
     the band, not named, as on main."""
-    coef = S.coefficient(base, 'force_stationary', 'a2', STRENGTH, 1.0)
-    report = discover(S.inject(base, 'force_stationary', 'a2', coef), base.rig, tmp_path, scheduler='inline')
+    camp, _coef = with_term(base, 'force_stationary', 'a2', 1.0)
+    report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
     found = report['beyond_catalog']
     assert not [t for t in found if t['channel'] == 'force_stationary' and t['term'] != 'a2'], found
     assert not [t for t in found if t['channel'] == 'force_moving'], found

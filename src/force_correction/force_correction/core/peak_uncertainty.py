@@ -106,15 +106,13 @@ def quiet_noise(corrected: np.ndarray, sample_rate_hz: float) -> float:
         loudest = top if c[top] >= -c[bottom] else bottom
         pk = float(abs(c[loudest]))
         end = int(np.argmax(np.abs(c[:loudest + 1]) > QUIET_FRACTION * pk)) if pk > 0 else len(c)
-        q = c[max(0, end - int(QUIET_MAX_S * sample_rate_hz)):end]
-        return float(np.std(np.diff(q)) / math.sqrt(2.0)) if len(q) >= 9 else math.nan
-    fin = np.isfinite(c)
-    if not fin.any():
-        return math.nan
-    mag = np.abs(c)
-    pk = float(np.max(mag[fin]))
-    loud = fin & (mag > QUIET_FRACTION * pk)
-    end = int(np.argmax(loud)) if loud.any() else len(c)     # the first loud sample
+    else:
+        fin = np.isfinite(c)
+        if not fin.any():
+            return math.nan
+        mag = np.abs(c)
+        loud = fin & (mag > QUIET_FRACTION * float(np.max(mag[fin])))
+        end = int(np.argmax(loud)) if loud.any() else len(c)     # the first loud sample
     q = c[max(0, end - int(QUIET_MAX_S * sample_rate_hz)):end]   # just before the load: not where the pull began
     d = np.diff(q[np.isfinite(q)])
     return float(np.std(d) / math.sqrt(2.0)) if len(d) >= 8 else math.nan

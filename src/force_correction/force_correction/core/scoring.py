@@ -120,9 +120,8 @@ def score_pull(stationary, raw, corrected, filtered, loaded_fraction: float = LO
         out[f'{k}_peak_n'] = pk
         out[f'{k}_diff_pct'] = abs(s_peak - pk) / s_peak * 100.0
         out[f'{k}_rms_n'] = _rms(a[loaded] - s_loaded)
-    c_peak = out['corrected_peak_n']     # a finite nanmax: a finite sample
-    if inertial is not None and sample_rate_hz is not None and (
-            math.isfinite(c_peak) or c_peak == math.inf and np.isfinite(sigs['corrected']).any()):
+    if inertial is not None and sample_rate_hz is not None and (   # a finite nanmax: a finite sample, no scan
+            math.isfinite(out['corrected_peak_n']) or np.isfinite(sigs['corrected']).any()):
         ma = _arr(inertial, 'inertial')
         if ma.shape != s.shape:
             raise CorrectionError(f"inertial has {ma.shape[0]} samples but stationary has {s.shape[0]}; "
