@@ -40,6 +40,8 @@ class ChannelStats(NamedTuple):
                                         # catalog columns C, C'z last)
     window_ss: Optional[np.ndarray] = None   # a sensor's product columns' sums of squares over the analysis window
     n_window: int = 0                         # and its samples (selection: a sensor's terms are judged there)
+    own: Optional[Tuple[np.ndarray, np.ndarray]] = None   # (X'X, X'y) with the columns in the sensor's own reading
+                                                          # of its reference's signals (ChannelSeries.own)
 
 
 @dataclass(frozen=True)
@@ -81,12 +83,7 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
     for ch, cs in series.items():
         y = cs.residual
         names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
-        full = X
-        if sins:
-            full = np.empty((X.shape[0], X.shape[1] + 2 * len(sins)), order='F')
-            full[:, :X.shape[1]] = X
-            for i, (_, c, s) in enumerate(sins):
-                full[:, X.shape[1] + 2 * i], full[:, X.shape[1] + 2 * i + 1] = c, s
+        full = with_sins(X, sins)
         cat = None if cs.catalog is None else np.asarray(cs.catalog, float).reshape(len(y), -1)
         catalog = None if cat is None else Column(cat.T @ cat, full.T @ cat, cat.T @ y)
         causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in cs.causes.items()}
@@ -95,8 +92,24 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
         systematic = {c: full.T @ z if cat is None else np.append(full.T @ z, cat.T @ z)
                       for c, z in cs.systematic.items()}
         on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
+        own = None
+        if cs.own is not None:
+            _, X_o, sins_o = columns(ch, {**cs.signals, **cs.own}, settings.scales, settings.freq.get(ch))
+            full_o = with_sins(X_o, sins_o)
+            own = (full_o.T @ full_o, full_o.T @ y)
         out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
                                len(y), catalog, causes, systematic,
                                None if on_w is None else np.einsum('ij,ij->j', on_w, on_w),
-                               0 if on_w is None else len(on_w))
+                               0 if on_w is None else len(on_w), own)
     return BeyondPart(out)
+
+
+def with_sins(X: np.ndarray, sins) -> np.ndarray:
+    """The product columns X with each sinusoid's (cos, sin) pair after them (columns()' parts as one matrix)."""
+    if not sins:
+        return X
+    full = np.empty((X.shape[0], X.shape[1] + 2 * len(sins)), order='F')
+    full[:, :X.shape[1]] = X
+    for i, (_, c, s) in enumerate(sins):
+        full[:, X.shape[1] + 2 * i], full[:, X.shape[1] + 2 * i + 1] = c, s
+    return full

@@ -38,6 +38,8 @@ DAMPING_SHIFT = 'damping_fitted'   # a current term's budget line: its shift wit
 FORMS_SHIFT = 'gain_mass_fitted'   # a moving-cell term's budget line: its shift with the gain and m2 fitted beside it
 DRIVE_SHIFT = 'drive_fitted'       # a current term's budget line: its shift with the drive's k_F and reflected mass
                                    # fitted beside it
+REFERENCE_SHIFT = 'reference_read_by_sensor'   # a sensor term in its reference's signals (the accelerometer's a2: the
+                                   # encoder's acceleration): its shift with them as the sensor reads them instead
 PRIORITY_MARGIN = 0.01         # a library term must beat a catalog cause's held-out reduction by this much
 TIE_SHARE = 0.02               # terms within this share of the best fitted reduction tie (search_channel)
 NEAR_TIE = 0.1                # other terms whose held-out reduction comes within this share of the chosen one's
@@ -341,6 +343,18 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         # the term's coefficient, interval and budget with the drive's damping fitted beside it (kv): a damping off
         # the rig YAML's is then the data's to measure, not the stated +/-50 % in the budget of every term like v
         prof, shifts, lines = model, [], None
+        if not is_sin and all(st.own is not None for st in fit) and reads_own(channel, names[new_prod[0]]):
+            # a sensor term in the signal its reference stands for (the accelerometer's a2: the encoder's a3 in the
+            # free phases) is refitted with that signal as the sensor reads it. Which of the two is the quantity the
+            # sensor should read the data do not settle: each carries its own error into the columns and, with
+            # coefficient -1 or +1, into the residual (an error in the variables). The encoder's a3 is a staircase's
+            # second derivative where the carriage creeps to rest: on a clean independent campaign (seed 4412, 28
+            # pulls) a2 alone came out near -1 on every set-4 pull's free phase after the break, -0.01 to -0.3 on the
+            # others, and a2*t was named at -0.029 [-0.039, -0.019], 2.5 m/s^2 rms against the 0.74 band. So the
+            # shift between the two is a model-form line of the term's budget: a term is named only beyond it
+            own = fit_model([st._replace(gram=st.own[0], xy=st.own[1]) for st in fit], model.prod, model.sin,
+                            model.cat, n_prod)
+            shifts.append((REFERENCE_SHIFT, own.coef_of(new_prod[0]) - model.coef_of(new_prod[0])))
         if kv is not None and not is_sin and kv not in model.prod:
             prof = fitted(tuple([*model.prod, kv]), model.sin, model.cat)
             # which damping holds, the rig YAML's or the one fitted beside the term, the data do not say for certain:

@@ -37,6 +37,9 @@ class ChannelSeries(NamedTuple):
     systematic: Dict[str, np.ndarray]   # the residual's change with each rig constant one standard u off
     window: Optional[Dict[str, np.ndarray]] = None   # a sensor's signals over the analysis window, as measured: its
                                                      # terms are all judged there, where it reads the force
+    own: Optional[Dict[str, np.ndarray]] = None      # the signals its reference stands for (the accelerometer's a2
+                                                     # is the encoder's acceleration) as the sensor reads them: a term
+                                                     # in them is refitted so (selection.REFERENCE_SHIFT)
 
 
 def decimation(dt: float) -> int:
@@ -144,8 +147,14 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
         sig = {k: v[sel] for k, v in full.items()}
         on_w = {k: v[w][::q][ok] for k, v in full.items()}
         out['force_stationary'] = ChannelSeries(p.fs[sel], sig, None, {}, {}, on_w)
-        # the accelerometer's own terms in the quantity it should read: a2 there is the encoder's acceleration
-        out['accel_axial'] = ChannelSeries((smoothed_a2(p) - p.a3)[sel], {**sig, 'a2': p.a3[sel]}, None, {}, {}, on_w)
+        # the accelerometer's own terms in the quantity it should read: a2 there is the encoder's acceleration. That
+        # reference is exact only to the encoder's resolution: where the carriage creeps a few counts (a set-4 pull
+        # coming to rest after the break), a3 is the Savitzky-Golay second derivative of a staircase, 1-4 m/s^2 rms
+        # that the accelerometer (0.1 m/s^2 there) does not read, and the residual carries it with coefficient -1, as
+        # the columns do: an error in the variables. Its a2 as it reads it (own) gives the other reference
+        a2s = smoothed_a2(p)
+        out['accel_axial'] = ChannelSeries((a2s - p.a3)[sel], {**sig, 'a2': p.a3[sel]}, None, {}, {}, on_w,
+                                           {'a2': a2s[sel]})
     if p.current is not None:
         d = rig.drive
         kf = d.force_per_amp_n_per_a
