@@ -596,6 +596,23 @@ def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
         ExtendedBag(McapBag(src), src)
 
 
+def test_a_bag_mapped_ahead_is_the_file_and_a_failed_map_is_a_fast_path_error(store, tmp_path):
+    rng = np.random.default_rng(13)
+    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
+    bag = McapBag(src)
+    bag.map_ahead()
+    bag.map_ahead()   # a second call while the first maps: one mapping
+    assert bag.mm[:] == bag.mcap.read_bytes()
+    assert bag.mm is bag.mm
+    for ahead in (True, False):   # the file gone after the summary was read: the fast path does not apply
+        gone = McapBag(src)
+        gone.mcap = tmp_path / 'gone.mcap'
+        if ahead:
+            gone.map_ahead()
+        with pytest.raises(FastPathError, match='cannot map .*gone.mcap'):
+            assert gone.mm is None   # not reached: mm raises
+
+
 @pytest.mark.parametrize('damage', ['no_metadata', 'version_8', 'two_files', 'no_summary'])
 def test_mcap_bag_refuses_what_it_cannot_copy(store, tmp_path, damage):
     rng = np.random.default_rng(13)

@@ -259,6 +259,8 @@ class McapBag:
         self.mcap = self.path / str(files[0])
         self.summary = s = read_summary(self.mcap)
         self._mm: mmap.mmap | None = None
+        self._mapping: threading.Thread | None = None   # map_ahead's
+        self._map_error: BaseException | None = None
         if (s.statistics is None or not s.channels or not s.chunks
                 or s.statistics.attachment_count or s.summary.attachment_indexes
                 or any(c.compression for c in s.chunks)
@@ -270,14 +272,29 @@ class McapBag:
                 known[t] != s.channel_counts.get(cid, 0) for t, cid in ids.items()):
             raise FastPathError('metadata.yaml and the MCAP statistics differ')
 
+    def map_ahead(self) -> None:
+        """Start mapping the file in a background thread (the kernel maps its pages in without the GIL, while the
+        caller sets up the rest); ``mm`` waits for it."""
+        if self._mm is None and self._mapping is None:
+            self._mapping = threading.Thread(target=self._map, name='bag-map', daemon=True)
+            self._mapping.start()
+
+    def _map(self) -> None:
+        try:
+            self._mm = map_file(self.mcap)
+        except (OSError, ValueError) as exc:
+            self._map_error = exc
+
     @property
     def mm(self) -> mmap.mmap:
-        """The file mapped read-only (on first use)."""
-        if self._mm is None:
-            try:
-                self._mm = map_file(self.mcap)
-            except (OSError, ValueError) as exc:
-                raise FastPathError(f'cannot map {self.mcap}: {exc}') from None
+        """The file mapped read-only (on first use, or by map_ahead)."""
+        if self._mapping is not None:
+            self._mapping.join()
+            self._mapping = None
+        elif self._mm is None and self._map_error is None:
+            self._map()
+        if self._map_error is not None:
+            raise FastPathError(f'cannot map {self.mcap}: {self._map_error}')
         return self._mm
 
     def topics(self) -> dict:
