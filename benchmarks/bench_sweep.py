@@ -21,7 +21,9 @@ free-form body force, so the motion does not answer it (a real drag would slow t
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
 95 % interval holding the truth), a catalog cause named instead (the term not found), another term named, nothing
 named, or an error; in_band counts the cells whose true term was significant but inside the band (listed under
-beyond_search.within_tolerance, not named). Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
+beyond_search.within_tolerance, not named), listed those whose pair the report lists as one the campaign cannot
+identify (beyond_search.identifiability, with its reason: issue 39's section 1), and the right share is given of
+the cells not listed too. Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
 seed; --clean-pulls), on the rigs in turn: a false alarm is any entry in beyond_catalog; the catalog causes named
 on them are listed too (on this generator the catalog's own figures are another benchmark's: ./ft bench discovery
 --generator independent).
@@ -53,8 +55,8 @@ STRENGTHS = (1.0, 3.0, 10.0)
 SIGNS = {'+': 1.0, '-': -1.0}
 BEFORE_S, AFTER_S = 0.05, 0.15        # the loaded window the strength is measured on (about discover's own)
 COEF_SHARE = 0.3
-OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error', 'in_band')
-FLAGS = ('coef30', 'ci95', 'in_band')   # beside the one outcome a cell has
+OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error', 'in_band', 'listed')
+FLAGS = ('coef30', 'ci95', 'in_band', 'listed')   # beside the one outcome a cell has
 
 
 def all_pairs() -> list:
@@ -128,7 +130,8 @@ def beyond_terms(report: dict) -> list:
 def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
     """The cell's outcome: {outcome: bool} over OUTCOMES: one of right, catalog, other, nothing (error: run_cell),
     with the FLAGS: coef30 and ci95 of a right term; in_band, the true term listed as significant but inside the
-    channel's band (beyond_search.within_tolerance), so not named."""
+    channel's band (beyond_search.within_tolerance), so not named; listed, the true pair listed as one this campaign
+    cannot identify (beyond_search.identifiability, with its reason)."""
     terms = beyond_terms(report)
     mine = [b for b in terms if b['channel'] == channel]
     right = bool(mine) and mine[0]['term'] == term
@@ -144,7 +147,14 @@ def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
     search = report.get('beyond_search')
     band = search.get('within_tolerance', []) if isinstance(search, dict) else []
     got['in_band'] = any(b['channel'] == channel and b['term'] == term for b in band)
+    got['listed'] = any(b['channel'] == channel and b['term'] == term for b in unidentifiable(report))
     return got
+
+
+def unidentifiable(report: dict) -> list:
+    """beyond_search.identifiability: the pairs the campaign cannot identify, {channel, term, reason}."""
+    search = report.get('beyond_search')
+    return list(search.get('identifiability', [])) if isinstance(search, dict) else []
 
 
 def run_cell(base: IG.Case, channel: str, term: str, strength: float, sign: float, out: Path) -> tuple:
@@ -243,8 +253,9 @@ def main(argv=None) -> int:
             print(f'[base] {said_of_base[-1]}', file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         got, said = run_cell(bases[rig], channel, term, strength, SIGNS[sign], tmp / f'cell{k}')
-        row = counts.setdefault((channel, term, strength), dict.fromkeys(('n', *OUTCOMES), 0))
+        row = counts.setdefault((channel, term, strength), dict.fromkeys(('n', *OUTCOMES, 'right_listed'), 0))
         row['n'] += 1
+        row['right_listed'] += bool(got['right'] and got['listed'])
         for key, hit in got.items():
             row[key] += bool(hit)
         what = next((o for o in OUTCOMES if got[o] and o not in FLAGS), '?') + (' (in band)' if got['in_band'] else '')
@@ -290,6 +301,10 @@ def print_matrix(counts: dict, strengths) -> None:
             print(f'at {s:g}x band, {n} cells: ' + ', '.join(f'{o} {sum(r[o] for r in rows)} '
                                                               f'({100 * sum(r[o] for r in rows) / n:.0f} %)'
                                                               for o in OUTCOMES))
+            listed = sum(r['listed'] for r in rows)
+            right = sum(r['right'] - r['right_listed'] for r in rows)
+            print(f'  of the {n - listed} cells whose pair the report does not list as unidentifiable: '
+                  f'right {right} ({100 * right / max(n - listed, 1):.0f} %)')
 
 
 if __name__ == '__main__':

@@ -90,6 +90,20 @@ def test_the_outcomes_are_told_apart():
     assert got['nothing'] and got['in_band'] and not S.outcome(inside, 'motor_current', 'v', 1.0)['in_band']
     assert S.outcome({'beyond_catalog': {'not_available': 'too few'}, 'causes': []}, 'force_moving', 'v',
                      1.0)['nothing']
+    listed = {**report([]), 'beyond_search': {'identifiability': [
+        {'channel': 'force_moving', 'term': 'T^2', 'reason': "read as the stationary cell's own"}]}}
+    got = S.outcome(listed, 'force_moving', 'T^2', 1.0)
+    assert got['nothing'] and got['listed'] and not S.outcome(listed, 'force_stationary', 'T^2', 1.0)['listed']
+
+
+def test_the_matrix_gives_the_right_share_of_the_cells_not_listed(capsys):
+    row = dict.fromkeys(('n', *S.OUTCOMES, 'right_listed'), 0)
+    a = {**row, 'n': 2, 'right': 1, 'other': 1, 'listed': 1}                       # the listed one named another
+    b = {**row, 'n': 2, 'right': 2, 'listed': 1, 'right_listed': 1}                # the listed one found anyway
+    S.print_matrix({('force_moving', 'T^2', 3.0): a, ('force_moving', 'v', 3.0): b}, [3.0])
+    out = capsys.readouterr().out
+    assert 'at 3x band, 4 cells: right 3 (75 %)' in out and 'listed 2 (50 %)' in out
+    assert 'of the 2 cells whose pair the report does not list as unidentifiable: right 2 (100 %)' in out
 
 
 @pytest.mark.slow
