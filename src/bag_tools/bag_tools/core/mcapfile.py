@@ -25,7 +25,7 @@ import shutil
 import struct
 import threading
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -447,23 +447,27 @@ class ExtendedBag:
         for part in parts:
             self._pos = self._write_at(self._pos, part)
 
-    def commit(self) -> None:
-        """Queue the buffers of earlier reserve() calls (their data must be complete) for the
-        writer thread; the rest are written when the bag is closed."""
+    def commit(self, fill: Callable[[], object] | None = None) -> None:
+        """Queue the buffers of earlier reserve() calls for the writer thread; the rest are written when the bag
+        is closed. Their data must be complete, or ``fill()`` completes them: the writer thread calls it first
+        (numpy's copies run there without the GIL, beside the caller's next piece). An error in it is raised
+        when the bag is closed, and the bag is removed."""
         if self._queue is None:
             self._queue = queue.SimpleQueue()
             self._background(self._writer)
         pending, self._pending = self._pending, []
-        for pos, buf in pending:
+        for k, (pos, buf) in enumerate(pending):
             done = threading.Event()
-            self._queue.put((pos, buf, done))
+            self._queue.put((pos, buf, done, fill if k == 0 else None))
             self._written.append((done, buf))
 
     def _writer(self) -> None:
         while (item := self._queue.get()) is not None:
-            pos, buf, done = item
+            pos, buf, done, fill = item
             try:
                 if not self._errors:
+                    if fill is not None:
+                        fill()
                     self._write_at(pos, buf)
             except BaseException as exc:  # noqa: BLE001 - re-raised by the main thread
                 self._errors.append(exc)
