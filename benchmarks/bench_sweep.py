@@ -4,19 +4,21 @@ independent generator, tests/independent/rig.py): the detection matrix per (chan
     ./ft bench sweep [--pairs CH[:TERM],...] [--strengths 1,3,10] [--signs +,-] [--rigs nominal,heavier,25khz]
                      [--clean N] [--pulls N] [--clean-pulls LO-HI] [--seed S]
 
-The pairs are the grammar's, read through its public functions (force_discovery.core.beyond.grammar: SEARCHED,
-channel_library, channel_band), so a change to the grammar changes the sweep. For each rig (nominal: the rig the
-generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage; 25khz: the
-nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept (F_move, F_stat,
-T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep adds one term to one
-recorded channel of that campaign: coefficient x the term's value from the clean signals (on the channel's ADC
-steps again: the term acts before the DAQ). The coefficient is chosen
-so that the term's rms over the pulls' loaded windows (50 ms before the lanyard goes taut to 150 ms after the break)
-is the strength x the channel's band (channel_band: the smallest contribution the tolerances care about), with the
-sign asked for. On the force and accelerometer channels that is a sensor-side term, as the grammar means it. On the
-motor current it is added to the recorded current too, not made a force on the carriage: the generator takes no
-free-form body force, so the motion does not answer it (a real drag would slow the carriage a little as well).
-`discover` (scheduler inline) is given the injected campaign and the rig's datasheet, never the truth.
+The pairs are the grammar's, read through its public functions (force_discovery.core.beyond.grammar: pairs,
+channel_band), so a change to the grammar changes the sweep: every product term on every searched channel, those the
+grammar keeps off a channel (a catalog form, a signal its free phases cannot use) too, which the report must list as
+unidentifiable (the `listed` flag below); not the sinusoids, which need a line's frequency. For each rig (nominal:
+the rig the generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage;
+25khz: the nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept
+(F_move, F_stat, T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep
+adds one term to one recorded channel of that campaign: coefficient x the term's value from the clean signals (on
+the channel's ADC steps again: the term acts before the DAQ). The coefficient is chosen so that the term's rms over
+the pulls' loaded windows (50 ms before the lanyard goes taut to 150 ms after the break) is the strength x the
+channel's band (channel_band: the smallest contribution the tolerances care about), with the sign asked for. On the
+force and accelerometer channels that is a sensor-side term, as the grammar means it. On the motor current it is
+added to the recorded current too, not made a force on the carriage: the generator takes no free-form body force, so
+the motion does not answer it (a real drag would slow the carriage a little as well). `discover` (scheduler inline)
+is given the injected campaign and the rig's datasheet, never the truth.
 
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
 95 % interval holding the truth), a catalog cause named instead (the term not found), another term named, nothing
@@ -42,10 +44,10 @@ from pathlib import Path
 import independent_cases as IG  # beside this script: the independent generator's campaigns
 import numpy as np
 
-from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library
+from force_discovery.core.beyond.grammar import SEARCHED, channel_band, pairs
 from force_discovery.core.errors import DiscoveryError
 from force_discovery.core.pipeline import discover
-from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, term_values
+from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, SIN, parse_term, term_values
 
 RATE = {'daq.sample_rate_hz': 20e3}
 RIGS = {'nominal': RATE,
@@ -60,8 +62,8 @@ FLAGS = ('coef30', 'ci95', 'in_band', 'listed')   # beside the one outcome a cel
 
 
 def all_pairs() -> list:
-    """Every (channel, term) pair of the grammar, in its search order."""
-    return [(c, t) for c in SEARCHED for t in channel_library(c)]
+    """Every (channel, product term) pair of the grammar, in its search order (the sinusoids left out)."""
+    return [(c, t) for c, t in pairs() if SIN not in parse_term(t)]
 
 
 def chosen_pairs(spec: str | None) -> list:

@@ -13,14 +13,17 @@ sys.path.insert(0, str(ROOT / 'benchmarks'))
 import bench_sweep as S  # noqa: E402
 import independent_cases as IG  # noqa: E402
 
-from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library  # noqa: E402
+from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library, library  # noqa: E402
 from force_tester_sim.core.params import load_rig  # noqa: E402
 
 
 def test_the_sweep_reads_every_pair_of_the_grammar_and_refuses_a_bad_one():
-    assert S.all_pairs() == [(c, t) for c in SEARCHED for t in channel_library(c)]
+    # every product term on every channel, those the grammar keeps off a channel too (the report lists them)
+    assert S.all_pairs() == [(c, t) for c in SEARCHED for t in library()]
+    assert set(S.all_pairs()) > {(c, t) for c in SEARCHED for t in channel_library(c)}
+    assert ('force_moving', 'F_move') in S.all_pairs() and ('force_stationary', 'T*v') in S.all_pairs()
     assert S.chosen_pairs('motor_current:v') == [('motor_current', 'v')]
-    assert S.chosen_pairs('force_moving') == [('force_moving', t) for t in channel_library('force_moving')]
+    assert S.chosen_pairs('force_moving') == [('force_moving', t) for t in library()]
     with pytest.raises(ValueError, match="--pairs 'force_moving:sin'"):
         S.chosen_pairs('force_moving:sin')
     for bad in (['--strengths', '0'], ['--signs', '*'], ['--rigs', 'lighter'], ['--clean-pulls', '2-3'],
