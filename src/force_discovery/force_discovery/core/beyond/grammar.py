@@ -125,9 +125,9 @@ def structural_reason(channel: str, term: str) -> Optional[str]:
         where = 'moving cell' if channel == 'force_moving' else 'sensor'
         return (f"read as {own} on {sensor}: {', '.join(CARRIED[sensor])} alone on the {where} are that sensor's own "
                 'reading (beyond.own), and these channels cannot tell the two apart')
-    if sensor == channel and term == own:
-        return None   # the sensor's own non-linearity: searched (on the moving cell for the stationary cell)
     blind = FREE_PHASE_BLIND.get(channel, {})
+    if sensor == channel and term == own and not (sum(p.values()) == 1 and own in blind):
+        return None   # the sensor's own non-linearity: searched (on the moving cell for the stationary cell)
     hit = [s for s in p if s in blind]
     return blind[hit[0]] if hit else None
 
