@@ -9,8 +9,9 @@ channel_library, channel_band), so a change to the grammar changes the sweep. Fo
 generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage; 25khz: the
 nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept (F_move, F_stat,
 T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep adds one term to one
-recorded channel of that campaign: coefficient x the term's value from the clean signals (on the channel's ADC
-steps again: the term acts before the DAQ). The coefficient is chosen
+recorded channel of that campaign: coefficient x the term's value from the clean signals where the DAQ samples the
+channel, behind its anti-alias filter's delay, and on the channel's ADC steps again (the term acts before the DAQ:
+as_recorded). The coefficient is chosen
 so that the term's rms over the pulls' loaded windows (50 ms before the lanyard goes taut to 150 ms after the break)
 is the strength x the channel's band (channel_band: the smallest contribution the tolerances care about), with the
 sign asked for. On the force and accelerometer channels that is a sensor-side term, as the grammar means it. On the
@@ -84,6 +85,21 @@ def pull_signals(entry: dict, t: np.ndarray) -> dict:
     return sig
 
 
+def as_recorded(base: IG.Case, channel: str, entry: dict, t: np.ndarray) -> dict:
+    """The grammar's signals of one pull where the DAQ records the channel from them: at the channel's sampling
+    instants (the pull's clock rate error and the channel's skew: the truth's daq) and behind its anti-alias filter's
+    group delay. A term acts before the DAQ, so the record carries it as it carries the channel's own signal; the
+    library's signals are the recorded ones. Put on the nominal sample times, a term ran ahead of its channel by the
+    filter's delay (69 us on the nominal rig): an F_move*v of 3x the band on the moving cell was named T*v (T, made from
+    the stationary cell through its dynamics, leads the recorded forces); behind it, F_move*v within 3 %."""
+    daq = base.truth.get('daq', {})
+    delta = daq.get('clock_offset_pull', {}).get(entry.get('file'), 0.0)
+    skew = daq.get('channels', {}).get(CHANNEL_COLUMNS[channel], {}).get('skew_s', 0.0)
+    at = t / (1.0 + delta) + skew - daq.get('filter', {}).get('group_delay_s', 0.0)
+    sig = pull_signals(entry, t)
+    return {k: np.interp(at, t, v) for k, v in sig.items()}
+
+
 def loaded(entry: dict, t: np.ndarray) -> np.ndarray:
     return (t >= entry['t_taut_s'] - BEFORE_S) & (t <= entry['t_break_s'] + AFTER_S)
 
@@ -94,7 +110,7 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
     sq, n = 0.0, 0
     for (_meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        v = term_values(term, pull_signals(entry, t))[loaded(entry, t)]
+        v = term_values(term, as_recorded(base, channel, entry, t))[loaded(entry, t)]
         sq, n = sq + float(np.sum(v * v)), n + len(v)
     rms = math.sqrt(sq / max(n, 1))
     if not rms > 0 or not math.isfinite(rms):
@@ -103,15 +119,16 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
 
 
 def inject(base: IG.Case, channel: str, term: str, coef: float) -> list:
-    """The campaign with coef x term added to the channel's record, on the channel's ADC steps again (the term acts
-    before the DAQ: a recorded channel plus a smooth term would be a quantised channel off its grid, whose one-step
-    flickers the quality screen rightly takes for spikes). New arrays; the base is not changed."""
+    """The campaign with coef x term added to the channel's record, as the DAQ records it (as_recorded) and on the
+    channel's ADC steps again (the term acts before the DAQ: a recorded channel plus a smooth term would be a
+    quantised channel off its grid, whose one-step flickers the quality screen rightly takes for spikes). New arrays;
+    the base is not changed."""
     col = CHANNEL_COLUMNS[channel]
     lsb = base.truth.get('daq', {}).get('channels', {}).get(col, {}).get('lsb_si')
     out = []
     for (meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        y = np.asarray(ch[col], float) + coef * term_values(term, pull_signals(entry, t))
+        y = np.asarray(ch[col], float) + coef * term_values(term, as_recorded(base, channel, entry, t))
         out.append((meta, {**ch, col: np.round(y / lsb) * lsb if lsb else y}))
     return out
 

@@ -74,6 +74,26 @@ def test_an_injected_term_lands_on_the_channels_adc_steps():
     assert np.abs(ch['force_moving_n'] - coef * np.arange(1000) / 1000.0).max() <= 0.125 + 1e-12
 
 
+def test_an_injected_term_is_recorded_behind_the_channels_filter_at_its_sampling_instants():
+    # the term acts before the DAQ: the record carries it where the channel is sampled (the pull's clock rate error,
+    # the channel's skew) and behind the anti-alias filter's group delay, as it carries the channel's own signal
+    base = made_up_case()
+    lag, delta, skew = 2e-3, 1e-3, 5e-4
+    base.truth['daq'] = {'filter': {'group_delay_s': lag}, 'clock_offset_pull': {'p.csv': delta},
+                         'channels': {'force_moving_n': {'skew_s': skew}}}
+    base.truth['pulls'][0]['file'] = 'p.csv'   # the truth's pull entries name their file, as the daq's keys do
+    coef = S.coefficient(base, 'force_moving', 'F_move', 3.0, 1.0)
+    (_meta, ch), = S.inject(base, 'force_moving', 'F_move', coef)
+    t = ch['time_s']
+    at = t / (1 + delta) + skew - lag
+    want = coef * 1000 * np.exp(-((at - 0.5) / 0.05) ** 2)
+    assert np.abs(ch['force_moving_n'] - want).max() <= 1e-4 * coef * 1000   # linear between the 1 ms samples
+    assert np.argmax(ch['force_moving_n']) == np.argmin(np.abs(at - 0.5)) > 500   # the peak comes late, by the lag
+    window = (t >= 0.45 - S.BEFORE_S) & (t <= 0.55 + S.AFTER_S)
+    assert np.sqrt(np.mean(ch['force_moving_n'][window] ** 2)) == pytest.approx(3.0 * channel_band('force_moving',
+                                                                                                  base.rig))
+
+
 def test_the_outcomes_are_told_apart():
     def report(terms, causes=()):
         return {'beyond_catalog': terms, 'causes': [{'name': c} for c in causes]}
