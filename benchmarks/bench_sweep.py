@@ -85,19 +85,23 @@ def pull_signals(entry: dict, t: np.ndarray) -> dict:
     return sig
 
 
-def as_recorded(base: IG.Case, channel: str, entry: dict, t: np.ndarray) -> dict:
-    """The grammar's signals of one pull where the DAQ records the channel from them: at the channel's sampling
-    instants (the pull's clock rate error and the channel's skew: the truth's daq) and behind its anti-alias filter's
-    group delay. A term acts before the DAQ, so the record carries it as it carries the channel's own signal; the
-    library's signals are the recorded ones. Put on the nominal sample times, a term ran ahead of its channel by the
-    filter's delay (69 us on the nominal rig): an F_move*v of 3x the band on the moving cell was named T*v (T, made from
-    the stationary cell through its dynamics, leads the recorded forces); behind it, F_move*v within 3 %."""
+def as_recorded(base: IG.Case, channel: str, term: str, entry: dict, t: np.ndarray) -> np.ndarray:
+    """The term's values in one pull's record of the channel: the term from the clean signals on the sample times,
+    through the channel's anti-alias filter (the truth's daq: its kind, order and corner, discretised as the
+    generator discretises it), at the instants the DAQ samples the channel (the pull's clock rate error, the
+    channel's skew). A term acts before the DAQ, so the record carries it as it carries the channel's own signal, and
+    the library's signals are the recorded ones. Put on the nominal sample times unfiltered, a term ran ahead of its
+    channel by the filter's group delay (69 us on the nominal rig): an F_move*v of 3x the band on the moving cell was
+    named T*v (T, made from the stationary cell through its dynamics, leads the recorded forces); filtered, F_move*v."""
+    v = term_values(term, pull_signals(entry, t))
     daq = base.truth.get('daq', {})
+    f = daq.get('filter')
+    if f:
+        dt = float(t[1] - t[0])
+        v = IG.R.run_sos(IG.R.foh_sos(*IG.R.aa_design(f['type'], int(f['order']), f['fc_hz']), dt), v)
     delta = daq.get('clock_offset_pull', {}).get(entry.get('file'), 0.0)
     skew = daq.get('channels', {}).get(CHANNEL_COLUMNS[channel], {}).get('skew_s', 0.0)
-    at = t / (1.0 + delta) + skew - daq.get('filter', {}).get('group_delay_s', 0.0)
-    sig = pull_signals(entry, t)
-    return {k: np.interp(at, t, v) for k, v in sig.items()}
+    return np.interp(t / (1.0 + delta) + skew, t, v)
 
 
 def loaded(entry: dict, t: np.ndarray) -> np.ndarray:
@@ -110,7 +114,7 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
     sq, n = 0.0, 0
     for (_meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        v = term_values(term, as_recorded(base, channel, entry, t))[loaded(entry, t)]
+        v = as_recorded(base, channel, term, entry, t)[loaded(entry, t)]
         sq, n = sq + float(np.sum(v * v)), n + len(v)
     rms = math.sqrt(sq / max(n, 1))
     if not rms > 0 or not math.isfinite(rms):
@@ -128,7 +132,7 @@ def inject(base: IG.Case, channel: str, term: str, coef: float) -> list:
     out = []
     for (meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        y = np.asarray(ch[col], float) + coef * term_values(term, as_recorded(base, channel, entry, t))
+        y = np.asarray(ch[col], float) + coef * as_recorded(base, channel, term, entry, t)
         out.append((meta, {**ch, col: np.round(y / lsb) * lsb if lsb else y}))
     return out
 
