@@ -199,6 +199,8 @@ class Term:
     catalog_beat: Tuple = ()    # (the best catalog cause in its place, the term's held-out margin over it; <= 0:
                                 # the cause does as well, and the term is not named): the motor current's drive causes,
                                 # the moving cell's gain and effective mass
+    unidentifiable: Optional[str] = None   # a term not named whose part no catalog form can take is inside the band
+                                           # (beside_catalog): why, for beyond_search.identifiability
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -416,12 +418,32 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         lo, hi = lo_b, hi_b
         rms_lo = 0.0 if lo <= 0 <= hi else min(abs(lo), abs(hi)) * rms_unit
         rms_hi = max(abs(lo), abs(hi)) * rms_unit
+        named = bool(rms_lo > band) and (not cat_beat or cat_beat[1] > 0)
+        own = None if named or not gain_form or col is None else beside_catalog(held, col) * abs(coef)
+        unit = CHANNEL_UNITS[channel]
+        why = None if own is None or own > band else (
+            f'not identifiable at this strength: found on the moving cell ({abs(coef) * rms_unit:.3g} {unit} rms on '
+            f'the held-out pulls, held-out SSE -{100 * ev.rel_sse_reduction:.0f} %), but the part of it the gain and '
+            f'm2 (their forms F_move and a2) cannot take is {own:.3g} {unit} rms, inside the band ({band:g})')
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
-                          abs(coef) * rms_unit, (rms_lo, rms_hi), band,
-                          bool(rms_lo > band) and (not cat_beat or cat_beat[1] > 0), budget, alternatives, beat,
-                          cat_beat))
+                          abs(coef) * rms_unit, (rms_lo, rms_hi), band, named, budget, alternatives, beat,
+                          cat_beat, why))
     return ChannelResult(found, demoted, model, kept)
+
+
+def beside_catalog(stats: Sequence[ChannelStats], k: int) -> float:
+    """The rms over the pulls stats (their normal equations, pooled) of the part of product column k that the
+    channel's catalog columns (the moving cell's: the gain's and m2's forms, F_move and a2) cannot take: what is left
+    of it after its least squares on them, per unit coefficient. Under the band at a term's fitted size, the data
+    cannot tell the term from those causes at this strength (issue 39: a2*t of 3x the band on the independent
+    generator is 2.4 N rms there, 0.35 N of it beside F_move and a2)."""
+    G = sum(augmented(st, True).gram for st in stats)
+    n_all = len(stats[0].xy)
+    cat = list(range(n_all, G.shape[0]))
+    g = G[k, cat]
+    left = float(G[k, k] - g @ np.linalg.lstsq(G[np.ix_(cat, cat)], g, rcond=1e-12)[0])
+    return math.sqrt(max(left, 0.0) / max(sum(st.n for st in stats), 1))
 
 
 def separable(stats: Sequence[ChannelStats], prod: Sequence[int], cat: Sequence[int], k: int) -> bool:
