@@ -11,14 +11,15 @@ unidentifiable (the `listed` flag below); not the sinusoids, which need a line's
 the rig the generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage;
 25khz: the nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept
 (F_move, F_stat, T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep
-adds one term to one recorded channel of that campaign: coefficient x the term's value from the clean signals (on
-the channel's ADC steps again: the term acts before the DAQ). The coefficient is chosen so that the term's rms over
-the pulls' loaded windows (50 ms before the lanyard goes taut to 150 ms after the break) is the strength x the
-channel's band (channel_band: the smallest contribution the tolerances care about), with the sign asked for. On the
-force and accelerometer channels that is a sensor-side term, as the grammar means it. On the motor current it is
-added to the recorded current too, not made a force on the carriage: the generator takes no free-form body force, so
-the motion does not answer it (a real drag would slow the carriage a little as well). `discover` (scheduler inline)
-is given the injected campaign and the rig's datasheet, never the truth.
+adds one term to one recorded channel of that campaign: coefficient x the term's value from the clean signals where
+the DAQ samples the channel, behind its anti-alias filter's delay, and on the channel's ADC steps again (the term
+acts before the DAQ: as_recorded). The coefficient is chosen so that the term's rms over the pulls' loaded windows
+(50 ms before the lanyard goes taut to 150 ms after the break) is the strength x the channel's band (channel_band:
+the smallest contribution the tolerances care about), with the sign asked for. On the force and accelerometer
+channels that is a sensor-side term, as the grammar means it. On the motor current it is added to the recorded
+current too, not made a force on the carriage: the generator takes no free-form body force, so the motion does not
+answer it (a real drag would slow the carriage a little as well). `discover` (scheduler inline) is given the
+injected campaign and the rig's datasheet, never the truth.
 
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
 95 % interval holding the truth), a catalog cause named instead (the term not found), another term named, nothing
@@ -88,6 +89,25 @@ def pull_signals(entry: dict, t: np.ndarray) -> dict:
     return sig
 
 
+def as_recorded(base: IG.Case, channel: str, term: str, entry: dict, t: np.ndarray) -> np.ndarray:
+    """The term's values in one pull's record of the channel: the term from the clean signals on the sample times,
+    through the channel's anti-alias filter (the truth's daq: its kind, order and corner, discretised as the
+    generator discretises it), at the instants the DAQ samples the channel (the pull's clock rate error, the
+    channel's skew). A term acts before the DAQ, so the record carries it as it carries the channel's own signal, and
+    the library's signals are the recorded ones. Put on the nominal sample times unfiltered, a term ran ahead of its
+    channel by the filter's group delay (69 us on the nominal rig): an F_move*v of 3x the band on the moving cell was
+    named T*v (T, made from the stationary cell through its dynamics, leads the recorded forces); filtered, F_move*v."""
+    v = term_values(term, pull_signals(entry, t))
+    daq = base.truth.get('daq', {})
+    f = daq.get('filter')
+    if f:
+        dt = float(t[1] - t[0])
+        v = IG.R.run_sos(IG.R.foh_sos(*IG.R.aa_design(f['type'], int(f['order']), f['fc_hz']), dt), v)
+    delta = daq.get('clock_offset_pull', {}).get(entry.get('file'), 0.0)
+    skew = daq.get('channels', {}).get(CHANNEL_COLUMNS[channel], {}).get('skew_s', 0.0)
+    return np.interp(t / (1.0 + delta) + skew, t, v)
+
+
 def loaded(entry: dict, t: np.ndarray) -> np.ndarray:
     return (t >= entry['t_taut_s'] - BEFORE_S) & (t <= entry['t_break_s'] + AFTER_S)
 
@@ -98,7 +118,7 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
     sq, n = 0.0, 0
     for (_meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        v = term_values(term, pull_signals(entry, t))[loaded(entry, t)]
+        v = as_recorded(base, channel, term, entry, t)[loaded(entry, t)]
         sq, n = sq + float(np.sum(v * v)), n + len(v)
     rms = math.sqrt(sq / max(n, 1))
     if not rms > 0 or not math.isfinite(rms):
@@ -107,15 +127,16 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
 
 
 def inject(base: IG.Case, channel: str, term: str, coef: float) -> list:
-    """The campaign with coef x term added to the channel's record, on the channel's ADC steps again (the term acts
-    before the DAQ: a recorded channel plus a smooth term would be a quantised channel off its grid, whose one-step
-    flickers the quality screen rightly takes for spikes). New arrays; the base is not changed."""
+    """The campaign with coef x term added to the channel's record, as the DAQ records it (as_recorded) and on the
+    channel's ADC steps again (the term acts before the DAQ: a recorded channel plus a smooth term would be a
+    quantised channel off its grid, whose one-step flickers the quality screen rightly takes for spikes). New arrays;
+    the base is not changed."""
     col = CHANNEL_COLUMNS[channel]
     lsb = base.truth.get('daq', {}).get('channels', {}).get(col, {}).get('lsb_si')
     out = []
     for (meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        y = np.asarray(ch[col], float) + coef * term_values(term, pull_signals(entry, t))
+        y = np.asarray(ch[col], float) + coef * as_recorded(base, channel, term, entry, t)
         out.append((meta, {**ch, col: np.round(y / lsb) * lsb if lsb else y}))
     return out
 

@@ -77,6 +77,27 @@ def test_an_injected_term_lands_on_the_channels_adc_steps():
     assert np.abs(ch['force_moving_n'] - coef * np.arange(1000) / 1000.0).max() <= 0.125 + 1e-12
 
 
+def test_an_injected_term_is_recorded_behind_the_channels_filter_at_its_sampling_instants():
+    # the term acts before the DAQ: the record carries it through the channel's anti-alias filter and where the
+    # channel is sampled (the pull's clock rate error, the channel's skew), as it carries the channel's own signal
+    base = made_up_case()
+    delta, skew = 1e-3, 5e-4
+    base.truth['daq'] = {'filter': {'type': 'bessel', 'order': 8, 'fc_hz': 100.0},
+                         'clock_offset_pull': {'p.csv': delta}, 'channels': {'force_moving_n': {'skew_s': skew}}}
+    base.truth['pulls'][0]['file'] = 'p.csv'   # the truth's pull entries name their file, as the daq's keys do
+    lag = IG.R.aa_group_delay('bessel', 8, 100.0)   # about 4 ms: the 100 Hz filter passes the 50 ms pulse whole
+    coef = S.coefficient(base, 'force_moving', 'F_move', 3.0, 1.0)
+    (_meta, ch), = S.inject(base, 'force_moving', 'F_move', coef)
+    t = ch['time_s']
+    at = t / (1 + delta) + skew - lag
+    want = coef * 1000 * np.exp(-((at - 0.5) / 0.05) ** 2)
+    assert np.abs(ch['force_moving_n'] - want).max() <= 0.01 * coef * 1000
+    assert np.argmax(ch['force_moving_n']) == np.argmin(np.abs(at - 0.5)) > 502   # the peak comes late, by the lag
+    window = (t >= 0.45 - S.BEFORE_S) & (t <= 0.55 + S.AFTER_S)
+    assert np.sqrt(np.mean(ch['force_moving_n'][window] ** 2)) == pytest.approx(3.0 * channel_band('force_moving',
+                                                                                                  base.rig))
+
+
 def test_the_outcomes_are_told_apart():
     def report(terms, causes=()):
         return {'beyond_catalog': terms, 'causes': [{'name': c} for c in causes]}
