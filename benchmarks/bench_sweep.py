@@ -4,24 +4,29 @@ independent generator, tests/independent/rig.py): the detection matrix per (chan
     ./ft bench sweep [--pairs CH[:TERM],...] [--strengths 1,3,10] [--signs +,-] [--rigs nominal,heavier,25khz]
                      [--clean N] [--pulls N] [--clean-pulls LO-HI] [--seed S]
 
-The pairs are the grammar's, read through its public functions (force_discovery.core.beyond.grammar: SEARCHED,
-channel_library, channel_band), so a change to the grammar changes the sweep. For each rig (nominal: the rig the
-generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage; 25khz: the
-nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept (F_move, F_stat,
-T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep adds one term to one
-recorded channel of that campaign: coefficient x the term's value from the clean signals (on the channel's ADC
-steps again: the term acts before the DAQ). The coefficient is chosen
-so that the term's rms over the pulls' loaded windows (50 ms before the lanyard goes taut to 150 ms after the break)
-is the strength x the channel's band (channel_band: the smallest contribution the tolerances care about), with the
-sign asked for. On the force and accelerometer channels that is a sensor-side term, as the grammar means it. On the
-motor current it is added to the recorded current too, not made a force on the carriage: the generator takes no
-free-form body force, so the motion does not answer it (a real drag would slow the carriage a little as well).
-`discover` (scheduler inline) is given the injected campaign and the rig's datasheet, never the truth.
+The pairs are the grammar's, read through its public functions (force_discovery.core.beyond.grammar: pairs,
+channel_band), so a change to the grammar changes the sweep: every product term on every searched channel, those the
+grammar keeps off a channel (a catalog form, a signal its free phases cannot use) too, which the report must list as
+unidentifiable (the `listed` flag below); not the sinusoids, which need a line's frequency. For each rig (nominal:
+the rig the generator draws for the seed, sampled at 20 kHz; heavier: the same with m2 1.6 kg and an 80 kg carriage;
+25khz: the nominal at 25 kHz) one clean campaign of --pulls pulls on sets 2-4 is made with its clean signals kept
+(F_move, F_stat, T, a2, v, x on the sample times: the generator's own, before any sensor). Each cell of the sweep
+adds one term to one recorded channel of that campaign: coefficient x the term's value from the clean signals where
+the DAQ samples the channel, behind its anti-alias filter's delay, and on the channel's ADC steps again (the term
+acts before the DAQ: as_recorded). The coefficient is chosen so that the term's rms over the pulls' loaded windows
+(50 ms before the lanyard goes taut to 150 ms after the break) is the strength x the channel's band (channel_band:
+the smallest contribution the tolerances care about), with the sign asked for. On the force and accelerometer
+channels that is a sensor-side term, as the grammar means it. On the motor current it is added to the recorded
+current too, not made a force on the carriage: the generator takes no free-form body force, so the motion does not
+answer it (a real drag would slow the carriage a little as well). `discover` (scheduler inline) is given the
+injected campaign and the rig's datasheet, never the truth.
 
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
 95 % interval holding the truth), a catalog cause named instead (the term not found), another term named, nothing
 named, or an error; in_band counts the cells whose true term was significant but inside the band (listed under
-beyond_search.within_tolerance, not named). Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
+beyond_search.within_tolerance, not named), listed those whose pair the report lists as one the campaign cannot
+identify (beyond_search.identifiability, with its reason: issue 39's section 1), and the right share is given of
+the cells not listed too. Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
 seed; --clean-pulls), on the rigs in turn: a false alarm is any entry in beyond_catalog; the catalog causes named
 on them are listed too (on this generator the catalog's own figures are another benchmark's: ./ft bench discovery
 --generator independent).
@@ -40,10 +45,10 @@ from pathlib import Path
 import independent_cases as IG  # beside this script: the independent generator's campaigns
 import numpy as np
 
-from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library
+from force_discovery.core.beyond.grammar import SEARCHED, channel_band, pairs
 from force_discovery.core.errors import DiscoveryError
 from force_discovery.core.pipeline import discover
-from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, term_values
+from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, SIN, parse_term, term_values
 
 RATE = {'daq.sample_rate_hz': 20e3}
 RIGS = {'nominal': RATE,
@@ -53,13 +58,13 @@ STRENGTHS = (1.0, 3.0, 10.0)
 SIGNS = {'+': 1.0, '-': -1.0}
 BEFORE_S, AFTER_S = 0.05, 0.15        # the loaded window the strength is measured on (about discover's own)
 COEF_SHARE = 0.3
-OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error', 'in_band')
-FLAGS = ('coef30', 'ci95', 'in_band')   # beside the one outcome a cell has
+OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error', 'in_band', 'listed')
+FLAGS = ('coef30', 'ci95', 'in_band', 'listed')   # beside the one outcome a cell has
 
 
 def all_pairs() -> list:
-    """Every (channel, term) pair of the grammar, in its search order."""
-    return [(c, t) for c in SEARCHED for t in channel_library(c)]
+    """Every (channel, product term) pair of the grammar, in its search order (the sinusoids left out)."""
+    return [(c, t) for c, t in pairs() if SIN not in parse_term(t)]
 
 
 def chosen_pairs(spec: str | None) -> list:
@@ -84,6 +89,25 @@ def pull_signals(entry: dict, t: np.ndarray) -> dict:
     return sig
 
 
+def as_recorded(base: IG.Case, channel: str, term: str, entry: dict, t: np.ndarray) -> np.ndarray:
+    """The term's values in one pull's record of the channel: the term from the clean signals on the sample times,
+    through the channel's anti-alias filter (the truth's daq: its kind, order and corner, discretised as the
+    generator discretises it), at the instants the DAQ samples the channel (the pull's clock rate error, the
+    channel's skew). A term acts before the DAQ, so the record carries it as it carries the channel's own signal, and
+    the library's signals are the recorded ones. Put on the nominal sample times unfiltered, a term ran ahead of its
+    channel by the filter's group delay (69 us on the nominal rig): an F_move*v of 3x the band on the moving cell was
+    named T*v (T, made from the stationary cell through its dynamics, leads the recorded forces); filtered, F_move*v."""
+    v = term_values(term, pull_signals(entry, t))
+    daq = base.truth.get('daq', {})
+    f = daq.get('filter')
+    if f:
+        dt = float(t[1] - t[0])
+        v = IG.R.run_sos(IG.R.foh_sos(*IG.R.aa_design(f['type'], int(f['order']), f['fc_hz']), dt), v)
+    delta = daq.get('clock_offset_pull', {}).get(entry.get('file'), 0.0)
+    skew = daq.get('channels', {}).get(CHANNEL_COLUMNS[channel], {}).get('skew_s', 0.0)
+    return np.interp(t / (1.0 + delta) + skew, t, v)
+
+
 def loaded(entry: dict, t: np.ndarray) -> np.ndarray:
     return (t >= entry['t_taut_s'] - BEFORE_S) & (t <= entry['t_break_s'] + AFTER_S)
 
@@ -94,7 +118,7 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
     sq, n = 0.0, 0
     for (_meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        v = term_values(term, pull_signals(entry, t))[loaded(entry, t)]
+        v = as_recorded(base, channel, term, entry, t)[loaded(entry, t)]
         sq, n = sq + float(np.sum(v * v)), n + len(v)
     rms = math.sqrt(sq / max(n, 1))
     if not rms > 0 or not math.isfinite(rms):
@@ -103,15 +127,16 @@ def coefficient(base: IG.Case, channel: str, term: str, strength: float, sign: f
 
 
 def inject(base: IG.Case, channel: str, term: str, coef: float) -> list:
-    """The campaign with coef x term added to the channel's record, on the channel's ADC steps again (the term acts
-    before the DAQ: a recorded channel plus a smooth term would be a quantised channel off its grid, whose one-step
-    flickers the quality screen rightly takes for spikes). New arrays; the base is not changed."""
+    """The campaign with coef x term added to the channel's record, as the DAQ records it (as_recorded) and on the
+    channel's ADC steps again (the term acts before the DAQ: a recorded channel plus a smooth term would be a
+    quantised channel off its grid, whose one-step flickers the quality screen rightly takes for spikes). New arrays;
+    the base is not changed."""
     col = CHANNEL_COLUMNS[channel]
     lsb = base.truth.get('daq', {}).get('channels', {}).get(col, {}).get('lsb_si')
     out = []
     for (meta, ch), entry in zip(base.campaign, base.truth['pulls']):
         t = np.asarray(ch['time_s'], float)
-        y = np.asarray(ch[col], float) + coef * term_values(term, pull_signals(entry, t))
+        y = np.asarray(ch[col], float) + coef * as_recorded(base, channel, term, entry, t)
         out.append((meta, {**ch, col: np.round(y / lsb) * lsb if lsb else y}))
     return out
 
@@ -128,7 +153,8 @@ def beyond_terms(report: dict) -> list:
 def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
     """The cell's outcome: {outcome: bool} over OUTCOMES: one of right, catalog, other, nothing (error: run_cell),
     with the FLAGS: coef30 and ci95 of a right term; in_band, the true term listed as significant but inside the
-    channel's band (beyond_search.within_tolerance), so not named."""
+    channel's band (beyond_search.within_tolerance), so not named; listed, the true pair listed as one this campaign
+    cannot identify (beyond_search.identifiability, with its reason)."""
     terms = beyond_terms(report)
     mine = [b for b in terms if b['channel'] == channel]
     right = bool(mine) and mine[0]['term'] == term
@@ -144,7 +170,14 @@ def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
     search = report.get('beyond_search')
     band = search.get('within_tolerance', []) if isinstance(search, dict) else []
     got['in_band'] = any(b['channel'] == channel and b['term'] == term for b in band)
+    got['listed'] = any(b['channel'] == channel and b['term'] == term for b in unidentifiable(report))
     return got
+
+
+def unidentifiable(report: dict) -> list:
+    """beyond_search.identifiability: the pairs the campaign cannot identify, {channel, term, reason}."""
+    search = report.get('beyond_search')
+    return list(search.get('identifiability', [])) if isinstance(search, dict) else []
 
 
 def run_cell(base: IG.Case, channel: str, term: str, strength: float, sign: float, out: Path) -> tuple:
@@ -243,8 +276,9 @@ def main(argv=None) -> int:
             print(f'[base] {said_of_base[-1]}', file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         got, said = run_cell(bases[rig], channel, term, strength, SIGNS[sign], tmp / f'cell{k}')
-        row = counts.setdefault((channel, term, strength), dict.fromkeys(('n', *OUTCOMES), 0))
+        row = counts.setdefault((channel, term, strength), dict.fromkeys(('n', *OUTCOMES, 'right_listed'), 0))
         row['n'] += 1
+        row['right_listed'] += bool(got['right'] and got['listed'])
         for key, hit in got.items():
             row[key] += bool(hit)
         what = next((o for o in OUTCOMES if got[o] and o not in FLAGS), '?') + (' (in band)' if got['in_band'] else '')
@@ -290,6 +324,10 @@ def print_matrix(counts: dict, strengths) -> None:
             print(f'at {s:g}x band, {n} cells: ' + ', '.join(f'{o} {sum(r[o] for r in rows)} '
                                                               f'({100 * sum(r[o] for r in rows) / n:.0f} %)'
                                                               for o in OUTCOMES))
+            listed = sum(r['listed'] for r in rows)
+            right = sum(r['right'] - r['right_listed'] for r in rows)
+            print(f'  of the {n - listed} cells whose pair the report does not list as unidentifiable: '
+                  f'right {right} ({100 * right / max(n - listed, 1):.0f} %)')
 
 
 if __name__ == '__main__':

@@ -31,6 +31,7 @@ import pytest
 from kinds import FAST_S, MARKED_KINDS, kind_of, take, timed
 
 from force_tester_common import engine
+from force_tester_common.core.cache import CACHE_ENV
 from force_tester_common.core.mapping import INLINE
 from force_tester_common.engine import SCHEDULER_ENV
 
@@ -81,6 +82,9 @@ def pytest_configure(config):
     # (27 s instead of 5 s for `bag import` of 3 pulls on a loaded machine). Inline is the same function on the same
     # item; the tests of the default path (`embedded_cluster`) and of Dask clusters give their own.
     os.environ.setdefault(SCHEDULER_ENV, INLINE)
+    # the per-user cache (force_tester_common.core.cache) of every process the tests start: the workspace's own,
+    # not the user's
+    os.environ.setdefault(CACHE_ENV, str(Path(__file__).resolve().parents[1] / '.ft' / 'cache'))
     # the expensive steps, timed where they are defined (test modules import the timed names)
     import force_discovery.core.pipeline as pipeline
     import force_tester_sim.core.campaign as campaign

@@ -7,6 +7,7 @@ offline.correct with the fast path vs with it disabled.
 
 from __future__ import annotations
 
+import contextlib
 import zlib
 from dataclasses import replace
 from pathlib import Path
@@ -594,6 +595,47 @@ def test_extended_bag_leaves_nothing_on_error(store, tmp_path):
     assert not (tmp_path / 'out').exists()
     with pytest.raises(BagError, match='exists already'):
         ExtendedBag(McapBag(src), src)
+
+
+@pytest.mark.parametrize('fails', [False, True])
+def test_a_commit_fill_runs_before_the_write_and_its_error_removes_the_bag(store, tmp_path, fails):
+    rng = np.random.default_rng(14)
+    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
+    cdr = block_bytes(store, rng, FORCE, T0, 1, 8)
+    out = tmp_path / 'out'
+    with pytest.raises(BagError, match='encoding failed') if fails else contextlib.nullcontext():
+        with ExtendedBag(McapBag(src), out) as bag:
+            cid = bag.add_topic('/corr', FORCE, store.generate_msgdef(FORCE, ros_version=2)[0],
+                                store.hash_rihs01(FORCE))
+            buf, starts = bag.reserve([cid], [len(cdr)], [T0 + 5])
+            buf[starts[0]:starts[0] + len(cdr)] = 0
+
+            def fill():   # the data, filled in by the writer thread
+                if fails:
+                    raise BagError('encoding failed')
+                buf[starts[0]:starts[0] + len(cdr)] = np.frombuffer(cdr, np.uint8)
+            bag.commit(fill)
+    if fails:
+        assert not out.exists()
+    else:
+        assert [(t, c) for t, _ty, _lg, c in generic(out) if t == '/corr'] == [('/corr', cdr)]
+
+
+def test_a_bag_mapped_ahead_is_the_file_and_a_failed_map_is_a_fast_path_error(store, tmp_path):
+    rng = np.random.default_rng(13)
+    src = write_plain(tmp_path / 'src', store, mixed_messages(store, rng, big=False)[:50])
+    bag = McapBag(src)
+    bag.map_ahead()
+    bag.map_ahead()   # a second call while the first maps: one mapping
+    assert bag.mm[:] == bag.mcap.read_bytes()
+    assert bag.mm is bag.mm
+    for ahead in (True, False):   # the file gone after the summary was read: the fast path does not apply
+        gone = McapBag(src)
+        gone.mcap = tmp_path / 'gone.mcap'
+        if ahead:
+            gone.map_ahead()
+        with pytest.raises(FastPathError, match='cannot map .*gone.mcap'):
+            assert gone.mm is None   # not reached: mm raises
 
 
 @pytest.mark.parametrize('damage', ['no_metadata', 'version_8', 'two_files', 'no_summary'])

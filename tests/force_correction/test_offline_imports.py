@@ -2,6 +2,7 @@
 apsw, lz4), sockets, uuid; and corrects a bag into a bag without the DAQ and conversion modules, numpy.ma or
 tempfile. A new process imports the command's modules (or runs the command) and lists what got loaded."""
 import json
+import os
 import subprocess
 import sys
 
@@ -9,6 +10,7 @@ from daq_data import T0, make_pulls
 
 from bag_tools.core.convert import campaign_to_bag
 from bag_tools.core.daq import write_campaign
+from force_tester_common.core.cache import CACHE_ENV
 
 NOT_LOADED = ('rosbags.rosbag2', 'sqlite3', 'apsw', 'socket', 'uuid', 'rclpy', 'scipy', 'matplotlib', 'dask')
 #: what correcting a bag into a bag does not need: the DAQ campaign's modules (bag_tools.core.sources tells a bag
@@ -49,3 +51,21 @@ def test_correcting_a_bag_loads_no_campaign_module(tmp_path):
     assert code == 0 and 'written to' in out and (tmp_path / 'out' / 'metadata.yaml').is_file(), out
     bad = loaded_of(loaded, NOT_LOADED + NOT_RUN)
     assert not bad, f'loaded by ./ft bag correct BAG OUT: {bad}'
+
+
+def test_a_second_run_takes_the_monte_carlos_normals_from_the_cache_not_numpy_random(tmp_path):
+    bag = campaign_to_bag(write_campaign(tmp_path / 'camp', make_pulls(3, start=T0)), tmp_path / 'bag')
+    env = {**os.environ, CACHE_ENV: str(tmp_path / 'cache')}
+    runs = []
+    for k in range(2):
+        (tmp_path / f'run{k}').mkdir()
+        code, out, loaded = json.loads(subprocess.run(
+            [sys.executable, '-c', RUN, str(bag), str(tmp_path / f'run{k}' / 'out')], check=True, capture_output=True,
+            text=True, env=env).stdout)
+        assert code == 0, out
+        runs.append(loaded_of(loaded, ('numpy.random',)))
+        assert (tmp_path / f'run{k}' / 'out' / 'metadata.yaml').is_file()
+    assert runs[0] and not runs[1], runs   # the first run draws them and keeps them; the second reads them
+    assert list((tmp_path / 'cache').glob('mc_normals-*.npy'))
+    first, second = ((tmp_path / f'run{k}' / 'out' / 'out.mcap').read_bytes() for k in range(2))
+    assert first == second   # the same numbers either way

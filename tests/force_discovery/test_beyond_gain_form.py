@@ -44,6 +44,37 @@ def test_a_load_term_on_the_moving_cell_is_named_beside_the_fitted_gain_and_mass
     assert alt['cause'] in ('moving_cell_gain', 'effective_mass') and alt['held_out_margin'] > 0, alt
 
 
+@pytest.mark.parametrize('term', ['T*v', 'T*x'])
+def test_a_load_term_the_force_model_left_alone_is_measured_beside_the_gain_and_mass(base, term, tmp_path):
+    # the force model names neither the gain nor m2 here (both within their tolerances), so the one selection
+    # withholds nothing; before, the term's budget then kept their stated uncertainties: on 1f70f8d a T*v of 3x the
+    # band came out 0.00218 (true 0.00222), statistical u 9e-6, the gain's line 0.0013, its interval holding 0, and
+    # went to within_tolerance. The data separate it from their forms (F_move, a2), and measure them better
+    camp, coef = with_term(base, 'force_moving', term, 1.0)
+    report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
+    assert report['beyond_search']['catalog_not_fitting'] == {}, report['beyond_search']['catalog_not_fitting']
+    mine = [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving']
+    assert mine and mine[0]['term'] == term, (coef, report['beyond_catalog'], report['beyond_search'])
+    first = mine[0]
+    assert abs(first['coefficient'] - coef) <= 0.3 * abs(coef), (coef, first['coefficient'])
+    assert min(first['ci95']) <= coef <= max(first['ci95']), (coef, first['ci95'])
+    budget = first['uncertainty_budget']
+    assert 'gain_mass_fitted' in budget and budget['gain'] < 0.01 * budget['statistical'], budget
+    assert first['best_catalog_alternative']['held_out_margin'] > 0, first['best_catalog_alternative']
+
+
+def test_a_term_the_gain_and_mass_take_nearly_whole_is_said_not_identifiable_at_this_strength(base, tmp_path):
+    # a2*t over the loaded window is nearly a2, m2's form: of its 2.37 N rms found on the moving cell, 0.30 N is
+    # beside F_move and a2, inside the 1 N band. Not named, and no longer silent: beyond_search.identifiability says
+    # why (issue 39, section 1)
+    camp, coef = with_term(base, 'force_moving', 'a2*t', 1.0)
+    report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
+    assert not [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving'], report['beyond_catalog']
+    said = [e for e in report['beyond_search']['identifiability']
+            if e['channel'] == 'force_moving' and e['term'] == 'a2*t']
+    assert said and said[0]['reason'].startswith('not identifiable at this strength'), said
+
+
 def test_the_campaign_with_nothing_added_names_nothing_beyond_the_catalog(base, tmp_path):
     report = discover(base.campaign, base.rig, tmp_path, scheduler='inline', plots=False)
     assert report['beyond_catalog'] == [], report['beyond_catalog']

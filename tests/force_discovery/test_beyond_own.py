@@ -147,6 +147,14 @@ def test_every_pair_of_the_grammar_is_searched_or_listed_with_its_reason():
     assert {'a2', 'a2^2', 'a2^3'} <= set(channel_library('accel_axial'))
     assert 'collinear with the accelerometer' in listed[('accel_axial', 'F_move')]
     assert 'read as F_stat^2 on force_stationary' in listed[('force_moving', 'T^2')]
+    # a sensor's linear own term: the accelerometer's is searched (against the encoder); the stationary cell's is its
+    # gain, which two cells reading one tension cannot tell from the moving cell's (listed, with the reason)
+    assert structural_reason('accel_axial', 'a2') is None
+    assert "the moving cell's gain" in structural_reason('force_stationary', 'F_stat')
+    # a term in the tension on the accelerometer: 0 in its free phases, the moving cell's column under load
+    for term in ('F_stat*v', 'T*t', 'T^2'):
+        assert 'only the motor current could' in structural_reason('accel_axial', term), term
+        assert term not in channel_library('accel_axial')
 
 
 def test_every_pair_has_a_reading_or_says_plainly_it_has_none():

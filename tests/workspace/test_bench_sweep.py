@@ -13,14 +13,17 @@ sys.path.insert(0, str(ROOT / 'benchmarks'))
 import bench_sweep as S  # noqa: E402
 import independent_cases as IG  # noqa: E402
 
-from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library  # noqa: E402
+from force_discovery.core.beyond.grammar import SEARCHED, channel_band, channel_library, library  # noqa: E402
 from force_tester_sim.core.params import load_rig  # noqa: E402
 
 
 def test_the_sweep_reads_every_pair_of_the_grammar_and_refuses_a_bad_one():
-    assert S.all_pairs() == [(c, t) for c in SEARCHED for t in channel_library(c)]
+    # every product term on every channel, those the grammar keeps off a channel too (the report lists them)
+    assert S.all_pairs() == [(c, t) for c in SEARCHED for t in library()]
+    assert set(S.all_pairs()) > {(c, t) for c in SEARCHED for t in channel_library(c)}
+    assert ('force_moving', 'F_move') in S.all_pairs() and ('force_stationary', 'T*v') in S.all_pairs()
     assert S.chosen_pairs('motor_current:v') == [('motor_current', 'v')]
-    assert S.chosen_pairs('force_moving') == [('force_moving', t) for t in channel_library('force_moving')]
+    assert S.chosen_pairs('force_moving') == [('force_moving', t) for t in library()]
     with pytest.raises(ValueError, match="--pairs 'force_moving:sin'"):
         S.chosen_pairs('force_moving:sin')
     for bad in (['--strengths', '0'], ['--signs', '*'], ['--rigs', 'lighter'], ['--clean-pulls', '2-3'],
@@ -74,6 +77,27 @@ def test_an_injected_term_lands_on_the_channels_adc_steps():
     assert np.abs(ch['force_moving_n'] - coef * np.arange(1000) / 1000.0).max() <= 0.125 + 1e-12
 
 
+def test_an_injected_term_is_recorded_behind_the_channels_filter_at_its_sampling_instants():
+    # the term acts before the DAQ: the record carries it through the channel's anti-alias filter and where the
+    # channel is sampled (the pull's clock rate error, the channel's skew), as it carries the channel's own signal
+    base = made_up_case()
+    delta, skew = 1e-3, 5e-4
+    base.truth['daq'] = {'filter': {'type': 'bessel', 'order': 8, 'fc_hz': 100.0},
+                         'clock_offset_pull': {'p.csv': delta}, 'channels': {'force_moving_n': {'skew_s': skew}}}
+    base.truth['pulls'][0]['file'] = 'p.csv'   # the truth's pull entries name their file, as the daq's keys do
+    lag = IG.R.aa_group_delay('bessel', 8, 100.0)   # about 4 ms: the 100 Hz filter passes the 50 ms pulse whole
+    coef = S.coefficient(base, 'force_moving', 'F_move', 3.0, 1.0)
+    (_meta, ch), = S.inject(base, 'force_moving', 'F_move', coef)
+    t = ch['time_s']
+    at = t / (1 + delta) + skew - lag
+    want = coef * 1000 * np.exp(-((at - 0.5) / 0.05) ** 2)
+    assert np.abs(ch['force_moving_n'] - want).max() <= 0.01 * coef * 1000
+    assert np.argmax(ch['force_moving_n']) == np.argmin(np.abs(at - 0.5)) > 502   # the peak comes late, by the lag
+    window = (t >= 0.45 - S.BEFORE_S) & (t <= 0.55 + S.AFTER_S)
+    assert np.sqrt(np.mean(ch['force_moving_n'][window] ** 2)) == pytest.approx(3.0 * channel_band('force_moving',
+                                                                                                  base.rig))
+
+
 def test_the_outcomes_are_told_apart():
     def report(terms, causes=()):
         return {'beyond_catalog': terms, 'causes': [{'name': c} for c in causes]}
@@ -90,6 +114,20 @@ def test_the_outcomes_are_told_apart():
     assert got['nothing'] and got['in_band'] and not S.outcome(inside, 'motor_current', 'v', 1.0)['in_band']
     assert S.outcome({'beyond_catalog': {'not_available': 'too few'}, 'causes': []}, 'force_moving', 'v',
                      1.0)['nothing']
+    listed = {**report([]), 'beyond_search': {'identifiability': [
+        {'channel': 'force_moving', 'term': 'T^2', 'reason': "read as the stationary cell's own"}]}}
+    got = S.outcome(listed, 'force_moving', 'T^2', 1.0)
+    assert got['nothing'] and got['listed'] and not S.outcome(listed, 'force_stationary', 'T^2', 1.0)['listed']
+
+
+def test_the_matrix_gives_the_right_share_of_the_cells_not_listed(capsys):
+    row = dict.fromkeys(('n', *S.OUTCOMES, 'right_listed'), 0)
+    a = {**row, 'n': 2, 'right': 1, 'other': 1, 'listed': 1}                       # the listed one named another
+    b = {**row, 'n': 2, 'right': 2, 'listed': 1, 'right_listed': 1}                # the listed one found anyway
+    S.print_matrix({('force_moving', 'T^2', 3.0): a, ('force_moving', 'v', 3.0): b}, [3.0])
+    out = capsys.readouterr().out
+    assert 'at 3x band, 4 cells: right 3 (75 %)' in out and 'listed 2 (50 %)' in out
+    assert 'of the 2 cells whose pair the report does not list as unidentifiable: right 2 (100 %)' in out
 
 
 @pytest.mark.slow

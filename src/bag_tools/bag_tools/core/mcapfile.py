@@ -25,7 +25,7 @@ import shutil
 import struct
 import threading
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -259,6 +259,8 @@ class McapBag:
         self.mcap = self.path / str(files[0])
         self.summary = s = read_summary(self.mcap)
         self._mm: mmap.mmap | None = None
+        self._mapping: threading.Thread | None = None   # map_ahead's
+        self._map_error: BaseException | None = None
         if (s.statistics is None or not s.channels or not s.chunks
                 or s.statistics.attachment_count or s.summary.attachment_indexes
                 or any(c.compression for c in s.chunks)
@@ -270,14 +272,29 @@ class McapBag:
                 known[t] != s.channel_counts.get(cid, 0) for t, cid in ids.items()):
             raise FastPathError('metadata.yaml and the MCAP statistics differ')
 
+    def map_ahead(self) -> None:
+        """Start mapping the file in a background thread (the kernel maps its pages in without the GIL, while the
+        caller sets up the rest); ``mm`` waits for it."""
+        if self._mm is None and self._mapping is None:
+            self._mapping = threading.Thread(target=self._map, name='bag-map', daemon=True)
+            self._mapping.start()
+
+    def _map(self) -> None:
+        try:
+            self._mm = map_file(self.mcap)
+        except (OSError, ValueError) as exc:
+            self._map_error = exc
+
     @property
     def mm(self) -> mmap.mmap:
-        """The file mapped read-only (on first use)."""
-        if self._mm is None:
-            try:
-                self._mm = map_file(self.mcap)
-            except (OSError, ValueError) as exc:
-                raise FastPathError(f'cannot map {self.mcap}: {exc}') from None
+        """The file mapped read-only (on first use, or by map_ahead)."""
+        if self._mapping is not None:
+            self._mapping.join()
+            self._mapping = None
+        elif self._mm is None and self._map_error is None:
+            self._map()
+        if self._map_error is not None:
+            raise FastPathError(f'cannot map {self.mcap}: {self._map_error}')
         return self._mm
 
     def topics(self) -> dict:
@@ -430,23 +447,27 @@ class ExtendedBag:
         for part in parts:
             self._pos = self._write_at(self._pos, part)
 
-    def commit(self) -> None:
-        """Queue the buffers of earlier reserve() calls (their data must be complete) for the
-        writer thread; the rest are written when the bag is closed."""
+    def commit(self, fill: Callable[[], object] | None = None) -> None:
+        """Queue the buffers of earlier reserve() calls for the writer thread; the rest are written when the bag
+        is closed. Their data must be complete, or ``fill()`` completes them: the writer thread calls it first
+        (numpy's copies run there without the GIL, beside the caller's next piece). An error in it is raised
+        when the bag is closed, and the bag is removed."""
         if self._queue is None:
             self._queue = queue.SimpleQueue()
             self._background(self._writer)
         pending, self._pending = self._pending, []
-        for pos, buf in pending:
+        for k, (pos, buf) in enumerate(pending):
             done = threading.Event()
-            self._queue.put((pos, buf, done))
+            self._queue.put((pos, buf, done, fill if k == 0 else None))
             self._written.append((done, buf))
 
     def _writer(self) -> None:
         while (item := self._queue.get()) is not None:
-            pos, buf, done = item
+            pos, buf, done, fill = item
             try:
                 if not self._errors:
+                    if fill is not None:
+                        fill()
                     self._write_at(pos, buf)
             except BaseException as exc:  # noqa: BLE001 - re-raised by the main thread
                 self._errors.append(exc)

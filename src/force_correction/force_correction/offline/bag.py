@@ -242,11 +242,11 @@ def _block_arrays(blocks: list) -> tuple:
 
 
 def corrected_blocks(piece: dict, blocks: tuple, frame: str, seq0: int = 0,
-                     target: ExtendedBag | None = None, cid: int = 0) -> tuple:
+                     target: ExtendedBag | None = None, cid: int = 0):
     """/force_corrected blocks for the input blocks (stamps, sample counts, rates) whose
     samples ``piece`` holds, seq from seq0, logged at their last sample (as the live node
     publishes): encode_blocks' (buffer, starts, lengths) and the log times, or, with a target,
-    encoded into the space target.reserve() lays out."""
+    laid out by target.reserve() and returned as the function that encodes them there (for commit())."""
     stamps, ns, rates = blocks
     last = np.where(ns > 0, sample_stamps_ns(stamps, np.maximum(ns - 1, 0), rates), stamps)
     counts = {f: ns for f in CORRECTED_FIELDS}
@@ -256,12 +256,14 @@ def corrected_blocks(piece: dict, blocks: tuple, frame: str, seq0: int = 0,
                                      block_lengths(CORRECTED_FIELDS, counts, frame), last)
     values = {'raw_n': piece['raw'], 'inertial_n': piece['inertial'],
               'corrected_n': piece['corrected'], 'filtered_n': piece['filtered']}
-    try:
-        enc = encode_blocks(stamps, rates, seq0 + np.arange(stamps.size), CORRECTED_FIELDS,
-                            counts, values, frame, out=out, starts=starts)
-    except FastPathError as exc:
-        raise BagError(f'cannot write the corrected blocks: {exc}') from None
-    return (*enc, last)
+
+    def encode():
+        try:
+            return encode_blocks(stamps, rates, seq0 + np.arange(stamps.size), CORRECTED_FIELDS,
+                                 counts, values, frame, out=out, starts=starts)
+        except FastPathError as exc:
+            raise BagError(f'cannot write the corrected blocks: {exc}') from None
+    return encode if target is not None else (*encode(), last)
 
 
 def result_messages(store, pulls, running) -> list:
@@ -299,9 +301,8 @@ def extended_sink(target: ExtendedBag):
     shared_typestore(names=FAST_TYPES)   # every type the fast path uses, registered at once
     cids = {t: target.add_topic(t, ty, *type_definition(ty)) for t, ty in RESULT_TOPICS}
 
-    def sink(piece, blocks, frame, seq0):
-        corrected_blocks(piece, blocks, frame, seq0, target, cids[CORRECTED_TOPIC])
-        target.commit()
+    def sink(piece, blocks, frame, seq0):   # laid out here, encoded and written by the bag's writer thread
+        target.commit(corrected_blocks(piece, blocks, frame, seq0, target, cids[CORRECTED_TOPIC]))
     return cids, sink
 
 

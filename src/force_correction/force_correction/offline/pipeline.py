@@ -187,6 +187,8 @@ def _correct_bag(src: Path, dst: Path, setup: CorrectionSetup, to: str, path: st
                  progress, mapper) -> CorrectionResult:
     warnings: list = []
     fast = bagio.fast_bag(src) if path != 'generic' else None
+    if fast is not None:
+        fast.map_ahead()   # while the output, the stream and the message types are set up
     if path == 'fast' and fast is None:
         raise CorrectionError(f'bag {str(src)!r} is not one uncompressed MCAP file; the fast '
                               'path does not apply')

@@ -277,7 +277,9 @@ def add_beyond(report: dict, found) -> None:
         'channels': list(SEARCHED), 'library_terms': len(library()), 'frequencies_hz': found.frequencies,
         'within_tolerance': [t.as_dict() for t in found.within_tolerance],
         'catalog_not_fitting': found.demoted, 'channel_units': {c: CHANNEL_UNITS[c] for c in SEARCHED},
-        'identifiability': list(found.identifiability),
+        'identifiability': list(found.identifiability) + [
+            {'channel': t.channel, 'term': t.term, 'reason': t.unidentifiable}
+            for t in found.within_tolerance if t.unidentifiable],
         'catalog_checked': found.checked,
         'rule': 'forward selection over the library on the fitted pulls; a term joins when it passes the held-out '
                 'test of the catalog (SSE -1 %, t >= 4) and is named when its contribution rms, over its 95 % '

@@ -88,8 +88,8 @@ def clear_stale(path: Path) -> list:
     folder), and the ``.NAME.partial-*`` folders beside it (write_campaign's). Returns one line each."""
     path = Path(path)
     found = [path] if path.is_dir() else []
-    if path.parent.is_dir():
-        found += sorted(p for p in path.parent.iterdir() if p.name.startswith(f'.{path.name}.partial-'))
+    if path.parent.is_dir():   # names first: a Path for each entry of a big folder costs ~1.5 us
+        found += [path.parent / n for n in sorted(os.listdir(path.parent)) if n.startswith(f'.{path.name}.partial-')]
     return _remove_gone(found)
 
 
@@ -97,7 +97,9 @@ def clear_stale_in(folder: Path, prefix: str) -> list:
     """Remove the unfinished folders named ``prefix``* inside ``folder`` whose writers are gone (discover's
     ``.discover-*`` staging folders). Returns one line each."""
     folder = Path(folder)
-    return _remove_gone(sorted(p for p in folder.iterdir() if p.name.startswith(prefix))) if folder.is_dir() else []
+    if not folder.is_dir():
+        return []
+    return _remove_gone([folder / n for n in sorted(os.listdir(folder)) if n.startswith(prefix)])
 
 
 @contextlib.contextmanager

@@ -28,7 +28,13 @@ FREE_PHASE_BLIND = {
                             "with another signal is the moving cell's term of the same name: two cells that read "
                             'one tension cannot tell whose it is' for s in ('F_stat', 'T')},
     'accel_axial': {'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
-                              "there, collinear with the accelerometer's own a2 terms"},
+                              "there, collinear with the accelerometer's own a2 terms",
+                    **{s: f'in the free phases the lanyard is slack: {s} is 0 there, and so is every term in it; under '
+                          "load such a term in the accelerometer's reading reaches the moving cell's model as g m2 "
+                          'times it: the column of that term on the moving cell (or, of the forces alone, of the '
+                          "stationary cell's own), which these channels cannot tell it from (only the motor current "
+                          'could, through the force the carriage feels, far inside its band); searched there' for s in
+                       ('F_stat', 'T')}},
 }
 # the signals through which a sensor's reading enters the moving cell's model (T from the stationary cell, m2 a2 from
 # the accelerometer): a term of degree >= 2 in these alone on the moving cell is the sensor's own (beyond.own)
@@ -119,9 +125,9 @@ def structural_reason(channel: str, term: str) -> Optional[str]:
         where = 'moving cell' if channel == 'force_moving' else 'sensor'
         return (f"read as {own} on {sensor}: {', '.join(CARRIED[sensor])} alone on the {where} are that sensor's own "
                 'reading (beyond.own), and these channels cannot tell the two apart')
-    if sensor == channel and term == own:
-        return None   # the sensor's own non-linearity: searched (on the moving cell for the stationary cell)
     blind = FREE_PHASE_BLIND.get(channel, {})
+    if sensor == channel and term == own and not (sum(p.values()) == 1 and own in blind):
+        return None   # the sensor's own non-linearity: searched (on the moving cell for the stationary cell)
     hit = [s for s in p if s in blind]
     return blind[hit[0]] if hit else None
 
