@@ -27,8 +27,6 @@ from force_discovery.core.prep import Pull, as_encoder
 from force_tester_sim.core.extra_terms import SIN, parse_term
 from force_tester_sim.core.params import load_rig
 
-FIT, HELD = [0, 2, 4, 6], [1, 3, 5, 7]
-
 
 def _signals(k: int, n: int, rng):
     """A made-up pull's signals: a load pulse, a carriage motion, a ringing acceleration (its size grows with k)."""
@@ -42,22 +40,39 @@ def _signals(k: int, n: int, rng):
 
 
 def _search(channel: str, residual, pulls: int = 8, n: int = 4000, window: bool = False):
-    """search() over one made-up channel: residual(sig, rng) is what the channel's residual holds beside noise."""
+    """search() over one made-up channel: residual(sig, k) is what pull k's residual holds beside noise (every other
+    pull fitted, the others held out)."""
     rng = np.random.default_rng(3939)
     parts = []
     for k in range(pulls):
         sig = _signals(k, n, rng)
-        y = residual(sig) + rng.normal(0.0, 0.3, n)
+        y = residual(sig, k) + rng.normal(0.0, 0.3, n)
         parts.append({channel: ChannelSeries(y, sig, None, {}, {}, sig if window else None)})
     sig0 = parts[0][channel].signals
     settings = SearchSettings({s: float(np.sqrt(np.mean(sig0[s] ** 2))) for s in sig0}, {})
-    return search([beyond_part(p, settings) for p in parts], FIT, HELD, settings, load_rig(), (), channels=(channel,))
+    return search([beyond_part(p, settings) for p in parts], list(range(0, pulls, 2)), list(range(1, pulls, 2)),
+                  settings, load_rig(), (), channels=(channel,))
+
+
+def test_two_fitted_pulls_give_a_term_an_interval_as_wide_as_they_disagree():
+    # a 4-pull campaign fits 2 pulls: its term's statistical part is their jackknife (1 degree of freedom, t 12.7),
+    # not nothing (it was the estimate alone: seed 4427's clean campaign, independent generator, named a T*v so)
+    got = {}
+    for spread in (0.0, 0.2):
+        res = _search('force_moving', lambda s, k, spread=spread: 2.0 * (1 + spread * (k % 4 - 1.5)) * s['v'] ** 2,
+                      pulls=4)
+        term = (res.terms + res.within_tolerance)[0]
+        assert term.term == 'v^2', term
+        got[spread] = term
+        assert term.budget['statistical'] > 0 and term.ci95[0] < term.coefficient < term.ci95[1], term
+    width = {k: t.ci95[1] - t.ci95[0] for k, t in got.items()}
+    assert width[0.2] > 20 * width[0.0], width   # pulls that disagree: an interval that says so
 
 
 def test_a_stationary_cells_own_non_linearity_seen_on_the_moving_cell_is_named_on_the_stationary_cell():
     # the stationary cell reads T + c T^2: T from it carries c T^2, so the moving cell reads c T^2 less than the model
     c = 4e-6
-    res = _search('force_moving', lambda s: -c * s['T'] ** 2)
+    res = _search('force_moving', lambda s, _k: -c * s['T'] ** 2)
     got = [(t.channel, t.term, t.coefficient) for t in res.terms]
     assert got[:1] and got[0][:2] == ('force_stationary', 'F_stat^2'), got
     assert abs(got[0][2] - c) < 0.1 * c, got
@@ -70,7 +85,7 @@ def test_an_accelerometers_own_non_linearity_is_searched_against_the_encoders_ac
     # in the free phases the accelerometer's residual against the encoder is its own c a^2, a written in the encoder's
     # acceleration; it matters where the accelerometer reads the force (the window, its a2 large): named there
     c = 2e-4
-    res = _search('accel_axial', lambda s: c * s['a2'] ** 2, window=True)
+    res = _search('accel_axial', lambda s, _k: c * s['a2'] ** 2, window=True)
     got = [(t.channel, t.term, t.coefficient, t.named) for t in res.terms + res.within_tolerance]
     assert got[:1] and got[0][:2] == ('accel_axial', 'a2^2') and got[0][3], got
     assert abs(got[0][2] - c) < 0.1 * c, got
@@ -118,14 +133,15 @@ def test_an_encoder_creeping_a_few_counts_names_no_accelerometer_term():
     a3 = free.signals['a2'][late]
     assert np.sqrt(np.mean(a3 ** 2)) > 0.5 and abs(a3 @ free.residual[late] / (a3 @ a3) + 1) < 0.1   # the fault
     settings = SearchSettings({s: float(np.sqrt(np.mean(v ** 2))) or 1.0 for s, v in free.signals.items()}, {})
-    res = search([beyond_part(s, settings) for s in series], FIT, HELD, settings, rig, (), channels=('accel_axial',))
+    res = search([beyond_part(s, settings) for s in series], [0, 2, 4, 6], [1, 3, 5, 7], settings, rig, (),
+                 channels=('accel_axial',))
     assert not res.terms, [(t.term, t.coefficient, t.ci95, t.rms_ci95) for t in res.terms]
     found = [t for t in res.within_tolerance if 'a2' in parse_term(t.term)]
     assert found and all(t.budget[REFERENCE_SHIFT] > 0 for t in found), found
 
 
 def test_every_pair_of_the_grammar_is_searched_or_listed_with_its_reason():
-    res = _search('force_moving', lambda s: 0.0 * s['t'])
+    res = _search('force_moving', lambda s, _k: 0.0 * s['t'])
     listed = {(i['channel'], i['term']): i['reason'] for i in res.identifiability}
     searched_on_moving = set(channel_library('force_moving'))
     own = {('force_stationary', 'F_stat^2'), ('force_stationary', 'F_stat^3'), ('accel_axial', 'a2^2'),

@@ -14,6 +14,7 @@ import numpy as np
 from force_tester_sim.core.extra_terms import CHANNEL_UNITS, SIN, term_unit
 
 from ..budget import COMBINED, term_budget
+from ..errors import DiscoveryError
 from ..significance import significance
 from ..uncertainty import jackknife_se, t_quantile
 from .grammar import (
@@ -232,11 +233,13 @@ class ChannelResult(NamedTuple):
 
 def jackknife(stats: Sequence[ChannelStats], model: Model, n_prod: int) -> np.ndarray:
     """(len(coef) + 1, 2) 95 % intervals of the coefficients and the amplitude: jackknife over the fitted pulls
-    (uncertainty.jackknife_se; fewer than 3 pulls: the estimate alone)."""
+    (uncertainty.jackknife_se, Student's t with n - 1 degrees of freedom). Two pulls (a 4-pull campaign) give one
+    degree of freedom, t = 12.7: wide, as it should be (it was the estimate alone, and a clean 4-pull campaign of the
+    independent generator, seed 4427, had T*v named with no statistical part)."""
     n = len(stats)
+    if n < 2:   # stages.MIN_PULLS keeps two fitted pulls at least
+        raise DiscoveryError(f'{n} fitted pulls for a jackknife interval; expected at least 2')
     est = np.array([*model.coef, model.amp])
-    if n < 3:
-        return np.column_stack([est, est])
     loo = np.array([[*m.coef, m.amp] for m in
                     (fit_model([st for i, st in enumerate(stats) if i != k], model.prod, model.sin, model.cat, n_prod)
                      for k in range(n))])
