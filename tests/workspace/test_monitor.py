@@ -145,8 +145,10 @@ def test_in_tmux_against_a_live_graph(tmp_path, ros_domain):
         graph.start('force_correction', 'validator_node')
         graph.start('bag_tools', 'recorder_node', {'bag_path': str(tmp_path / 'bag')})
         env = ' '.join(f'{k}={os.environ[k]}' for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE'))
+        # without xdist's COLUMNS=80 LINES=24, which the tmux server inherits from this worker: Textual takes them
+        # over the pane's size (bash refreshed them only after an external command, which ./ft no longer runs)
         subprocess.run([*tmux, 'new-session', '-d', '-s', 'mon', '-x', '150', '-y', '45',
-                        f'env {env} {ROOT}/ft monitor --exit-after 300'], check=True)
+                        f'env -u COLUMNS -u LINES {env} {ROOT}/ft monitor --exit-after 300'], check=True)
         # the scoreboard is up when it subscribes to the scores (besides this test's collector)
         assert collector.wait_for_graph({'/force_corrected': 2, '/force': 3, '/pull_event': 2, '/pull_score': 2},
                                         timeout=90), capture()
@@ -200,7 +202,8 @@ def test_demo_with_monitor_in_tmux(tmp_path, ros_domain):
     seen_live, screen = False, ''
     try:
         subprocess.run([*tmux, 'new-session', '-d', '-s', 'demo', '-x', '160', '-y', '50',
-                        f'env {env} {ROOT}/ft demo --monitor --sets 2 --pulls 1 --extension none --out {out}; '
+                        f'env -u COLUMNS -u LINES {env} {ROOT}/ft demo --monitor --sets 2 --pulls 1 --extension none '
+                        f'--out {out}; '
                         f'echo DEMO EXIT $?; sleep 600'], check=True)
         deadline = time.monotonic() + 300
         while 'DEMO EXIT' not in screen and time.monotonic() < deadline:
