@@ -182,7 +182,10 @@ def test_a_time_column_whose_rate_is_infinite_is_one_line(tmp_path):
 @pytest.mark.parametrize('fmt, i, expect', [
     ('metadata', 1103, 'relative_file_paths -9223372036854775808 is invalid; expected a list'),   # was TypeError
     ('mcap', 1366, 'PullEvent message on /pull_event is not what the type says'),   # was AttributeError
-    ('mf4', 1001, 'time_s is not increasing'),     # an infinite rate: was OverflowError
+    # an infinite rate: was OverflowError. asammdf stamps the seed file's history with the time it was written, so
+    # the mutated bytes differ from run to run: some runs read a NaN time before the infinite rate (two fresh clones
+    # of ~20 said 'time_s is np.float64(nan) at row 2996; expected finite times'): either is the time check's line
+    ('mf4', 1001, 'time_s is '),
 ])
 def test_inputs_the_fuzz_benchmark_found(fmt, i, expect, fuzzed):
     """Inputs of `./ft bench fuzz` (seed 0) that ended in another exception; each is now a one-line BagError: a bag
