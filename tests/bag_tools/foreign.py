@@ -27,7 +27,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from bag_tools.core.convert import campaign_to_bag
 from bag_tools.core.daq import write_campaign
 from bag_tools.core.reader import open_bag
-from bag_tools.core.typestore import type_definition
+from bag_tools.core.typefacts import type_facts
 
 try:
     from compression import zstd  # Python >= 3.14
@@ -234,7 +234,7 @@ def write_foreign_bag(spec: Spec, parent: Path, base: list, defs_override=None) 
     embed instead of the real one. Returns the bag directory."""
     bag = parent / spec.name
     bag.mkdir(parents=True)
-    defs = {t: type_definition(t) for _tp, t, *_ in base}
+    defs = {t: type_facts(t)[:2] for _tp, t, *_ in base}
     defs.update(definitions())
     for type_name, text in (defs_override or {}).items():
         defs[type_name] = (text, defs[type_name][1])

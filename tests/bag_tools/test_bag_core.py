@@ -107,7 +107,8 @@ def test_shared_typestore_registers_what_is_asked_for(tmp_path, store):
     their definitions, hashes and bytes are the full store's; asked for more later, it adds them."""
     import shutil
 
-    from bag_tools.core.typestore import shared_typestore, type_definition
+    from bag_tools.core.typefacts import type_facts
+    from bag_tools.core.typestore import shared_typestore
     msg = tmp_path / 'share' / 'force_tester_msgs' / 'msg'   # a prefix of its own: a store of its own
     shutil.copytree(MSG_DIR, msg)
     env = {'AMENT_PREFIX_PATH': str(tmp_path)}
@@ -117,7 +118,7 @@ def test_shared_typestore_registers_what_is_asked_for(tmp_path, store):
     def ours(types):
         return {t for t in types if t.startswith('force_tester_msgs/')}
     assert ours(shared.types) == {score} and 'std_msgs/msg/Header' in shared.types
-    assert type_definition(score, env) == (store.generate_msgdef(score, ros_version=2)[0], store.hash_rihs01(score))
+    assert type_facts(score, env)[:2] == (store.generate_msgdef(score, ros_version=2)[0], store.hash_rihs01(score))
     assert shared_typestore(env, names=[FORCE]) is shared and FORCE in shared.types and ACCEL not in shared.types
     cdr = bytes(force(store, T0, 3))
     assert bytes(shared.serialize_cdr(shared.deserialize_cdr(cdr, FORCE), FORCE)) == cdr

@@ -1,5 +1,5 @@
-"""`./ft bag correct` on a bag starts without what it does not use: rosbags' rosbag2 reader and writer (sqlite3,
-apsw, lz4), sockets, uuid; and corrects a bag into a bag without the DAQ and conversion modules, numpy.ma or
+"""`./ft bag correct` on a bag starts without what it does not use: rosbags (its rosbag2 reader and writer load
+sqlite3, apsw, lz4), sockets, uuid; and corrects a bag into a bag without the DAQ and conversion modules, numpy.ma or
 tempfile. A new process imports the command's modules (or runs the command) and lists what got loaded."""
 import json
 import os
@@ -40,7 +40,7 @@ def loaded_of(modules, names):
 def test_bag_correct_imports_nothing_it_does_not_use():
     loaded = json.loads(subprocess.run([sys.executable, '-c', CODE], check=True, capture_output=True,
                                        text=True).stdout)
-    bad = loaded_of(loaded, NOT_LOADED)
+    bad = loaded_of(loaded, (*NOT_LOADED, 'rosbags'))   # rosbags: only when the cache lacks the message facts
     assert not bad, f'loaded by the bag correct command at start-up: {bad}'
 
 
@@ -53,7 +53,9 @@ def test_correcting_a_bag_loads_no_campaign_module(tmp_path):
     assert not bad, f'loaded by ./ft bag correct BAG OUT: {bad}'
 
 
-def test_a_second_run_takes_the_monte_carlos_normals_from_the_cache_not_numpy_random(tmp_path):
+def test_a_second_run_takes_normals_and_message_facts_from_the_cache_not_numpy_random_or_rosbags(tmp_path):
+    """The Monte Carlo's normals (numpy.random) and the message types' definitions, hashes and layouts (rosbags's
+    typestore) are computed by the first run and kept in the per-user cache; the second run imports neither."""
     bag = campaign_to_bag(write_campaign(tmp_path / 'camp', make_pulls(3, start=T0)), tmp_path / 'bag')
     env = {**os.environ, CACHE_ENV: str(tmp_path / 'cache')}
     runs = []
@@ -63,9 +65,9 @@ def test_a_second_run_takes_the_monte_carlos_normals_from_the_cache_not_numpy_ra
             [sys.executable, '-c', RUN, str(bag), str(tmp_path / f'run{k}' / 'out')], check=True, capture_output=True,
             text=True, env=env).stdout)
         assert code == 0, out
-        runs.append(loaded_of(loaded, ('numpy.random',)))
+        runs.append(loaded_of(loaded, ('numpy.random', 'rosbags')))
         assert (tmp_path / f'run{k}' / 'out' / 'metadata.yaml').is_file()
-    assert runs[0] and not runs[1], runs   # the first run draws them and keeps them; the second reads them
-    assert list((tmp_path / 'cache').glob('mc_normals-*.npy'))
+    assert {'numpy.random', 'rosbags.typesys'} <= set(runs[0]) and not runs[1], runs   # made once, then read
+    assert list((tmp_path / 'cache').glob('mc_normals-*.npy')) and list((tmp_path / 'cache').glob('msgfacts-*.json'))
     first, second = ((tmp_path / f'run{k}' / 'out' / 'out.mcap').read_bytes() for k in range(2))
     assert first == second   # the same numbers either way

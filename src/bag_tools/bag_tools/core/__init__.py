@@ -9,7 +9,7 @@ _EXPORTS = {
     'BagError': 'errors', 'bag_info': 'info', 'format_info': 'info', 'METADATA_VERSION': 'metadata',
     'Schedule': 'playback', 'schedule': 'playback', 'BagMessage': 'reader', 'BagReaderHandle': 'reader',
     'TopicSummary': 'reader', 'open_bag': 'reader', 'default_typestore': 'typestore',
-    'find_msg_dirs': 'typestore', 'make_typestore': 'typestore', 'BagWriter': 'writer',
+    'find_msg_dirs': 'msgdirs', 'make_typestore': 'typestore', 'BagWriter': 'writer',
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

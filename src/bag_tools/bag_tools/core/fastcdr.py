@@ -432,3 +432,56 @@ def encode_blocks(stamps_ns, rate_hz, seqs, fields: Sequence[str], counts: dict,
                 _view(out, s0 + 4 + p_d, k, stride, row)[...] = \
                     vals[f][d0:d0 + k * n].view(row)
     return (out if gap or given else out.tobytes()), starts, lengths
+
+
+# --------------------------------------------------------------------------- flat messages
+#: struct codes of the base types a flat message may hold ('string': length, bytes, NUL).
+FLAT_FORMATS = {'bool': '?', 'int8': 'b', 'uint8': 'B', 'int16': 'h', 'uint16': 'H', 'int32': 'i',
+                'uint32': 'I', 'int64': 'q', 'uint64': 'Q', 'float32': 'f', 'float64': 'd', 'string': None}
+_LE = b'\x00\x01'   # the encapsulation of little-endian plain CDR
+
+
+def encode_flat(layout: Sequence, values) -> bytes:
+    """One message of a flat layout ((field path, base type), ... : nested types spelled out, no arrays) as
+    little-endian plain CDR, the bytes rosbags' serialize_cdr gives; values[path] for each field."""
+    out = bytearray(b'\x00\x01\x00\x00')
+    for path, base in layout:
+        value = values[path]
+        try:
+            if base == 'string':
+                text = value.encode('utf-8')
+                out += bytes(-(len(out) - 4) % 4) + struct.pack('<I', len(text) + 1) + text + b'\x00'
+            else:
+                code = FLAT_FORMATS[base]
+                out += bytes(-(len(out) - 4) % struct.calcsize(code)) + struct.pack('<' + code, value)
+        except (struct.error, AttributeError, UnicodeError) as exc:
+            raise FastPathError(f'field {path} = {value!r} is not a {base}: {exc}') from None
+    return bytes(out)
+
+
+def decode_flat(layout: Sequence, data) -> dict:
+    """{field path: value} of one little-endian plain CDR message of a flat layout (encode_flat's inverse);
+    FastPathError for anything else (another encapsulation, a length that does not fit, bad UTF-8)."""
+    data = memoryview(data)
+    if bytes(data[:2]) != _LE:
+        raise FastPathError(f'encapsulation {bytes(data[:2])!r}; expected {_LE!r} (little-endian plain CDR)')
+    pos, out = 4, {}
+    try:
+        for path, base in layout:
+            if base == 'string':
+                pos += -(pos - 4) % 4
+                (n,) = struct.unpack_from('<I', data, pos)
+                if n < 1 or pos + 4 + n > len(data) or data[pos + 3 + n] != 0:
+                    raise FastPathError(f'string {path} of length {n} does not fit the message')
+                out[path] = bytes(data[pos + 4:pos + 3 + n]).decode('utf-8')
+                pos += 4 + n
+            else:
+                code = FLAT_FORMATS[base]
+                pos += -(pos - 4) % struct.calcsize(code)
+                (out[path],) = struct.unpack_from('<' + code, data, pos)
+                pos += struct.calcsize(code)
+    except (struct.error, UnicodeError) as exc:
+        raise FastPathError(f'message of {len(data)} bytes does not fit its layout: {exc}') from None
+    if not 0 <= len(data) - pos <= 3:   # at most the padding to a multiple of 4
+        raise FastPathError(f'message of {len(data)} bytes, {len(data) - pos} beyond its fields')
+    return out

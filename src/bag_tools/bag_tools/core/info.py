@@ -12,8 +12,8 @@ from force_tester_common.core.channels import PULL_EVENT_TYPE, PULL_START
 from force_tester_common.core.clock import NS_PER_S
 
 from .errors import BagError, one_line
+from .msgdirs import MSG_PACKAGE
 from .reader import BagReaderHandle, open_bag
-from .typestore import MSG_PACKAGE
 
 
 def _iso(ns: int) -> str:

@@ -50,7 +50,7 @@ from force_tester_common.core.partial import Marked, clear_stale, tell
 from .errors import BagError, one_line
 from .fastcdr import FastPathError, gather_struct, stride_runs
 from .metadata import METADATA_VERSION, dump_info, load_metadata, write_metadata
-from .writer import check_new_bag_path
+from .sources import check_new_bag_path
 
 MAGIC = b'\x89MCAP0\r\n'
 CHUNK_HEADER = 9 + 8 + 8 + 8 + 4 + 4 + 8  # chunk record up to its records, without compression name

@@ -1,6 +1,7 @@
 """What a source folder holds, told from its file names alone: a DAQ campaign (its campaign.yaml) or a rosbag2 bag
-(metadata.yaml, or an .mcap file). Kept apart from the DAQ and conversion modules so that a command given a bag
-(`./ft bag correct BAG OUT`) asks this first and never imports them."""
+(metadata.yaml, or an .mcap file); and whether a new bag may be written at a path. Kept apart from the DAQ and
+conversion modules (and rosbags), so that a command given a bag (`./ft bag correct BAG OUT`) asks this first and
+never imports them."""
 
 from __future__ import annotations
 
@@ -24,3 +25,11 @@ def source_kind(src: str | Path) -> str:
         raise BagError(f'source {str(p)!r} does not exist; expected a bag or a campaign folder')
     raise BagError(f'source {str(p)!r} is neither a bag ({METADATA_FILE}) nor a campaign '
                    f'({CAMPAIGN_FILE})')
+
+
+def check_new_bag_path(path: Path) -> None:
+    """A bag is written into a new directory whose parent exists."""
+    if path.exists():
+        raise BagError(f'bag output path {str(path)!r} exists already; expected a new directory name')
+    if not path.parent.is_dir():
+        raise BagError(f'parent directory {str(path.parent)!r} of bag output does not exist')

@@ -27,7 +27,8 @@ from rosbags.typesys.store import Typestore
 
 from .errors import BagError, one_line
 from .metadata import METADATA_VERSION, ROS_DISTRO, load_metadata, write_metadata
-from .writer import STORAGE_ID, BagWriter, check_new_bag_path
+from .sources import check_new_bag_path
+from .writer import STORAGE_ID, BagWriter
 
 #: Approximate MCAP bytes per message besides its payload (message record + chunk index).
 MESSAGE_OVERHEAD_BYTES = 31 + 16

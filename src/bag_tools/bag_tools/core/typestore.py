@@ -10,7 +10,7 @@ import os
 import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
@@ -19,8 +19,8 @@ from rosbags.typesys.store import Typestore
 from force_tester_common.core.clock import ns_to_stamp, stamp_to_ns
 
 from .errors import BagError, one_line
+from .msgdirs import MSG_PACKAGE, find_msg_dirs, msg_dirs_of, msg_files
 
-MSG_PACKAGE = 'force_tester_msgs'
 #: rosbag2's separator between a definition and each dependency it embeds ('MSG: pkg/msg/Dep').
 _DEP_SEPARATOR = '=' * 80
 SERVICE_EVENT_SUFFIX = '_Event'
@@ -64,21 +64,6 @@ def types_from_definition(type_name: str, text: str) -> dict:
     return get_types_from_msg(text, type_name)
 
 
-def _msg_files(path: Path) -> list[tuple[str, Path]]:
-    """(package, file) pairs for a msg directory or a single .msg file."""
-    if not path.exists():
-        raise BagError(f'message definition path {str(path)!r} does not exist; '
-                       f'expected a <pkg>/msg directory or a .msg file')
-    if path.is_file():
-        if path.suffix != '.msg':
-            raise BagError(f'message definition file {str(path)!r} is not a .msg file')
-        return [(path.parent.parent.name, path)]
-    files = sorted(path.glob('*.msg'))
-    if not files:
-        raise BagError(f'message directory {str(path)!r} contains no .msg files')
-    return [(path.parent.name, f) for f in files]
-
-
 def make_typestore(msg_dirs: Iterable[str | os.PathLike[str]]) -> Typestore:
     """ROS2_JAZZY typestore + every .msg found in msg_dirs registered as 'pkg/msg/Name'.
 
@@ -95,7 +80,7 @@ def make_typestore(msg_dirs: Iterable[str | os.PathLike[str]]) -> Typestore:
     store = get_typestore(Stores.ROS2_JAZZY)
     types: dict = {}
     for directory in dirs:
-        for package, file in _msg_files(directory):
+        for package, file in msg_files(directory):
             name = f'{package}/msg/{file.stem}'
             if name in types:
                 continue
@@ -110,28 +95,6 @@ def make_typestore(msg_dirs: Iterable[str | os.PathLike[str]]) -> Typestore:
         raise BagError(f'cannot register message types from {[str(d) for d in dirs]!r}: '
                        f'{one_line(exc)}') from None
     return store
-
-
-def find_msg_dirs(env: Mapping[str, str] = os.environ) -> list[Path]:
-    """Directories holding the force_tester_msgs .msg files.
-
-    All '<prefix>/share/force_tester_msgs/msg' for the prefixes in AMENT_PREFIX_PATH
-    (in order); if none, the source tree 'src/force_tester_msgs/msg' of the repository
-    this file lives in. Raises BagError when nothing is found.
-    """
-    prefixes = [p for p in env.get('AMENT_PREFIX_PATH', '').split(':') if p]
-    found = [Path(p) / 'share' / MSG_PACKAGE / 'msg' for p in prefixes]
-    found = [d for d in found if d.is_dir()]
-    if found:
-        return found
-    here = Path(__file__).resolve()
-    for ancestor in here.parents:
-        candidate = ancestor / 'src' / MSG_PACKAGE / 'msg'
-        if candidate.is_dir():
-            return [candidate]
-    raise BagError(f'{MSG_PACKAGE} message definitions not found: no share/{MSG_PACKAGE}/msg '
-                   f'under AMENT_PREFIX_PATH={env.get("AMENT_PREFIX_PATH", "")!r} and no '
-                   f'src/{MSG_PACKAGE}/msg above {str(here.parent)!r}')
 
 
 def default_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
@@ -163,7 +126,7 @@ class _Shared:
         self.store = get_typestore(Stores.EMPTY)  # ~10x faster to build than the full Jazzy store
         self.files: dict = {}
         for directory in dirs:
-            for package, file in _msg_files(directory):
+            for package, file in msg_files(directory):
                 self.files.setdefault(f'{package}/msg/{file.stem}', file)   # earlier directories win
         self.lock = threading.Lock()
 
@@ -196,36 +159,30 @@ def _shared(dirs: tuple) -> _Shared:
     return _Shared(dirs)
 
 
-@functools.lru_cache(maxsize=8)
-def _msg_dirs(ament_prefix_path: str) -> tuple:
-    return tuple(find_msg_dirs({'AMENT_PREFIX_PATH': ament_prefix_path}))
-
-
 def shared_typestore(env: Mapping[str, str] = os.environ, names: Iterable[str] | None = None) -> Typestore:
     """The force_tester_msgs types (with std_msgs/Header and builtin_interfaces/Time), one store per process (and
     AMENT_PREFIX_PATH) for read-only use: serialising, deserialising, definitions and hashes (the same as
     default_typestore's; tested). ``names``: the types the caller uses, which it is sure to hold (with the types
     they use); None: every type. Never register types into it."""
-    shared = _shared(_msg_dirs(env.get('AMENT_PREFIX_PATH', '')))
+    shared = _shared(msg_dirs_of(env.get('AMENT_PREFIX_PATH', '')))
     return shared.having([*_STD_TYPES, *shared.files] if names is None else names)
 
 
-class TypeDefinition(NamedTuple):
-    """A message type's ros2msg definition text and its RIHS01 hash."""
-
-    text: str
-    rihs01: str
-
-
-@functools.lru_cache(maxsize=32)
-def _definition(type_name: str, dirs: tuple) -> TypeDefinition:
-    store = _shared(dirs).having([type_name])
-    return TypeDefinition(store.generate_msgdef(type_name, ros_version=2)[0], store.hash_rihs01(type_name))
-
-
-def type_definition(type_name: str, env: Mapping[str, str] = os.environ) -> TypeDefinition:
-    """A type's definition in shared_typestore(), computed once."""
-    return _definition(type_name, _msg_dirs(env.get('AMENT_PREFIX_PATH', '')))
+def flat_fields(store: Typestore, type_name: str, formats) -> list | None:
+    """[[field path, base type], ...] of a type with its nested types spelled out ('header.stamp.sec'), when every
+    field is a base type in ``formats`` or such a type; None when one is an array, a sequence or another type."""
+    out = []
+    for name, desc in store.fielddefs[type_name][1]:
+        if desc[0] == Nodetype.NAME:
+            inner = flat_fields(store, desc[1], formats)
+            if inner is None:
+                return None
+            out += [[f'{name}.{path}', base] for path, base in inner]
+        elif desc[0] == Nodetype.BASE and desc[1][0] in formats:
+            out.append([name, desc[1][0]])
+        else:
+            return None
+    return out
 
 
 def header(store: Typestore, stamp_ns: int, frame_id: str = ''):

@@ -16,6 +16,7 @@ from force_tester_common.core.partial import Marked, clear_stale, tell
 
 from .errors import BagError, one_line
 from .metadata import METADATA_VERSION, ROS_DISTRO, load_metadata, write_metadata
+from .sources import check_new_bag_path
 
 if TYPE_CHECKING:   # imported where a bag is opened: rosbags.rosbag2 loads sqlite3, apsw, lz4 (tens of ms)
     from rosbags.rosbag2 import Writer
@@ -24,14 +25,6 @@ STORAGE_ID = 'mcap'
 _MAX_STAMP = 2**63 - 1
 # First two bytes of a CDR encapsulation header: CDR_BE / CDR_LE (plain CDR, as rmw uses).
 _CDR_HEADERS = (b'\x00\x00', b'\x00\x01')
-
-
-def check_new_bag_path(path: Path) -> None:
-    """A bag is written into a new directory whose parent exists."""
-    if path.exists():
-        raise BagError(f'bag output path {str(path)!r} exists already; expected a new directory name')
-    if not path.parent.is_dir():
-        raise BagError(f'parent directory {str(path.parent)!r} of bag output does not exist')
 
 
 def _record_distro(writer: Writer) -> None:

@@ -19,11 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from bag_tools.core.errors import BagError
-from bag_tools.core.fastcdr import FastPathError, block_lengths, decode_blocks, encode_blocks
+from bag_tools.core.fastcdr import FastPathError, block_lengths, decode_blocks, decode_flat, encode_blocks, encode_flat
 from bag_tools.core.mcapfile import ExtendedBag, McapBag, read_topics_raw
-from bag_tools.core.reader import open_bag
-from bag_tools.core.typestore import default_typestore, header, shared_typestore, stamp_of, type_definition
-from bag_tools.core.writer import BagWriter
+from bag_tools.core.typefacts import flat_layout, type_facts
 from force_tester_common.core.blocks import PullWindows
 from force_tester_common.core.channels import (
     ACCEL_FIELDS,
@@ -38,7 +36,7 @@ from force_tester_common.core.channels import (
     SET_SUMMARY_TOPIC,
     SET_SUMMARY_TYPE,
 )
-from force_tester_common.core.clock import record_stamps_ns, sample_stamps_ns
+from force_tester_common.core.clock import ns_to_stamp, record_stamps_ns, sample_stamps_ns, stamp_to_ns
 from force_tester_common.core.correction import MAX_PENDING
 from force_tester_common.core.scores import PULL_SCORE_FIELDS, SET_SUMMARY_FIELDS, pull_status
 
@@ -51,8 +49,6 @@ CORRECTED_NAME, (CORRECTED_TOPIC, _) = CORRECTED_TYPE
 RESULT_TOPICS = ((CORRECTED_TOPIC, CORRECTED_NAME), (PULL_SCORE_TOPIC, PULL_SCORE_TYPE),
                  (SET_SUMMARY_TOPIC, SET_SUMMARY_TYPE))  # what correct adds to a bag
 OUTPUT_TOPICS = tuple(t for t, _ty in RESULT_TOPICS)
-#: the message types the fast path reads (their hashes checked; the events deserialised) and writes
-FAST_TYPES = (FORCE_TYPE, ACCEL_TYPE, PULL_EVENT_TYPE, *(ty for _t, ty in RESULT_TOPICS))
 
 
 @dataclass(frozen=True)
@@ -66,13 +62,14 @@ class BagRead:
     frame: str
 
 
-def pull_event(msg, pulls: PullWindows, windows: list, warnings: list) -> None:
-    """A PullEvent: a START opens a pull; its END closes it into (start, end, set, pull_id)."""
-    w = pulls.add(int(msg.event), int(msg.pull_id), stamp_of(msg), int(msg.test_set))
+def pull_event(event: int, pull_id: int, stamp_ns: int, test_set: int, pulls: PullWindows, windows: list,
+               warnings: list) -> None:
+    """A PullEvent's fields: a START opens a pull; its END closes it into (start, end, set, pull_id)."""
+    w = pulls.add(int(event), int(pull_id), stamp_ns, int(test_set))
     if w is None:
         return
     if w.start_ns is None:
-        warnings.append(f'END of pull {msg.pull_id} without its START; not scored')
+        warnings.append(f'END of pull {pull_id} without its START; not scored')
     else:
         windows.append((w.start_ns, w.end_ns, w.meta, w.pull_id))
 
@@ -103,8 +100,7 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     if force_topic is None or accel_topic is None or not event_t:
         raise FastPathError('missing topics')
     wanted = [force_topic, accel_topic, *event_t]
-    store = shared_typestore(names=FAST_TYPES)
-    if any(bag.hashes.get(t) != type_definition(topics[t]).rihs01 for t in wanted):
+    if any(bag.hashes.get(t) != type_facts(topics[t]).rihs01 for t in wanted):
         raise FastPathError('message definitions differ from force_tester_msgs')
     raw, _ = read_topics_raw(bag.mcap, wanted, bag.summary, bag.mm)
     for i, t in enumerate(wanted):
@@ -127,8 +123,11 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
     starts = PullWindows()
     windows: list = []
     notes: list = []  # the warnings, given only once the fast path is sure to apply
-    for i in np.flatnonzero(raw.channel >= 2).tolist():  # events (few): generic deserialisation
-        pull_event(store.deserialize_cdr(raw.data(i), PULL_EVENT_TYPE), starts, windows, notes)
+    layout = flat_layout(PULL_EVENT_TYPE)
+    for i in np.flatnonzero(raw.channel >= 2).tolist():  # events (few): one at a time
+        f = decode_flat(layout, raw.data(i))
+        pull_event(f['event'], f['pull_id'], stamp_to_ns(f['header.stamp.sec'], f['header.stamp.nanosec']),
+                   f['test_set'], starts, windows, notes)
     m = len(fb)
     stamps, fr = fb.stamp_ns, fb.rate_hz
     last = sample_stamps_ns(stamps, n - 1, fr)
@@ -163,6 +162,8 @@ def read_fast(bag: McapBag, stream: CorrectionStream, warnings: list, progress=N
 def read_generic(src: Path, stream: CorrectionStream, warnings: list, progress=None,
                  max_pending: int = MAX_PENDING) -> BagRead:
     """Read message by message with rosbags and pair with the BlockAligner, as the node does."""
+    from bag_tools.core.reader import open_bag  # rosbags: only on this path (the fast path does without)
+    from bag_tools.core.typestore import stamp_of
     with open_bag(src) as bag:
         topics = {n: t.type_name for n, t in bag.topics().items()}
         force_topic = _topic_of(topics, FORCE_TYPE, '/force')
@@ -202,7 +203,7 @@ def read_generic(src: Path, stream: CorrectionStream, warnings: list, progress=N
         for k, (topic, type_name, _log, cdr) in enumerate(bag.messages(wanted)):
             msg = bag.deserialize(cdr, type_name)
             if type_name == PULL_EVENT_TYPE:
-                pull_event(msg, starts, windows, warnings)
+                pull_event(msg.event, msg.pull_id, stamp_of(msg), msg.test_set, starts, windows, warnings)
                 continue
             channel = 'force' if topic == force_topic else 'accel'
             n = len(msg.moving_n) if channel == 'force' else len(msg.axial_m_s2)
@@ -266,24 +267,21 @@ def corrected_blocks(piece: dict, blocks: tuple, frame: str, seq0: int = 0,
     return encode if target is not None else (*encode(), last)
 
 
-def result_messages(store, pulls, running) -> list:
+def result_messages(pulls, running) -> list:
     """(log time, order, topic, type, CDR) of the /pull_score and /set_summary messages;
     ``running``: the per-set summary after each pull."""
-    T = store.types
+    score_layout, summary_layout = flat_layout(PULL_SCORE_TYPE), flat_layout(SET_SUMMARY_TYPE)
     out = []
     for p, summ in zip(pulls, running):
+        sec, nanosec = ns_to_stamp(p.start_ns)
+        head = {'header.stamp.sec': sec, 'header.stamp.nanosec': nanosec, 'header.frame_id': ''}
         status, detail = pull_status(p.score.dropped_blocks)
-        msg = T[PULL_SCORE_TYPE](header=header(store, p.start_ns), pull_id=p.pull_id,
-                                 test_set=p.test_set, dropped_blocks=p.score.dropped_blocks,
-                                 status=status, detail=detail,
-                                 **{f: float(getattr(p.score, f)) for f in PULL_SCORE_FIELDS})
-        out.append((p.end_ns, 1, PULL_SCORE_TOPIC, PULL_SCORE_TYPE,
-                    bytes(store.serialize_cdr(msg, PULL_SCORE_TYPE))))
+        score = {**head, 'pull_id': p.pull_id, 'test_set': p.test_set, 'dropped_blocks': p.score.dropped_blocks,
+                 'status': status, 'detail': detail, **{f: float(getattr(p.score, f)) for f in PULL_SCORE_FIELDS}}
+        out.append((p.end_ns, 1, PULL_SCORE_TOPIC, PULL_SCORE_TYPE, encode_flat(score_layout, score)))
         values = asdict(summ)
-        msg = T[SET_SUMMARY_TYPE](header=header(store, p.start_ns), test_set=p.test_set,
-                                  **{f: values[k] for f, k in SET_SUMMARY_FIELDS.items()})
-        out.append((p.end_ns, 2, SET_SUMMARY_TOPIC, SET_SUMMARY_TYPE,
-                    bytes(store.serialize_cdr(msg, SET_SUMMARY_TYPE))))
+        summary = {**head, 'test_set': p.test_set, **{f: values[k] for f, k in SET_SUMMARY_FIELDS.items()}}
+        out.append((p.end_ns, 2, SET_SUMMARY_TOPIC, SET_SUMMARY_TYPE, encode_flat(summary_layout, summary)))
     out.sort(key=lambda g: (g[0], g[1]))
     return out
 
@@ -298,8 +296,7 @@ def extension_target(fast: McapBag | None, dst: Path) -> ExtendedBag | None:
 
 def extended_sink(target: ExtendedBag):
     """Result topics added to ``target``, and a stream sink writing /force_corrected into it."""
-    shared_typestore(names=FAST_TYPES)   # every type the fast path uses, registered at once
-    cids = {t: target.add_topic(t, ty, *type_definition(ty)) for t, ty in RESULT_TOPICS}
+    cids = {t: target.add_topic(t, ty, *type_facts(ty)[:2]) for t, ty in RESULT_TOPICS}
 
     def sink(piece, blocks, frame, seq0):   # laid out here, encoded and written by the bag's writer thread
         target.commit(corrected_blocks(piece, blocks, frame, seq0, target, cids[CORRECTED_TOPIC]))
@@ -307,18 +304,21 @@ def extended_sink(target: ExtendedBag):
 
 
 def write_results(target: ExtendedBag, cids: dict, pulls, running) -> None:
-    small = result_messages(shared_typestore(names=FAST_TYPES), pulls, running)
+    small = result_messages(pulls, running)
     target.write_messages([cids[g[2]] for g in small], [g[0] for g in small], [g[4] for g in small])
 
 
 def rewrite_bag(src: Path, dst: Path, arrays: dict, read: BagRead, pulls, running,
                 warnings: list) -> None:
     """The generic writer: every input message through rosbags, merged with the results."""
+    from bag_tools.core.reader import open_bag  # rosbags: only on this path (the fast path does without)
+    from bag_tools.core.typestore import default_typestore
+    from bag_tools.core.writer import BagWriter
     store = default_typestore()
     buf, starts, lengths, last = corrected_blocks(arrays, read.blocks, read.frame)
     generated = [(int(lg), 0, CORRECTED_TOPIC, CORRECTED_NAME, buf[a:a + k])
                  for lg, a, k in zip(last.tolist(), starts.tolist(), lengths.tolist())]
-    generated += result_messages(store, pulls, running)
+    generated += result_messages(pulls, running)
     generated.sort(key=lambda g: (g[0], g[1]))
     with open_bag(src) as bag, BagWriter(dst, store, rewritable=True) as writer:
         topics = bag.topics()

@@ -1,4 +1,5 @@
-"""Arrays a command would otherwise compute afresh at every start, kept per user on disk (pure Python + numpy).
+"""What a command would otherwise compute afresh at every start, kept per user on disk (pure Python + numpy):
+arrays (cached_array) and plain data (cached_json).
 
 The folder is $FT_CACHE_DIR, else $XDG_CACHE_HOME/force_tester, else ~/.cache/force_tester. A file there is only
 a copy of what ``make`` computes: one that is missing, unreadable or not the shape asked for is computed again and
@@ -8,9 +9,10 @@ name, then a rename), so two processes making the same entry at once leave one g
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 from pathlib import Path
-from typing import Callable, Mapping, Optional
+from typing import Any, Callable, Mapping, Optional
 
 import numpy as np
 
@@ -38,13 +40,36 @@ def cached_array(name: str, shape: tuple, make: Callable[[], np.ndarray],
     except (OSError, ValueError, EOFError):
         pass     # missing or damaged: made again below
     made = np.asarray(make(), dtype=np.float64).reshape(shape)
+    _keep(path, lambda fh: np.save(fh, made, allow_pickle=False))
+    return made
+
+
+def cached_json(name: str, make: Callable[[], Any], valid: Callable[[Any], bool],
+                env: Optional[Mapping[str, str]] = None) -> Any:
+    """What ``make()`` returns (JSON data: dicts, lists, strings, numbers), read from the cache entry ``name``
+    when it holds data that ``valid`` accepts (``name``: a file name without extension that says everything the
+    data depend on)."""
+    path = cache_dir(env) / f'{name}.json'
+    try:
+        got = json.loads(path.read_bytes())
+        if valid(got):
+            return got
+    except (OSError, ValueError):
+        pass     # missing or damaged: made again below
+    made = make()
+    text = json.dumps(made).encode('utf-8')
+    _keep(path, lambda fh: fh.write(text))
+    return made
+
+
+def _keep(path: Path, write: Callable) -> None:
+    """``write(file)`` into a temporary name beside ``path``, then renamed to it; nothing kept when that fails."""
     tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, 'wb') as fh:
-            np.save(fh, made, allow_pickle=False)
+            write(fh)
         os.replace(tmp, path)
     except OSError:  # a read-only or full disk, or no folder: the values are right, only not kept
         with contextlib.suppress(OSError):
             tmp.unlink()
-    return made
