@@ -1,4 +1,5 @@
-"""The per-user cache of arrays (force_tester_common.core.cache) and the peak uncertainty's normals kept in it."""
+"""The per-user cache of arrays and JSON data (force_tester_common.core.cache), and the peak uncertainty's normals
+kept in it."""
 from __future__ import annotations
 
 import os
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from force_correction.core import peak_uncertainty as pu
-from force_tester_common.core.cache import CACHE_ENV, CACHE_SUBDIR, cache_dir, cached_array
+from force_tester_common.core.cache import CACHE_ENV, CACHE_SUBDIR, cache_dir, cached_array, cached_json
 
 
 def test_the_folder_is_ft_cache_dir_else_xdg_else_home():
@@ -42,6 +43,28 @@ def test_a_folder_that_cannot_be_written_is_not_used(tmp_path):
     env = {CACHE_ENV: str(blocked / 'c')}
     assert np.array_equal(cached_array('e', (3,), lambda: [1.0, 2.0, 3.0], env), [1.0, 2.0, 3.0])
     assert blocked.read_text() == 'a file where the folder would be'
+
+
+def test_json_data_are_made_once_and_what_the_check_refuses_is_made_again(tmp_path):
+    env = {CACHE_ENV: str(tmp_path / 'c')}
+    calls = []
+
+    def make():
+        calls.append(1)
+        return {'a': [1, 'x', None]}
+
+    def valid(data):
+        return isinstance(data, dict) and 'a' in data
+    want = {'a': [1, 'x', None]}
+    assert cached_json('j', make, valid, env) == cached_json('j', make, valid, env) == want and len(calls) == 1
+    entry = tmp_path / 'c' / 'j.json'
+    for bad in ('{"a": [1', '{"b": 2}', '\x00\xff'):   # cut short, refused by the check, not JSON
+        entry.write_text(bad)
+        assert cached_json('j', make, valid, env) == want
+    assert len(calls) == 4 and sorted(p.name for p in entry.parent.iterdir()) == ['j.json']
+    blocked = tmp_path / 'file'
+    blocked.write_text('here')
+    assert cached_json('j', make, valid, {CACHE_ENV: str(blocked / 'c')}) == want and blocked.read_text() == 'here'
 
 
 @pytest.mark.parametrize('width', [41, 7])
