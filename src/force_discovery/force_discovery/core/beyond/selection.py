@@ -456,6 +456,19 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             f'not identifiable at this strength: found on the moving cell ({abs(coef) * rms_unit:.3g} {unit} rms on '
             f'the held-out pulls, held-out SSE -{100 * ev.rel_sse_reduction:.0f} %), but the part of it the gain and '
             f'm2 (their forms F_move and a2) cannot take is {own:.3g} {unit} rms, inside the band ({band:g})')
+        whole = abs(coef) * rms_unit
+        if not named and has_step and kv is not None and col is not None and whole > band:
+            # on the current, a term above the band at its estimate whose part beside the drive's constants (the
+            # Coulomb step, k_F's and the reflected mass's forms, the damping's v) is inside it: the drive's, at this
+            # size (bench_sweep's v of 3x the band: the damping's own form, 1 - r^2 = 0, inside its stated +/-50 %)
+            left = drive_left(held, col, kv)
+            if math.sqrt(left) * whole <= band:
+                why = (f'not identifiable at this strength: found on the motor current ({whole:.3g} {unit} rms over '
+                       f'the analysis window of the held-out pulls, held-out SSE -{100 * ev.rel_sse_reduction:.0f} %), '
+                       f"but its column is in the span of the drive's constants' forms (the Coulomb step, k_F, the "
+                       f'reflected mass, the damping: 1 - r^2 = {left:.1e}), and the part of it they cannot take, '
+                       f'{math.sqrt(left) * whole:.3g} {unit} rms, is inside the band ({band:g}): the data cannot '
+                       "tell it from those constants off their rig YAML values")
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
                           abs(coef) * rms_unit, (rms_lo, rms_hi), band, named, budget, alternatives, beat,
@@ -480,6 +493,20 @@ def beside_catalog(stats: Sequence[ChannelStats], k: int) -> float:
     g = G[k, cat]
     left = float(G[k, k] - g @ np.linalg.lstsq(G[np.ix_(cat, cat)], g, rcond=1e-12)[0])
     return math.sqrt(max(left, 0.0) / max(sum(st.n for st in stats), 1))
+
+
+def drive_left(stats: Sequence[ChannelStats], k: int, kv: int) -> float:
+    """1 - r^2 of the current's product column k against the drive's forms over the pulls stats (pooled): its
+    catalog columns (the Coulomb step, k_F's and the reflected mass's forms) and the damping's, column kv (0 when k is
+    kv)."""
+    if k == kv:
+        return 0.0
+    G = sum(augmented(st, True).gram for st in stats)
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    C = G / np.outer(d, d)
+    rest = [kv, *range(len(stats[0].xy), G.shape[0])]
+    g = C[rest, k]
+    return max(0.0, 1.0 - float(g @ np.linalg.lstsq(C[np.ix_(rest, rest)], g, rcond=1e-12)[0]))
 
 
 def separable(stats: Sequence[ChannelStats], prod: Sequence[int], cat: Sequence[int], k: int) -> bool:
