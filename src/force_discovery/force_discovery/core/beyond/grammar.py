@@ -29,8 +29,9 @@ FORM_REASONS = {
                     'mass); named as that catalog cause, never as a term',
     'motor_current': "the drive's form: the current's balance is (m_c a3 + b v + F_move) / k_F, and the catalog fits "
                      "k_F, the reflected mass m_c and the damping b on the data (friction.drive_fit); a term in "
-                     'F_move is in the span of their forms (F_stat and T read the same tension, a2 the acceleration '
-                     "a3 is), so the data cannot tell it from those constants off their rig YAML values",
+                     'F_move is in the span of their forms (F_stat and T read the same tension, and a2 the '
+                     "acceleration whose encoder form a3 is the mass's), so the data cannot tell it from those "
+                     'constants off their rig YAML values',
 }
 # a sensor's own terms are written in the quantity it should read (its reference, in its free phases): the
 # accelerometer's a2 takes the encoder's acceleration there (series.channel_series), so its own non-linearity
