@@ -35,14 +35,16 @@ coefficient's shift when one rig constant is one stated standard uncertainty off
 moving cell, each drive constant on the current: the residual's change kept as a Gram column per pull) or the
 channel's sensor calibration (relative), and the 95 % interval budget.expanded. A term is named when it is
 significant AND its contribution's rms on the held-out pulls, over that interval, lies above the channel's band
-(practical significance: grammar.channel_band, from the rig's tolerances).
+(practical significance: grammar.channel_band, from the rig's tolerances; on the motor current over the analysis
+window, where bench_sweep sizes a term too).
 
 The catalog keeps priority: on the motor current, the catalog's Coulomb friction (a step with the motion) is a
 library column too; it stays named unless a single library term lowers the held-out residual by
 PRIORITY_MARGIN more than it does (the same number of parameters: one). A term on the current is named only when
 it beats the drive's causes in its place (the viscous damping, whose form is `v`, the Coulomb step, k_F and the
-reflected mass; Term's catalog_beat), and is fitted with `v` beside it, so the damping's stated uncertainty is
-measured, not a systematic part of its budget; and with the forms of the drive's k_F and reflected mass beside it,
+reflected mass; and the three drive constants together, by PRIORITY_MARGIN: Term's catalog_beat), and is fitted
+with `v` beside it, so the damping's stated uncertainty is measured, not a systematic part of its budget; and
+with the forms of the drive's k_F and reflected mass beside it,
 whose stated lines give way to the data's where they separate the term from them (selection.search_channel). On
 the moving cell each named force-model cause (priority.CAUSE_PARAMS) is checked by priority.cause_check with the
 cause undone, on every campaign; a cause kept says what the library in its place left (BeyondResult.checked). A

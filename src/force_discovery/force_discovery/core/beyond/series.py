@@ -191,7 +191,11 @@ def channel_series(p: Pull, rig, force_resid: np.ndarray, hum: Optional[np.ndarr
                 u = rig.uncertainty.u(f'drive.{key}')
                 if u > 0:
                     sys_[name] = (balance(dataclasses.replace(d, **{key: getattr(d, key) + u})) - y)[sel]
-            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in slow.items()}, col[sel], {}, sys_)
+            # and the signals on the analysis window's samples among them: a term's size is judged there, where the
+            # force is measured and where bench_sweep sizes its cells (selection.search_channel), as a sensor's is
+            on_w = sel[(sel >= p.w0) & (sel < p.w1)]
+            out['motor_current'] = ChannelSeries(y[sel], {k: v[sel] for k, v in slow.items()}, col[sel], {}, sys_,
+                                                 {k: v[on_w] for k, v in slow.items()})
     return out
 
 
