@@ -98,6 +98,34 @@ def via_moving(channel: str, term: str) -> bool:
     return channel in CARRIED and SIN not in p and sum(p.values()) >= 2 and set(p) == {CARRIED[channel][0]}
 
 
+def read_as(channel: str, term: str) -> Tuple[str, str]:
+    """(channel, term) as the report reads a pair found on channel: a moving-cell term of degree >= 2 in one
+    sensor's CARRIED signals alone is that sensor's own non-linearity, written in its own signal (beyond.own); any
+    other pair as it is."""
+    p = parse_term(term)
+    if channel == 'force_moving' and SIN not in p and sum(p.values()) >= 2:
+        sensor = next((s for s, sig in CARRIED.items() if set(p) <= set(sig)), None)
+        if sensor is not None:
+            return sensor, term_name({CARRIED[sensor][0]: sum(p.values())})
+    return channel, term
+
+
+def structural_tie(channel: str, term: str) -> Optional[str]:
+    """'channel:term' of the pair the search names in place of a pair the grammar keeps off its channel
+    (structural_reason), when that is a term (None: a catalog form, or a pair that is searched): the sensor's own
+    reading of a term in its signals alone, or, for a sensor term in a signal its free phases cannot use, the moving
+    cell's term of the same name, which reads it under load with the same column (times -g or -g m2)."""
+    p = parse_term(term)
+    if SIN in p or structural_reason(channel, term) is None or term in CATALOG_FORMS.get(channel, ()):
+        return None
+    own = read_as('force_moving', term) if channel in ('force_moving', *CARRIED) else (channel, term)
+    if own[0] != 'force_moving' and own != (channel, term):   # a sensor's own reading, searched through the moving cell
+        return ':'.join(own)
+    if channel in FREE_PHASE_BLIND and term not in CATALOG_FORMS['force_moving']:
+        return ':'.join(own)
+    return None
+
+
 def mixed_forces(term: str) -> bool:
     """Whether a term is a product of two cells' forces (F_move*T, F_move*F_stat, F_stat*T): no one sensor reads it,
     so a tie goes to a term in one force alone (selection.search_channel)."""
