@@ -114,14 +114,20 @@ def structural_tie(channel: str, term: str) -> Optional[str]:
     """'channel:term' of the pair the search names in place of a pair the grammar keeps off its channel
     (structural_reason), when that is a term (None: a catalog form, or a pair that is searched): the sensor's own
     reading of a term in its signals alone, or, for a sensor term in a signal its free phases cannot use, the moving
-    cell's term of the same name, which reads it under load with the same column (times -g or -g m2)."""
+    cell's term that reads it under load (times -g or -g m2): of the same name for the accelerometer (m2 a2 in the
+    moving cell's model), with F_stat as T for the stationary cell (its reading enters the model as T, made from it
+    through its dynamics: on the independent generator its F_stat*v, x, t were named T*v, x, t there)."""
     p = parse_term(term)
     if SIN in p or structural_reason(channel, term) is None or term in CATALOG_FORMS.get(channel, ()):
         return None
     own = read_as('force_moving', term) if channel in ('force_moving', *CARRIED) else (channel, term)
     if own[0] != 'force_moving' and own != (channel, term):   # a sensor's own reading, searched through the moving cell
         return ':'.join(own)
-    if channel in FREE_PHASE_BLIND and term not in CATALOG_FORMS['force_moving']:
+    if channel == 'force_stationary':   # its reading reaches the moving cell's model as T, made from it
+        q = {k: n for k, n in p.items() if k != 'F_stat'}
+        q['T'] = q.get('T', 0) + p.get('F_stat', 0)
+        own = ('force_moving', term_name(q))
+    if channel in FREE_PHASE_BLIND and own[1] not in CATALOG_FORMS['force_moving']:
         return ':'.join(own)
     return None
 
