@@ -21,12 +21,17 @@ CATALOG_FORMS = {'force_moving': ('F_move', 'F_stat', 'T', 'a2')}
 # accelerometer's a2 takes the encoder's acceleration there (series.channel_series), so its own non-linearity
 # (a2^2, a2^3) is searched against it; signals a sensor's free-phase library cannot use, and why (identifiability)
 FREE_PHASE_BLIND = {
-    'force_stationary': {s: 'in the free phases the lanyard is slack: the tension from the moving side is 0, and so '
+    'force_stationary': {**{s: 'in the free phases the lanyard is slack: the tension from the moving side is 0, and so '
                             f'is every term in {s} there; a term of degree >= 2 in F_stat and T alone is searched '
                             'on the moving cell, which reads the same tension (beyond.own), and read as the '
                             "stationary cell's own; a linear one is the moving cell's gain (the catalog); a product "
                             "with another signal is the moving cell's term of the same name: two cells that read "
                             'one tension cannot tell whose it is' for s in ('F_stat', 'T')},
+                         'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
+                                   "there, collinear with the stationary cell's a2 terms; under load the stationary "
+                                   "cell's reading reaches the moving cell's model as T, so such a term is the moving "
+                                   'cell\'s term of the same name there (F_move alone: its gain, the catalog), which '
+                                   'the two cells cannot tell apart; searched there'},
     'accel_axial': {'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
                               "there, collinear with the accelerometer's own a2 terms",
                     **{s: f'in the free phases the lanyard is slack: {s} is 0 there, and so is every term in it; under '
