@@ -5,7 +5,7 @@ or -g m2 (the accelerometer): the moving side's tension is the quantity the stat
 cell's own non-linearity is seen only under load, where its free phases (T = 0) see nothing. Such a term is read as
 the sensor's own, written in its own signal and unit. A product with another signal (T*v) stays the moving cell's:
 two cells that read one tension cannot tell whose it is (grammar.FREE_PHASE_BLIND says so in the report).
-ROS-free."""
+A named term's near-tie group (selection.tie_group) is listed in the report as read so (near_ties). ROS-free."""
 from __future__ import annotations
 
 import dataclasses
