@@ -22,11 +22,13 @@ answer it (a real drag would slow the carriage a little as well). `discover` (sc
 injected campaign and the rig's datasheet, never the truth.
 
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
-95 % interval holding the truth), a catalog cause named instead (the term not found), another term named, nothing
-named, or an error; in_band counts the cells whose true term was significant but inside the band (listed under
-beyond_search.within_tolerance, not named), listed those whose pair the report lists as one the campaign cannot
-identify (beyond_search.identifiability, with its reason: issue 39's section 1), and the right share is given of
-the cells not listed too. Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
+95 % interval holding the truth), a tie (a term named that the report says the true pair cannot be told from: the
+pair the grammar reads it as, beyond_search.identifiability's read_as, or a member of a named term's near-tie group
+there, near_tie: counted apart, never as right), a catalog cause named instead (the term not found), another term
+named, nothing named, or an error; in_band counts the cells whose true term was significant but inside the band
+(listed under beyond_search.within_tolerance, not named), listed those whose pair the report lists as one the
+campaign cannot identify (beyond_search.identifiability, with its reason: issue 39's section 1), and the right share
+is given of the cells not listed too. Then --clean campaigns with nothing injected, of 4-30 pulls (drawn per
 seed; --clean-pulls), on the rigs in turn: a false alarm is any entry in beyond_catalog; the catalog causes named
 on them are listed too (on this generator the catalog's own figures are another benchmark's: ./ft bench discovery
 --generator independent).
@@ -58,7 +60,7 @@ STRENGTHS = (1.0, 3.0, 10.0)
 SIGNS = {'+': 1.0, '-': -1.0}
 BEFORE_S, AFTER_S = 0.05, 0.15        # the loaded window the strength is measured on (about discover's own)
 COEF_SHARE = 0.3
-OUTCOMES = ('right', 'coef30', 'ci95', 'catalog', 'other', 'nothing', 'error', 'in_band', 'listed')
+OUTCOMES = ('right', 'coef30', 'ci95', 'tie', 'catalog', 'other', 'nothing', 'error', 'in_band', 'listed')
 FLAGS = ('coef30', 'ci95', 'in_band', 'listed')   # beside the one outcome a cell has
 
 
@@ -163,6 +165,8 @@ def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
         got['right'] = True
         got['coef30'] = abs(mine[0]['coefficient'] - coef) <= COEF_SHARE * abs(coef)
         got['ci95'] = min(mine[0]['ci95']) <= coef <= max(mine[0]['ci95'])
+    elif tied(report, channel, term):
+        got['tie'] = True
     elif named_catalog(report):
         got['catalog'] = True
     else:
@@ -172,6 +176,18 @@ def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
     got['in_band'] = any(b['channel'] == channel and b['term'] == term for b in band)
     got['listed'] = any(b['channel'] == channel and b['term'] == term for b in unidentifiable(report))
     return got
+
+
+def tied(report: dict, channel: str, term: str) -> bool:
+    """Whether a named term is one the report says the true pair cannot be told from: the pair the true one is read
+    as (its identifiability entry's read_as: the grammar's), or a member of a named term's near-tie group (the
+    entries with near_tie: the data's), the true pair among them. Not right: its own column."""
+    named = {f'{b["channel"]}:{b["term"]}' for b in beyond_terms(report)}
+    truth = f'{channel}:{term}'
+    entries = unidentifiable(report)
+    read = {e['read_as'] for e in entries if e['channel'] == channel and e['term'] == term and e.get('read_as')}
+    groups = {m for e in entries if e.get('near_tie') and e['near_tie'][0] in named for m in e['near_tie'][1:]}
+    return bool(named & read) or truth in groups or bool(read & groups)
 
 
 def unidentifiable(report: dict) -> list:
@@ -324,6 +340,9 @@ def print_matrix(counts: dict, strengths) -> None:
             print(f'at {s:g}x band, {n} cells: ' + ', '.join(f'{o} {sum(r[o] for r in rows)} '
                                                               f'({100 * sum(r[o] for r in rows) / n:.0f} %)'
                                                               for o in OUTCOMES))
+            tie = sum(r['tie'] for r in rows)
+            print(f'  right {sum(r["right"] for r in rows)} and a tie the report lists {tie}: '
+                  f'{100 * (sum(r["right"] for r in rows) + tie) / n:.0f} % together')
             listed = sum(r['listed'] for r in rows)
             right = sum(r['right'] - r['right_listed'] for r in rows)
             print(f'  of the {n - listed} cells whose pair the report does not list as unidentifiable: '

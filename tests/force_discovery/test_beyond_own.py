@@ -19,8 +19,9 @@ from force_discovery.core.beyond import (
     pairs,
     search,
 )
-from force_discovery.core.beyond.grammar import structural_reason
+from force_discovery.core.beyond.grammar import structural_reason, structural_tie
 from force_discovery.core.beyond.interpretation import INTERPRETATION, NO_READING
+from force_discovery.core.beyond.own import near_ties
 from force_discovery.core.beyond.selection import REFERENCE_SHIFT
 from force_discovery.core.pipeline import discover
 from force_discovery.core.prep import Pull, as_encoder
@@ -79,6 +80,43 @@ def test_a_stationary_cells_own_non_linearity_seen_on_the_moving_cell_is_named_o
     assert not [g for g in got if g[0] == 'force_moving'], got
     # the data cannot tell it from the moving cell's own T^2: said beside it
     assert 'T^2 on force_moving' in res.terms[0].alternatives
+
+
+def test_a_term_tied_in_the_fit_is_the_one_the_held_out_pulls_choose_and_its_tie_group_is_listed():
+    # the moving cell reads -c T*v (the stationary cell's c F_stat*v, or its T*v: two cells reading one tension).
+    # F_move*v fits within the parsimony share and comes first in the library's order: it was named, and F_stat*v
+    # beside it to undo its m2 a2 part (two terms for one). The held-out pulls tell T*v from F_move*v, not from
+    # F_stat*v (F_stat is T and the cell's noise): T*v alone, F_stat*v listed as its near-tie
+    c = 0.003
+    res = _search('force_moving', lambda s, _k: -c * s['T'] * s['v'])
+    assert [(t.channel, t.term) for t in res.terms] == [('force_moving', 'T*v')], res.terms
+    assert abs(res.terms[0].coefficient + c) < 0.05 * c, res.terms[0]
+    entries = near_ties(res.terms[0])
+    assert [(e['channel'], e['term']) for e in entries] == [('force_moving', 'F_stat*v')], entries
+    assert entries[0]['near_tie'] == ['force_moving:T*v', 'force_moving:F_stat*v']
+    # a term no other column comes near has no group
+    res = _search('force_moving', lambda s, _k: 2.0 * s['v'] ** 2)
+    assert res.terms[0].term == 'v^2' and not res.terms[0].ties and not near_ties(res.terms[0]), res.terms
+
+
+def test_every_pair_kept_off_its_channel_says_which_searched_pair_it_is_read_as():
+    # the report's read_as (beyond_search.identifiability): the pair the search names in place of one the grammar
+    # keeps off its channel, always a pair it searches; none for a catalog form
+    read = {}
+    for ch, term in pairs():
+        tie = structural_tie(ch, term)
+        if tie is not None:
+            assert structural_reason(ch, term) is not None, (ch, term)
+            assert structural_reason(*tie.split(':')) is None, (ch, term, tie)
+            read[(ch, term)] = tie
+    assert read[('accel_axial', 'F_move*v')] == 'force_moving:F_move*v'
+    assert read[('force_stationary', 'T^2')] == read[('accel_axial', 'F_stat*T')] == 'force_stationary:F_stat^2'
+    assert read[('force_moving', 'a2^3')] == 'accel_axial:a2^3'
+    assert read[('force_stationary', 'F_stat*v')] == 'force_moving:T*v'   # its reading reaches the model as T
+    assert ('force_stationary', 'F_stat') not in read and ('force_moving', 'a2') not in read   # the catalog's
+    # of the grammar's 59 pairs kept off a channel, all but the 10 linear forces (the gains, m2: catalog) and F_move*sin
+    # on the two sensors (a sinusoid: no term to name in its place)
+    assert len(read) == 47, len(read)
 
 
 def test_an_accelerometers_own_non_linearity_is_searched_against_the_encoders_acceleration():
@@ -199,4 +237,5 @@ def test_a_sensors_own_non_linearity_hidden_in_a_campaign_is_named_on_that_senso
     assert report['cause'] == 'beyond_catalog', (report['cause'], got['catalog_named'])
     assert not [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving'], got['found']
     ident = report['beyond_search']['identifiability']
-    assert ident and all(set(i) == {'channel', 'term', 'reason'} for i in ident)
+    # each with its reason; read_as (the pair named in its place) and near_tie (the named term's group) where they apply
+    assert ident and all(set(i) - {'read_as', 'near_tie'} == {'channel', 'term', 'reason'} for i in ident)

@@ -120,6 +120,29 @@ def test_the_outcomes_are_told_apart():
     assert got['nothing'] and got['listed'] and not S.outcome(listed, 'force_stationary', 'T^2', 1.0)['listed']
 
 
+def test_a_tie_the_report_lists_is_counted_apart_from_right_and_from_another_term():
+    # issue 39's "another term" cells on the sensors: the named term is one the report says the true pair cannot be
+    # told from, by the grammar (read_as) or by the data (a named term's near-tie group); counted as a tie, never right
+    def report(named, entries):
+        return {'beyond_catalog': [{'channel': c, 'term': t, 'coefficient': 1.0, 'ci95': [0.9, 1.1]} for c, t in named],
+                'causes': [], 'beyond_search': {'identifiability': entries}}
+    read = report([('force_moving', 'F_move*v')], [
+        {'channel': 'accel_axial', 'term': 'F_move*v', 'reason': 'slack', 'read_as': 'force_moving:F_move*v'}])
+    got = S.outcome(read, 'accel_axial', 'F_move*v', 1.0)
+    assert got['tie'] and got['listed'] and not got['right'] and not got['other']
+    assert S.outcome(read, 'accel_axial', 'F_stat*v', 1.0)['other']        # another pair's read_as is no tie
+    group = [{'channel': 'force_stationary', 'term': 'F_stat^2', 'reason': 'a near-tie',
+              'near_tie': ['force_moving:F_move^2', 'force_stationary:F_stat^2', 'force_moving:F_move*T']}]
+    got = S.outcome(report([('force_moving', 'F_move^2')], group), 'force_stationary', 'F_stat^2', 1.0)
+    assert got['tie'] and not got['right']
+    assert S.outcome(report([('force_moving', 'T*v')], group), 'force_stationary', 'F_stat^2', 1.0)['other']
+    # both at once: the true pair read as a member of the named term's group (accel T^2 -> the stationary cell's own)
+    both = group + [{'channel': 'accel_axial', 'term': 'T^2', 'reason': 'slack',
+                     'read_as': 'force_stationary:F_stat^2'}]
+    assert S.outcome(report([('force_moving', 'F_move^2')], both), 'accel_axial', 'T^2', 1.0)['tie']
+    assert S.outcome(report([('force_moving', 'F_move^2')], both), 'accel_axial', 'T*v', 1.0)['other']
+
+
 def test_the_matrix_gives_the_right_share_of_the_cells_not_listed(capsys):
     row = dict.fromkeys(('n', *S.OUTCOMES, 'right_listed'), 0)
     a = {**row, 'n': 2, 'right': 1, 'other': 1, 'listed': 1}                       # the listed one named another

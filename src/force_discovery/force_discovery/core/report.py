@@ -272,6 +272,7 @@ def add_beyond(report: dict, found) -> None:
     from force_tester_sim.core.extra_terms import CHANNEL_UNITS
 
     from .beyond.grammar import SEARCHED, library
+    from .beyond.own import near_ties
     report['beyond_catalog'] = clean([t.as_dict() for t in found.terms])
     report['beyond_search'] = clean({
         'channels': list(SEARCHED), 'library_terms': len(library()), 'frequencies_hz': found.frequencies,
@@ -279,7 +280,7 @@ def add_beyond(report: dict, found) -> None:
         'catalog_not_fitting': found.demoted, 'channel_units': {c: CHANNEL_UNITS[c] for c in SEARCHED},
         'identifiability': list(found.identifiability) + [
             {'channel': t.channel, 'term': t.term, 'reason': t.unidentifiable}
-            for t in found.within_tolerance if t.unidentifiable],
+            for t in found.within_tolerance if t.unidentifiable] + [e for t in found.terms for e in near_ties(t)],
         'catalog_checked': found.checked,
         'rule': 'forward selection over the library on the fitted pulls; a term joins when it passes the held-out '
                 'test of the catalog (SSE -1 %, t >= 4) and is named when its contribution rms, over its 95 % '

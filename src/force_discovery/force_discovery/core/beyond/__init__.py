@@ -58,7 +58,8 @@ The modules, in the order a search runs:
 - spectrum.py         the spectrum pass on a few fitted pulls: the signals' scales, each channel's line (SearchSettings)
 - normal_equations.py per pull: the library's normal equations per channel (ChannelStats, BeyondPart)
 - selection.py        one channel's forward selection, its jackknife intervals (Model, Term, ChannelResult)
-- own.py              a sensor's own non-linearity seen on the moving cell, read as the sensor's (own_reading)
+- own.py              a sensor's own non-linearity seen on the moving cell, read as the sensor's (own_reading); a
+                      named term's near-tie group for the report (near_ties)
 - identify.py         the pairs of the grammar a campaign cannot identify, and why (report: identifiability)
 - priority.py         the catalog's priority on the moving cell (cause_check)
 - search.py           every channel (search, BeyondResult)

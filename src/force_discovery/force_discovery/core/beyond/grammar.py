@@ -37,12 +37,17 @@ FORM_REASONS = {
 # accelerometer's a2 takes the encoder's acceleration there (series.channel_series), so its own non-linearity
 # (a2^2, a2^3) is searched against it; signals a sensor's free-phase library cannot use, and why (identifiability)
 FREE_PHASE_BLIND = {
-    'force_stationary': {s: 'in the free phases the lanyard is slack: the tension from the moving side is 0, and so '
+    'force_stationary': {**{s: 'in the free phases the lanyard is slack: the tension from the moving side is 0, and so '
                             f'is every term in {s} there; a term of degree >= 2 in F_stat and T alone is searched '
                             'on the moving cell, which reads the same tension (beyond.own), and read as the '
                             "stationary cell's own; a linear one is the moving cell's gain (the catalog); a product "
                             "with another signal is the moving cell's term of the same name: two cells that read "
                             'one tension cannot tell whose it is' for s in ('F_stat', 'T')},
+                         'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
+                                   "there, collinear with the stationary cell's a2 terms; under load the stationary "
+                                   "cell's reading reaches the moving cell's model as T, so such a term is the moving "
+                                   'cell\'s term of the same name there (F_move alone: its gain, the catalog), which '
+                                   'the two cells cannot tell apart; searched there'},
     'accel_axial': {'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
                               "there, collinear with the accelerometer's own a2 terms",
                     **{s: f'in the free phases the lanyard is slack: {s} is 0 there, and so is every term in it; under '
@@ -112,6 +117,40 @@ def via_moving(channel: str, term: str) -> bool:
     cell's search reads too (beyond.own)."""
     p = parse_term(term)
     return channel in CARRIED and SIN not in p and sum(p.values()) >= 2 and set(p) == {CARRIED[channel][0]}
+
+
+def read_as(channel: str, term: str) -> Tuple[str, str]:
+    """(channel, term) as the report reads a pair found on channel: a moving-cell term of degree >= 2 in one
+    sensor's CARRIED signals alone is that sensor's own non-linearity, written in its own signal (beyond.own); any
+    other pair as it is."""
+    p = parse_term(term)
+    if channel == 'force_moving' and SIN not in p and sum(p.values()) >= 2:
+        sensor = next((s for s, sig in CARRIED.items() if set(p) <= set(sig)), None)
+        if sensor is not None:
+            return sensor, term_name({CARRIED[sensor][0]: sum(p.values())})
+    return channel, term
+
+
+def structural_tie(channel: str, term: str) -> Optional[str]:
+    """'channel:term' of the pair the search names in place of a pair the grammar keeps off its channel
+    (structural_reason), when that is a term (None: a catalog form, or a pair that is searched): the sensor's own
+    reading of a term in its signals alone, or, for a sensor term in a signal its free phases cannot use, the moving
+    cell's term that reads it under load (times -g or -g m2): of the same name for the accelerometer (m2 a2 in the
+    moving cell's model), with F_stat as T for the stationary cell (its reading enters the model as T, made from it
+    through its dynamics: on the independent generator its F_stat*v, x, t were named T*v, x, t there)."""
+    p = parse_term(term)
+    if SIN in p or structural_reason(channel, term) is None or term in CATALOG_FORMS.get(channel, ()):
+        return None
+    own = read_as('force_moving', term) if channel in ('force_moving', *CARRIED) else (channel, term)
+    if own[0] != 'force_moving' and own != (channel, term):   # a sensor's own reading, searched through the moving cell
+        return ':'.join(own)
+    if channel == 'force_stationary':   # its reading reaches the moving cell's model as T, made from it
+        q = {k: n for k, n in p.items() if k != 'F_stat'}
+        q['T'] = q.get('T', 0) + p.get('F_stat', 0)
+        own = ('force_moving', term_name(q))
+    if channel in FREE_PHASE_BLIND and own[1] not in CATALOG_FORMS['force_moving']:
+        return ':'.join(own)
+    return None
 
 
 def mixed_forces(term: str) -> bool:

@@ -11,7 +11,7 @@ import numpy as np
 
 from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, SIN
 
-from .grammar import SEARCHED, pairs, structural_reason, via_moving
+from .grammar import SEARCHED, pairs, structural_reason, structural_tie, via_moving
 from .normal_equations import BeyondPart, ChannelStats
 
 COLLINEAR = 1e-6      # two columns whose 1 - r^2 (fitted pulls, pooled) is below this: forward selection, one term at
@@ -59,5 +59,6 @@ def identifiability(parts: Sequence[BeyondPart], fit: Sequence[int], frequencies
         if why is None:
             why = seen.get(ch, {}).get(term)
         if why is not None:
-            out.append({'channel': ch, 'term': term, 'reason': why})
+            tie = structural_tie(ch, term)   # the pair the search names in its place, when a term
+            out.append({'channel': ch, 'term': term, 'reason': why, **({'read_as': tie} if tie else {})})
     return out

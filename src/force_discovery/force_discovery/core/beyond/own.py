@@ -5,25 +5,43 @@ or -g m2 (the accelerometer): the moving side's tension is the quantity the stat
 cell's own non-linearity is seen only under load, where its free phases (T = 0) see nothing. Such a term is read as
 the sensor's own, written in its own signal and unit. A product with another signal (T*v) stays the moving cell's:
 two cells that read one tension cannot tell whose it is (grammar.FREE_PHASE_BLIND says so in the report).
-ROS-free."""
+A named term's near-tie group (selection.tie_group) is listed in the report as read so (near_ties). ROS-free."""
 from __future__ import annotations
 
 import dataclasses
-from typing import Dict, Optional
+from typing import Dict, List, Optional
 
-from force_tester_sim.core.extra_terms import SIN, parse_term, term_name
+from force_tester_sim.core.extra_terms import parse_term, term_name
 
-from .grammar import CARRIED, channel_band
+from .grammar import CARRIED, channel_band, read_as
 from .selection import Term
 
 
 def carrier(term: str) -> Optional[str]:
     """The sensor whose own non-linearity a moving-cell term is (grammar.CARRIED: degree >= 2 in its signals
     alone), or None."""
-    p = parse_term(term)
-    if SIN in p or sum(p.values()) < 2:
-        return None
-    return next((s for s, sig in CARRIED.items() if set(p) <= set(sig)), None)
+    sensor = read_as('force_moving', term)[0]
+    return None if sensor == 'force_moving' else sensor
+
+
+def near_ties(t: Term) -> List[dict]:
+    """beyond_search.identifiability's entries of a named term's tie group (selection.tie_group): each member the
+    held-out pulls cannot tell from it, as the report reads it (read_as), with the whole group (near_tie: the named
+    term first, as channel:term)."""
+    named = (t.channel, t.term)
+    members = []
+    for ch, term, left, margin in t.ties:
+        pair = read_as(ch, term)
+        if pair != named and pair not in [m[0] for m in members]:
+            members.append((pair, term, ch, left, margin))
+    group = [f'{c}:{m}' for c, m in (named, *(m[0] for m in members))]
+    return [{'channel': c, 'term': m,
+             'reason': (f'a near-tie with {t.term} on {t.channel}, named: on {ch} its column ({term}) differs from '
+                        f"the named term's by a part inside the channel's band at the size found (1 - r^2 = "
+                        f'{left:.1e} on the held-out pulls), and the named term beats it there by {100 * margin:.2f} '
+                        '% of the SSE, short of the held-out test (SSE -1 %, t >= 4): the data cannot tell which '
+                        'it is'),
+             'near_tie': group} for (c, m), term, ch, left, margin in members]
 
 
 def reading_factors(coefficients: dict, m2: float) -> Dict[str, float]:

@@ -207,6 +207,9 @@ class Term:
                                 # the moving cell's gain and effective mass
     unidentifiable: Optional[str] = None   # a term not named whose part no catalog form can take is inside the band
                                            # (beside_catalog): why, for beyond_search.identifiability
+    ties: Tuple[Tuple[str, str, float, float], ...] = ()   # (channel searched, term, 1 - r^2 of its column with
+                                # this one's, this term's held-out margin over it): the terms it does not beat on the
+                                # held-out test that admitted it, each in its place (tie_group)
 
     def as_dict(self) -> dict:
         unit = CHANNEL_UNITS[self.channel]
@@ -331,8 +334,16 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         # and of those, one that is not a product of two cells' forces (F_move*T: no one sensor reads it) if any is
         tied = [(m, (k, s)) for (k, s), (m, e) in zip(trials, tried) if e <= least + TIE_SHARE * max(now - least, 0.0)]
         best = next((m for m, (k, s) in tied if s is not None or not mixed_forces(names[k])), tied[0][0])
-        base = sse_held(model)
         ext = sse_held(best)
+        # the order breaks a tie only where the held-out pulls do not: a tied term that beats it there on the
+        # held-out test (significance, its SSE the base) is the data's choice (the best such). On a made-up campaign
+        # whose moving cell reads -c T*v, the order took F_move*v (fitted within TIE_SHARE) and then F_stat*v beside
+        # it to undo the m2 a2 in it: two terms for one
+        better = [(e, m) for m, _ in tied if m is not best
+                  for e in (sse_held(m),) if significance(ext, e).significant]
+        if better:
+            ext, best = min(better, key=lambda x: total(x[0]))
+        base = sse_held(model)
         ev = significance(base, ext)
         if not ev.significant:
             break
@@ -344,6 +355,8 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
             runner[0], float((base.sum() - ext.sum() - runner[1]) / base.sum()))
         new_prod = [k for k in best.prod if k not in model.prod]
         is_sin = best.sin is not None and model.sin is None
+        ties = () if is_sin else tie_group(channel, held, names, (new_prod[0], best.coef_of(new_prod[0])), [
+            (k, m) for (k, s), (m, _) in zip(trials, tried) if s is None and m is not best], ext, sse_held, band)
         cat_beat = catalog_margin(model, best, new_prod, base.sum(), kv,
                                   ((COULOMB, *DRIVE_FORMS) if drive else (COULOMB,)) if has_step
                                   else FORCE_FORMS if gain_form else (), fitted, sse_held)
@@ -472,8 +485,31 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         found.append(Term(channel, name, float(coef * si), tuple(sorted((float(lo * si), float(hi * si)))),
                           f_hz if name.endswith(SIN) else None, ev.rms_gain, ev.rel_sse_reduction, ev.t,
                           abs(coef) * rms_unit, (rms_lo, rms_hi), band, named, budget, alternatives, beat,
-                          cat_beat, why))
+                          cat_beat, why, ties))
     return ChannelResult(found, demoted, model, kept)
+
+
+def tie_group(channel: str, held: Sequence[ChannelStats], names: Sequence[str], chosen: Tuple[int, float], others,
+              ext: np.ndarray, sse_held, band: float) -> Tuple[Tuple[str, str, float, float], ...]:
+    """The product terms the chosen one (chosen: its column and pooled coefficient on the scaled columns; ext, its
+    held-out per-pull SSE) cannot be told from on this campaign (others: (column, the model with it in the chosen
+    term's place)): it does not beat them on the held-out test that admitted it (significance.significance, each
+    alternative's SSE the base), and the part of its contribution their column cannot take (its rms on the held-out
+    pulls, from 1 - r^2 of the two columns there) is inside the channel's band, as beside_catalog judges a term
+    against the catalog's forms. Each with that 1 - r^2 and the chosen term's held-out margin over it (a share of its
+    SSE). The forward selection breaks such a tie by the library's order; the report lists the group (its members
+    under beyond_search.identifiability) instead of hiding it."""
+    k, coef = chosen
+    G = sum(st.gram for st in held)
+    n = max(sum(st.n for st in held), 1)
+    out = []
+    for j, m in others:
+        alt = sse_held(m)
+        left = max(1.0 - G[j, k] ** 2 / max(float(G[j, j] * G[k, k]), 1e-300), 0.0)
+        if significance(alt, ext).significant or abs(coef) * math.sqrt(left * G[k, k] / n) > band:
+            continue
+        out.append((channel, names[j], float(left), float(1.0 - ext.sum() / max(alt.sum(), 1e-300))))
+    return tuple(sorted(out, key=lambda x: x[2]))
 
 
 def low_end(ci: Tuple[float, float]) -> float:
