@@ -87,48 +87,6 @@ def test_make_typestore_errors(tmp_path, store):
     assert_one_line(err, tmp_path / 'nope')
 
 
-def test_shared_typestore_agrees_with_the_full_jazzy_store(store):
-    """The minimal read-only store of the fast paths gives the same definitions, hashes and
-    bytes as the full one for every force_tester_msgs type."""
-    from bag_tools.core.typestore import shared_typestore
-    shared = shared_typestore({'AMENT_PREFIX_PATH': ''})
-    ours = sorted(t for t in store.types if t.startswith('force_tester_msgs/'))
-    assert len(ours) >= 8 and all(t in shared.types for t in ours)
-    for t in ours:
-        assert shared.hash_rihs01(t) == store.hash_rihs01(t), t
-        assert shared.generate_msgdef(t, ros_version=2) == store.generate_msgdef(t,
-                                                                                ros_version=2)
-    cdr = bytes(force(store, T0, 3))
-    assert bytes(shared.serialize_cdr(shared.deserialize_cdr(cdr, FORCE), FORCE)) == cdr
-
-
-def test_shared_typestore_registers_what_is_asked_for(tmp_path, store):
-    """Asked for some types, the shared store parses and registers those and the types they use, not all sixteen;
-    their definitions, hashes and bytes are the full store's; asked for more later, it adds them."""
-    import shutil
-
-    from bag_tools.core.typefacts import type_facts
-    from bag_tools.core.typestore import shared_typestore
-    msg = tmp_path / 'share' / 'force_tester_msgs' / 'msg'   # a prefix of its own: a store of its own
-    shutil.copytree(MSG_DIR, msg)
-    env = {'AMENT_PREFIX_PATH': str(tmp_path)}
-    score = 'force_tester_msgs/msg/PullScore'
-    shared = shared_typestore(env, names=[score])
-
-    def ours(types):
-        return {t for t in types if t.startswith('force_tester_msgs/')}
-    assert ours(shared.types) == {score} and 'std_msgs/msg/Header' in shared.types
-    assert type_facts(score, env)[:2] == (store.generate_msgdef(score, ros_version=2)[0], store.hash_rihs01(score))
-    assert shared_typestore(env, names=[FORCE]) is shared and FORCE in shared.types and ACCEL not in shared.types
-    cdr = bytes(force(store, T0, 3))
-    assert bytes(shared.serialize_cdr(shared.deserialize_cdr(cdr, FORCE), FORCE)) == cdr
-    history = 'force_tester_msgs/msg/ScoreHistory'   # uses ScoreRow and SetRow: registered with it
-    shared_typestore(env, names=[history])
-    assert {'force_tester_msgs/msg/ScoreRow', 'force_tester_msgs/msg/SetRow'} <= set(shared.types)
-    assert shared.hash_rihs01(history) == store.hash_rihs01(history)
-    assert ours(shared_typestore(env).types) == ours(store.types)
-
-
 # -- writer / reader round trip ----------------------------------------------------------------
 def test_round_trip_bytes_and_stamps(bag, store):
     path, msgs = bag

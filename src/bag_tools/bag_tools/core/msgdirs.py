@@ -53,3 +53,12 @@ def find_msg_dirs(env: Mapping[str, str] = os.environ) -> list[Path]:
 def msg_dirs_of(ament_prefix_path: str) -> tuple:
     """find_msg_dirs of an AMENT_PREFIX_PATH, found once."""
     return tuple(find_msg_dirs({'AMENT_PREFIX_PATH': ament_prefix_path}))
+
+
+def type_files(dirs) -> dict:
+    """{'pkg/msg/Name': .msg file} of msg directories (or files); earlier entries win (overlay order)."""
+    files: dict = {}
+    for directory in dirs:
+        for package, file in msg_files(Path(directory)):
+            files.setdefault(f'{package}/msg/{file.stem}', file)
+    return files

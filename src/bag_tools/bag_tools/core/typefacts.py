@@ -19,7 +19,7 @@ from force_tester_common.core.cache import cached_json
 
 from .errors import BagError
 from .fastcdr import FLAT_FORMATS
-from .msgdirs import msg_dirs_of, msg_files
+from .msgdirs import msg_dirs_of, type_files
 
 #: Bumped when what an entry holds changes (old entries are then not read).
 FACTS_VERSION = 1
@@ -55,23 +55,19 @@ def flat_layout(type_name: str, env: Mapping[str, str] = os.environ) -> tuple:
 
 @functools.lru_cache(maxsize=4)
 def _facts(dirs: tuple) -> dict:
-    files: dict = {}
-    for d in dirs:
-        for package, file in msg_files(d):
-            files.setdefault(f'{package}/msg/{file.stem}', file)   # earlier directories win (overlay order)
+    files = type_files(dirs)
     names = sorted(files)
     key = zlib.crc32(b'\x00'.join(name.encode() + b'\x01' + files[name].read_bytes() for name in names))
-    got = cached_json(f'msgfacts-{FACTS_VERSION}-{len(names)}-{key:08x}', lambda: _compute(dirs),
+    got = cached_json(f'msgfacts-{FACTS_VERSION}-{len(names)}-{key:08x}', lambda: _compute(dirs, names),
                       lambda data: isinstance(data, dict) and sorted(data) == names and all(
                           isinstance(v, list) and len(v) == 3 for v in data.values()))
     return {name: TypeFacts(text, rihs01, None if layout is None else tuple(map(tuple, layout)))
             for name, (text, rihs01, layout) in got.items()}
 
 
-def _compute(dirs: tuple) -> dict:
-    """{type: [text, rihs01, layout]} of every type in dirs, from rosbags."""
+def _compute(dirs: tuple, names: list) -> dict:
+    """{type: [text, rihs01, layout]} of the named types in dirs, from rosbags."""
     from .typestore import flat_fields, make_typestore  # rosbags: only when the cache has no entry
     store = make_typestore(list(dirs))
-    names = {f'{package}/msg/{file.stem}' for d in dirs for package, file in msg_files(d)}
     return {name: [store.generate_msgdef(name, ros_version=2)[0], store.hash_rihs01(name),
-                   flat_fields(store, name, FLAT_FORMATS)] for name in sorted(names)}
+                   flat_fields(store, name, FLAT_FORMATS)] for name in names}

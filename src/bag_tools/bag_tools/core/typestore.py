@@ -5,9 +5,7 @@ No rclpy, no generated message modules: the .msg files are parsed with rosbags.
 
 from __future__ import annotations
 
-import functools
 import os
-import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -19,7 +17,7 @@ from rosbags.typesys.store import Typestore
 from force_tester_common.core.clock import ns_to_stamp, stamp_to_ns
 
 from .errors import BagError, one_line
-from .msgdirs import MSG_PACKAGE, find_msg_dirs, msg_dirs_of, msg_files
+from .msgdirs import MSG_PACKAGE, find_msg_dirs, type_files
 
 #: rosbag2's separator between a definition and each dependency it embeds ('MSG: pkg/msg/Dep').
 _DEP_SEPARATOR = '=' * 80
@@ -79,16 +77,12 @@ def make_typestore(msg_dirs: Iterable[str | os.PathLike[str]]) -> Typestore:
                        f'<prefix>/share/{MSG_PACKAGE}/msg directory')
     store = get_typestore(Stores.ROS2_JAZZY)
     types: dict = {}
-    for directory in dirs:
-        for package, file in msg_files(directory):
-            name = f'{package}/msg/{file.stem}'
-            if name in types:
-                continue
-            try:
-                types.update(get_types_from_msg(file.read_text(encoding='utf-8'), name))
-            except Exception as exc:  # noqa: BLE001 - parser errors are many types
-                raise BagError(f'cannot parse message definition {str(file)!r}: '
-                               f'{one_line(exc)}') from None
+    for name, file in type_files(dirs).items():
+        try:
+            types.update(get_types_from_msg(file.read_text(encoding='utf-8'), name))
+        except Exception as exc:  # noqa: BLE001 - parser errors are many types
+            raise BagError(f'cannot parse message definition {str(file)!r}: '
+                           f'{one_line(exc)}') from None
     try:
         store.register(types)
     except Exception as exc:  # noqa: BLE001
@@ -100,72 +94,6 @@ def make_typestore(msg_dirs: Iterable[str | os.PathLike[str]]) -> Typestore:
 def default_typestore(env: Mapping[str, str] = os.environ) -> Typestore:
     """make_typestore(find_msg_dirs(env))."""
     return make_typestore(find_msg_dirs(env))
-
-
-# The only standard types the force_tester_msgs types use (definitions as in ROS 2 Jazzy).
-_STD_TYPES = {'builtin_interfaces/msg/Time': 'int32 sec\nuint32 nanosec\n',
-              'std_msgs/msg/Header': 'builtin_interfaces/Time stamp\nstring frame_id\n'}
-
-
-def _named(fields) -> list:
-    """The message types that a parsed definition's fields name (of arrays and sequences too)."""
-    out = []
-    for _field, desc in fields:
-        while desc[0] in (Nodetype.ARRAY, Nodetype.SEQUENCE):
-            desc = desc[1][0]
-        if desc[0] == Nodetype.NAME:
-            out.append(desc[1])
-    return out
-
-
-class _Shared:
-    """The shared store of some msg directories: a type is parsed and registered, with the types it uses, when it
-    is first asked for (parsing and registering all 16 costs ~15 ms; `./ft bag correct` uses 6 of them)."""
-
-    def __init__(self, dirs: tuple) -> None:
-        self.store = get_typestore(Stores.EMPTY)  # ~10x faster to build than the full Jazzy store
-        self.files: dict = {}
-        for directory in dirs:
-            for package, file in msg_files(directory):
-                self.files.setdefault(f'{package}/msg/{file.stem}', file)   # earlier directories win
-        self.lock = threading.Lock()
-
-    def having(self, names: Iterable[str]) -> Typestore:
-        """The store, with ``names`` (and what they use) registered; a name it does not define is left for the
-        store to report when it is used."""
-        todo = [n for n in names if n not in self.store.fielddefs]
-        if not todo:
-            return self.store
-        with self.lock:
-            types: dict = {}
-            while todo:
-                name = todo.pop()
-                if name in types or name in self.store.fielddefs:
-                    continue
-                text = _STD_TYPES.get(name)
-                if text is None and name in self.files:
-                    text = self.files[name].read_text(encoding='utf-8')
-                if text is not None:
-                    parsed = get_types_from_msg(text, name)
-                    types.update(parsed)
-                    todo += [n for _consts, fields in parsed.values() for n in _named(fields)]
-            if types:
-                self.store.register(types)
-        return self.store
-
-
-@functools.lru_cache(maxsize=4)
-def _shared(dirs: tuple) -> _Shared:
-    return _Shared(dirs)
-
-
-def shared_typestore(env: Mapping[str, str] = os.environ, names: Iterable[str] | None = None) -> Typestore:
-    """The force_tester_msgs types (with std_msgs/Header and builtin_interfaces/Time), one store per process (and
-    AMENT_PREFIX_PATH) for read-only use: serialising, deserialising, definitions and hashes (the same as
-    default_typestore's; tested). ``names``: the types the caller uses, which it is sure to hold (with the types
-    they use); None: every type. Never register types into it."""
-    shared = _shared(msg_dirs_of(env.get('AMENT_PREFIX_PATH', '')))
-    return shared.having([*_STD_TYPES, *shared.files] if names is None else names)
 
 
 def flat_fields(store: Typestore, type_name: str, formats) -> list | None:
