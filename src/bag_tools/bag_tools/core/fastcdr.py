@@ -444,7 +444,7 @@ _LE = b'\x00\x01'   # the encapsulation of little-endian plain CDR
 def encode_flat(layout: Sequence, values) -> bytes:
     """One message of a flat layout ((field path, base type), ... : nested types spelled out, no arrays) as
     little-endian plain CDR, the bytes rosbags' serialize_cdr gives; values[path] for each field."""
-    out = bytearray(b'\x00\x01\x00\x00')
+    out = bytearray(_LE + b'\x00\x00')   # the encapsulation, then its two option bytes
     for path, base in layout:
         value = values[path]
         try:
