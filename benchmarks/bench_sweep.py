@@ -24,7 +24,8 @@ injected campaign and the rig's datasheet, never the truth.
 Each cell is one of: the right term first on the right channel (and of those: the coefficient within 30 %, the
 95 % interval holding the truth), a tie (a term named that the report says the true pair cannot be told from: the
 pair the grammar reads it as, beyond_search.identifiability's read_as, or a member of a named term's near-tie group
-there, near_tie: counted apart, never as right), a catalog cause named instead (the term not found), another term
+there, near_tie; or the catalog cause the grammar reads a linear force as, read_as_cause: counted apart, never as
+right), a catalog cause named instead (the term not found), another term
 named, nothing named, or an error; in_band counts the cells whose true term was significant but inside the band
 (listed under beyond_search.within_tolerance, not named), listed those whose pair the report lists as one the
 campaign cannot identify (beyond_search.identifiability, with its reason: issue 39's section 1), and the right share
@@ -181,13 +182,16 @@ def outcome(report: dict, channel: str, term: str, coef: float) -> dict:
 def tied(report: dict, channel: str, term: str) -> bool:
     """Whether a named term is one the report says the true pair cannot be told from: the pair the true one is read
     as (its identifiability entry's read_as: the grammar's), or a member of a named term's near-tie group (the
-    entries with near_tie: the data's), the true pair among them. Not right: its own column."""
+    entries with near_tie: the data's), the true pair among them; or a named catalog cause the true pair is read as
+    (read_as_cause: a linear force is the moving cell's gain). Not right: its own column."""
     named = {f'{b["channel"]}:{b["term"]}' for b in beyond_terms(report)}
     truth = f'{channel}:{term}'
     entries = unidentifiable(report)
-    read = {e['read_as'] for e in entries if e['channel'] == channel and e['term'] == term and e.get('read_as')}
+    mine = [e for e in entries if e['channel'] == channel and e['term'] == term]
+    read = {e['read_as'] for e in mine if e.get('read_as')}
+    causes = {e['read_as_cause'] for e in mine if e.get('read_as_cause')}
     groups = {m for e in entries if e.get('near_tie') and e['near_tie'][0] in named for m in e['near_tie'][1:]}
-    return bool(named & read) or truth in groups or bool(read & groups)
+    return bool(named & read) or truth in groups or bool(read & groups) or bool(causes & set(named_catalog(report)))
 
 
 def unidentifiable(report: dict) -> list:

@@ -19,7 +19,7 @@ from force_discovery.core.beyond import (
     pairs,
     search,
 )
-from force_discovery.core.beyond.grammar import structural_reason, structural_tie
+from force_discovery.core.beyond.grammar import catalog_reading, structural_reason, structural_tie
 from force_discovery.core.beyond.interpretation import INTERPRETATION, NO_READING
 from force_discovery.core.beyond.own import near_ties
 from force_discovery.core.beyond.selection import REFERENCE_SHIFT
@@ -113,10 +113,18 @@ def test_every_pair_kept_off_its_channel_says_which_searched_pair_it_is_read_as(
     assert read[('force_stationary', 'T^2')] == read[('accel_axial', 'F_stat*T')] == 'force_stationary:F_stat^2'
     assert read[('force_moving', 'a2^3')] == 'accel_axial:a2^3'
     assert read[('force_stationary', 'F_stat*v')] == 'force_moving:T*v'   # its reading reaches the model as T
+    assert read[('force_stationary', 'F_move*t')] == 'force_moving:T*t'   # and F_move times a non-force, as T
+    assert read[('force_stationary', 'F_move^2')] == 'force_moving:F_move^2'
     assert ('force_stationary', 'F_stat') not in read and ('force_moving', 'a2') not in read   # the catalog's
     # of the grammar's 59 pairs kept off a channel, all but the 10 linear forces (the gains, m2: catalog) and F_move*sin
     # on the two sensors (a sinusoid: no term to name in its place)
     assert len(read) == 47, len(read)
+    # those 10 linear forces are read as the catalog cause the search names in their place (read_as_cause): the gain,
+    # or on the moving cell, for a2, its effective mass; the motor current's forms are the drive's, calibrated
+    causes = {(ch, term): catalog_reading(ch, term) for ch, term in pairs() if catalog_reading(ch, term)}
+    assert len(causes) == 10 and not set(causes) & set(read), causes
+    assert causes[('force_moving', 'a2')] == 'effective_mass' and causes[('accel_axial', 'T')] == 'moving_cell_gain'
+    assert all(structural_reason(ch, term) for ch, term in causes) and ('motor_current', 'F_move') not in causes
 
 
 def test_an_accelerometers_own_non_linearity_is_searched_against_the_encoders_acceleration():
@@ -238,4 +246,5 @@ def test_a_sensors_own_non_linearity_hidden_in_a_campaign_is_named_on_that_senso
     assert not [t for t in report['beyond_catalog'] if t['channel'] == 'force_moving'], got['found']
     ident = report['beyond_search']['identifiability']
     # each with its reason; read_as (the pair named in its place) and near_tie (the named term's group) where they apply
-    assert ident and all(set(i) - {'read_as', 'near_tie'} == {'channel', 'term', 'reason'} for i in ident)
+    assert ident and all(set(i) - {'read_as', 'read_as_cause', 'near_tie'} == {'channel', 'term', 'reason'}
+                         for i in ident)

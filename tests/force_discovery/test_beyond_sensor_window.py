@@ -52,7 +52,8 @@ def test_a_stationary_cells_a2_is_named_with_f_move_kept_off_its_free_phases(bas
     b2b3ba0: F_move within tolerance, a2 near-tied); judged over the window it was named F_move at 8.5 N rms
     (ae0d03f), and the moving cell named T^2 and T^3 to undo it. F_move is kept off the stationary cell's free-phase
     library now, as off the accelerometer's (grammar.FREE_PHASE_BLIND; under load a term in it is the moving cell's
-    term of the same name, listed with read_as): the a2 is named on the stationary cell, and nothing else."""
+    term of the same name, with T for F_move times a non-force, listed with read_as): the a2 is named on the
+    stationary cell, and nothing else."""
     camp, coef = with_term(base, 'force_stationary', 'a2', 1.0)
     report = discover(camp, base.rig, tmp_path, scheduler='inline', plots=False)
     found = report['beyond_catalog']
@@ -60,4 +61,4 @@ def test_a_stationary_cells_a2_is_named_with_f_move_kept_off_its_free_phases(bas
     assert abs(found[0]['coefficient'] - coef) <= 0.3 * abs(coef), (coef, found[0])
     assert min(found[0]['ci95']) <= coef <= max(found[0]['ci95']), (coef, found[0]['ci95'])
     listed = {(e['channel'], e['term']): e for e in report['beyond_search']['identifiability']}
-    assert listed[('force_stationary', 'F_move*v')]['read_as'] == 'force_moving:F_move*v', listed
+    assert listed[('force_stationary', 'F_move*v')]['read_as'] == 'force_moving:T*v', listed

@@ -141,6 +141,13 @@ def test_a_tie_the_report_lists_is_counted_apart_from_right_and_from_another_ter
                      'read_as': 'force_stationary:F_stat^2'}]
     assert S.outcome(report([('force_moving', 'F_move^2')], both), 'accel_axial', 'T^2', 1.0)['tie']
     assert S.outcome(report([('force_moving', 'F_move^2')], both), 'accel_axial', 'T*v', 1.0)['other']
+    # the catalog cause the grammar reads a linear force as (read_as_cause): a tie; another catalog cause: catalog
+    gain = [{'channel': 'force_stationary', 'term': 'T', 'reason': 'the gain', 'read_as_cause': 'moving_cell_gain'}]
+    named = {**report([], gain), 'causes': [{'name': 'moving_cell_gain'}]}
+    assert S.outcome(named, 'force_stationary', 'T', 1.0)['tie'] and not S.outcome(named, 'force_stationary', 'T',
+                                                                                   1.0)['catalog']
+    assert S.outcome({**named, 'causes': [{'name': 'effective_mass'}]}, 'force_stationary', 'T', 1.0)['catalog']
+    assert S.outcome(named, 'force_stationary', 'T*v', 1.0)['catalog']     # not that pair's reading
 
 
 def test_the_matrix_gives_the_right_share_of_the_cells_not_listed(capsys):

@@ -46,8 +46,9 @@ FREE_PHASE_BLIND = {
                          'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
                                    "there, collinear with the stationary cell's a2 terms; under load the stationary "
                                    "cell's reading reaches the moving cell's model as T, so such a term is the moving "
-                                   'cell\'s term of the same name there (F_move alone: its gain, the catalog), which '
-                                   'the two cells cannot tell apart; searched there'},
+                                   "cell's term of the same name there, with T for F_move when its other factors are "
+                                   'not forces (F_move alone: its gain, the catalog), which the two cells cannot tell '
+                                   'apart; searched there'},
     'accel_axial': {'F_move': 'in the free phases the moving cell reads g m2 a2: F_move is a2 times a constant '
                               "there, collinear with the accelerometer's own a2 terms",
                     **{s: f'in the free phases the lanyard is slack: {s} is 0 there, and so is every term in it; under '
@@ -145,12 +146,34 @@ def structural_tie(channel: str, term: str) -> Optional[str]:
     if own[0] != 'force_moving' and own != (channel, term):   # a sensor's own reading, searched through the moving cell
         return ':'.join(own)
     if channel == 'force_stationary':   # its reading reaches the moving cell's model as T, made from it
-        q = {k: n for k, n in p.items() if k != 'F_stat'}
-        q['T'] = q.get('T', 0) + p.get('F_stat', 0)
+        # through its dynamics: a term in F_stat is the moving cell's term in T, and so is one in F_move times a
+        # signal that is not a force (v, x, t: the two cells' forces differ by m2 a2 there). On the independent
+        # generator's sweep (3x the band, seed 3900) the stationary cell's F_move*v, x, t were named T*v, x, t on the
+        # moving cell in 6 cells of 6, as its F_stat*v, x, t were
+        moved = ('F_stat', 'F_move') if len(p) > 1 and set(p) <= {'F_move', 'v', 'x', 't'} else ('F_stat',)
+        q = {k: n for k, n in p.items() if k not in moved}
+        q['T'] = q.get('T', 0) + sum(p.get(k, 0) for k in moved)
         own = ('force_moving', term_name(q))
     if channel in FREE_PHASE_BLIND and own[1] not in CATALOG_FORMS['force_moving']:
         return ':'.join(own)
     return None
+
+
+def catalog_reading(channel: str, term: str) -> Optional[str]:
+    """The catalog cause the search names in place of a linear pair the grammar keeps off a force or accelerometer
+    channel (structural_reason), or None: on the moving cell the force model's own forms (F_move, F_stat, T: its
+    gain; a2: its effective mass), and a linear force on a sensor, which reaches the moving cell's model as the same
+    force times a constant (the stationary cell's reading as T, the accelerometer's as g m2 times it): the gain. On
+    the independent generator's sweep (3x the band, nominal rig, seed 3900) every one of these 16 cells was named as
+    that cause. The motor current's forms have none: the drive's constants are calibrated, not named."""
+    if channel == 'motor_current' or structural_reason(channel, term) is None:
+        return None
+    p = parse_term(term)
+    if len(p) != 1 or sum(p.values()) != 1:
+        return None
+    if term in FORCES:
+        return GAIN
+    return MASS if channel == 'force_moving' and term == 'a2' else None
 
 
 def mixed_forces(term: str) -> bool:

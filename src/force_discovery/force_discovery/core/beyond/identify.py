@@ -11,7 +11,7 @@ import numpy as np
 
 from force_tester_sim.core.extra_terms import CHANNEL_COLUMNS, SIN
 
-from .grammar import SEARCHED, pairs, structural_reason, structural_tie, via_moving
+from .grammar import SEARCHED, catalog_reading, pairs, structural_reason, structural_tie, via_moving
 from .normal_equations import BeyondPart, ChannelStats
 
 COLLINEAR = 1e-6      # two columns whose 1 - r^2 (fitted pulls, pooled) is below this: forward selection, one term at
@@ -44,7 +44,9 @@ def collinear(stats: Sequence[ChannelStats]) -> Dict[str, str]:
 
 
 def identifiability(parts: Sequence[BeyondPart], fit: Sequence[int], frequencies: Dict[str, float]) -> List[dict]:
-    """[{channel, term, reason}] of every pair of the grammar (grammar.pairs) the search could not identify."""
+    """[{channel, term, reason}] of every pair of the grammar (grammar.pairs) the search could not identify, with
+    read_as (the pair named in its place) or read_as_cause (the catalog cause named in its place) where the grammar
+    says which."""
     out = []
     seen: Dict[str, Dict[str, str]] = {}
     for ch in SEARCHED:
@@ -60,5 +62,7 @@ def identifiability(parts: Sequence[BeyondPart], fit: Sequence[int], frequencies
             why = seen.get(ch, {}).get(term)
         if why is not None:
             tie = structural_tie(ch, term)   # the pair the search names in its place, when a term
-            out.append({'channel': ch, 'term': term, 'reason': why, **({'read_as': tie} if tie else {})})
+            cause = catalog_reading(ch, term)   # or the catalog cause, when a linear force or the moving cell's a2
+            out.append({'channel': ch, 'term': term, 'reason': why, **({'read_as': tie} if tie else {}),
+                        **({'read_as_cause': cause} if cause else {})})
     return out
