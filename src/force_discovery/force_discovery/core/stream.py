@@ -84,6 +84,7 @@ from .friction import (
 from .hum import few_pulls, hum_form_parts, hum_frequencies, hum_frequency_from, hum_scale
 from .leftover import LeftoverSum
 from .passes import (
+    BEYOND_NUISANCE,
     BeyondJob,
     HeldJob,
     Source,
@@ -334,11 +335,15 @@ class Stream:
         import time
         t0 = time.perf_counter()
         err_hum, fit_ = self.err_fit(analysis, decision)
+        nuisance = tuple(t for t in BEYOND_NUISANCE if t not in fit_.terms)
+        if nuisance:   # the residual the search forms has them fitted, named or not (passes.BEYOND_NUISANCE)
+            fit_ = fit_terms(self.fm_h if err_hum else self.fm_0, set(fit_.terms) | set(nuisance), analysis.fit)
         names = [p.name for p in analysis.pulls]
 
         def job(j, settings, sensors=(), records=False):
             return (self.sources[j], self.rig, self.c1,
-                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, settings, sensors, records))
+                    BeyondJob(self.f_hum, self.scales[j] if err_hum else None, fit_, settings, sensors, records,
+                              nuisance))
         few = few_pulls(analysis.fit)
         jobs = [job(j, None, records=i < bey.REFINE_PULLS) for i, j in enumerate(few)]
         specs = self._strict('beyond', self._map('beyond', beyond_pass, jobs, [names[j] for j in few]))
