@@ -164,7 +164,7 @@ def catalog_reading(channel: str, term: str) -> Optional[str]:
     channel (structural_reason), or None: on the moving cell the force model's own forms (F_move, F_stat, T: its
     gain; a2: its effective mass), and a linear force on a sensor, which reaches the moving cell's model as the same
     force times a constant (the stationary cell's reading as T, the accelerometer's as g m2 times it): the gain. On
-    the independent generator's sweep (3x the band, nominal rig, seed 3900) every one of these 16 cells was named as
+    the independent generator's sweep (3x the band, nominal rig, seed 3900) every one of these 20 cells was named as
     that cause. The motor current's forms have none: the drive's constants are calibrated, not named."""
     if channel == 'motor_current' or structural_reason(channel, term) is None:
         return None
