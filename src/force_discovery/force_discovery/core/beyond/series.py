@@ -20,8 +20,9 @@ BEFORE_LOAD_S = 0.2            # the moving cell's free phase before the load, s
                                # zero that drifts is there with no load, an AC coupling acts only on a signal
 EDGE_S = 0.02                  # the free phases leave the record's first and last 20 ms out (the filters' edges)
 SEARCH_RATE_HZ = 20000.0       # the residuals are decimated to about this rate (the channels are low-passed below)
-ANALOG = ('F_move', 'F_stat', 'T', 'a2')   # the signals from analog channels: the current's balance filters them as
-                                          # a3 is made, at the current's fitted lead (balance_lead); v, x: encoder's
+ANALOG = ('F_move', 'F_stat', 'T', 'a2')   # the signals from analog channels: the current's balance reads them at its
+                                          # fitted lead (balance_lead), the terms made of them then filtered as a3 is
+                                          # made (Through); v, x: the encoder's, as they are
 LEAD_MAX_S = 1e-3              # the analog channels' lag behind the encoder that balance_lead fits, at most
 
 
