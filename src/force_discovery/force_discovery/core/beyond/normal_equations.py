@@ -43,6 +43,8 @@ class ChannelStats(NamedTuple):
     n_window: int = 0                         # and its samples (selection: a sensor's terms are judged there)
     own: Optional[Tuple[np.ndarray, np.ndarray]] = None   # (X'X, X'y) with the columns in the sensor's own reading
                                                           # of its reference's signals (ChannelSeries.own)
+    window_raw_ss: Optional[np.ndarray] = None   # on a channel formed through a filter (series.Through), the product
+                                                 # columns' sums of squares over the window before it: a term's whole
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,7 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
     """The pull's normal equations (ChannelStats) on each of its channels, with the settings' scales and lines."""
     out = {}
     for ch, cs in series.items():
-        y = cs.residual
+        y, raw_w = cs.residual, None
         if cs.through is None:
             names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
             full = with_sins(X, sins)
@@ -91,6 +93,7 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
             names, X, sins = columns(ch, cs.through.signals, settings.scales, settings.freq.get(ch))
             whole = through(with_sins(X, sins), cs.through)
             full, on_w = whole[cs.through.samples], whole[cs.through.window][:, :len(names)]
+            raw_w = X[cs.through.window]
         cat = None if cs.catalog is None else np.asarray(cs.catalog, float).reshape(len(y), -1)
         z, causes = dict(cs.systematic), dict(cs.causes)
         if cs.nuisance is not None:   # the pull's own nuisance columns, fitted beside every term: profiled out
@@ -111,7 +114,8 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
         out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
                                len(y), catalog, causes, systematic,
                                None if on_w is None else np.einsum('ij,ij->j', on_w, on_w),
-                               0 if on_w is None else len(on_w), own)
+                               0 if on_w is None else len(on_w), own,
+                               None if raw_w is None else np.einsum('ij,ij->j', raw_w, raw_w))
     return BeyondPart(out)
 
 
