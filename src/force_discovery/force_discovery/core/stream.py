@@ -322,9 +322,10 @@ class Stream:
                                                      [names[j] for j in todo]))
         return zetas
 
-    def err_fit(self, analysis: Analysis, decision: Decision) -> tuple:
-        """(hum on for the extended force error, (terms, coefficients, delay)) of the named force-channel causes."""
-        terms = set(n for n in decision.named if n in TERMS)
+    def err_fit(self, analysis: Analysis, decision: Decision, nuisance: Sequence[str] = ()) -> tuple:
+        """(hum on for the extended force error, (terms, coefficients, delay)) of the named force-channel causes (and
+        the nuisance terms fitted beside them, named or not: beyond)."""
+        terms = set(n for n in decision.named if n in TERMS) | set(nuisance)
         err_hum = analysis.hums is not None and 'mains_hum' in decision.named
         return err_hum, fit_terms(self.fm_h if err_hum else self.fm_0, terms, analysis.fit)
 
@@ -334,10 +335,9 @@ class Stream:
         search withheld for library terms, beyond.search)."""
         import time
         t0 = time.perf_counter()
-        err_hum, fit_ = self.err_fit(analysis, decision)
-        nuisance = tuple(t for t in BEYOND_NUISANCE if t not in fit_.terms)
-        if nuisance:   # the residual the search forms has them fitted, named or not (passes.BEYOND_NUISANCE)
-            fit_ = fit_terms(self.fm_h if err_hum else self.fm_0, set(fit_.terms) | set(nuisance), analysis.fit)
+        # the residual the search forms has the nuisance terms fitted, named or not (passes.BEYOND_NUISANCE)
+        nuisance = tuple(t for t in BEYOND_NUISANCE if t not in decision.named)
+        err_hum, fit_ = self.err_fit(analysis, decision, nuisance)
         names = [p.name for p in analysis.pulls]
 
         def job(j, settings, sensors=(), records=False):
