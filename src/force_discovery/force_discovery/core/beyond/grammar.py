@@ -183,6 +183,17 @@ def mixed_forces(term: str) -> bool:
     return len(p) > 1 and set(p) <= set(FORCES)
 
 
+def force_form(term: str) -> Tuple[Tuple[str, int], ...]:
+    """A term's form with the cells' forces taken as one (FORCES: F_move, F_stat, T -> F; F_move^3 and F_stat^3 are
+    one form, T^2 and T^3 are two): between terms of one form, which force a term is written in the signs of the
+    held-out pulls alone do not settle (selection.search_channel)."""
+    out: Dict[str, int] = {}
+    for k, n in parse_term(term).items():
+        key = 'F' if k in FORCES else k
+        out[key] = out.get(key, 0) + n
+    return tuple(sorted(out.items()))
+
+
 def pairs() -> List[Tuple[str, str]]:
     """Every (channel, term) pair of the grammar: each searched channel's product terms and sinusoids."""
     sins = [term_name({f: 1, SIN: 1}) if f else SIN for f in SIN_FACTORS]
