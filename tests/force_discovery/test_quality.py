@@ -151,6 +151,23 @@ def test_clipping(clean, channel, share, kind):
         assert not screen.usable(channel)[r.i0:r.i1].any()
 
 
+@pytest.mark.parametrize('clip', [None, 30.0])
+def test_a_smooth_extremum_on_one_adc_code_is_not_a_clip(clip):
+    # noise (0.05) below the ADC's step (0.25): a slow sinusoid sits on its extreme code for ~200 samples at each
+    # peak, as the independent generator's moving cell did at a trough (flagged as clipping on every pull of a
+    # campaign). Cut at +/-30 (a clip), the same channel is clipping there, on each cut peak
+    rng = np.random.default_rng(1239)
+    t = np.arange(20000) / 20000.0
+    x = 40.0 * np.sin(2 * np.pi * 3.0 * t) + rng.normal(0.0, 0.05, len(t))
+    x = 0.25 * np.round((x if clip is None else np.clip(x, -clip, clip)) / 0.25)
+    clips = [d for d in Q.screen_pull('p', {Q.TIME_CHANNEL: t, 'accel_axial_m_s2': x}).defects
+             if d.kind == Q.CLIPPING]
+    if clip is None:
+        assert clips == [], clips
+    else:
+        assert len(clips) == 6 and all(f'{clip:g}' in d.detail for d in clips), clips
+
+
 @pytest.mark.parametrize('channel, other', [('force_moving_n', 'force_stationary_n'),
                                             ('force_stationary_n', 'force_moving_n')])
 def test_a_conditioner_that_clips_is_a_saturation_named_with_its_channel_and_level(clean, channel, other):

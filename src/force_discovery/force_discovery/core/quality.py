@@ -21,8 +21,9 @@ checks apply to them):
   is masked.
 - ``clipping``: sensor channels; a run of >= ``CLIP_MIN_RUN`` consecutive samples exactly at the record's
   maximum or minimum (the value at which the sensor or the ADC saturates), with the samples at that value
-  less than ``MERGE_GAP_S`` before or after it (noise dithers in and out of the clip at its edges); or shorter
-  runs that come back to that value (``CLIP_MIN_VISITS``: a sensor ringing past its limit).
+  less than ``MERGE_GAP_S`` before or after it (noise dithers in and out of the clip at its edges), that cuts the
+  signal (``CLIP_FLANK_STEPS``: not a smooth extremum on one ADC code); or shorter runs that come back to that
+  value (``CLIP_MIN_VISITS``: a sensor ringing past its limit).
 - ``held``: sensor channels; a run of >= ``HELD_MIN_SAMPLES`` samples each exactly equal to the one before
   (noise never repeats a value). When every sensor channel holds over the same span it is one defect on
   channel ``ALL`` (a DAQ buffer under-run: the DAQ repeated its last sample on every channel) and every
@@ -130,6 +131,13 @@ CLIP_MIN_RUN = 5
 # apart (a burst's length) are one clipping defect.
 CLIP_MIN_VISITS = 2
 CLIP_VISIT_GAP_S = OVERLOAD_MAX_S
+# ... and cut: a channel whose noise is below its ADC's step sits on its extreme code for many samples at a smooth
+# extremum too (the independent generator's moving cell, step 0.22 N, noise 0.05 N: 55 samples of 83 on the lowest
+# code at a trough 0.1 s after the break, dithering with the next one; flagged on every campaign of seed 3900). A clip
+# cuts the signal while it still moves: over as many samples as the run on either side, one flank leaves the level
+# by more than CLIP_FLANK_STEPS steps on average, where an extremum flat to within one step over the run (a
+# parabola) leaves it by 4.3 (the trough: 2.1). A float channel's step is tiny: every run there is cut
+CLIP_FLANK_STEPS = 8.0
 # Held: >= 25 samples (0.5 ms, half the shortest under-run seen, 1 ms) each exactly equal to the one before.
 # Float noise never repeats; a quantised channel with ~1 LSB of noise repeats with p < 0.5 per sample, so a
 # run of 25 has p < 3e-8 per sample (< 0.003 per 100,000-sample record).
@@ -293,6 +301,14 @@ def _quantum(x: np.ndarray) -> float:
     d = np.abs(np.diff(x))
     d = d[d > 0]
     return float(np.min(d)) if len(d) else 0.0
+
+
+def _cut(x: np.ndarray, i0: int, i1: int, level: float, step: float) -> bool:
+    """Whether the run [i0, i1) at ``level`` is a cut (a clip), not a smooth extremum the ADC's step flattens:
+    CLIP_FLANK_STEPS above. With no flank to tell by (the run at an end of the record), a cut."""
+    n = i1 - i0
+    rise = [np.nanmean(np.abs(f - level)) for f in (x[max(0, i0 - n):i0], x[i1:i1 + n]) if np.isfinite(f).any()]
+    return not rise or max(rise) > CLIP_FLANK_STEPS * step
 
 
 def _robust_sd(r: np.ndarray) -> float:
@@ -466,6 +482,7 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
         if c not in SENSOR_CHANNELS:
             continue
         lo, hi = float(np.min(xf)), float(np.max(xf))
+        step = _quantum(xf)
         for level, side in ((hi, 'maximum'), (lo, 'minimum')):
             at = x == level
             if np.count_nonzero(at) < CLIP_MIN_RUN:
@@ -475,7 +492,7 @@ def screen_pull(name: str, ch: Dict[str, np.ndarray], rated: Optional[Dict[str, 
             g = int(round(CLIP_VISIT_GAP_S / dt)) if ceiling else gap
             longest = np.maximum.reduceat(e - s, np.r_[0, np.flatnonzero(s[1:] - e[:-1] > g) + 1])
             for (i0, i1), run in zip(_merge(s, e, g), longest):
-                if run < CLIP_MIN_RUN and not ceiling:
+                if (run < CLIP_MIN_RUN and not ceiling) or not _cut(x, i0, i1, level, step):
                     continue
                 pending.append((c, c, CLIPPING, i0, i1, f'{int(np.count_nonzero(at[i0:i1]))} samples at the '
                               f'record {side} {level:.6g} (saturated sensor or ADC)'))
