@@ -23,6 +23,7 @@ from .grammar import (
     DAMPING_FORM,
     DRIVE_FORMS,
     FORCE_FORMS,
+    READS_A_FORCE,
     RELATIVE,
     SENSORS,
     channel_band,
@@ -346,13 +347,16 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         # took it; T^3 was lower on all six held-out pulls (by 1.7-11 %, 4.3 % of the SSE, t = 3.3), and T^2,
         # the closer of the two to the cell gain's form, had its interval spanning 0 (the gain's stated line 1.9e-6
         # against 3.0e-6): nothing named. With -3x, T^2 fitted beyond the tie and F_stat^3 was named within 2 %.
-        # Only a term of another form (force_form): between F_move^3 and F_stat^3 on the own generator's cubic moving
-        # cell (seed 3401, `test_beyond`), F_stat^3 was lower on every held-out pull, the moving cell's reading
-        # carrying its own cubic into its own column (an error in the variables), and it was read as the stationary
-        # cell's own (beyond.own): the wrong sensor. Which force a form is written in the order decides
+        # On a cell (READS_A_FORCE), only a term of another form (force_form): between F_move^3 and F_stat^3 on the own
+        # generator's cubic moving cell (seed 3401, `test_beyond`), F_stat^3 was lower on every held-out pull, the
+        # moving cell's reading carrying its own cubic into its own column (an error in the variables), and it was
+        # read as the stationary cell's own (beyond.own): the wrong sensor. Which force a form is written in the
+        # order decides there. The motor current reads none of the forces: there the held-out pulls choose (its
+        # F_stat^2, F_stat*v, F_move*F_stat at 3x the band, independent generator, seed 3900: right with the choice,
+        # F_move^2 or F_move*v, the order's, without)
         def term_of(ks):
             return names[ks[0]] if ks[1] is None else names[n_prod + ks[1]]
-        form = force_form(term_of(next(ks for m, ks in tied if m is best)))
+        form = force_form(term_of(next(ks for m, ks in tied if m is best))) if channel in READS_A_FORCE else None
         better = [(e, m) for m, ks in tied if m is not best
                   for e in (sse_held(m),) if significance(ext, e).significant
                   or (force_form(term_of(ks)) != form and lower_on_every_pull(ext, e))]
