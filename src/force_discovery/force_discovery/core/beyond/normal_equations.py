@@ -11,8 +11,9 @@ import numpy as np
 
 from force_tester_sim.core.extra_terms import SIGNALS, SIN, parse_term, term_name
 
+from ..prep import like_a3
 from .grammar import FREE_PHASE_BLIND, SIN_FACTORS, channel_library
-from .series import ChannelSeries
+from .series import ChannelSeries, Through
 from .spectrum import SearchSettings
 
 
@@ -42,6 +43,8 @@ class ChannelStats(NamedTuple):
     n_window: int = 0                         # and its samples (selection: a sensor's terms are judged there)
     own: Optional[Tuple[np.ndarray, np.ndarray]] = None   # (X'X, X'y) with the columns in the sensor's own reading
                                                           # of its reference's signals (ChannelSeries.own)
+    window_raw_ss: Optional[np.ndarray] = None   # on a channel formed through a filter (series.Through), the product
+                                                 # columns' sums of squares over the window before it: a term's whole
 
 
 @dataclass(frozen=True)
@@ -81,17 +84,28 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
     """The pull's normal equations (ChannelStats) on each of its channels, with the settings' scales and lines."""
     out = {}
     for ch, cs in series.items():
-        y = cs.residual
-        names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
-        full = with_sins(X, sins)
+        y, raw_w = cs.residual, None
+        if cs.through is None:
+            names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
+            full = with_sins(X, sins)
+            on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
+        else:   # the columns through the residual's filter (series.Through), at the samples searched
+            names, X, sins = columns(ch, cs.through.signals, settings.scales, settings.freq.get(ch))
+            whole = through(with_sins(X, sins), cs.through)
+            full, on_w = whole[cs.through.samples], whole[cs.through.window][:, :len(names)]
+            raw_w = X[cs.through.window]
         cat = None if cs.catalog is None else np.asarray(cs.catalog, float).reshape(len(y), -1)
+        z, causes = dict(cs.systematic), dict(cs.causes)
+        if cs.nuisance is not None:   # the pull's own nuisance columns, fitted beside every term: profiled out
+            N = np.asarray(cs.nuisance, float).reshape(len(y), -1)
+            y, full = profiled(N, y), profiled(N, full)
+            cat = None if cat is None else profiled(N, cat)
+            z, causes = ({c: profiled(N, v) for c, v in d.items()} for d in (z, causes))
         catalog = None if cat is None else Column(cat.T @ cat, full.T @ cat, cat.T @ y)
-        causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in cs.causes.items()}
+        causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in causes.items()}
         # X'z, then C'z with catalog columns C: a term's budget regresses z on those too when they are fitted beside
         # the term (the moving cell's gain and m2)
-        systematic = {c: full.T @ z if cat is None else np.append(full.T @ z, cat.T @ z)
-                      for c, z in cs.systematic.items()}
-        on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
+        systematic = {c: full.T @ v if cat is None else np.append(full.T @ v, cat.T @ v) for c, v in z.items()}
         own = None
         if cs.own is not None:
             _, X_o, sins_o = columns(ch, {**cs.signals, **cs.own}, settings.scales, settings.freq.get(ch))
@@ -100,7 +114,8 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
         out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
                                len(y), catalog, causes, systematic,
                                None if on_w is None else np.einsum('ij,ij->j', on_w, on_w),
-                               0 if on_w is None else len(on_w), own)
+                               0 if on_w is None else len(on_w), own,
+                               None if raw_w is None else np.einsum('ij,ij->j', raw_w, raw_w))
     return BeyondPart(out)
 
 
@@ -113,3 +128,17 @@ def with_sins(X: np.ndarray, sins) -> np.ndarray:
     for i, (_, c, s) in enumerate(sins):
         full[:, X.shape[1] + 2 * i], full[:, X.shape[1] + 2 * i + 1] = c, s
     return full
+
+
+def through(X: np.ndarray, th: Through) -> np.ndarray:
+    """Each column of X (over the whole record) through the filter the channel's residual is formed through
+    (series.Through: the motor current's like_a3), column by column."""
+    out = np.empty_like(X, order='F')
+    for k in range(X.shape[1]):
+        out[:, k] = like_a3(X[:, k], th.dt)
+    return out
+
+
+def profiled(N: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """a (a vector or columns) less its least squares on the columns N: what is left of it with N fitted beside."""
+    return a - N @ np.linalg.lstsq(N, a, rcond=None)[0]
