@@ -91,16 +91,17 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
             on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
         else:   # the columns through the residual's filter (series.Through), at the samples searched
             names, X, sins = columns(ch, cs.through.signals, settings.scales, settings.freq.get(ch))
-            whole = through(with_sins(X, sins), cs.through)
-            full, on_w = whole[cs.through.samples], whole[cs.through.window][:, :len(names)]
             raw_w = X[cs.through.window]
+            full = through(X, sins, cs.through)
+            del X   # the whole record's columns (100k samples x 40 on a 50 kHz pull): only the samples are kept
+            on_w = full[np.searchsorted(cs.through.samples, cs.through.window)][:, :len(names)]
         cat = None if cs.catalog is None else np.asarray(cs.catalog, float).reshape(len(y), -1)
         z, causes = dict(cs.systematic), dict(cs.causes)
         if cs.nuisance is not None:   # the pull's own nuisance columns, fitted beside every term: profiled out
-            N = np.asarray(cs.nuisance, float).reshape(len(y), -1)
-            y, full = profiled(N, y), profiled(N, full)
-            cat = None if cat is None else profiled(N, cat)
-            z, causes = ({c: profiled(N, v) for c, v in d.items()} for d in (z, causes))
+            Q = basis(np.asarray(cs.nuisance, float).reshape(len(y), -1))
+            y, full = profiled(Q, y), profiled(Q, full)
+            cat = None if cat is None else profiled(Q, cat)
+            z, causes = ({c: profiled(Q, v) for c, v in d.items()} for d in (z, causes))
         catalog = None if cat is None else Column(cat.T @ cat, full.T @ cat, cat.T @ y)
         causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in causes.items()}
         # X'z, then C'z with catalog columns C: a term's budget regresses z on those too when they are fitted beside
@@ -130,15 +131,28 @@ def with_sins(X: np.ndarray, sins) -> np.ndarray:
     return full
 
 
-def through(X: np.ndarray, th: Through) -> np.ndarray:
-    """Each column of X (over the whole record) through the filter the channel's residual is formed through
-    (series.Through: the motor current's like_a3), column by column."""
-    out = np.empty_like(X, order='F')
-    for k in range(X.shape[1]):
-        out[:, k] = like_a3(X[:, k], th.dt)
+def through(X: np.ndarray, sins, th: Through) -> np.ndarray:
+    """The product columns X and the sinusoids' (cos, sin) pairs (columns()' parts, over the whole record) through
+    the filter the channel's residual is formed through (series.Through: the motor current's like_a3), taken at the
+    samples searched: with_sins' matrix there. The filter needs the whole record (the current's balance is filtered
+    so; the samples searched span it: 0 to 99999 on the 50 kHz pulls of 2 s), but only the samples are kept, column
+    by column: the filtered whole record (100k x 44 on such a pull, 35 MB) and with_sins' copy of X were held before,
+    about the 80 MB `discover` on 100 pulls gained. One FFT call per column each way: a block of 8 columns through
+    scipy's FFT along the first axis took 0.19 s a pull against 0.12 s column by column."""
+    parts = [X[:, k] for k in range(X.shape[1])] + [v for _, c, s in sins for v in (c, s)]
+    out = np.empty((len(th.samples), len(parts)), order='F')
+    for k, v in enumerate(parts):
+        out[:, k] = like_a3(v, th.dt)[th.samples]
     return out
 
 
-def profiled(N: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """a (a vector or columns) less its least squares on the columns N: what is left of it with N fitted beside."""
-    return a - N @ np.linalg.lstsq(N, a, rcond=None)[0]
+def basis(N: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the columns N (the directions they span; a column of zeros spans none)."""
+    U, s, _ = np.linalg.svd(N, full_matrices=False)
+    return U[:, s > s[0] * max(N.shape) * np.finfo(float).eps] if len(s) and s[0] > 0 else U[:, :0]
+
+
+def profiled(Q: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """a (a vector or columns) less its projection on the orthonormal columns Q (basis): what is left of it with
+    the columns Q spans fitted beside, as a least squares on them leaves it."""
+    return a - Q @ (Q.T @ a)
