@@ -156,13 +156,34 @@ def like_a3(x: np.ndarray, dt: float, lead: float = 0.0) -> np.ndarray:
     later (x(t + lead): an analog channel lags the encoder by its anti-alias filter's delay; the encoder's latched
     counter has none). A force balance with a3 in it holds only so: what rings faster than a3 follows (m2 a2 in
     F_move, at the cells' and the lanyard's modes) the carriage's own acceleration answers, not the current."""
+    return _on_padded_grid(x, dt, lead, True)
+
+
+def read_later(x: np.ndarray, dt: float, lead: float) -> np.ndarray:
+    """x read lead s later (x(t + lead)), as like_a3 reads it but unfiltered: like_a3(x, dt, lead) is
+    like_a3(read_later(x, dt, lead), dt) to the padding's rounding."""
+    return _on_padded_grid(x, dt, lead, False) if lead else np.asarray(x, float)
+
+
+def _on_padded_grid(x: np.ndarray, dt: float, lead: float, a3: bool) -> np.ndarray:
+    """like_a3 (a3) or read_later: x less its end-to-end line, zero-padded, times the response, plus the line read
+    lead s later."""
     from scipy import fft as sfft
     x = np.asarray(x, float)
     n = len(x)
     trend = np.linspace(x[0], x[-1], n)
     m = sfft.next_fast_len(n, real=True)   # zero-padded (x - trend ends at 0) to a length the FFT factors fast
-    y = sfft.irfft(sfft.rfft(x - trend, m) * _a3_read_later(m, float(dt), float(lead)), m)[:n]
+    h = _a3_read_later(m, float(dt), float(lead)) if a3 else _read_later(m, float(dt), float(lead))
+    y = sfft.irfft(sfft.rfft(x - trend, m) * h, m)[:n]
     return y + trend + lead * (x[-1] - x[0]) / max((n - 1) * dt, dt)
+
+
+@functools.lru_cache(maxsize=GRID_CACHE)
+def _read_later(m: int, dt: float, lead: float) -> np.ndarray:
+    """exp(i omega lead) on the rfft grid of m samples at dt (read_later's response)."""
+    out = np.exp(1j * 2 * np.pi * np.fft.rfftfreq(m, dt) * lead)
+    out.flags.writeable = False
+    return out
 
 
 def tension_from_stationary(fs: np.ndarray, dt: float, m1: float, k1: float, c1: float) -> np.ndarray:

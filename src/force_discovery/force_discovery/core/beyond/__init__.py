@@ -6,7 +6,9 @@ channel's model; the search forms the residual of SEARCHED: the stationary cell 
 in the free phases (lanyard slack, T = 0: the stationary cell's model is 0, the accelerometer's the encoder's
 acceleration), the moving cell over the analysis window after the named force-channel causes (with its free
 phase before the load, series.before_samples: a zero drifting there with no load is no AC coupling), and the motor
-current's force balance after the model of record. The sensors come first: their product terms are taken out of
+current's force balance after the model of record (formed through the filter that makes the encoder's a3, so its
+columns are the terms through that filter too, series.Through; the analog channels' lead fitted beside every term on
+each pull, ChannelSeries.nuisance). The sensors come first: their product terms are taken out of
 F_stat (and T) and a2 (series.sensor_corrected) before the moving cell and the current are searched, so a drifting
 stationary cell is named on its own channel. A sensor's own terms are in the quantity it should read: the
 accelerometer's a2 is the encoder's acceleration in its free phases, and a term in one sensor's signals alone found on

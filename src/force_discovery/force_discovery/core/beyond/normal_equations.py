@@ -11,8 +11,9 @@ import numpy as np
 
 from force_tester_sim.core.extra_terms import SIGNALS, SIN, parse_term, term_name
 
+from ..prep import like_a3
 from .grammar import FREE_PHASE_BLIND, SIN_FACTORS, channel_library
-from .series import ChannelSeries
+from .series import ChannelSeries, Through
 from .spectrum import SearchSettings
 
 
@@ -42,6 +43,8 @@ class ChannelStats(NamedTuple):
     n_window: int = 0                         # and its samples (selection: a sensor's terms are judged there)
     own: Optional[Tuple[np.ndarray, np.ndarray]] = None   # (X'X, X'y) with the columns in the sensor's own reading
                                                           # of its reference's signals (ChannelSeries.own)
+    window_raw_ss: Optional[np.ndarray] = None   # on a channel formed through a filter (series.Through), the product
+                                                 # columns' sums of squares over the window before it: a term's whole
 
 
 @dataclass(frozen=True)
@@ -81,17 +84,29 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
     """The pull's normal equations (ChannelStats) on each of its channels, with the settings' scales and lines."""
     out = {}
     for ch, cs in series.items():
-        y = cs.residual
-        names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
-        full = with_sins(X, sins)
+        y, raw_w = cs.residual, None
+        if cs.through is None:
+            names, X, sins = columns(ch, cs.signals, settings.scales, settings.freq.get(ch))
+            full = with_sins(X, sins)
+            on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
+        else:   # the columns through the residual's filter (series.Through), at the samples searched
+            names, X, sins = columns(ch, cs.through.signals, settings.scales, settings.freq.get(ch))
+            raw_w = X[cs.through.window]
+            full = through(X, sins, cs.through)
+            del X   # the whole record's columns (100k samples x 40 on a 50 kHz pull): only the samples are kept
+            on_w = full[np.searchsorted(cs.through.samples, cs.through.window)][:, :len(names)]
         cat = None if cs.catalog is None else np.asarray(cs.catalog, float).reshape(len(y), -1)
+        z, causes = dict(cs.systematic), dict(cs.causes)
+        if cs.nuisance is not None:   # the pull's own nuisance columns, fitted beside every term: profiled out
+            Q = basis(np.asarray(cs.nuisance, float).reshape(len(y), -1))
+            y, full = profiled(Q, y), profiled(Q, full)
+            cat = None if cat is None else profiled(Q, cat)
+            z, causes = ({c: profiled(Q, v) for c, v in d.items()} for d in (z, causes))
         catalog = None if cat is None else Column(cat.T @ cat, full.T @ cat, cat.T @ y)
-        causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in cs.causes.items()}
+        causes = {c: Column(float(v @ v), full.T @ v, float(v @ y)) for c, v in causes.items()}
         # X'z, then C'z with catalog columns C: a term's budget regresses z on those too when they are fitted beside
         # the term (the moving cell's gain and m2)
-        systematic = {c: full.T @ z if cat is None else np.append(full.T @ z, cat.T @ z)
-                      for c, z in cs.systematic.items()}
-        on_w = None if cs.window is None else columns(ch, cs.window, settings.scales, None)[1]
+        systematic = {c: full.T @ v if cat is None else np.append(full.T @ v, cat.T @ v) for c, v in z.items()}
         own = None
         if cs.own is not None:
             _, X_o, sins_o = columns(ch, {**cs.signals, **cs.own}, settings.scales, settings.freq.get(ch))
@@ -100,7 +115,8 @@ def beyond_part(series: Dict[str, ChannelSeries], settings: SearchSettings) -> B
         out[ch] = ChannelStats(tuple(names + [n for n, _, _ in sins]), full.T @ full, full.T @ y, float(y @ y),
                                len(y), catalog, causes, systematic,
                                None if on_w is None else np.einsum('ij,ij->j', on_w, on_w),
-                               0 if on_w is None else len(on_w), own)
+                               0 if on_w is None else len(on_w), own,
+                               None if raw_w is None else np.einsum('ij,ij->j', raw_w, raw_w))
     return BeyondPart(out)
 
 
@@ -113,3 +129,30 @@ def with_sins(X: np.ndarray, sins) -> np.ndarray:
     for i, (_, c, s) in enumerate(sins):
         full[:, X.shape[1] + 2 * i], full[:, X.shape[1] + 2 * i + 1] = c, s
     return full
+
+
+def through(X: np.ndarray, sins, th: Through) -> np.ndarray:
+    """The product columns X and the sinusoids' (cos, sin) pairs (columns()' parts, over the whole record) through
+    the filter the channel's residual is formed through (series.Through: the motor current's like_a3), taken at the
+    samples searched: with_sins' matrix there. The filter needs the whole record (the current's balance is filtered
+    so; the samples searched span it: 0 to 99999 on the 50 kHz pulls of 2 s), but only the samples are kept, column
+    by column: the filtered whole record (100k x 44 on such a pull, 35 MB) and with_sins' copy of X were held before,
+    about the 80 MB `discover` on 100 pulls gained. One FFT call per column each way: a block of 8 columns through
+    scipy's FFT along the first axis took 0.19 s a pull against 0.12 s column by column."""
+    parts = [X[:, k] for k in range(X.shape[1])] + [v for _, c, s in sins for v in (c, s)]
+    out = np.empty((len(th.samples), len(parts)), order='F')
+    for k, v in enumerate(parts):
+        out[:, k] = like_a3(v, th.dt)[th.samples]
+    return out
+
+
+def basis(N: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the columns N (the directions they span; a column of zeros spans none)."""
+    U, s, _ = np.linalg.svd(N, full_matrices=False)
+    return U[:, s > s[0] * max(N.shape) * np.finfo(float).eps] if len(s) and s[0] > 0 else U[:, :0]
+
+
+def profiled(Q: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """a (a vector or columns) less its projection on the orthonormal columns Q (basis): what is left of it with
+    the columns Q spans fitted beside, as a least squares on them leaves it."""
+    return a - Q @ (Q.T @ a)

@@ -10,7 +10,7 @@ import numpy as np
 from force_tester_sim.core.extra_terms import term_values
 
 from .selection import Term
-from .series import ChannelSeries
+from .series import ChannelSeries, term_column
 
 
 class TermTrace(NamedTuple):
@@ -33,11 +33,13 @@ def term_traces(series: Dict[str, ChannelSeries], terms: Sequence[Term], pull: s
             continue
         y, sig = series[ch].residual, series[ch].signals
         prods = [t for t in terms if t.channel == ch and t.frequency_hz is None]
-        rest = y - sum((t.coefficient * term_values(t.term, sig) for t in prods), np.zeros_like(y))
+        rest = y - sum((t.coefficient * term_column(series[ch], t.term) for t in prods), np.zeros_like(y))
         for t in terms:
             if t.channel != ch:
                 continue
-            fac = t.coefficient * term_values(t.term, sig)
+            # a product term as its column is made (through the current's filter); a sinusoid's factor as it is
+            fac = t.coefficient * (term_values(t.term, sig) if t.frequency_hz is not None
+                                   else term_column(series[ch], t.term))
             if t.frequency_hz is not None:
                 ph = 2 * np.pi * t.frequency_hz * sig['t']
                 X = np.column_stack([fac * np.sin(ph), fac * np.cos(ph)])
