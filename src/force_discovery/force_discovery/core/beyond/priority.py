@@ -44,13 +44,7 @@ def cause_check(fit: Sequence[ChannelStats], held: Sequence[ChannelStats], model
     sse_cat = sum(sse(st, model, n_prod) for st in held)
     sse_lib = sum(sse(st, model0, n_prod) for st in held0)
     what = ', '.join(t.term for t in found0) or 'no term at all'
-    # withheld for library terms only when one of them is named in its place (or for none at all: the cause does
-    # nothing held out). Terms none of which is named are inside the band or cannot be told from the catalog's forms:
-    # the cause in their place. On the independent generator's stationary cell reading 0.76 % low (3x the band,
-    # seed 3900), the moving cell's gain (1.0076) was withheld for T^2 and T^3 (held-out SSE 4.03e4 against
-    # 4.17e4), neither named (T^3 lost to the gain in its place by 26x its SSE share): nothing was named at all
-    replaced = not found0 or any(t.named for t in found0)
-    if replaced and k_lib <= k_cat and sse_lib <= sse_cat * (1.0 + (PRIORITY_MARGIN if k_lib < k_cat else 0.0)):
+    if k_lib <= k_cat and sse_lib <= sse_cat * (1.0 + (PRIORITY_MARGIN if k_lib < k_cat else 0.0)):
         return CauseCheck(
             f'without {cause} the library explains the moving cell with {k_lib} parameter(s) ({what}) as well '
             f'as the model with it does with {k_cat} ({n_cause} of them its own; held-out SSE {sse_lib:.4g} '
