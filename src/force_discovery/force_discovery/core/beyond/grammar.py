@@ -183,15 +183,10 @@ def mixed_forces(term: str) -> bool:
     return len(p) > 1 and set(p) <= set(FORCES)
 
 
-# the channels whose own reading is one of the cells' forces: there a column in that force carries the channel's own
-# departure (an error in the variables), so which force a form is written in the held-out pulls' signs do not settle
-READS_A_FORCE = ('force_moving', 'force_stationary')
-
-
 def force_form(term: str) -> Tuple[Tuple[str, int], ...]:
     """A term's form with the cells' forces taken as one (FORCES: F_move, F_stat, T -> F; F_move^3 and F_stat^3 are
-    one form, T^2 and T^3 are two): on a channel that READS_A_FORCE, between terms of one form, which force a term is
-    written in the signs of the held-out pulls alone do not settle (selection.search_channel)."""
+    one form, T^2 and T^3 are two): between two terms of one form that the report reads as two sensors' (read_as),
+    the signs of the held-out pulls alone do not settle which sensor it is (selection.search_channel)."""
     out: Dict[str, int] = {}
     for k, n in parse_term(term).items():
         key = 'F' if k in FORCES else k
