@@ -183,10 +183,19 @@ def mixed_forces(term: str) -> bool:
     return len(p) > 1 and set(p) <= set(FORCES)
 
 
+# the force a cell's channel reads itself: its column carries the channel's own departure (an error in the variables)
+OWN_FORCE = {'force_moving': 'F_move', 'force_stationary': 'F_stat'}
+
+
+def own_power(channel: str, term: str) -> int:
+    """The power of the channel's own force (OWN_FORCE) in a term: 0 on a channel that reads none of the forces."""
+    return parse_term(term).get(OWN_FORCE.get(channel, ''), 0)
+
+
 def force_form(term: str) -> Tuple[Tuple[str, int], ...]:
     """A term's form with the cells' forces taken as one (FORCES: F_move, F_stat, T -> F; F_move^3 and F_stat^3 are
-    one form, T^2 and T^3 are two): between two terms of one form that the report reads as two sensors' (read_as),
-    the signs of the held-out pulls alone do not settle which sensor it is (selection.search_channel)."""
+    one form, T^2 and T^3 are two): between two terms of one form, the held-out pulls' signs lean away from the
+    channel's own force (own_power), so they are not trusted to move a term off it (selection.search_channel)."""
     out: Dict[str, int] = {}
     for k, n in parse_term(term).items():
         key = 'F' if k in FORCES else k

@@ -28,7 +28,7 @@ from .grammar import (
     channel_band,
     force_form,
     mixed_forces,
-    read_as,
+    own_power,
     reads_own,
     si_factor,
 )
@@ -347,21 +347,21 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         # took it; T^3 was lower on all six held-out pulls (by 1.7-11 %, 4.3 % of the SSE, t = 3.3), and T^2,
         # the closer of the two to the cell gain's form, had its interval spanning 0 (the gain's stated line 1.9e-6
         # against 3.0e-6): nothing named. With -3x, T^2 fitted beyond the tie and F_stat^3 was named within 2 %.
-        # Not, by the signs alone, to a term of the same form (force_form) that the report reads as another sensor's
-        # (read_as): between F_move^3 and F_stat^3 on the own generator's cubic moving cell (seed 3401, `test_beyond`),
-        # F_stat^3 was lower on every held-out pull, the moving cell's reading carrying its own cubic into its own
-        # column (an error in the variables), and it was read as the stationary cell's own (beyond.own): the wrong
-        # sensor. Between terms the same sensor reads they do choose: the moving cell's F_move*F_stat and F_move*T
-        # at +3x the band (independent generator, seed 3900) were right with the choice, the stationary cell's
-        # F_stat^2 without it; the motor current's F_stat^2, F_stat*v and F_move*F_stat right with it, ties
-        # (F_move^2, F_move*v) without
+        # Not, by the signs alone, from a term to one of the same form (force_form) with less of the channel's own
+        # force (own_power): the signs lean that way, the channel's own departure being in its own column (an error
+        # in the variables). On the own generator's cubic moving cell (seed 3401, `test_beyond`) F_stat^3 was lower
+        # on every held-out pull than the true F_move^3, and was read as the stationary cell's own: the wrong
+        # sensor. The other way they hold: the moving cell's F_move*F_stat and F_move*T at +3x the band
+        # (independent generator, seed 3900) were right with the choice from T^2 (the order's), read as the
+        # stationary cell's F_stat^2 without it; on the motor current (no own force) its F_stat^2, F_stat*v and
+        # F_move*F_stat were right with it, ties (F_move^2, F_move*v) without
         def term_of(ks):
             return names[ks[0]] if ks[1] is None else names[n_prod + ks[1]]
         chosen = term_of(next(ks for m, ks in tied if m is best))
         better = [(e, m) for m, ks in tied if m is not best
                   for e in (sse_held(m),) if significance(ext, e).significant
-                  or (lower_on_every_pull(ext, e) and (force_form(term_of(ks)) != force_form(chosen) or read_as(
-                      channel, term_of(ks))[0] == read_as(channel, chosen)[0]))]
+                  or (lower_on_every_pull(ext, e) and (force_form(term_of(ks)) != force_form(chosen) or own_power(
+                      channel, term_of(ks)) >= own_power(channel, chosen)))]
         if better:
             ext, best = min(better, key=lambda x: total(x[0]))
         base = sse_held(model)
