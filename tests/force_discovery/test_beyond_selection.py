@@ -9,7 +9,7 @@ import numpy as np
 from made_up import made_up_signals, search_statistics
 
 from force_discovery.core.beyond import ChannelSeries, search
-from force_discovery.core.beyond.grammar import force_form
+from force_discovery.core.beyond.grammar import force_form, own_power
 from force_discovery.core.significance import MIN_UNANIMOUS, lower_on_every_pull
 from force_tester_sim.core.params import load_rig
 
@@ -125,9 +125,12 @@ def test_lower_on_every_pull_needs_every_pull_enough_pulls_and_a_size():
     assert not lower_on_every_pull(base, one_up)                          # one pull disagrees
 
 
-def test_the_held_out_signs_choose_between_forms_not_between_the_forces_one_form_is_written_in():
-    # F_move^3 and F_stat^3 are one form: which force it is written in the signs of the held-out pulls do not settle
-    # (the own generator's cubic moving cell, test_beyond's cubic_cell case, was read as the stationary cell's own)
+def test_the_held_out_signs_do_not_move_a_term_off_the_channels_own_force_within_its_form():
+    # F_move^3 and F_stat^3 are one form, and the moving cell's own departure is in its own F_move column: the signs
+    # of the held-out pulls lean away from it (the own generator's cubic moving cell, test_beyond's cubic_cell case,
+    # was read as the stationary cell's own). Towards it, or on the current, which reads no force, they choose
     assert force_form('F_move^3') == force_form('F_stat^3') == force_form('T^3') == force_form('F_move*T^2')
     assert force_form('T^2') != force_form('T^3') and force_form('F_move*v') == force_form('T*v')
     assert force_form('a2^3') != force_form('F_move^3') and force_form('F_stat*a2') != force_form('a2^2')
+    assert own_power('force_moving', 'F_move^3') == 3 and own_power('force_moving', 'F_stat^3') == 0
+    assert own_power('force_stationary', 'F_move*F_stat') == 1 and own_power('motor_current', 'F_move^2') == 0
