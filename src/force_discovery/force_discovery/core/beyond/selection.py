@@ -318,6 +318,8 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
     model = fitted((), None, use_cat) if use_cat else Model()
     found = []
     band = channel_band(channel, rig)
+    def term_of(ks):   # a trial (product column, sinusoid) as its term's name
+        return names[ks[0]] if ks[1] is None else names[n_prod + ks[1]]
     for _step in range(MAX_TERMS):
         trials = [(k, None) for k in range(n_prod) if k not in model.prod]
         if model.sin is None:
@@ -355,8 +357,6 @@ def search_channel(channel: str, fit: Sequence[ChannelStats], held: Sequence[Cha
         # (independent generator, seed 3900) were right with the choice from T^2 (the order's), read as the
         # stationary cell's F_stat^2 without it; on the motor current (no own force) its F_stat^2, F_stat*v and
         # F_move*F_stat were right with it, ties (F_move^2, F_move*v) without
-        def term_of(ks):
-            return names[ks[0]] if ks[1] is None else names[n_prod + ks[1]]
         chosen = term_of(next(ks for m, ks in tied if m is best))
         better = [(e, m) for m, ks in tied if m is not best
                   for e in (sse_held(m),) if significance(ext, e).significant
